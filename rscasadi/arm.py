@@ -1,0 +1,152 @@
+"""The arm object: a model file's constants and its dynamics as named casadi.Functions."""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from . import recursions as rec
+from .modelfile import ArmModel, read
+
+STATE = ["theta", "phi", "dtheta", "dphi"]
+
+
+class Arm:
+    """An n-joint FS-SEA arm (joints base to tip). Every method returns a casadi.Function
+    whose inputs and outputs are (n, 1) columns named as in MODEL.md section 3."""
+
+    def __init__(self, model: ArmModel):
+        self.model = model
+        self.n = model.n
+        self._functions = {}
+        self._col = {a: ca.DM(model.column(a)) for a in ("gear_ratio", "k1", "k3", "d", "b", "c", "eps")}
+
+    def __repr__(self):
+        return f"Arm({self.model.name!r}, n={self.n}, file={self.model.path!r})"
+
+    @property
+    def joint_names(self):
+        return [jt.name for jt in self.model.joints]
+
+    # -- actuator laws (MODEL.md section 2) --------------------------------------------------
+    def sea_torque(self, theta, phi, dtheta, dphi):
+        """T = T_K(psi) + T_B(dpsi) = k1 psi + k3 psi^3 + d dpsi, psi = phi - theta."""
+        c, psi, dpsi = self._col, phi - theta, dphi - dtheta
+        return c["k1"] * psi + c["k3"] * psi ** 3 + c["d"] * dpsi
+
+    def gear_loss(self, dphi):
+        """T_B2 = b dphi + c tanh(dphi / eps)."""
+        c = self._col
+        return c["b"] * dphi + c["c"] * ca.tanh(dphi / c["eps"])
+
+    def _phi_force(self, x, tau):
+        """Q_phi = -T - T_B2 - mu tau (MODEL.md section 3)."""
+        return -self.sea_torque(*x) - self.gear_loss(x[3]) - self._col["gear_ratio"] * tau
+
+    # -- plumbing ---------------------------------------------------------------------------
+    def _symbols(self, *names):
+        return [ca.SX.sym(name, self.n) for name in names]
+
+    def _function(self, name, ins, outs, build):
+        if name not in self._functions:
+            args = self._symbols(*ins)
+            self._functions[name] = ca.Function(name, args, build(*args), ins, outs)
+        return self._functions[name]
+
+    def _segments(self, reduced):
+        if reduced:
+            unbalanced = [f"joint {i + 1} ({jt.name!r}) {part}" for i, jt in enumerate(self.model.joints)
+                          for part in ("slow_rotor", "fast_rotor") if not getattr(jt, part).balanced]
+            if unbalanced:
+                raise ValueError(f"{self.model.path}: the DLR/Spong reduced model assumes balanced rotors "
+                                 f"(com on the axis, ixx = iyy, no products of inertia); unbalanced: "
+                                 + ", ".join(unbalanced))
+        return rec.segments(self.model, reduced)
+
+    def _kin(self, reduced, x):
+        segs = self._segments(reduced)
+        return segs, rec.kinematics(segs, *x)
+
+    def _inverse(self, reduced):
+        def build(theta, phi, dtheta, dphi, ddtheta, ddphi):
+            x = (theta, phi, dtheta, dphi)
+            segs, kin = self._kin(reduced, x)
+            T, Qi_phi = rec.inverse_dynamics(segs, kin, ddtheta, ddphi, self.model.gravity)   # eq. (26)
+            tau = -(Qi_phi + self.sea_torque(*x) + self.gear_loss(dphi)) / self._col["gear_ratio"]  # eq. (22)
+            return [tau, T]
+        name = "reduced_inverse_dynamics" if reduced else "inverse_dynamics"
+        return self._function(name, STATE + ["ddtheta", "ddphi"], ["tau", "T"], build)
+
+    def _forward(self, reduced):
+        def build(theta, phi, dtheta, dphi, tau):
+            x = (theta, phi, dtheta, dphi)
+            segs, kin = self._kin(reduced, x)
+            return list(rec.forward_dynamics(segs, kin, self.sea_torque(*x), self._phi_force(x, tau),
+                                             self.model.gravity))
+        name = "reduced_forward_dynamics" if reduced else "forward_dynamics"
+        return self._function(name, STATE + ["tau"], ["ddtheta", "ddphi"], build)
+
+    # -- public Functions -------------------------------------------------------------------
+    def inverse_dynamics(self) -> ca.Function:
+        """theta, phi, dtheta, dphi, ddtheta, ddphi -> tau (eq. 22), T (eq. 26)."""
+        return self._inverse(False)
+
+    def forward_dynamics(self) -> ca.Function:
+        """theta, phi, dtheta, dphi, tau -> ddtheta, ddphi: the complete model, one O(n) sweep."""
+        return self._forward(False)
+
+    def reduced_inverse_dynamics(self) -> ca.Function:
+        """The DLR/Spong reduced model: M_tt ddtheta + C dtheta + g = T; B ddphi + T + T_B2 = -mu tau."""
+        return self._inverse(True)
+
+    def reduced_forward_dynamics(self) -> ca.Function:
+        return self._forward(True)
+
+    def joint_forward_dynamics(self) -> ca.Function:
+        """Paper eq. (23), flexible-joint forward dynamics:
+        theta, phi, dtheta, dphi, tau, ddtheta -> ddphi.  ddtheta gives the parent links'
+        spatial accelerations alpha_{k+1} (only the joints inboard of each rotor matter);
+        T is the SEA torque of the spring law at the state."""
+        def build(theta, phi, dtheta, dphi, tau, ddtheta):
+            x = (theta, phi, dtheta, dphi)
+            segs, kin = self._kin(False, x)
+            return [rec.joint_forward_dynamics(segs, kin, ddtheta, self._phi_force(x, tau), self.model.gravity)]
+        return self._function("joint_forward_dynamics", STATE + ["tau", "ddtheta"], ["ddphi"], build)
+
+    def arm_forward_dynamics(self) -> ca.Function:
+        """Paper eqs. (29)-(32), whole-arm forward dynamics:
+        theta, phi, dtheta, dphi, ddphi, ddtheta_guess -> ddtheta.  T is the SEA torque of the
+        spring law at the state; ddphi are the rotor accelerations (from eq. 23) and
+        ddtheta_guess the predicted link accelerations that form the rotors' spatial
+        accelerations in eq. (29).  At the exact ddtheta, ddtheta == ddtheta_guess."""
+        def build(theta, phi, dtheta, dphi, ddphi, ddtheta_guess):
+            x = (theta, phi, dtheta, dphi)
+            segs, kin = self._kin(False, x)
+            return [rec.arm_forward_dynamics(segs, kin, self.sea_torque(*x), ddphi, ddtheta_guess,
+                                             self.model.gravity)]
+        return self._function("arm_forward_dynamics", STATE + ["ddphi", "ddtheta_guess"], ["ddtheta"], build)
+
+    def energy(self) -> ca.Function:
+        """theta, phi, dtheta, dphi -> E: kinetic + gravitational + SEA spring energy."""
+        def build(theta, phi, dtheta, dphi):
+            segs, kin = self._kin(False, (theta, phi, dtheta, dphi))
+            psi, c = phi - theta, self._col
+            spring = ca.sum1(0.5 * c["k1"] * psi ** 2 + 0.25 * c["k3"] * psi ** 4)
+            return [rec.energy(segs, kin, self.model.gravity) + spring]
+        return self._function("energy", STATE, ["E"], build)
+
+    def mass_matrix(self, reduced: bool = False) -> ca.Function:
+        """theta, phi -> M (2n x 2n, q = (theta, phi)), the Jacobian of the generalized inertial
+        forces of the recursion with respect to (ddtheta, ddphi)."""
+        name = "reduced_mass_matrix" if reduced else "mass_matrix"
+        if name not in self._functions:
+            theta, phi = self._symbols("theta", "phi")
+            ddq, zero = ca.SX.sym("ddq", 2 * self.n), ca.DM.zeros(self.n)
+            segs, kin = self._kin(reduced, (theta, phi, zero, zero))
+            Q = ca.vertcat(*rec.inverse_dynamics(segs, kin, ddq[:self.n], ddq[self.n:], np.zeros(3)))
+            self._functions[name] = ca.Function(name, [theta, phi], [ca.jacobian(Q, ddq)], ["theta", "phi"], ["M"])
+        return self._functions[name]
+
+
+def load(path) -> Arm:
+    """Read a model file (MODEL.md section 4) and return its Arm."""
+    return Arm(read(path))

@@ -1,0 +1,230 @@
+"""The rotor-separated recursions (paper section III), symbolic, in body frames.
+
+Public index j = 0..n-1 runs base to tip; the paper's k = n - j (k = 1 is the tip).
+A loop "for j in reversed(range(n))" is the paper's "for k = 1..n" (tip to base).
+
+The model (constant) is a list of `Segment`s, one per joint; the per-call workspace
+is a list of `Kin` records made by `kinematics`.  Each joint's two rotors are a
+one-degree-of-freedom leaf hanging on the parent link: `Segment.leaves` holds
+(gear, M) for the slow rotor (gear 1) and the fast rotor (gear -mu).
+The DLR/Spong reduced model uses the same code: rotors merged rigidly into the
+parent link, no leaves, and a spin inertia `B_spin` on the rotor coordinate.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from .spatial import H, Xup, base_acceleration, coriolis, gyroscopic, joint_rotation, spatial_inertia
+
+
+@dataclass
+class Segment:
+    R: np.ndarray            # J_j relative to the parent frame
+    l: np.ndarray            # J_j origin in the parent frame
+    M: np.ndarray            # spatial inertia of link j (eq. 11), link frame
+    leaves: list             # [(gear, M)] rotors of joint j, in their own frames
+    B_spin: float = 0.0      # reduced model only: B_j on the rotor coordinate
+    mu: float = 1.0
+
+
+@dataclass
+class Kin:
+    """Per-call workspace of one joint: angles, transforms, velocities and Coriolis terms."""
+    q: tuple                 # (theta_j, phi_j, dtheta_j, dphi_j)
+    X: ca.SX
+    V: ca.SX
+    a: ca.SX
+    leaves: list = field(default_factory=list)   # [(gear, M, X, V, a)]
+
+
+def segments(model, reduced: bool = False) -> list:
+    """The constant tree of the complete model, or of the DLR reduced model."""
+    segs = []
+    for jt in model.joints:
+        rotors = [(1.0, spatial_inertia(jt.slow_rotor)), (-jt.gear_ratio, spatial_inertia(jt.fast_rotor))]
+        segs.append(Segment(jt.R, jt.origin_xyz, spatial_inertia(jt.link), [] if reduced else rotors,
+                            jt.rotor_inertia if reduced else 0.0, jt.gear_ratio))
+    if reduced:  # rotor j+1 carried rigidly by link j at its zero angle (exact for balanced rotors)
+        for seg, jt in zip(segs[:-1], model.joints[1:]):
+            X0 = np.array(ca.DM(Xup(ca.DM(jt.R), jt.origin_xyz)))
+            for body in (jt.slow_rotor, jt.fast_rotor):
+                seg.M = seg.M + X0.T @ spatial_inertia(body) @ X0
+    return segs
+
+
+def kinematics(segs, theta, phi, dtheta, dphi) -> list:
+    """Eqs. (1), (9), (18): velocities and Coriolis terms, base to tip."""
+    kin, V_p = [], ca.DM.zeros(6)
+    for j, seg in enumerate(segs):
+        R = joint_rotation(seg.R, theta[j])
+        X = Xup(R, seg.l)
+        k = Kin((theta[j], phi[j], dtheta[j], dphi[j]), X, X @ V_p + H * dtheta[j], coriolis(R, seg.l, V_p[:3], dtheta[j]))
+        for gear, M in seg.leaves:
+            Rr = joint_rotation(seg.R, gear * phi[j])
+            Xr = Xup(Rr, seg.l)
+            k.leaves.append((gear, M, Xr, Xr @ V_p + H * gear * dphi[j], coriolis(Rr, seg.l, V_p[:3], gear * dphi[j])))
+        kin.append(k)
+        V_p = k.V
+    return kin
+
+
+def accelerations(segs, kin, ddtheta, ddphi, gravity):
+    """Eqs. (2), (18): spatial accelerations of links and rotors, base to tip."""
+    alpha, alpha_r, alpha_p = [], [], base_acceleration(gravity)
+    for j, k in enumerate(kin):
+        alpha_r.append([Xr @ alpha_p + H * gear * ddphi[j] + ar for gear, _, Xr, _, ar in k.leaves])
+        alpha_p = k.X @ alpha_p + H * ddtheta[j] + k.a
+        alpha.append(alpha_p)
+    return alpha, alpha_r
+
+
+def rotor_force(M, V, alpha):
+    """Inertial force of one body, M alpha + b (eq. 3)."""
+    return M @ alpha + gyroscopic(M, V[:3])
+
+
+def inverse_dynamics(segs, kin, ddtheta, ddphi, gravity):
+    """Eqs. (2), (3), (25), (26): T = theta rows of M ddq + c; Qphi = phi rows (rotor inertia)."""
+    n = len(segs)
+    alpha, alpha_r = accelerations(segs, kin, ddtheta, ddphi, gravity)
+    T, Qphi = [None] * n, [None] * n
+    f_child = ca.DM.zeros(6)                       # force of the outboard joint on link j
+    for j in reversed(range(n)):
+        f = rotor_force(segs[j].M, kin[j].V, alpha[j]) + f_child        # eq. (25)
+        T[j] = f[2]                                                    # eq. (26): T_k = H^T f_k
+        rotor_f = [rotor_force(M, Vr, ar) for (_, M, _, Vr, _), ar in zip(kin[j].leaves, alpha_r[j])]
+        Qphi[j] = segs[j].B_spin * ddphi[j] + sum((gear * fr[2] for (gear, *_), fr in zip(kin[j].leaves, rotor_f)), 0)
+        f_child = kin[j].X.T @ f + sum((Xr.T @ fr for (_, _, Xr, _, _), fr in zip(kin[j].leaves, rotor_f)), ca.DM.zeros(6))
+    return ca.vertcat(*T), ca.vertcat(*Qphi)
+
+
+def leaf_articulated(seg, k, Qphi_j):
+    """The rotor leaf of a joint seen from its parent link: the terms of eq. (23).
+
+    Returns D (= B_j), U (parent frame), eps (Qphi minus bias), and the leaf's
+    articulated inertia and bias force handed to the parent link."""
+    D = seg.B_spin + sum(gear ** 2 * M[2, 2] for gear, M, *_ in k.leaves)
+    U, eps, P_add, z_add = ca.DM.zeros(6), Qphi_j, ca.DM.zeros(6, 6), ca.DM.zeros(6)
+    for gear, M, Xr, Vr, ar in k.leaves:
+        Mr, F = ca.DM(M), rotor_force(M, Vr, ar)           # F_ks, F_kf of eq. (24) without alpha_p
+        U += gear * Xr.T @ (Mr @ H)
+        eps -= gear * F[2]
+        P_add += Xr.T @ Mr @ Xr
+        z_add += Xr.T @ F
+    return D, U, eps, P_add - U @ U.T / D, z_add + U * eps / D
+
+
+def project(P, z, torque):
+    """One joint of the articulated sweep, eqs. (4)-(5): G, nu, P^+, z^+ from P, z and the joint torque."""
+    D = P[2, 2]                                                    # D = H^T P H
+    G = P[:, 2] / D                                                # G = P H D^-1
+    eps = torque - z[2]                                            # eps = T - H^T z
+    return G, eps / D, P - G @ P[2, :], z + G * eps                # nu, P+ = (1 - G H^T) P, z+ = z + G eps
+
+
+def forward_dynamics(segs, kin, Qtheta, Qphi, gravity):
+    """The complete model solved in one O(n) sweep: eqs. (4)-(6) with each rotor pair a leaf (eq. 23)."""
+    n = len(segs)
+    P_c, z_c = [ca.DM.zeros(6, 6)] * n, [ca.DM.zeros(6)] * n     # what children hand to link j
+    G, nu, leaf = [None] * n, [None] * n, [None] * n
+    for j in reversed(range(n)):                                   # paper k = 1..n
+        P = segs[j].M + P_c[j]                                     # eq. (4)
+        z = P @ kin[j].a + gyroscopic(segs[j].M, kin[j].V[:3]) + z_c[j]   # eq. (5)
+        G[j], nu[j], P_plus, z_plus = project(P, z, Qtheta[j])
+        leaf[j] = leaf_articulated(segs[j], kin[j], Qphi[j])
+        if j > 0:
+            P_c[j - 1] = P_c[j - 1] + kin[j].X.T @ P_plus @ kin[j].X + leaf[j][3]
+            z_c[j - 1] = z_c[j - 1] + kin[j].X.T @ z_plus + leaf[j][4]
+    ddtheta, ddphi, alpha_p = [], [], base_acceleration(gravity)
+    for j in range(n):                                             # eq. (6), paper k = n..1
+        D_r, U, eps_r = leaf[j][:3]
+        ddphi.append((eps_r - U.T @ alpha_p) / D_r)                # eq. (23)
+        alpha_plus = kin[j].X @ alpha_p
+        ddtheta.append(nu[j] - G[j].T @ alpha_plus)
+        alpha_p = alpha_plus + H * ddtheta[j] + kin[j].a
+    return ca.vertcat(*ddtheta), ca.vertcat(*ddphi)
+
+
+def joint_forward_dynamics(segs, kin, ddtheta, Qphi, gravity):
+    """Paper eq. (23): each rotor's ddphi from the link accelerations (eq. 2) of its parent."""
+    alpha, _ = accelerations(segs, kin, ddtheta, ca.DM.zeros(len(segs)), gravity)
+    alpha_p = [base_acceleration(gravity)] + alpha[:-1]
+    out = []
+    for j, seg in enumerate(segs):
+        D, U, eps = leaf_articulated(seg, kin[j], Qphi[j])[:3]
+        out.append((eps - U.T @ alpha_p[j]) / D)
+    return ca.vertcat(*out)
+
+
+def _inner_joint(R_rel_angle, w_parent, rate):
+    """A joint inside a flexible joint (eq. 14: Phi = 1): transform and Coriolis term (eq. 18)."""
+    R = joint_rotation(np.eye(3), R_rel_angle)
+    return Xup(R, np.zeros(3)), coriolis(R, np.zeros(3), w_parent, rate)
+
+
+def arm_forward_dynamics(segs, kin, T, ddphi, ddtheta_guess, gravity):
+    """Paper eqs. (29)-(32): link accelerations of the serial chain link k <- ks <- kf <- link k+1.
+
+    The rotor joints are driven by T_ks, T_kf of eq. (29), which need the rotors'
+    spatial accelerations: they are formed from ddphi and the parent links'
+    accelerations of `ddtheta_guess` (the paper's predictor).  At the exact
+    ddtheta the result equals it (a fixed point).  The base joint's rotors sit on
+    the fixed base and are not part of the chain (3n - 1 bodies)."""
+    n = len(segs)
+    _, alpha_r = accelerations(segs, kin, ddtheta_guess, ddphi, gravity)
+    P_c, z_c = [ca.DM.zeros(6, 6)] * n, [ca.DM.zeros(6)] * n
+    G, nu, inner = [None] * n, [None] * n, [None] * n
+    for j in reversed(range(n)):                                   # eqs. (30), (31), paper k = 1..n
+        a_link = kin[j].a
+        if j > 0:
+            theta, phi, dtheta, dphi = kin[j].q
+            (_, Ms, Xs, Vs, a_s), (gear, Mf, Xf, Vf, a_f) = kin[j].leaves
+            X_fs, a_fs = _inner_joint((1 - gear) * phi, Vf[:3], (1 - gear) * dphi)   # ks relative to kf
+            X_sl, a_link = _inner_joint(theta - phi, Vs[:3], dtheta - dphi)          # link relative to ks
+            inner[j] = (Xs, a_s, X_sl, a_link)
+        P = segs[j].M + P_c[j]
+        z = P @ a_link + gyroscopic(segs[j].M, kin[j].V[:3]) + z_c[j]
+        G[j], nu[j], P_plus, z_plus = project(P, z, T[j])
+        if j == 0:
+            break
+        F_s = rotor_force(Ms, Vs, alpha_r[j][0])
+        T_s = T[j] + F_s[2]                                        # eq. (29)
+        T_f = T_s + rotor_force(Mf, Vf, alpha_r[j][1])[2]
+        P_s = X_sl.T @ P_plus @ X_sl + Ms
+        z_s = X_sl.T @ z_plus + P_s @ a_fs + gyroscopic(Ms, Vs[:3])
+        _, _, P_s_plus, z_s_plus = project(P_s, z_s, T_s)
+        P_f = X_fs.T @ P_s_plus @ X_fs + Mf
+        z_f = X_fs.T @ z_s_plus + P_f @ a_f + gyroscopic(Mf, Vf[:3])
+        _, _, P_f_plus, z_f_plus = project(P_f, z_f, T_f)
+        P_c[j - 1] = Xf.T @ P_f_plus @ Xf
+        z_c[j - 1] = Xf.T @ z_f_plus
+    ddtheta, alpha_p = [], base_acceleration(gravity)
+    for j in range(n):                                             # eq. (32), paper k = n..1
+        if j == 0:
+            alpha_plus = kin[0].X @ alpha_p
+            ddtheta.append(nu[0] - G[0].T @ alpha_plus)
+            alpha_p = alpha_plus + H * ddtheta[0] + kin[0].a
+        else:
+            Xs, a_s, X_sl, a_sl = inner[j]
+            alpha_plus = X_sl @ (Xs @ alpha_p + H * ddphi[j] + a_s)
+            ddtheta.append(ddphi[j] + nu[j] - G[j].T @ alpha_plus)
+            alpha_p = alpha_plus + H * (ddtheta[j] - ddphi[j]) + a_sl
+    return ca.vertcat(*ddtheta)
+
+
+def energy(segs, kin, gravity):
+    """Kinetic (0.5 V^T M V per body) plus gravitational (-m g . p_com, eq. 12 for the poses)."""
+    E, R_p, o_p, g = 0, ca.DM.eye(3), ca.DM.zeros(3), ca.DM(gravity)
+    for seg, k in zip(segs, kin):
+        theta = k.q[0]
+        bodies = [(seg.M, k.V, joint_rotation(seg.R, theta))]
+        bodies += [(M, Vr, joint_rotation(seg.R, gear * k.q[1])) for gear, M, _, Vr, _ in k.leaves]
+        o = o_p + R_p @ ca.DM(seg.l)                               # eq. (12): J_j origin in the base frame
+        for M, V, R in bodies:
+            m, mp = M[3, 3], ca.DM([M[2, 4], M[0, 5], M[1, 3]])
+            E += 0.5 * V.T @ ca.DM(M) @ V - g.T @ (m * o + R_p @ R @ mp)
+        R_p, o_p = R_p @ bodies[0][2], o
+    return E

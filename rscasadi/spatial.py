@@ -1,0 +1,74 @@
+"""Spatial operator algebra (paper section II), symbolic in CasADi.
+
+The paper writes every operator in the base frame (eq. 12).  Here each body's
+quantities are written in the body's own frame instead, which is the same algebra
+(eq. 12 with the base frame replaced by the body frame) and keeps the inertias
+constant, so CasADi folds them into the expressions.  Conventions, as in the paper:
+
+- spatial velocity V = [omega; v_O]: angular velocity and the velocity of the frame
+  origin O; spatial acceleration alpha = d/dt of both (classical accelerations);
+- spatial force f = [moment about O; force];
+- Phi_{k+1,k}^T maps a parent's velocity to the child (``Xup``), Phi_{k+1,k} maps a
+  child's force to the parent (``Xup.T``); in the body frames it carries the rotation.
+"""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+H = ca.DM([0, 0, 1, 0, 0, 0])          # eq. (7): every joint turns about its local z
+Z3 = ca.DM.zeros(3, 3)
+
+
+def skew(v):
+    """The cross-product matrix: skew(v) @ w = v x w (the paper's tilde)."""
+    return ca.vertcat(ca.horzcat(0, -v[2], v[1]), ca.horzcat(v[2], 0, -v[0]), ca.horzcat(-v[1], v[0], 0))
+
+
+def rot_z(q):
+    c, s = ca.cos(q), ca.sin(q)
+    return ca.vertcat(ca.horzcat(c, -s, 0), ca.horzcat(s, c, 0), ca.horzcat(0, 0, 1))
+
+
+def joint_rotation(R_tree, q):
+    """Rotation of a body turned by q about z of its joint frame, relative to the parent frame."""
+    return ca.DM(R_tree) @ rot_z(q)
+
+
+def Xup(R, l):
+    """Phi_{k+1,k}^T in body frames (eq. 8 with rotation): parent velocity -> child frame.
+
+    R: child frame relative to parent; l: child origin in parent coordinates."""
+    Rt = R.T
+    return ca.vertcat(ca.horzcat(Rt, Z3), ca.horzcat(-Rt @ skew(ca.DM(l)), Rt))
+
+
+def spatial_inertia(body) -> np.ndarray:
+    """M_k of eq. (11): [[I_O, m p~], [-m p~, m 1]] about the body-frame origin."""
+    m, p = body.mass, body.com
+    mp = m * np.array([[0, -p[2], p[1]], [p[2], 0, -p[0]], [-p[1], p[0], 0]])
+    return np.block([[body.inertia_origin, mp], [-mp, m * np.eye(3)]])
+
+
+def coriolis(R, l, w_parent, rate):
+    """a_{s,t} of eqs. (9) and (18) in the child frame: [(R^T w_s) x h rate; R^T (w_s x w_s x l)]."""
+    w = R.T @ w_parent
+    ang = ca.vertcat(w[1], -w[0], 0) * rate          # w x z
+    lin = R.T @ ca.cross(w_parent, ca.cross(w_parent, ca.DM(l)))
+    return ca.vertcat(ang, lin)
+
+
+def gyroscopic(M, w):
+    """b_k of eq. (10): [w x I_O w; w x (w x m p)], read off a spatial inertia M (eq. 11)."""
+    I_O, mp = ca.DM(M[:3, :3]), ca.DM([M[2, 4], M[0, 5], M[1, 3]])   # m p~ = M[:3, 3:]
+    return ca.vertcat(ca.cross(w, I_O @ w), ca.cross(w, ca.cross(w, mp)))
+
+
+def base_acceleration(gravity):
+    """alpha_base with gravity as a base acceleration (end of section II): [0; -g]."""
+    return ca.vertcat(ca.DM.zeros(3), -ca.DM(gravity))
+
+
+def base_pose(R_parent, o_parent, R, l):
+    """Eq. (12): a body frame's rotation and origin in the base frame from its parent's."""
+    return R_parent @ R, o_parent + R_parent @ ca.DM(l)
