@@ -1,0 +1,95 @@
+"""Fixtures: the reference arm and random valid arms written as real model files."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import rscasadi
+
+ROOT = Path(__file__).resolve().parents[1]
+REFERENCE = ROOT / "problems" / "arm3.toml"
+
+
+def _fmt(v):
+    if isinstance(v, str):
+        return '"' + v + '"'
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {_fmt(x)}" for k, x in v.items()) + " }"
+    return repr(float(v))
+
+
+def to_toml(doc: dict) -> str:
+    """A minimal TOML writer for model documents (tables of scalars, arrays, inline tables)."""
+    lines = [f"{k} = {_fmt(v)}" for k, v in doc.items() if k != "joints"]
+    for jt in doc.get("joints", []):
+        lines += ["", "[[joints]]"] + [f"{k} = {_fmt(v)}" for k, v in jt.items()]
+    return "\n".join(lines) + "\n"
+
+
+def random_body(rng, mass_range, size, balanced=False):
+    """A physically valid body: inertia of a random box (triangle inequality holds), rotated."""
+    m = rng.uniform(*mass_range)
+    a, b, c = rng.uniform(0.2, 1.0, 3) * size
+    if balanced:
+        r, h = a / 2, b                                        # a cylinder about z
+        I = np.diag([m * (3 * r * r + h * h) / 12] * 2 + [m * r * r / 2])
+        com = [0.0, 0.0, rng.uniform(-0.02, 0.02)]
+    else:
+        Q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        I = Q @ np.diag([m * (b * b + c * c), m * (a * a + c * c), m * (a * a + b * b)]) / 12 @ Q.T
+        com = rng.uniform(-0.5, 0.5, 3) * size
+    return {"mass": m, "com": com, "inertia": [I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]}
+
+
+def random_arm_doc(rng, n, balanced=False):
+    """Random geometry (axes at any angle), gear ratios 2..120, nonlinear springs and losses."""
+    joints = []
+    for j in range(n):
+        joints.append({
+            "name": f"j{j + 1}",
+            "origin_xyz": rng.uniform(-0.3, 0.3, 3),
+            "origin_rpy": rng.uniform(-np.pi, np.pi, 3),
+            "gear_ratio": rng.uniform(2.0, 120.0),
+            "sea": {"k1": rng.uniform(200, 2000), "k3": rng.uniform(0, 5000), "d": rng.uniform(0, 2)},
+            "gear_loss": {"b": rng.uniform(0, 2), "c": rng.uniform(0, 0.5), "eps": rng.uniform(0.005, 0.05)},
+            "link": random_body(rng, (0.5, 3.0), 0.4),
+            "slow_rotor": random_body(rng, (0.1, 0.5), 0.08, balanced),
+            "fast_rotor": random_body(rng, (0.05, 0.3), 0.05, balanced),
+        })
+    return {"name": f"random-{n}", "gravity": rng.normal(size=3) * 5, "joints": joints}
+
+
+def write_arm(tmp_path, doc, name="arm.toml"):
+    path = Path(tmp_path) / name
+    path.write_text(to_toml(doc))
+    return path
+
+
+@pytest.fixture(scope="session")
+def arm3():
+    return rscasadi.load(REFERENCE)
+
+
+@pytest.fixture(scope="session")
+def random_arms(tmp_path_factory):
+    """n = 1..7, unbalanced rotors (complete model only)."""
+    rng, d = np.random.default_rng(20261122), tmp_path_factory.mktemp("arms")
+    return [rscasadi.load(write_arm(d, random_arm_doc(rng, n), f"arm{n}.toml")) for n in range(1, 8)]
+
+
+@pytest.fixture(scope="session")
+def balanced_arms(tmp_path_factory):
+    """n = 1..7, balanced rotors (both models)."""
+    rng, d = np.random.default_rng(7), tmp_path_factory.mktemp("barms")
+    return [rscasadi.load(write_arm(d, random_arm_doc(rng, n, True), f"arm{n}.toml")) for n in range(1, 8)]
+
+
+def random_state(rng, n, scale=1.0):
+    theta = rng.uniform(-np.pi, np.pi, n)
+    return [theta, theta + rng.normal(size=n) * 0.05, rng.normal(size=n) * scale, rng.normal(size=n) * scale]
+
+
+def dm(v):
+    return np.array(v, dtype=float).ravel()
