@@ -11,6 +11,8 @@ REFERENCE = ROOT / "problems" / "arm3.toml"
 
 
 def _fmt(v):
+    if isinstance(v, bool):
+        return "true" if v else "false"
     if isinstance(v, str):
         return '"' + v + '"'
     if isinstance(v, (list, tuple, np.ndarray)):
@@ -22,7 +24,7 @@ def _fmt(v):
 
 def to_toml(doc: dict) -> str:
     """A minimal TOML writer for model documents (tables of scalars, arrays, inline tables)."""
-    lines = [f"{k} = {_fmt(v)}" for k, v in doc.items() if k != "joints"]
+    lines = [f"{k} = {_fmt(v)}" for k, v in doc.items() if k != "joints" or not v]
     for jt in doc.get("joints", []):
         lines += ["", "[[joints]]"] + [f"{k} = {_fmt(v)}" for k, v in jt.items()]
     return "\n".join(lines) + "\n"
