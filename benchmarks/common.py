@@ -1,0 +1,69 @@
+"""Shared by the benchmarks: n-joint arms built from the reference arm, and the
+mass-matrix-and-solve route that the recursive forward dynamics is compared with."""
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import rscasadi  # noqa: E402
+from rscasadi.modelfile import parse  # noqa: E402
+
+RESULTS = ROOT / "results"
+
+
+def chain_arm(n: int) -> rscasadi.Arm:
+    """An n-joint arm repeating the reference arm's joints (yaw, pitch, pitch, yaw, ...)."""
+    if n == 3:
+        return rscasadi.load(ROOT / "problems" / "arm3.toml")
+    with open(ROOT / "problems" / "arm3.toml", "rb") as fh:
+        doc = tomllib.load(fh)
+    joints = [dict(doc["joints"][j % 3], name=f"joint{j + 1}") for j in range(n)]
+    return rscasadi.Arm(parse(dict(doc, name=f"chain-{n}", joints=joints), f"<chain {n}>"))
+
+
+def mass_matrix_forward_dynamics(arm) -> ca.Function:
+    """The same forward dynamics the 'mass matrix and solve' way: M from the recursion's
+    Jacobian, bias from inverse dynamics at zero acceleration, then a symbolic solve."""
+    n = arm.n
+    th, ph, dth, dph, tau = (ca.SX.sym(s, n) for s in ("theta", "phi", "dtheta", "dphi", "tau"))
+    M = arm.mass_matrix()(th, ph)
+    tau0, T0 = arm.inverse_dynamics()(th, ph, dth, dph, ca.DM.zeros(n), ca.DM.zeros(n))
+    rhs = ca.vertcat(arm.sea_torque(th, ph, dth, dph) - T0, ca.DM(arm.model.column("gear_ratio")) * (tau0 - tau))
+    ddq = ca.solve(M, rhs)
+    return ca.Function("mass_matrix_forward_dynamics", [th, ph, dth, dph, tau], [ddq[:n], ddq[n:]],
+                       ["theta", "phi", "dtheta", "dphi", "tau"], ["ddtheta", "ddphi"])
+
+
+def per_call(fn, *args, repeat=5, min_time=0.2):
+    """Median seconds per call over `repeat` batches of at least `min_time` each."""
+    fn(*args)
+    number, t = 1, 0.0
+    while True:
+        t0 = time.perf_counter()
+        for _ in range(number):
+            fn(*args)
+        t = time.perf_counter() - t0
+        if t > min_time / 5:
+            break
+        number *= 4
+    number = max(1, int(number * min_time / 5 / max(t, 1e-9)))
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        for _ in range(number):
+            fn(*args)
+        times.append((time.perf_counter() - t0) / number)
+    return float(np.median(times))
+
+
+def write_atomically(path: Path, text: str):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)

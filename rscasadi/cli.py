@@ -1,0 +1,80 @@
+"""The `rscasadi` command."""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .arm import load
+from .modelfile import ModelFileError
+
+REFERENCE = Path(__file__).resolve().parents[1] / "problems" / "arm3.toml"
+
+
+def model_report(path) -> str:
+    """A Markdown summary of a model: rotor inertias, couplings and the static holding torques."""
+    arm = load(path)
+    n, m = arm.n, arm.model
+    theta = np.linspace(0.3, -0.6, n)
+    M = np.array(arm.mass_matrix()(theta, theta))
+    zero = np.zeros(n)
+    T = np.array(arm.inverse_dynamics()(theta, theta, zero, zero, zero, zero)[1]).ravel()
+    psi = T / m.column("k1")                         # static: k3 correction ignored in the report
+    tau = np.array(arm.inverse_dynamics()(theta, theta + psi, zero, zero, zero, zero)[0]).ravel()
+    lines = [f"# Model `{m.name}` ({m.path})", "", f"{n} joints; gravity {m.gravity.tolist()} m/s^2.", "",
+             "| j | joint | mu | B_j = Izz(S)+mu^2 Izz(F) (kg m^2) | rotors balanced |", "|---|---|---|---|---|"]
+    lines += [f"| {j + 1} | {jt.name} | {jt.gear_ratio:g} | {jt.rotor_inertia:.6g} | "
+              f"{'yes' if jt.slow_rotor.balanced and jt.fast_rotor.balanced else 'no'} |"
+              for j, jt in enumerate(m.joints)]
+    S = M[:n, n:]
+    lines += ["", f"Coupling block S (link rows, rotor columns) at theta = phi = {np.round(theta, 3).tolist()}:", ""]
+    lines += ["| link \\ rotor | " + " | ".join(str(j + 1) for j in range(n)) + " |", "|---" * (n + 1) + "|"]
+    lines += [f"| {i + 1} | " + " | ".join(f"{S[i, j]:.3g}" for j in range(n)) + " |" for i in range(n)]
+    lines += ["", "Static holding at that pose: SEA torque T (N m), deflection psi = T/k1 (rad), motor torque tau (N m):",
+              "", "| j | T | psi | tau |", "|---|---|---|---|"]
+    lines += [f"| {j + 1} | {T[j]:.4g} | {psi[j]:.4g} | {tau[j]:.4g} |" for j in range(n)]
+    return "\n".join(lines) + "\n"
+
+
+def _write(path: Path, text: str):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+def cmd_info(args):
+    print(model_report(args.model), end="")
+
+
+def cmd_reproduce(args):
+    out = Path(args.out)
+    report = model_report(args.model)
+    _write(out / "model.md", report)
+    print(report, end="")
+    print(f"wrote {out / 'model.md'}")
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(prog="rscasadi", description="Rotor-separated FS-SEA arm dynamics in CasADi")
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("info", help="summarise a model file")
+    p.add_argument("model")
+    p.set_defaults(func=cmd_info)
+    p = sub.add_parser("reproduce", help="the main job: everything the project reproduces, into --out")
+    p.add_argument("--model", default=str(REFERENCE))
+    p.add_argument("--out", default="results")
+    p.set_defaults(func=cmd_reproduce)
+    args = parser.parse_args(argv)
+    try:
+        args.func(args)
+    except ModelFileError as exc:
+        print(f"rscasadi: error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
