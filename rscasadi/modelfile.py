@@ -78,8 +78,11 @@ class Joint:
 
     @property
     def R(self) -> np.ndarray:
-        """Rotation of J_j relative to the parent frame."""
-        return rpy_matrix(self.origin_rpy)
+        """Rotation of J_j relative to the parent frame; the round-off of exact right angles
+        (cos(pi/2) = 6e-17) is set to 0 so that symbolic code folds it away."""
+        R = rpy_matrix(self.origin_rpy)
+        R[np.abs(R) < 1e-15] = 0.0
+        return R
 
     @property
     def rotor_inertia(self) -> float:

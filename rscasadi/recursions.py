@@ -25,7 +25,7 @@ class Segment:
     R: np.ndarray            # J_j relative to the parent frame
     l: np.ndarray            # J_j origin in the parent frame
     M: np.ndarray            # spatial inertia of link j (eq. 11), link frame
-    leaves: list             # [(gear, M)] rotors of joint j, in their own frames
+    leaves: list             # [(gear, M, spins)] rotors of joint j; see `segments`
     B_spin: float = 0.0      # reduced model only: B_j on the rotor coordinate
     mu: float = 1.0
 
@@ -40,11 +40,18 @@ class Kin:
     leaves: list = field(default_factory=list)   # [(gear, M, X, V, a)]
 
 
+def rotor_frame_angle(gear, spins, phi):
+    """A rotor's frame turns by gear * phi about z of J; a balanced rotor's spatial inertia is
+    invariant under that turn, so its quantities are written in J itself (no trigonometry)."""
+    return gear * phi if spins else 0
+
+
 def segments(model, reduced: bool = False) -> list:
     """The constant tree of the complete model, or of the DLR reduced model."""
     segs = []
     for jt in model.joints:
-        rotors = [(1.0, spatial_inertia(jt.slow_rotor)), (-jt.gear_ratio, spatial_inertia(jt.fast_rotor))]
+        rotors = [(gear, spatial_inertia(body), not body.balanced)
+                  for gear, body in ((1.0, jt.slow_rotor), (-jt.gear_ratio, jt.fast_rotor))]
         segs.append(Segment(jt.R, jt.origin_xyz, spatial_inertia(jt.link), [] if reduced else rotors,
                             jt.rotor_inertia if reduced else 0.0, jt.gear_ratio))
     if reduced:  # rotor j+1 carried rigidly by link j at its zero angle (exact for balanced rotors)
@@ -62,8 +69,8 @@ def kinematics(segs, theta, phi, dtheta, dphi) -> list:
         R = joint_rotation(seg.R, theta[j])
         X = Xup(R, seg.l)
         k = Kin((theta[j], phi[j], dtheta[j], dphi[j]), X, X @ V_p + H * dtheta[j], coriolis(R, seg.l, V_p[:3], dtheta[j]))
-        for gear, M in seg.leaves:
-            Rr = joint_rotation(seg.R, gear * phi[j])
+        for gear, M, spins in seg.leaves:
+            Rr = joint_rotation(seg.R, rotor_frame_angle(gear, spins, phi[j]))
             Xr = Xup(Rr, seg.l)
             k.leaves.append((gear, M, Xr, Xr @ V_p + H * gear * dphi[j], coriolis(Rr, seg.l, V_p[:3], gear * dphi[j])))
         kin.append(k)
@@ -159,9 +166,10 @@ def joint_forward_dynamics(segs, kin, ddtheta, Qphi, gravity):
     return ca.vertcat(*out)
 
 
-def _inner_joint(R_rel_angle, w_parent, rate):
-    """A joint inside a flexible joint (eq. 14: Phi = 1): transform and Coriolis term (eq. 18)."""
-    R = joint_rotation(np.eye(3), R_rel_angle)
+def _inner_joint(angle, w_parent, rate):
+    """A joint inside a flexible joint (eq. 14: Phi = 1): transform between the two bodies'
+    coordinate frames (turned by `angle`) and the Coriolis term of eq. (18) for `rate`."""
+    R = joint_rotation(np.eye(3), angle)
     return Xup(R, np.zeros(3)), coriolis(R, np.zeros(3), w_parent, rate)
 
 
@@ -182,8 +190,10 @@ def arm_forward_dynamics(segs, kin, T, ddphi, ddtheta_guess, gravity):
         if j > 0:
             theta, phi, dtheta, dphi = kin[j].q
             (_, Ms, Xs, Vs, a_s), (gear, Mf, Xf, Vf, a_f) = kin[j].leaves
-            X_fs, a_fs = _inner_joint((1 - gear) * phi, Vf[:3], (1 - gear) * dphi)   # ks relative to kf
-            X_sl, a_link = _inner_joint(theta - phi, Vs[:3], dtheta - dphi)          # link relative to ks
+            (_, _, spins_s), (_, _, spins_f) = segs[j].leaves
+            ang_s, ang_f = rotor_frame_angle(1.0, spins_s, phi), rotor_frame_angle(gear, spins_f, phi)
+            X_fs, a_fs = _inner_joint(ang_s - ang_f, Vf[:3], (1 - gear) * dphi)       # ks relative to kf
+            X_sl, a_link = _inner_joint(theta - ang_s, Vs[:3], dtheta - dphi)         # link relative to ks
             inner[j] = (Xs, a_s, X_sl, a_link)
         P = segs[j].M + P_c[j]
         z = P @ a_link + gyroscopic(segs[j].M, kin[j].V[:3]) + z_c[j]
@@ -221,7 +231,8 @@ def energy(segs, kin, gravity):
     for seg, k in zip(segs, kin):
         theta = k.q[0]
         bodies = [(seg.M, k.V, joint_rotation(seg.R, theta))]
-        bodies += [(M, Vr, joint_rotation(seg.R, gear * k.q[1])) for gear, M, _, Vr, _ in k.leaves]
+        bodies += [(M, Vr, joint_rotation(seg.R, rotor_frame_angle(gear, spins, k.q[1])))
+                   for (gear, M, _, Vr, _), (_, _, spins) in zip(k.leaves, seg.leaves)]
         o = o_p + R_p @ ca.DM(seg.l)                               # eq. (12): J_j origin in the base frame
         for M, V, R in bodies:
             m, mp = M[3, 3], ca.DM([M[2, 4], M[0, 5], M[1, 3]])

@@ -1,0 +1,216 @@
+"""Code generation: the arm's Functions as plain C99 (CasADi's standard interface), compiled
+into one shared library, described by DIR/manifest.json, and loaded back with casadi.external.
+
+Nothing from a model file reaches C or the compiler: the function names are fixed, the
+optional prefix must be a C identifier, and the compiler runs from an argument list.
+Compiled libraries are cached by a hash of their sources, compiler and flags.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import shlex
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+import casadi as ca
+
+from .arm import Arm, load
+
+IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,62}\Z")
+LIBRARY = "librscasadi_arm.so"
+HEADER = "rscasadi_arm.h"
+
+
+class CodegenError(RuntimeError):
+    """Generating or compiling the C code failed; nothing was left half-written."""
+
+
+def _renamed(f: ca.Function, name: str, outs=None, out_names=None) -> ca.Function:
+    """f under a new name, outputs after common-subexpression elimination (ca.cse)."""
+    ins = f.sx_in()
+    outs = f.call(ins) if outs is None else outs(*ins)
+    return ca.Function(name, ins, ca.cse(list(outs)), f.name_in(), out_names or f.name_out())
+
+
+def rk4_step(arm: Arm):
+    """One classical Runge-Kutta step of the complete model: (x, tau, h) -> x_next,
+    x = (theta, phi, dtheta, dphi) stacked (4n)."""
+    n, fd = arm.n, arm.forward_dynamics()
+    x, tau, h = ca.SX.sym("x", 4 * arm.n), ca.SX.sym("tau", arm.n), ca.SX.sym("h")
+
+    def f(x):
+        p = ca.vertsplit(x, n)
+        return ca.vertcat(p[2], p[3], *fd(*p, tau))
+
+    k1 = f(x)
+    k2 = f(x + h / 2 * k1)
+    k3 = f(x + h / 2 * k2)
+    k4 = f(x + h * k3)
+    return x, tau, h, x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+def functions(arm: Arm, prefix: str = "") -> tuple[dict, dict]:
+    """The Functions to generate, by their public name; and those omitted, with the reason."""
+    p = f"{prefix}_" if prefix else ""
+    fns, omitted = {}, {}
+    for name in ("forward_dynamics", "inverse_dynamics", "energy"):
+        fns[name] = _renamed(getattr(arm, name)(), p + name)
+    for name in ("reduced_forward_dynamics", "reduced_inverse_dynamics"):
+        try:
+            fns[name] = _renamed(getattr(arm, name)(), p + name)
+        except ValueError as exc:                  # unbalanced rotors: the reduced model does not apply
+            omitted[name] = str(exc)
+    for name, base in (("forward_dynamics_jacobian", arm.forward_dynamics()),
+                       ("inverse_dynamics_jacobian", arm.inverse_dynamics())):
+        def jac(*ins, base=base):
+            return [ca.densify(ca.jacobian(ca.vertcat(*base.call(list(ins))), ca.vertcat(*ins)))]
+        fns[name] = _renamed(base, p + name, jac, ["jacobian"])
+    x, tau, h, x_next = rk4_step(arm)
+    fns["step"] = ca.Function(p + "step", [x, tau, h], ca.cse([x_next]), ["x", "tau", "h"], ["x_next"])
+    AB = [ca.densify(ca.jacobian(x_next, x)), ca.densify(ca.jacobian(x_next, tau))]
+    fns["step_jacobian"] = ca.Function(p + "step_jacobian", [x, tau, h], ca.cse(AB), ["x", "tau", "h"], ["A", "B"])
+    return fns, omitted
+
+
+def _io(f: ca.Function, out: bool):
+    n = f.n_out() if out else f.n_in()
+    sp = f.sparsity_out if out else f.sparsity_in
+    names = f.name_out() if out else f.name_in()
+    return [{"name": names[i], "rows": sp(i).size1(), "cols": sp(i).size2()} for i in range(n)]
+
+
+def _compiler():
+    cc = shlex.split(os.environ.get("CC", "cc")) or ["cc"]
+    if shutil.which(cc[0]) is None:
+        raise CodegenError(f"C compiler {cc[0]!r} not found (set $CC to a C compiler)")
+    return cc
+
+
+def cache_dir() -> Path:
+    return Path(os.environ.get("RSCASADI_CACHE", Path.home() / ".cache" / "rscasadi"))
+
+
+def _compile(cc, flags, sources, lib: Path, workdir: Path):
+    """Compile each source to an object (in parallel), then link the shared library."""
+    procs = [(src, subprocess.Popen([*cc, *flags, "-fPIC", "-c", src.name, "-o", src.stem + ".o"], cwd=workdir,
+                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+             for src in sources]
+    for src, proc in procs:
+        _, err = proc.communicate()
+        if proc.returncode != 0:
+            raise CodegenError(f"compiling {src.name} failed ({' '.join(cc)}):\n{err[-2000:]}")
+    link = subprocess.run([*cc, "-shared", *[s.stem + ".o" for s in sources], "-o", lib.name, "-lm"],
+                          cwd=workdir, capture_output=True, text=True)
+    if link.returncode != 0:
+        raise CodegenError(f"linking {lib.name} failed:\n{link.stderr[-2000:]}")
+    for s in sources:
+        (workdir / (s.stem + ".o")).unlink()
+
+
+def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print) -> dict:
+    """Write C sources, one header, one shared library and manifest.json into `out`."""
+    prefix = prefix or ""
+    if prefix and not IDENTIFIER.match(prefix):
+        raise CodegenError(f"prefix {prefix!r} is not a C identifier ([A-Za-z_][A-Za-z0-9_]*, at most 63)")
+    if opt not in ("-O0", "-O1", "-O2", "-O3", "-Os"):
+        raise CodegenError(f"optimisation flag {opt!r} not one of -O0 -O1 -O2 -O3 -Os")
+    arm = model if isinstance(model, Arm) else load(model)
+    out = Path(out).resolve()
+    cc = _compiler()
+    flags = [opt, "-std=c99"]
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    except OSError as exc:
+        raise CodegenError(f"cannot write into {out.parent}: {exc.strerror}") from exc
+    try:
+        fns, omitted = functions(arm, prefix)
+        header_gen = ca.CodeGenerator(HEADER.removesuffix(".h"), {"with_header": True})
+        sources = []
+        for name, f in fns.items():
+            gen = ca.CodeGenerator(f"{f.name()}.c", {"with_header": False})
+            gen.add(f)
+            gen.generate(str(tmp) + os.sep)
+            sources.append(tmp / f"{f.name()}.c")
+            header_gen.add(f)
+        header_gen.generate(str(tmp) + os.sep)
+        (tmp / f"{HEADER.removesuffix('.h')}.c").unlink()        # only its header is used
+        digest = hashlib.sha256()
+        for part in [*cc, *flags, ca.__version__] + [s.read_text() for s in sources]:
+            digest.update(part.encode())
+        key = digest.hexdigest()
+        cached = cache_dir() / key / LIBRARY
+        if cached.exists():
+            log(f"cache hit: {cached}")
+            shutil.copy2(cached, tmp / LIBRARY)
+        else:
+            log(f"compiling {len(sources)} sources with {' '.join(cc + flags)} ...")
+            _compile(cc, flags, sources, tmp / LIBRARY, tmp)
+            try:
+                cached.parent.mkdir(parents=True, exist_ok=True)
+                part = cached.with_name(cached.name + f".{os.getpid()}.part")
+                shutil.copy2(tmp / LIBRARY, part)
+                part.replace(cached)
+            except OSError:
+                log(f"note: could not write the compile cache {cache_dir()}")
+        manifest = {
+            "model": str(getattr(arm.model, "path", "")),
+            "header": HEADER,
+            "sources": [s.name for s in sources],
+            "library": LIBRARY,
+            "functions": {name: {"symbol": f.name(), "inputs": _io(f, False), "outputs": _io(f, True),
+                                 "n_instructions": f.n_instructions()} for name, f in fns.items()},
+            "omitted": omitted,
+            "prefix": prefix,
+            "compiler": cc + flags,
+            "source_hash": key,
+        }
+        (tmp / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+        _replace_dir(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return manifest
+
+
+def _replace_dir(new: Path, out: Path):
+    """Put the finished directory in place: a reader sees the old one or the new one, whole."""
+    if out.exists() and not (out / "manifest.json").exists() and any(out.iterdir()):
+        raise CodegenError(f"{out} exists and is not an rscasadi codegen directory; refusing to replace it")
+    old = None
+    if out.exists():
+        old = out.with_name(f".{out.name}.old.{os.getpid()}")
+        out.rename(old)
+    new.rename(out)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+class Compiled:
+    """A compiled arm: its Functions (casadi.external) by public name."""
+
+    def __init__(self, directory):
+        self.directory = Path(directory)
+        try:
+            self.manifest = json.loads((self.directory / "manifest.json").read_text())
+        except (OSError, ValueError) as exc:
+            raise CodegenError(f"{self.directory}: no readable manifest.json ({exc})") from exc
+        lib = str(self.directory / self.manifest["library"])
+        self.functions = {name: ca.external(info["symbol"], lib)
+                          for name, info in self.manifest["functions"].items()}
+
+    def __getitem__(self, name) -> ca.Function:
+        return self.functions[name]
+
+    def __iter__(self):
+        return iter(self.functions)
+
+
+def load_compiled(directory) -> Compiled:
+    """Load DIR/manifest.json's library back through casadi.external."""
+    return Compiled(directory)
