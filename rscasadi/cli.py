@@ -3,11 +3,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 
 from .arm import load
+from .codegen import CodegenError
 from .modelfile import ModelFileError
 
 REFERENCE = Path(__file__).resolve().parents[1] / "problems" / "arm3.toml"
@@ -57,12 +59,31 @@ def cmd_reproduce(args):
     print(f"wrote {out / 'model.md'}")
 
 
+def cmd_codegen(args):
+    from .codegen import generate
+    t0 = time.perf_counter()
+    manifest = generate(args.model, args.out, prefix=args.prefix, opt=args.opt,
+                        log=lambda msg: print(msg, flush=True))
+    for name, info in manifest["functions"].items():
+        print(f"  {info['symbol']:40s} n_instructions {info['n_instructions']}")
+    for name, why in manifest["omitted"].items():
+        print(f"  omitted {name}: {why}")
+    print(f"wrote {Path(args.out) / manifest['library']} and {manifest['header']} "
+          f"({time.perf_counter() - t0:.1f} s)")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="rscasadi", description="Rotor-separated FS-SEA arm dynamics in CasADi")
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("info", help="summarise a model file")
     p.add_argument("model")
     p.set_defaults(func=cmd_info)
+    p = sub.add_parser("codegen", help="generate and compile C for a model's functions")
+    p.add_argument("model")
+    p.add_argument("--out", required=True, help="directory for the sources, header, library and manifest.json")
+    p.add_argument("--prefix", default=None, help="C identifier put before every function name (P_name)")
+    p.add_argument("--opt", default="-O3", help="optimisation flag (default -O3)")
+    p.set_defaults(func=cmd_codegen)
     p = sub.add_parser("reproduce", help="the main job: everything the project reproduces, into --out")
     p.add_argument("--model", default=str(REFERENCE))
     p.add_argument("--out", default="results")
@@ -70,7 +91,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     try:
         args.func(args)
-    except ModelFileError as exc:
+    except (ModelFileError, CodegenError, ValueError) as exc:
         print(f"rscasadi: error: {exc}", file=sys.stderr)
         return 2
     return 0

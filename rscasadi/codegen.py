@@ -126,6 +126,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+        tmp.chmod(0o755)
     except OSError as exc:
         raise CodegenError(f"cannot write into {out.parent}: {exc.strerror}") from exc
     try:

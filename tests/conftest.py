@@ -1,4 +1,5 @@
 """Fixtures: the reference arm and random valid arms written as real model files."""
+import json
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,7 @@ def _fmt(v):
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, str):
-        return '"' + v + '"'
+        return json.dumps(v)
     if isinstance(v, (list, tuple, np.ndarray)):
         return "[" + ", ".join(_fmt(x) for x in v) + "]"
     if isinstance(v, dict):

@@ -1,0 +1,181 @@
+"""Generated C: equal to its symbolic twin, right against independent references, reentrant,
+and robust to hostile input."""
+import json
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import rscasadi
+from rscasadi.codegen import CodegenError, functions, generate
+from rscasadi.numeric import Numeric
+
+from conftest import REFERENCE, random_arm_doc, to_toml, write_arm
+
+HERE = Path(__file__).resolve().parent
+
+
+@pytest.fixture(scope="session", autouse=True)
+def private_cache(tmp_path_factory):
+    """Every test session compiles for real (at -O1, fast) into its own cache."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("RSCASADI_CACHE", str(tmp_path_factory.mktemp("cache")))
+    yield
+    mp.undo()
+
+
+@pytest.fixture(scope="session")
+def built(tmp_path_factory, private_cache):
+    out = tmp_path_factory.mktemp("gen") / "arm3"
+    return out, generate(REFERENCE, out, opt="-O1", log=lambda m: None)
+
+
+def rel(a, b):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300)
+
+
+def test_manifest_describes_the_library(built):
+    out, manifest = built
+    assert json.loads((out / "manifest.json").read_text()) == manifest
+    assert set(manifest) >= {"model", "header", "sources", "library", "functions"}
+    assert (out / manifest["header"]).exists() and (out / manifest["library"]).exists()
+    assert all((out / s).exists() for s in manifest["sources"])
+    fd = manifest["functions"]["forward_dynamics"]
+    assert fd["symbol"] == "forward_dynamics"
+    assert [i["name"] for i in fd["inputs"]] == ["theta", "phi", "dtheta", "dphi", "tau"]
+    assert fd["outputs"] == [{"name": "ddtheta", "rows": 3, "cols": 1}, {"name": "ddphi", "rows": 3, "cols": 1}]
+    assert manifest["functions"]["forward_dynamics_jacobian"]["outputs"][0] == {"name": "jacobian", "rows": 6, "cols": 15}
+    assert manifest["functions"]["inverse_dynamics_jacobian"]["outputs"][0]["cols"] == 18
+    assert [o["name"] for o in manifest["functions"]["step_jacobian"]["outputs"]] == ["A", "B"]
+    assert set(manifest["functions"]) == {"forward_dynamics", "inverse_dynamics", "reduced_forward_dynamics",
+                                          "reduced_inverse_dynamics", "energy", "forward_dynamics_jacobian",
+                                          "inverse_dynamics_jacobian", "step", "step_jacobian"}
+
+
+def test_compiled_equals_symbolic_twin(built, arm3):
+    out, manifest = built
+    compiled = rscasadi.load_compiled(out)
+    twins, _ = functions(arm3)
+    rng = np.random.default_rng(21)
+    for name in manifest["functions"]:
+        f, g = compiled[name], twins[name]
+        for _ in range(5):
+            args = [rng.normal(size=(g.size1_in(i), g.size2_in(i))) for i in range(g.n_in())]
+            for a, b in zip(f(*args) if f.n_out() > 1 else [f(*args)], g(*args) if g.n_out() > 1 else [g(*args)]):
+                assert rel(np.array(a), np.array(b)) < 1e-12, name
+
+
+def test_compiled_against_the_numerical_core(built, arm3):
+    """Independent of the symbolic code: the Jacobian by finite differences of the numpy core,
+    the RK4 step by a numpy RK4 on the core's forward dynamics."""
+    c, num, n = rscasadi.load_compiled(built[0]), Numeric(arm3.model), 3
+    rng = np.random.default_rng(22)
+    x, tau, h = rng.uniform(-1, 1, 4 * n), rng.uniform(-0.2, 0.2, n), 1e-3
+    z = np.concatenate([x, tau])
+
+    def fd(z):
+        return np.concatenate(num.forward_dynamics(*np.split(z[:4 * n], 4), z[4 * n:]))
+    J = np.array(c["forward_dynamics_jacobian"](*np.split(x, 4), tau))
+    eps = 1e-6
+    J_fd = np.column_stack([(fd(z + eps * e) - fd(z - eps * e)) / (2 * eps) for e in np.eye(5 * n)])
+    assert rel(J, J_fd) < 1e-6
+
+    def f(x):
+        return np.concatenate([x[2 * n:], fd(np.concatenate([x, tau]))])
+    k1 = f(x); k2 = f(x + h / 2 * k1); k3 = f(x + h / 2 * k2); k4 = f(x + h * k3)
+    assert rel(np.array(c["step"](x, tau, h)).ravel(), x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)) < 1e-12
+    A, B = (np.array(v) for v in c["step_jacobian"](x, tau, h))
+    step = lambda x, tau: np.array(c["step"](x, tau, h)).ravel()
+    A_fd = np.column_stack([(step(x + eps * e, tau) - step(x - eps * e, tau)) / (2 * eps) for e in np.eye(4 * n)])
+    B_fd = np.column_stack([(step(x, tau + eps * e) - step(x, tau - eps * e)) / (2 * eps) for e in np.eye(n)])
+    assert rel(A, A_fd) < 1e-6 and rel(B, B_fd) < 1e-6
+
+
+def test_rebuild_is_a_cache_hit(built, tmp_path):
+    logs = []
+    generate(REFERENCE, tmp_path / "again", opt="-O1", log=logs.append)
+    assert any(m.startswith("cache hit") for m in logs)
+    assert (tmp_path / "again" / "librscasadi_arm.so").read_bytes() == (built[0] / "librscasadi_arm.so").read_bytes()
+
+
+def test_prefix_and_unbalanced_arm(tmp_path):
+    rng = np.random.default_rng(23)
+    path = write_arm(tmp_path, random_arm_doc(rng, 2))          # unbalanced rotors: no reduced model
+    manifest = generate(path, tmp_path / "p", prefix="my_arm", opt="-O1", log=lambda m: None)
+    assert set(manifest["omitted"]) == {"reduced_forward_dynamics", "reduced_inverse_dynamics"}
+    assert manifest["functions"]["step"]["symbol"] == "my_arm_step"
+    c, arm = rscasadi.load_compiled(tmp_path / "p"), rscasadi.load(path)
+    x = [rng.normal(size=2) for _ in range(4)]
+    assert rel(np.array(c["energy"](*x)), np.array(arm.energy()(*x))) < 1e-12
+    header = (tmp_path / "p" / manifest["header"]).read_text()
+    assert "int my_arm_forward_dynamics(" in header
+
+
+def test_no_malloc_and_no_mutable_globals(built):
+    out, manifest = built
+    for name in manifest["sources"] + [manifest["header"]]:
+        text = (out / name).read_text()
+        assert not re.search(r"\b(malloc|calloc|realloc|free)\s*\(", text), name
+        for line in text.splitlines():
+            if line.startswith("static") and not re.match(r"static\s+const\b", line):
+                assert "(" in line, f"{name}: mutable global: {line}"
+
+
+def cc():
+    return shutil.which("cc") or shutil.which("gcc")
+
+
+@pytest.mark.skipif(cc() is None, reason="no C compiler")
+def test_two_threads_at_once(built, tmp_path):
+    out = built[0]
+    exe = tmp_path / "threads"
+    subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-pthread", f"-I{out}", str(HERE / "c" / "threads.c"),
+                    f"-L{out}", "-lrscasadi_arm", f"-Wl,-rpath,{out}", "-lm", "-o", str(exe)], check=True)
+    run = subprocess.run([str(exe)], capture_output=True, text=True)
+    assert run.returncode == 0 and "identical" in run.stdout, run.stdout + run.stderr
+
+
+def test_hostile_names_never_reach_c(tmp_path):
+    doc = random_arm_doc(np.random.default_rng(24), 2, balanced=True)
+    evil = 'x"; system("rm -rf ~"); /* $(reboot) `id` */'
+    doc["name"] = evil
+    doc["joints"][0]["name"] = "j*/ #include <stdio.h> //"
+    path = tmp_path / "evil.toml"
+    path.write_text(to_toml(doc))
+    assert rscasadi.load(path).model.name == evil
+    manifest = generate(path, tmp_path / "out", opt="-O1", log=lambda m: None)
+    for name in manifest["sources"] + [manifest["header"]]:
+        text = (tmp_path / "out" / name).read_text()
+        assert "rm -rf" not in text and "reboot" not in text and "#include <stdio.h> //" not in text
+    with pytest.raises(CodegenError, match="not a C identifier"):
+        generate(path, tmp_path / "bad", prefix="a; rm -rf /", log=lambda m: None)
+    assert not (tmp_path / "bad").exists()
+
+
+def test_missing_compiler_and_failed_compile_leave_nothing(tmp_path, monkeypatch):
+    monkeypatch.setenv("CC", "no-such-compiler-xyz")
+    with pytest.raises(CodegenError, match="C compiler 'no-such-compiler-xyz' not found"):
+        generate(REFERENCE, tmp_path / "out", log=lambda m: None)
+    monkeypatch.setenv("CC", "false")                    # a "compiler" that always fails
+    with pytest.raises(CodegenError, match="compiling .* failed"):
+        generate(REFERENCE, tmp_path / "out", log=lambda m: None)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_unwritable_or_foreign_directory(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    with pytest.raises(CodegenError, match="cannot write into"):
+        generate(REFERENCE, blocker / "out", log=lambda m: None)
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "precious.txt").write_text("keep me")
+    with pytest.raises(CodegenError, match="not an rscasadi codegen directory"):
+        generate(REFERENCE, foreign, opt="-O1", log=lambda m: None)
+    assert (foreign / "precious.txt").read_text() == "keep me"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "foreign"]
