@@ -1,5 +1,6 @@
 """Fixtures: the reference arm and random valid arms written as real model files."""
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -96,3 +97,24 @@ def random_state(rng, n, scale=1.0):
 
 def dm(v):
     return np.array(v, dtype=float).ravel()
+
+
+@pytest.fixture(scope="session", autouse=True)
+def private_cache(tmp_path_factory):
+    """Every test session compiles for real (at -O1, fast) into its own cache."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("RSCASADI_CACHE", str(tmp_path_factory.mktemp("cache")))
+    yield
+    mp.undo()
+
+
+@pytest.fixture(scope="session")
+def built(tmp_path_factory, private_cache):
+    """The reference arm generated and compiled (-O1): (directory, manifest)."""
+    from rscasadi.codegen import generate
+    out = tmp_path_factory.mktemp("gen") / "arm3"
+    return out, generate(REFERENCE, out, opt="-O1", log=lambda m: None)
+
+
+def cc():
+    return shutil.which("cc") or shutil.which("gcc")

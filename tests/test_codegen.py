@@ -14,24 +14,9 @@ import rscasadi
 from rscasadi.codegen import CodegenError, functions, generate
 from rscasadi.numeric import Numeric
 
-from conftest import REFERENCE, random_arm_doc, to_toml, write_arm
+from conftest import REFERENCE, cc, random_arm_doc, to_toml, write_arm
 
 HERE = Path(__file__).resolve().parent
-
-
-@pytest.fixture(scope="session", autouse=True)
-def private_cache(tmp_path_factory):
-    """Every test session compiles for real (at -O1, fast) into its own cache."""
-    mp = pytest.MonkeyPatch()
-    mp.setenv("RSCASADI_CACHE", str(tmp_path_factory.mktemp("cache")))
-    yield
-    mp.undo()
-
-
-@pytest.fixture(scope="session")
-def built(tmp_path_factory, private_cache):
-    out = tmp_path_factory.mktemp("gen") / "arm3"
-    return out, generate(REFERENCE, out, opt="-O1", log=lambda m: None)
 
 
 def rel(a, b):
@@ -124,10 +109,6 @@ def test_no_malloc_and_no_mutable_globals(built):
         for line in text.splitlines():
             if line.startswith("static") and not re.match(r"static\s+const\b", line):
                 assert "(" in line, f"{name}: mutable global: {line}"
-
-
-def cc():
-    return shutil.which("cc") or shutil.which("gcc")
 
 
 @pytest.mark.skipif(cc() is None, reason="no C compiler")
