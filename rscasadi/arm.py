@@ -134,6 +134,36 @@ class Arm:
             return [rec.energy(segs, kin, self.model.gravity) + spring]
         return self._function("energy", STATE, ["E"], build)
 
+    def residual_jacobian(self) -> ca.Function:
+        """theta, phi, dtheta, dphi, ddtheta, ddphi -> dr/d(theta, phi, dtheta, dphi) (2n x 4n), where
+        r = M ddq + c - Q without its tau term (the rows of MODEL.md section 3)."""
+        def build(theta, phi, dtheta, dphi, ddtheta, ddphi):
+            x = (theta, phi, dtheta, dphi)
+            segs, kin = self._kin(False, x)
+            T, Qi_phi = rec.inverse_dynamics(segs, kin, ddtheta, ddphi, self.model.gravity)
+            T_s = self.sea_torque(*x)
+            r = ca.vertcat(T - T_s, Qi_phi + T_s + self.gear_loss(dphi))
+            return ca.cse([ca.jacobian(r, ca.vertcat(*x))])
+        return self._function("residual_jacobian", STATE + ["ddtheta", "ddphi"], ["jacobian"], build)
+
+    def forward_dynamics_jacobian(self) -> ca.Function:
+        """theta, phi, dtheta, dphi, tau -> jacobian = d(ddtheta, ddphi)/d(theta, phi, dtheta, dphi, tau)
+        (2n x 5n) by the implicit-function theorem on M ddq + c = Q at ddq = forward dynamics:
+        M J = [-dr/d(q, dq) | dQ/dtau], one LDL^T solve.  An MX graph calling compact SX
+        Functions: its size grows like the inverse-dynamics derivative, not like AD through
+        the articulated sweep."""
+        if "forward_dynamics_jacobian" not in self._functions:
+            n = self.n
+            x = [ca.MX.sym(name, n) for name in STATE]
+            tau = ca.MX.sym("tau", n)
+            ddtheta, ddphi = self.forward_dynamics()(*x, tau)
+            Jr = self.residual_jacobian()(*x, ddtheta, ddphi)
+            dQ_dtau = ca.vertcat(ca.MX.zeros(n, n), -ca.diag(ca.DM(self.model.column("gear_ratio"))))
+            J = ca.solve(self.mass_matrix()(x[0], x[1]), ca.horzcat(-Jr, dQ_dtau), "ldl")
+            self._functions["forward_dynamics_jacobian"] = ca.Function(
+                "forward_dynamics_jacobian", x + [tau], [J], STATE + ["tau"], ["jacobian"])
+        return self._functions["forward_dynamics_jacobian"]
+
     def mass_matrix(self, reduced: bool = False) -> ca.Function:
         """theta, phi -> M (2n x 2n, q = (theta, phi)), the Jacobian of the generalized inertial
         forces of the recursion with respect to (ddtheta, ddphi)."""

@@ -32,26 +32,61 @@ class CodegenError(RuntimeError):
 
 def _renamed(f: ca.Function, name: str, outs=None, out_names=None) -> ca.Function:
     """f under a new name, outputs after common-subexpression elimination (ca.cse)."""
+    if not f.is_a("SXFunction"):
+        return ca.Function(name, f.mx_in(), f.call(f.mx_in()), f.name_in(), out_names or f.name_out())
     ins = f.sx_in()
     outs = f.call(ins) if outs is None else outs(*ins)
     return ca.Function(name, ins, ca.cse(list(outs)), f.name_in(), out_names or f.name_out())
 
 
-def rk4_step(arm: Arm):
-    """One classical Runge-Kutta step of the complete model: (x, tau, h) -> x_next,
-    x = (theta, phi, dtheta, dphi) stacked (4n)."""
-    n, fd = arm.n, arm.forward_dynamics()
-    x, tau, h = ca.SX.sym("x", 4 * arm.n), ca.SX.sym("tau", arm.n), ca.SX.sym("h")
-
-    def f(x):
-        p = ca.vertsplit(x, n)
-        return ca.vertcat(p[2], p[3], *fd(*p, tau))
-
+def rk4(f, x, h):
+    """One classical Runge-Kutta step of dx/dt = f(x); returns x_next and the stage points."""
     k1 = f(x)
     k2 = f(x + h / 2 * k1)
     k3 = f(x + h / 2 * k2)
     k4 = f(x + h * k3)
-    return x, tau, h, x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4), (x, x + h / 2 * k1, x + h / 2 * k2, x + h * k3)
+
+
+def rhs(arm: Arm) -> ca.Function:
+    """The state equation as a compact SX Function: (x, tau) -> dx/dt, x = (theta, phi, dtheta, dphi)."""
+    n = arm.n
+    x, tau = ca.SX.sym("x", 4 * n), ca.SX.sym("tau", n)
+    p = ca.vertsplit(x, n)
+    xdot = ca.vertcat(p[2], p[3], *arm.forward_dynamics()(*p, tau))
+    return ca.Function("rhs", [x, tau], ca.cse([xdot]), ["x", "tau"], ["xdot"])
+
+
+def step_functions(arm: Arm, prefix: str = "", fd_jacobian: ca.Function | None = None):
+    """step: (x, tau, h) -> x_next, one RK4 step of the complete model; step_jacobian: (x, tau, h)
+    -> A = dx_next/dx, B = dx_next/dtau by the chain rule through the four stages.  Both are
+    MX graphs that call the SX right-hand side and the forward-dynamics Jacobian, so the
+    generated C grows with the size of that Jacobian, not with four inlined copies of it."""
+    n, f = arm.n, rhs(arm)
+    fd_jacobian = fd_jacobian or arm.forward_dynamics_jacobian()
+    x, tau, h = ca.MX.sym("x", 4 * n), ca.MX.sym("tau", n), ca.MX.sym("h")
+    x_next, stages = rk4(lambda z: f(z, tau), x, h)
+    kinematic = ca.horzcat(ca.MX.zeros(2 * n, 2 * n), ca.MX.eye(2 * n), ca.MX.zeros(2 * n, n))
+    I = ca.horzcat(ca.MX.eye(4 * n), ca.MX.zeros(4 * n, n))           # d x / d(x, tau)
+    E = ca.horzcat(ca.MX.zeros(n, 4 * n), ca.MX.eye(n))               # d tau / d(x, tau)
+    dk = []
+    for xi, factor in zip(stages, (0.0, 0.5, 0.5, 1.0)):
+        dX = I + factor * h * dk[-1] if dk else I                     # d(stage point)/d(x, tau)
+        J = ca.vertcat(kinematic, fd_jacobian(*ca.vertsplit(xi, n), tau))   # d xdot / d(x, tau)
+        dk.append(ca.mtimes(J, ca.vertcat(dX, E)))
+    dnext = I + h / 6 * (dk[0] + 2 * dk[1] + 2 * dk[2] + dk[3])
+    step = ca.Function(prefix + "step", [x, tau, h], [x_next], ["x", "tau", "h"], ["x_next"])
+    step_jac = ca.Function(prefix + "step_jacobian", [x, tau, h], [dnext[:, :4 * n], dnext[:, 4 * n:]],
+                           ["x", "tau", "h"], ["A", "B"])
+    return step, step_jac
+
+
+AD_JACOBIAN_LIMIT = 4000   # SX instructions; above it the implicit-function Jacobian is generated
+
+
+def _ad_jacobian(f: ca.Function, ins):
+    """The dense Jacobian of all outputs of f with respect to all its inputs, by SX AD."""
+    return ca.densify(ca.jacobian(ca.vertcat(*f.call(list(ins))), ca.vertcat(*ins)))
 
 
 def functions(arm: Arm, prefix: str = "") -> tuple[dict, dict]:
@@ -67,13 +102,11 @@ def functions(arm: Arm, prefix: str = "") -> tuple[dict, dict]:
             omitted[name] = str(exc)
     for name, base in (("forward_dynamics_jacobian", arm.forward_dynamics()),
                        ("inverse_dynamics_jacobian", arm.inverse_dynamics())):
-        def jac(*ins, base=base):
-            return [ca.densify(ca.jacobian(ca.vertcat(*base.call(list(ins))), ca.vertcat(*ins)))]
-        fns[name] = _renamed(base, p + name, jac, ["jacobian"])
-    x, tau, h, x_next = rk4_step(arm)
-    fns["step"] = ca.Function(p + "step", [x, tau, h], ca.cse([x_next]), ["x", "tau", "h"], ["x_next"])
-    AB = [ca.densify(ca.jacobian(x_next, x)), ca.densify(ca.jacobian(x_next, tau))]
-    fns["step_jacobian"] = ca.Function(p + "step_jacobian", [x, tau, h], ca.cse(AB), ["x", "tau", "h"], ["A", "B"])
+        fns[name] = _renamed(base, p + name, lambda *ins, base=base: [_ad_jacobian(base, ins)], ["jacobian"])
+    if fns["forward_dynamics_jacobian"].n_instructions() > AD_JACOBIAN_LIMIT:
+        fdj = arm.forward_dynamics_jacobian()              # implicit-function route: smaller C at large n
+        fns["forward_dynamics_jacobian"] = _renamed(fdj, p + "forward_dynamics_jacobian")
+    fns["step"], fns["step_jacobian"] = step_functions(arm, p, fns["forward_dynamics_jacobian"])
     return fns, omitted
 
 

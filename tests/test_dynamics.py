@@ -159,3 +159,18 @@ def test_paper_cascade_functions_have_the_complete_model_as_fixed_point(request)
         if arm.n > 1:
             wrong = dm(arm.arm_forward_dynamics()(*x, ddph, ddth + 50.0))
             assert rel([wrong], [ddth]) > 1e-8
+
+
+def test_forward_dynamics_jacobian_against_finite_differences(request):
+    """The implicit-function Jacobian (M J = [-dr/dx | dQ/dtau]) against central differences of
+    the numpy core, on random arms."""
+    rng = np.random.default_rng(8)
+    for arm in arms_under_test(request)[::2]:
+        n, num = arm.n, Numeric(arm.model)
+        x, tau = random_state(rng, n), rng.normal(size=n)
+        z = np.concatenate(x + [tau])
+        fd = lambda z: np.concatenate(num.forward_dynamics(*np.split(z[:4 * n], 4), z[4 * n:]))
+        eps = 1e-6 * max(1.0, np.max(np.abs(z)))
+        J_fd = np.column_stack([(fd(z + eps * e) - fd(z - eps * e)) / (2 * eps) for e in np.eye(5 * n)])
+        J = np.array(arm.forward_dynamics_jacobian()(*x, tau))
+        assert rel([J], [J_fd]) < 1e-6

@@ -27,11 +27,8 @@ def k1(arm):
 
 def python_twin(arm, seconds):
     """The same loop as examples/controller.c, on the symbolic Functions."""
-    inv, step, kk = arm.inverse_dynamics(), None, arm.model.column("k1")
-    from rscasadi.codegen import rk4_step
-    import casadi as ca
-    x_s, tau_s, h_s, x_next = rk4_step(arm)
-    step = ca.Function("step", [x_s, tau_s, h_s], [x_next])
+    from rscasadi.codegen import step_functions
+    inv, kk, (step, _) = arm.inverse_dynamics(), arm.model.column("k1"), step_functions(arm)
     w = 2 * 3.14159265358979323846 / PERIOD
 
     def desired(t):
