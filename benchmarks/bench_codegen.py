@@ -1,0 +1,118 @@
+"""Benchmark of the generated C (issue 3): ns per call from a C harness (median of 15
+batches, -O3), the same calls through casadi.external and the numerical core, the
+Pinocchio route (if `pin` is installed), n_instructions, and generate-and-compile time,
+for the reference arm and n = 6, 12.
+
+    python benchmarks/bench_codegen.py     # writes results/bench_codegen.{md,csv,png}
+"""
+import os
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from common import RESULTS, chain_arm, per_call, write_atomically  # noqa: E402
+import rscasadi  # noqa: E402
+from rscasadi.codegen import generate  # noqa: E402
+from rscasadi.numeric import Numeric  # noqa: E402
+
+try:
+    from rscasadi.pinocchio_route import PinocchioRoute
+except ImportError:                                   # pin is optional
+    PinocchioRoute = None
+
+HERE = Path(__file__).resolve().parent
+SIZES = (3, 6, 12)
+TARGETS = {"forward_dynamics": 250, "inverse_dynamics": 150, "forward_dynamics_jacobian": 2000}
+
+
+def main():
+    work = Path(tempfile.mkdtemp(prefix="rscasadi-bench-"))
+    os.environ["RSCASADI_CACHE"] = str(work / "cache")       # measure real compiles, not cache hits
+    harness = work / "harness"
+    subprocess.run(["cc", "-O2", "-std=c99", str(HERE / "harness.c"), "-ldl", "-o", str(harness)], check=True)
+    rows, compile_s = [], {}
+    for n in SIZES:
+        arm, out = chain_arm(n), work / f"arm{n}"
+        t0 = time.perf_counter()
+        manifest = generate(arm, out, log=lambda m: None)
+        compile_s[n] = time.perf_counter() - t0
+        print(f"n={n:2d}: generated and compiled {len(manifest['functions'])} functions in {compile_s[n]:.1f} s",
+              flush=True)
+        names = list(manifest["functions"])
+        run = subprocess.run([str(harness), str(out / manifest["library"])] + names,
+                             capture_output=True, text=True, check=True)
+        c_ns = {line.split()[0]: float(line.split()[1]) for line in run.stdout.splitlines()}
+        compiled, rng = rscasadi.load_compiled(out), np.random.default_rng(n)
+        num = Numeric(arm.model)
+        pin_route = PinocchioRoute(arm.model) if PinocchioRoute else None
+        x, tau = [rng.uniform(-0.5, 0.5, n) for _ in range(4)], rng.uniform(-0.1, 0.1, n)
+        for name in names:
+            f = compiled[name]
+            args = [rng.uniform(-0.25, 0.25, (f.size1_in(i), f.size2_in(i))) for i in range(f.n_in())]
+            ext = per_call(f, *args, repeat=3, min_time=0.1) * 1e9
+            ref = {"forward_dynamics": lambda: num.forward_dynamics(*x, tau),
+                   "inverse_dynamics": lambda: num.inverse_dynamics(*x, tau, tau)}.get(name)
+            num_ns = per_call(ref, repeat=3, min_time=0.1) * 1e9 if ref else float("nan")
+            pin_ns = (per_call(pin_route.forward_dynamics, *x, tau, repeat=3, min_time=0.1) * 1e9
+                      if pin_route and name == "forward_dynamics" else float("nan"))
+            rows.append((n, name, manifest["functions"][name]["n_instructions"], c_ns[name], ext, num_ns, pin_ns))
+            print(f"  {name:28s} C {c_ns[name]:10.1f} ns   casadi.external {ext / 1e3:8.1f} us"
+                  + (f"   numeric core {num_ns / 1e3:8.1f} us" if ref else "")
+                  + (f"   Pinocchio route {pin_ns / 1e3:6.1f} us" if pin_ns == pin_ns else ""), flush=True)
+
+    checks = [f"reference arm {name}: {c:.0f} ns (target <= {TARGETS[name]} ns): "
+              + ("met" if c <= TARGETS[name] else "MISSED")
+              for n, name, _, c, *_ in rows if n == 3 and name in TARGETS]
+    checks.append(f"reference arm generate+compile: {compile_s[3]:.1f} s (target < 30 s): "
+                  + ("met" if compile_s[3] < 30 else "MISSED"))
+    checks.append(f"n = 12 generate+compile: {compile_s[12]:.1f} s (target < 60 s): "
+                  + ("met" if compile_s[12] < 60 else "MISSED"))
+    fd12 = next(r for r in rows if r[0] == 12 and r[1] == "forward_dynamics")
+    if fd12[6] == fd12[6]:
+        checks.append(f"n = 12 forward dynamics: C {fd12[3]:.0f} ns vs Pinocchio route (from Python) "
+                      f"{fd12[6] / 1e3:.1f} us: {fd12[6] / fd12[3]:.0f}x")
+    checks.append(f"n = 12 forward dynamics: C {fd12[3]:.0f} ns vs the 20 us quoted for Pinocchio's C++ "
+                  f"route in the issue: {20000 / fd12[3]:.0f}x (target >= 5x): "
+                  + ("met" if 20000 / fd12[3] >= 5 else "MISSED"))
+    for c in checks:
+        print(c)
+
+    header = "n,function,n_instructions,c_ns,casadi_external_ns,numeric_core_ns,pinocchio_route_ns\n"
+    csv = header + "".join(f"{n},{name},{ni},{c:.1f},{e:.0f},{nu:.0f},{p:.0f}\n" for n, name, ni, c, e, nu, p in rows)
+    md = ["# Generated C: time per call", "",
+          "Measured by `python benchmarks/bench_codegen.py` on this machine (2 cores): C harness",
+          "`benchmarks/harness.c`, median of 15 batches, library at -O3. casadi.external, the numerical",
+          "core and the Pinocchio route are called from Python (their overhead included).",
+          "n_instructions: SX instructions; for the MX compositions (step, step_jacobian and, at larger n,",
+          "forward_dynamics_jacobian) it counts MX calls, not arithmetic.", "",
+          "| n | function | n_instructions | C (ns) | casadi.external (us) | numeric core (us) | Pinocchio route (us) |",
+          "|---|---|---|---|---|---|---|"]
+    fmt = lambda v: "" if v != v else f"{v / 1e3:.1f}"
+    md += [f"| {n} | {name} | {ni} | {c:.0f} | {e / 1e3:.1f} | {fmt(nu)} | {fmt(p)} |"
+           for n, name, ni, c, e, nu, p in rows]
+    md += ["", "| n | generate + compile (s) |", "|---|---|"] + [f"| {n} | {s:.1f} |" for n, s in compile_s.items()]
+    md += ["", "## Targets", ""] + [f"- {c}" for c in checks]
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for name in ("forward_dynamics", "inverse_dynamics", "forward_dynamics_jacobian", "step", "step_jacobian"):
+        ax.loglog(SIZES, [r[3] for r in rows if r[1] == name], "o-", label=name)
+    ax.set(xlabel="joints n", ylabel="ns per call (C, -O3)", title="generated C, time per call")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    RESULTS.mkdir(exist_ok=True)
+    tmp = RESULTS / "bench_codegen.tmp.png"
+    fig.savefig(tmp, dpi=120)
+    tmp.replace(RESULTS / "bench_codegen.png")
+    write_atomically(RESULTS / "bench_codegen.csv", csv)
+    write_atomically(RESULTS / "bench_codegen.md", "\n".join(md) + "\n")
+    print(f"wrote {RESULTS / 'bench_codegen.md'}, .csv, .png")
+
+
+if __name__ == "__main__":
+    main()
