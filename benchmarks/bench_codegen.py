@@ -17,7 +17,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from common import RESULTS, chain_arm, per_call, write_atomically  # noqa: E402
+from common import chain_arm, per_call, write_results  # noqa: E402
 import rscasadi  # noqa: E402
 from rscasadi.codegen import generate  # noqa: E402
 from rscasadi.numeric import Numeric  # noqa: E402
@@ -105,13 +105,7 @@ def main():
     ax.set(xlabel="joints n", ylabel="ns per call (C, -O3)", title="generated C, time per call")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    RESULTS.mkdir(exist_ok=True)
-    tmp = RESULTS / "bench_codegen.tmp.png"
-    fig.savefig(tmp, dpi=120)
-    tmp.replace(RESULTS / "bench_codegen.png")
-    write_atomically(RESULTS / "bench_codegen.csv", csv)
-    write_atomically(RESULTS / "bench_codegen.md", "\n".join(md) + "\n")
-    print(f"wrote {RESULTS / 'bench_codegen.md'}, .csv, .png")
+    write_results("bench_codegen", fig, csv, "\n".join(md) + "\n")
 
 
 if __name__ == "__main__":

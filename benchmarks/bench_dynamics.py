@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from common import RESULTS, chain_arm, mass_matrix_forward_dynamics, per_call, write_atomically  # noqa: E402
+from common import chain_arm, mass_matrix_forward_dynamics, per_call, write_results  # noqa: E402
 from rscasadi.numeric import Numeric  # noqa: E402
 
 SIZES = (3, 6, 12, 24)
@@ -65,13 +65,7 @@ def main():
     ax[1].set(xlabel="joints n", ylabel="us per call", title="time per call, in-process")
     ax[1].legend(fontsize=8)
     fig.tight_layout()
-    RESULTS.mkdir(exist_ok=True)
-    tmp = RESULTS / "bench_dynamics.png.tmp.png"
-    fig.savefig(tmp, dpi=120)
-    tmp.replace(RESULTS / "bench_dynamics.png")
-    write_atomically(RESULTS / "bench_dynamics.csv", csv)
-    write_atomically(RESULTS / "bench_dynamics.md", "\n".join(md) + "\n")
-    print(f"wrote {RESULTS / 'bench_dynamics.md'}, .csv, .png")
+    write_results("bench_dynamics", fig, csv, "\n".join(md) + "\n")
 
 
 if __name__ == "__main__":

@@ -67,3 +67,14 @@ def write_atomically(path: Path, text: str):
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(text)
     tmp.replace(path)
+
+
+def write_results(stem: str, fig, csv: str, md: str):
+    """results/STEM.png, .csv and .md, each replaced whole (no half-written file on failure)."""
+    RESULTS.mkdir(exist_ok=True)
+    tmp = RESULTS / f"{stem}.tmp.png"
+    fig.savefig(tmp, dpi=120)
+    tmp.replace(RESULTS / f"{stem}.png")
+    write_atomically(RESULTS / f"{stem}.csv", csv)
+    write_atomically(RESULTS / f"{stem}.md", md)
+    print(f"wrote {RESULTS / stem}.md, .csv, .png")
