@@ -9,10 +9,12 @@ from pathlib import Path
 import numpy as np
 
 from .arm import load
-from .codegen import CodegenError
+from .files import OutputError
 from .modelfile import ModelFileError
 
-REFERENCE = Path(__file__).resolve().parents[1] / "problems" / "arm3.toml"
+PROBLEMS = Path(__file__).resolve().parents[1] / "problems"
+REFERENCE = PROBLEMS / "arm3.toml"
+TRAJECTORY = PROBLEMS / "trajectory_arm3.toml"
 
 
 def model_report(path) -> str:
@@ -51,12 +53,18 @@ def cmd_info(args):
     print(model_report(args.model), end="")
 
 
+def cmd_paper(args):
+    from .paper import run
+    run(args.trajectory, args.out, duration=args.duration, sweeps=not args.no_sweep,
+        log=lambda msg: print(msg, flush=True))
+
+
 def cmd_reproduce(args):
+    from .paper import run
     out = Path(args.out)
-    report = model_report(args.model)
-    _write(out / "model.md", report)
-    print(report, end="")
+    _write(out / "model.md", model_report(REFERENCE))
     print(f"wrote {out / 'model.md'}")
+    run(TRAJECTORY, out / "paper", log=lambda msg: print(msg, flush=True))
 
 
 def cmd_codegen(args):
@@ -84,14 +92,19 @@ def main(argv=None):
     p.add_argument("--prefix", default=None, help="C identifier put before every function name (P_name)")
     p.add_argument("--opt", default="-O3", help="optimisation flag (default -O3)")
     p.set_defaults(func=cmd_codegen)
+    p = sub.add_parser("paper", help="reproduce the paper's simulation (Figs. 5-11), the cascade study and sweeps")
+    p.add_argument("--trajectory", default=str(TRAJECTORY), help="expected-trajectory file (names its model)")
+    p.add_argument("--out", default="results/paper")
+    p.add_argument("--duration", type=float, default=None, help="simulated time (default: the file's)")
+    p.add_argument("--no-sweep", action="store_true", help="skip the parameter sweeps")
+    p.set_defaults(func=cmd_paper)
     p = sub.add_parser("reproduce", help="the main job: everything the project reproduces, into --out")
-    p.add_argument("--model", default=str(REFERENCE))
     p.add_argument("--out", default="results")
     p.set_defaults(func=cmd_reproduce)
     args = parser.parse_args(argv)
     try:
         args.func(args)
-    except (ModelFileError, CodegenError, ValueError) as exc:
+    except (ModelFileError, OutputError, ValueError) as exc:
         print(f"rscasadi: error: {exc}", file=sys.stderr)
         return 2
     return 0

@@ -14,19 +14,19 @@ import re
 import shlex
 import shutil
 import subprocess
-import tempfile
 from pathlib import Path
 
 import casadi as ca
 
 from .arm import Arm, load
+from .files import OutputError, fresh_directory
 
 IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,62}\Z")
 LIBRARY = "librscasadi_arm.so"
 HEADER = "rscasadi_arm.h"
 
 
-class CodegenError(RuntimeError):
+class CodegenError(OutputError):
     """Generating or compiling the C code failed; nothing was left half-written."""
 
 
@@ -156,13 +156,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print)
     out = Path(out).resolve()
     cc = _compiler()
     flags = [opt, "-std=c99"]
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-        tmp.chmod(0o755)
-    except OSError as exc:
-        raise CodegenError(f"cannot write into {out.parent}: {exc.strerror}") from exc
-    try:
+    with fresh_directory(out, "manifest.json") as tmp:
         fns, omitted = functions(arm, prefix)
         header_gen = ca.CodeGenerator(HEADER.removesuffix(".h"), {"with_header": True})
         sources = []
@@ -205,24 +199,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print)
             "source_hash": key,
         }
         (tmp / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
-        _replace_dir(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return manifest
-
-
-def _replace_dir(new: Path, out: Path):
-    """Put the finished directory in place: a reader sees the old one or the new one, whole."""
-    if out.exists() and not (out / "manifest.json").exists() and any(out.iterdir()):
-        raise CodegenError(f"{out} exists and is not an rscasadi codegen directory; refusing to replace it")
-    old = None
-    if out.exists():
-        old = out.with_name(f".{out.name}.old.{os.getpid()}")
-        out.rename(old)
-    new.rename(out)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
 
 
 class Compiled:

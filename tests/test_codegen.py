@@ -12,6 +12,7 @@ import pytest
 
 import rscasadi
 from rscasadi.codegen import CodegenError, functions, generate
+from rscasadi.files import OutputError
 from rscasadi.numeric import Numeric
 
 from conftest import REFERENCE, cc, random_arm_doc, to_toml, write_arm
@@ -151,12 +152,12 @@ def test_missing_compiler_and_failed_compile_leave_nothing(tmp_path, monkeypatch
 def test_unwritable_or_foreign_directory(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("")
-    with pytest.raises(CodegenError, match="cannot write into"):
+    with pytest.raises(OutputError, match="cannot write into"):
         generate(REFERENCE, blocker / "out", log=lambda m: None)
     foreign = tmp_path / "foreign"
     foreign.mkdir()
     (foreign / "precious.txt").write_text("keep me")
-    with pytest.raises(CodegenError, match="not an rscasadi codegen directory"):
+    with pytest.raises(OutputError, match="was not written by rscasadi"):
         generate(REFERENCE, foreign, opt="-O1", log=lambda m: None)
     assert (foreign / "precious.txt").read_text() == "keep me"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "foreign"]

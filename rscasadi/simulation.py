@@ -1,0 +1,191 @@
+"""Simulation: the exact complete (or reduced) model, the feedforward pipeline, and the
+paper's cascade of flexible-joint and whole-arm dynamics with an Adams predictor-corrector.
+
+Torques are samples tau[:, k] at uniform times t[k], linearly interpolated in between.
+States are x = (theta, phi, dtheta, dphi) stacked (4n).
+"""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from .arm import Arm
+
+
+def _uniform_step(t):
+    t = np.asarray(t, float)
+    h = np.diff(t)
+    if len(t) < 2 or np.max(np.abs(h - h[0])) > 1e-9 * max(1.0, abs(t[-1])):
+        raise ValueError("simulation times must be a uniform grid of at least two points")
+    return float(h[0])
+
+
+def _xdot(arm: Arm, reduced: bool):
+    fd = arm.reduced_forward_dynamics() if reduced else arm.forward_dynamics()
+    return lambda x, tau: ca.vertcat(*ca.vertsplit(x, arm.n)[2:], *fd(*ca.vertsplit(x, arm.n), tau))
+
+
+def simulate(arm: Arm, x0, t, tau, method: str = "cvodes", tol: float = 1e-10, substeps: int = 4,
+             reduced: bool = False) -> dict:
+    """Integrate from x0 over the uniform grid t with torque samples tau (n, len(t)).
+
+    method "cvodes": adaptive BDF/Adams (CasADi's CVODES) to relative/absolute `tol`;
+    method "rk4": `substeps` classical RK4 steps per sample interval.
+    Returns t, theta, phi, dtheta, dphi (n, len(t)), psi = phi - theta, and energy."""
+    n, dt = arm.n, _uniform_step(t)
+    tau = np.asarray(tau, float).reshape(n, len(t))
+    x, p, s = ca.MX.sym("x", 4 * n), ca.MX.sym("p", 2 * n), ca.MX.sym("s")
+    f = _xdot(arm, reduced)
+    torque = lambda s: p[:n] + s / dt * (p[n:] - p[:n])              # linear in the interval
+    if method == "cvodes":
+        xs, ps, ts = ca.SX.sym("x", 4 * n), ca.SX.sym("p", 2 * n), ca.SX.sym("t")
+        fs = _xdot(arm, reduced)
+        ode = {"x": xs, "p": ps, "t": ts, "ode": fs(xs, ps[:n] + ts / dt * (ps[n:] - ps[:n]))}
+        F = ca.integrator("F", "cvodes", ode, 0.0, dt, {"abstol": tol, "reltol": tol, "max_num_steps": 100000})
+        x_end = F(x0=x, p=p)["xf"]
+    elif method == "rk4":
+        h, x_end = dt / substeps, x
+        for i in range(substeps):
+            s0 = i * h
+            k1 = f(x_end, torque(s0))
+            k2 = f(x_end + h / 2 * k1, torque(s0 + h / 2))
+            k3 = f(x_end + h / 2 * k2, torque(s0 + h / 2))
+            k4 = f(x_end + h * k3, torque(s0 + h))
+            x_end = x_end + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    else:
+        raise ValueError(f"unknown method {method!r} (cvodes or rk4)")
+    interval = ca.Function("interval", [x, p], [x_end])
+    P = np.vstack([tau[:, :-1], tau[:, 1:]])
+    X = np.hstack([np.asarray(x0, float).reshape(-1, 1), np.array(interval.mapaccum(len(t) - 1)(x0, P))])
+    return trajectory_record(arm, t, X)
+
+
+def trajectory_record(arm: Arm, t, X) -> dict:
+    n = arm.n
+    theta, phi, dtheta, dphi = (X[i * n:(i + 1) * n] for i in range(4))
+    E = np.array(arm.energy().map(X.shape[1])(theta, phi, dtheta, dphi)).ravel()
+    return {"t": np.asarray(t, float), "theta": theta, "phi": phi, "dtheta": dtheta, "dphi": dphi,
+            "psi": phi - theta, "energy": E, "x": X}
+
+
+# ------------------------------------------------------------------ feedforward along a trajectory
+
+def spring_deflection(arm: Arm, T, psi=None):
+    """psi with k1 psi + k3 psi^3 = T (static part of the spring law), by Newton."""
+    k1, k3 = arm.model.column("k1"), arm.model.column("k3")
+    psi = T / k1 if psi is None else psi
+    for _ in range(30):
+        psi = psi - (k1 * psi + k3 * psi ** 3 - T) / (k1 + 3 * k3 * psi ** 2)
+    return psi
+
+
+def feedforward(arm: Arm, trajectory, t, reduced: bool = False) -> dict:
+    """Motor torques that make the arm follow the expected link motion, by the cascade of the
+    whole-arm inverse dynamics (eq. 26) and the flexible-joint inverse dynamics (eq. 22).
+
+    The SEA deflection psi = phi - theta must produce the torque T that eq. (26) requires:
+    T = k1 psi + k3 psi^3 + d dpsi, integrated in time by the trapezoidal rule (implicit, as
+    d/k1 is about a millisecond).  Eq. (26) itself needs ddphi = ddtheta + ddpsi (through the
+    coupling S): it is predicted by linear extrapolation and corrected once (PECE).
+    Starts in the spring-consistent static equilibrium of theta(0) (the trajectory starts at rest).
+    Returns tau (n, len(t)), the initial state x0, and the rotor motion phi, dphi, ddphi."""
+    n, h = arm.n, _uniform_step(t)
+    inv = arm.reduced_inverse_dynamics() if reduced else arm.inverse_dynamics()
+    th, dth, ddth = trajectory(t)[:3]
+    k1, k3, d = (arm.model.column(a) for a in ("k1", "k3", "d"))
+    N = len(t)
+    psi, dpsi, ddpsi, tau = np.zeros((n, N)), np.zeros((n, N)), np.zeros((n, N)), np.zeros((n, N))
+
+    def T_required(k, psi_k, dpsi_k, ddpsi_k):                         # eq. (26)
+        return np.array(inv(th[:, k], th[:, k] + psi_k, dth[:, k], dth[:, k] + dpsi_k, ddth[:, k],
+                            ddth[:, k] + ddpsi_k)[1]).ravel()
+
+    psi[:, 0] = spring_deflection(arm, T_required(0, np.zeros(n), np.zeros(n), np.zeros(n)))
+    psi[:, 0] = spring_deflection(arm, T_required(0, psi[:, 0], np.zeros(n), np.zeros(n)), psi[:, 0])
+    for k in range(N - 1):
+        prev = max(k - 1, 0)
+        ddpsi_new = 2 * ddpsi[:, k] - ddpsi[:, prev]                     # predictor
+        dpsi_new = dpsi[:, k] + h * ddpsi[:, k]
+        psi_new = psi[:, k] + h * dpsi[:, k]
+        for _ in range(2):                                              # evaluate, correct
+            T = T_required(k + 1, psi_new, dpsi_new, ddpsi_new)
+            for _ in range(4):                                          # trapezoid + spring law, Newton
+                g = 2 * d / h * (psi_new - psi[:, k]) - d * dpsi[:, k] + k1 * psi_new + k3 * psi_new ** 3 - T
+                psi_new = psi_new - g / (2 * d / h + k1 + 3 * k3 * psi_new ** 2)
+            dpsi_new = 2 / h * (psi_new - psi[:, k]) - dpsi[:, k]
+            ddpsi_new = (dpsi_new - dpsi[:, k]) / h
+        psi[:, k + 1], dpsi[:, k + 1], ddpsi[:, k + 1] = psi_new, dpsi_new, ddpsi_new
+    phi, dphi, ddphi = th + psi, dth + dpsi, ddth + ddpsi
+    for k in range(N):                                                  # eq. (22)
+        tau[:, k] = np.array(inv(th[:, k], phi[:, k], dth[:, k], dphi[:, k], ddth[:, k], ddphi[:, k])[0]).ravel()
+    x0 = np.concatenate([th[:, 0], phi[:, 0], dth[:, 0], dphi[:, 0]])
+    return {"t": np.asarray(t, float), "tau": tau, "x0": x0, "theta_d": th, "phi": phi, "dphi": dphi, "ddphi": ddphi}
+
+
+# ------------------------------------------------------------------ the paper's cascade, forward
+
+def cascade_accelerations(arm: Arm) -> ca.Function:
+    """(x, tau, ddtheta_guess) -> (ddtheta, ddphi): flexible-joint eq. (23) with the guessed link
+    accelerations, then whole-arm eqs. (30)-(32) with those rotor accelerations."""
+    n = arm.n
+    x, tau, guess = ca.SX.sym("x", 4 * n), ca.SX.sym("tau", n), ca.SX.sym("guess", n)
+    q = ca.vertsplit(x, n)
+    ddphi = arm.joint_forward_dynamics()(*q, tau, guess)
+    ddtheta = arm.arm_forward_dynamics()(*q, ddphi, guess)
+    return ca.Function("cascade", [x, tau, guess], [ddtheta, ddphi])
+
+
+AB4 = np.array([55, -59, 37, -9]) / 24          # Adams-Bashforth, newest first
+AM4 = np.array([9, 19, -5, 1]) / 24             # Adams-Moulton: new, then newest first
+EXTRAPOLATE = np.array([4, -6, 4, -1])          # cubic extrapolation of the link accelerations
+
+
+def cascade_simulate(arm: Arm, x0, t, tau, h: float, start_iterations: int = 6) -> dict:
+    """The paper's forward simulation: eqs. (23) and (30)-(32) computed alternately, coupled by a
+    fourth-order Adams-Bashforth-Moulton predictor-corrector (PECE) with step h.  The link
+    accelerations that eq. (23) needs are extrapolated (cubic) for the predictor and taken from
+    the predictor's evaluation for the corrector.  Start: three RK4 steps, in each stage the
+    cascade iterated `start_iterations` times from the previous accelerations.
+    Returns the states at the sample times t (t must be multiples of h)."""
+    n, dt = arm.n, _uniform_step(t)
+    m = int(round(dt / h))
+    if m < 1 or abs(m * h - dt) > 1e-9 * dt:
+        raise ValueError(f"the sample interval {dt} must be a whole number of steps h = {h}")
+    casc = cascade_accelerations(arm)
+    tau = np.asarray(tau, float).reshape(n, len(t))
+    t_fine = np.arange(0, (len(t) - 1) * m + 1) * h + t[0]
+    torque = lambda s: np.array([np.interp(s, t, tau[i]) for i in range(n)])
+
+    def accel(x, s, guess, iterations=1):
+        for _ in range(iterations):
+            a, b = casc(x, torque(s), guess)
+            guess = np.array(a).ravel()
+        return np.concatenate([guess, np.array(b).ravel()])
+
+    def f(x, a):
+        return np.concatenate([x[2 * n:], a])
+
+    x, a = np.asarray(x0, float), accel(np.asarray(x0, float), t_fine[0], np.zeros(n), start_iterations)
+    X, F, A = [x], [f(x, a)], [a[:n]]
+    for k in range(min(3, len(t_fine) - 1)):                        # starting procedure: RK4
+        s, stages, guess = t_fine[k], [], a[:n]
+        for c, base in ((0.0, None), (0.5, 0), (0.5, 1), (1.0, 2)):
+            xs = x if base is None else x + c * h * stages[base]
+            a_s = accel(xs, s + c * h, guess, start_iterations)
+            guess = a_s[:n]
+            stages.append(f(xs, a_s))
+        x = x + h / 6 * (stages[0] + 2 * stages[1] + 2 * stages[2] + stages[3])
+        a = accel(x, s + h, guess, start_iterations)
+        X.append(x), F.append(f(x, a)), A.append(a[:n])
+    for k in range(3, len(t_fine) - 1):                             # ABM4, PECE
+        s = t_fine[k + 1]
+        x_p = x + h * sum(c * F[-1 - i] for i, c in enumerate(AB4))
+        guess = sum(c * A[-1 - i] for i, c in enumerate(EXTRAPOLATE))
+        a_p = accel(x_p, s, guess)
+        x = x + h * (AM4[0] * f(x_p, a_p) + sum(c * F[-1 - i] for i, c in enumerate(AM4[1:])))
+        a = accel(x, s, a_p[:n])
+        X.append(x), F.append(f(x, a)), A.append(a[:n])
+        if len(F) > 4:
+            del F[0], A[0]
+    X = np.array(X).T[:, ::m]
+    return trajectory_record(arm, t, X)
