@@ -59,6 +59,14 @@ def cmd_paper(args):
         log=lambda msg: print(msg, flush=True))
 
 
+def cmd_ocp(args):
+    from .ocp import run
+    sol = run(args.problem, args.out, warm_file=args.warm, log=lambda msg: print(msg, flush=True),
+              print_level=0 if args.quiet else 5)
+    print(f"wrote {Path(args.out) / 'solution.json'}")
+    return 0 if sol["success"] else 1
+
+
 def cmd_reproduce(args):
     from .paper import run
     out = Path(args.out)
@@ -98,16 +106,22 @@ def main(argv=None):
     p.add_argument("--duration", type=float, default=None, help="simulated time (default: the file's)")
     p.add_argument("--no-sweep", action="store_true", help="skip the parameter sweeps")
     p.set_defaults(func=cmd_paper)
+    p = sub.add_parser("ocp", help="solve an optimal-control problem file, verify it, write solution.json and plots")
+    p.add_argument("problem")
+    p.add_argument("--out", default="results/ocp")
+    p.add_argument("--warm", default=None, help="a previous solution.json to start from")
+    p.add_argument("--quiet", action="store_true", help="no IPOPT iteration log")
+    p.set_defaults(func=cmd_ocp)
     p = sub.add_parser("reproduce", help="the main job: everything the project reproduces, into --out")
     p.add_argument("--out", default="results")
     p.set_defaults(func=cmd_reproduce)
     args = parser.parse_args(argv)
     try:
-        args.func(args)
+        code = args.func(args)
     except (ModelFileError, OutputError, ValueError) as exc:
         print(f"rscasadi: error: {exc}", file=sys.stderr)
         return 2
-    return 0
+    return code or 0
 
 
 if __name__ == "__main__":

@@ -26,21 +26,25 @@ def _xdot(arm: Arm, reduced: bool):
 
 
 def simulate(arm: Arm, x0, t, tau, method: str = "cvodes", tol: float = 1e-10, substeps: int = 4,
-             reduced: bool = False) -> dict:
-    """Integrate from x0 over the uniform grid t with torque samples tau (n, len(t)).
+             reduced: bool = False, interpolation: str = "linear") -> dict:
+    """Integrate from x0 over the uniform grid t with torque samples tau (n, len(t)),
+    interpolated "linear"ly or held "constant" on [t_k, t_k+1).
 
     method "cvodes": adaptive BDF/Adams (CasADi's CVODES) to relative/absolute `tol`;
     method "rk4": `substeps` classical RK4 steps per sample interval.
     Returns t, theta, phi, dtheta, dphi (n, len(t)), psi = phi - theta, and energy."""
     n, dt = arm.n, _uniform_step(t)
     tau = np.asarray(tau, float).reshape(n, len(t))
-    x, p, s = ca.MX.sym("x", 4 * n), ca.MX.sym("p", 2 * n), ca.MX.sym("s")
+    if interpolation not in ("linear", "constant"):
+        raise ValueError(f"unknown interpolation {interpolation!r} (linear or constant)")
+    slope = 1.0 if interpolation == "linear" else 0.0
+    x, p = ca.MX.sym("x", 4 * n), ca.MX.sym("p", 2 * n)
     f = _xdot(arm, reduced)
-    torque = lambda s: p[:n] + s / dt * (p[n:] - p[:n])              # linear in the interval
+    torque = lambda s: p[:n] + slope * s / dt * (p[n:] - p[:n])      # within one interval
     if method == "cvodes":
         xs, ps, ts = ca.SX.sym("x", 4 * n), ca.SX.sym("p", 2 * n), ca.SX.sym("t")
         fs = _xdot(arm, reduced)
-        ode = {"x": xs, "p": ps, "t": ts, "ode": fs(xs, ps[:n] + ts / dt * (ps[n:] - ps[:n]))}
+        ode = {"x": xs, "p": ps, "t": ts, "ode": fs(xs, ps[:n] + slope * ts / dt * (ps[n:] - ps[:n]))}
         F = ca.integrator("F", "cvodes", ode, 0.0, dt, {"abstol": tol, "reltol": tol, "max_num_steps": 100000})
         x_end = F(x0=x, p=p)["xf"]
     elif method == "rk4":

@@ -1,0 +1,117 @@
+"""Optimal control: problem files, transcriptions, honest verification, the `ocp` command."""
+import json
+import tomllib
+
+import numpy as np
+import pytest
+
+from rscasadi.cli import main
+from rscasadi.modelfile import ModelFileError
+from rscasadi.ocp import load_problem, run, solve, verify
+
+from conftest import REFERENCE, to_toml
+
+
+@pytest.fixture(scope="module")
+def pitch_arm(tmp_path_factory):
+    """The reference arm's shoulder pitch alone: one joint working against gravity."""
+    with open(REFERENCE, "rb") as fh:
+        doc = tomllib.load(fh)
+    doc["joints"] = [doc["joints"][1]]
+    d = tmp_path_factory.mktemp("ocp")
+    (d / "pitch.toml").write_text(to_toml(doc))
+    return d
+
+
+def problem(directory, name="p.toml", **over):
+    text = {"model": "pitch.toml", "objective": "min_effort", "theta_start": [0.2], "theta_end": [0.9],
+            "duration": 1.0}
+    text.update({k: v for k, v in over.items() if k != "transcription"})
+    tr = {"method": "radau", "degree": 3, "intervals": 40, "dynamics": "explicit", "compiled": False}
+    tr.update(over.get("transcription", {}))
+    body = to_toml({k: v for k, v in text.items()}) + "\n[transcription]\n" + "\n".join(
+        f"{k} = {json.dumps(v)}" for k, v in tr.items()) + "\n"
+    path = directory / name
+    path.write_text(body)
+    return path
+
+
+@pytest.mark.parametrize("over,field", [
+    ({"objective": "fastest"}, "objective"),
+    ({"duration": -1.0}, "duration"),
+    ({"theta_end": "far"}, "theta_end"),
+    ({"colour": 1}, "colour"),
+    ({"transcription": {"method": "euler"}}, "transcription.method"),
+    ({"transcription": {"degree": 0}}, "transcription.degree"),
+    ({"transcription": {"dynamics": "magic"}}, "transcription.dynamics"),
+    ({"transcription": {"knots": 3}}, "transcription.knots"),
+])
+def test_bad_problem_file_names_the_field(pitch_arm, over, field):
+    path = problem(pitch_arm, "bad.toml", **over)
+    with pytest.raises(ModelFileError, match=rf"bad\.toml: field '{field}'"):
+        load_problem(path)
+
+
+def test_min_effort_solves_and_passes_the_independent_replay(pitch_arm):
+    sol = solve(load_problem(problem(pitch_arm, transcription={"intervals": 60})), print_level=0, log=lambda m: None)
+    assert sol["success"] and sol["status"] == "Solve_Succeeded"
+    report = verify(sol)
+    assert report["final_state_error"] < 1e-3 and report["max_limit_violation"] <= 1e-3
+    t, tau = np.asarray(sol["t"]), np.asarray(sol["tau"])
+    assert np.isclose(sol["objective"], np.sum(np.diff(t) * tau[0, :-1] ** 2), rtol=1e-9)
+
+
+@pytest.mark.parametrize("method,dynamics", [("legendre", "explicit"), ("hermite-simpson", "explicit"),
+                                             ("radau", "implicit")])
+def test_transcriptions_agree(pitch_arm, method, dynamics):
+    ref = solve(load_problem(problem(pitch_arm, "r.toml", transcription={"intervals": 60})), print_level=0,
+                log=lambda m: None)
+    tr = {"method": method, "dynamics": dynamics, "intervals": 120 if method == "hermite-simpson" else 60}
+    sol = solve(load_problem(problem(pitch_arm, "o.toml", transcription=tr)), print_level=0, log=lambda m: None)
+    assert sol["success"]
+    assert abs(sol["objective"] - ref["objective"]) < 0.03 * ref["objective"]
+
+
+def test_min_time_respects_the_torque_limit(pitch_arm):
+    sol = solve(load_problem(problem(pitch_arm, objective="min_time", max_duration=5.0,
+                                     transcription={"intervals": 50})), print_level=0, log=lambda m: None)
+    assert sol["success"]
+    tau = np.asarray(sol["tau"])
+    assert np.max(np.abs(tau)) <= 0.6 + 1e-6
+    assert np.max(np.abs(tau)) > 0.55, "a minimum-time solution uses the torque limit"
+    assert sol["t"][-1] < 1.0
+
+
+def test_infeasible_limits_fail_loudly(pitch_arm, capsys):
+    path = problem(pitch_arm, "inf.toml", objective="min_time", max_duration=0.05, transcription={"intervals": 20})
+    out = pitch_arm / "inf_out"
+    code = main(["ocp", str(path), "--out", str(out), "--quiet"])
+    text = capsys.readouterr().out
+    assert code == 1 and "FAILED" in text
+    sol = json.loads((out / "solution.json").read_text())
+    assert sol["success"] is False and sol["status"] != "Solve_Succeeded"
+
+
+def test_ocp_command_writes_solution_and_plots(pitch_arm, capsys):
+    out = pitch_arm / "out"
+    code = main(["ocp", str(problem(pitch_arm, "cli.toml", transcription={"intervals": 60})), "--out", str(out), "--quiet"])
+    assert code == 0, capsys.readouterr().out
+    sol = json.loads((out / "solution.json").read_text())
+    assert set(sol) >= {"model", "status", "success", "solve_time_s", "iterations", "objective", "t", "theta",
+                        "phi", "dtheta", "dphi", "tau", "tau_interpolation"}
+    assert sol["tau_interpolation"] == "constant" and sol["verification"]["passed"]
+    assert len(sol["theta"]) == 1 and len(sol["theta"][0]) == len(sol["t"]) == 61
+    assert (out / "solution.png").exists()
+    # warm start from it: converges in fewer iterations
+    code = main(["ocp", str(problem(pitch_arm, "cli.toml", transcription={"intervals": 60})), "--out", str(out),
+                 "--warm", str(out / "solution.json"), "--quiet"])
+    warm = json.loads((out / "solution.json").read_text())
+    assert code == 0 and warm["iterations"] < sol["iterations"]
+
+
+def test_bad_problem_file_exit_code(tmp_path, capsys):
+    f = tmp_path / "x.toml"
+    f.write_text('model = "m.toml"\nobjective = "min_effort"\n')
+    assert main(["ocp", str(f), "--out", str(tmp_path / "o")]) == 2
+    assert "field 'duration'" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
