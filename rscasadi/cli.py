@@ -73,6 +73,16 @@ def cmd_reproduce(args):
     _write(out / "model.md", model_report(REFERENCE))
     print(f"wrote {out / 'model.md'}")
     run(TRAJECTORY, out / "paper", log=lambda msg: print(msg, flush=True))
+    from .ocp import run as run_ocp
+    failed = []
+    for name in ("min_time", "min_effort", "tracking"):
+        sol = run_ocp(PROBLEMS / f"ocp_{name}.toml", out / "ocp" / name, log=lambda msg: print(msg, flush=True),
+                      print_level=0)
+        if not sol["success"]:
+            failed.append(name)
+    if failed:
+        print(f"rscasadi: error: optimal-control problems not solved and verified: {', '.join(failed)}", file=sys.stderr)
+        return 1
 
 
 def cmd_codegen(args):
