@@ -56,7 +56,7 @@ def cmd_info(args):
 def cmd_paper(args):
     from .paper import run
     run(args.trajectory, args.out, duration=args.duration, sweeps=not args.no_sweep,
-        log=lambda msg: print(msg, flush=True))
+        log=lambda msg: print(msg, flush=True), ocp_problem=args.ocp or None)
 
 
 def cmd_ocp(args):
@@ -72,7 +72,7 @@ def cmd_reproduce(args):
     out = Path(args.out)
     _write(out / "model.md", model_report(REFERENCE))
     print(f"wrote {out / 'model.md'}")
-    run(TRAJECTORY, out / "paper", log=lambda msg: print(msg, flush=True))
+    run(TRAJECTORY, out / "paper", log=lambda msg: print(msg, flush=True), ocp_problem=PROBLEMS / "ocp_tracking.toml")
     from .ocp import run as run_ocp
     failed = []
     for name in ("min_time", "min_effort", "tracking"):
@@ -115,6 +115,8 @@ def main(argv=None):
     p.add_argument("--out", default="results/paper")
     p.add_argument("--duration", type=float, default=None, help="simulated time (default: the file's)")
     p.add_argument("--no-sweep", action="store_true", help="skip the parameter sweeps")
+    p.add_argument("--ocp", default=str(PROBLEMS / "ocp_tracking.toml"),
+                   help="tracking OCP problem for method (c) (empty string: skip)")
     p.set_defaults(func=cmd_paper)
     p = sub.add_parser("ocp", help="solve an optimal-control problem file, verify it, write solution.json and plots")
     p.add_argument("problem")

@@ -379,6 +379,7 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
     scale = float(np.clip(1.0 / max(abs(f0), 1e-12), 1e-2, 1e4))
     opts = {"ipopt.print_level": print_level, "print_time": False, "ipopt.sb": "yes",
             "ipopt.max_iter": 1000, "ipopt.tol": 1e-8, "ipopt.mu_strategy": "adaptive",
+            "ipopt.mumps_pivot_order": 0,          # AMD: min-time N = 100 in 1.8 s instead of 4.5 s here
             "ipopt.obj_scaling_factor": scale, **{f"ipopt.{k}": v for k, v in (ipopt or {}).items()}}
     t0 = time.perf_counter()
     solver = _compiled_solver(nlp, opts, log) if problem.compiled else ca.nlpsol("ocp", "ipopt", nlp, opts)

@@ -25,7 +25,8 @@ from .simulation import cascade_simulate, feedforward, simulate  # noqa: E402
 from .trajectory import Trajectory, load_trajectory  # noqa: E402
 
 METHODS = {"rotor_separated": False, "dlr": True}       # name -> reduced model for the feedforward
-LABELS = {"rotor_separated": "rotor-separated (this paper)", "dlr": "DLR / Spong reduced"}
+LABELS = {"rotor_separated": "rotor-separated (this paper)", "dlr": "DLR / Spong reduced",
+          "ocp_tracking": "tracking OCP (complete model)"}
 
 
 def tracking(arm: Arm, traj: Trajectory, t, reduced: bool) -> tuple[dict, dict]:
@@ -58,14 +59,14 @@ def figures(out: Path, arm: Arm, t, theta_d, sims: dict):
         fig, ax = plt.subplots(figsize=(7, 4))
         ax.plot(t, theta_d[j], "k-", lw=2.5, alpha=0.35, label="expected")
         for m, sim in sims.items():
-            ax.plot(t, sim["theta"][j], "--" if m == "dlr" else "-", label=LABELS[m])
+            ax.plot(t, sim["theta"][j], {"dlr": "--", "ocp_tracking": ":"}.get(m, "-"), label=LABELS[m])
         ax.set(xlabel="t (s)", ylabel="theta (rad)", title=f"Fig. {6 + j}: joint {j + 1} ({name}), actual vs expected")
         ax.legend()
         _save(fig, out, f"fig{6 + j:02d}_joint{j + 1}_trajectory")
     for j, name in enumerate(names):                      # Figs. 9-11: tracking errors
         fig, ax = plt.subplots(figsize=(7, 4))
         for m, sim in sims.items():
-            ax.plot(t, sim["theta"][j] - theta_d[j], "--" if m == "dlr" else "-", label=LABELS[m])
+            ax.plot(t, sim["theta"][j] - theta_d[j], {"dlr": "--", "ocp_tracking": ":"}.get(m, "-"), label=LABELS[m])
         ax.set(xlabel="t (s)", ylabel="theta - theta_d (rad)", title=f"Fig. {9 + j}: tracking error of joint {j + 1} ({name})")
         ax.legend()
         _save(fig, out, f"fig{9 + j:02d}_joint{j + 1}_error")
@@ -155,7 +156,22 @@ def sweep(out: Path, arm: Arm, traj: Trajectory, log):
     return result
 
 
-def run(trajectory_file, out, duration: float | None = None, sweeps: bool = True, log=print) -> dict:
+def ocp_method(problem_file, arm: Arm, t, log):
+    """(c): the torques of the tracking OCP (piecewise constant), replayed on the complete model
+    at the paper's sample times."""
+    from .ocp import load_problem, solve
+    sol = solve(load_problem(problem_file), print_level=0, log=log)
+    if not sol["success"]:
+        raise RuntimeError(f"the tracking OCP {problem_file} failed: {sol['status']}")
+    t_ocp, tau = np.asarray(sol["t"]), np.asarray(sol["tau"])
+    idx = np.minimum(np.searchsorted(t_ocp, t + 1e-9 * (t_ocp[1] - t_ocp[0]), side="right") - 1, len(t_ocp) - 2)
+    x0 = np.concatenate([np.asarray(sol[k])[:, 0] for k in ("theta", "phi", "dtheta", "dphi")])
+    sim = simulate(arm, x0, t, tau[:, idx], method="cvodes", tol=1e-10, interpolation="constant")
+    return {"t": t_ocp.tolist(), "tau": tau.tolist(), "interpolation": "constant"}, sim
+
+
+def run(trajectory_file, out, duration: float | None = None, sweeps: bool = True, log=print,
+        ocp_problem=None) -> dict:
     t0 = time.perf_counter()
     traj = load_trajectory(trajectory_file)
     arm = load(traj.model_path)
@@ -169,13 +185,21 @@ def run(trajectory_file, out, duration: float | None = None, sweeps: bool = True
             results[m] = errors(sims[m], ffs[m]["theta_d"])
             log(f"  {LABELS[m]}: max error per joint {np.round(results[m]['max_error'], 7).tolist()} rad")
         theta_d = ffs["rotor_separated"]["theta_d"]
+        tau_ocp = None
+        if ocp_problem is not None:
+            log(f"[{time.perf_counter() - t0:5.1f} s] (c) the tracking OCP's torques ({ocp_problem})")
+            tau_ocp, sims["ocp_tracking"] = ocp_method(ocp_problem, arm, t, log)
+            results["ocp_tracking"] = errors(sims["ocp_tracking"], theta_d)
+            log(f"  {LABELS['ocp_tracking']}: max error per joint "
+                f"{np.round(results['ocp_tracking']['max_error'], 7).tolist()} rad")
         tables(tmp, str(traj.model_path), results, arm.n)
         x0 = ffs["rotor_separated"]["x0"]
         n = arm.n
         (tmp / "feedforward.json").write_text(json.dumps({
             "t": t.tolist(), "theta_d": theta_d.tolist(),
             "initial_state": {k: x0[i * n:(i + 1) * n].tolist() for i, k in enumerate(("theta", "phi", "dtheta", "dphi"))},
-            "tau": {m: ffs[m]["tau"].tolist() for m in METHODS}, "tau_interpolation": "linear"}) + "\n")
+            "tau": {m: ffs[m]["tau"].tolist() for m in METHODS}, "tau_interpolation": "linear",
+            **({"tau_ocp_tracking": tau_ocp} if tau_ocp else {})}) + "\n")
         log(f"[{time.perf_counter() - t0:5.1f} s] figures 5-11")
         figures(tmp, arm, t, theta_d, sims)
         log(f"[{time.perf_counter() - t0:5.1f} s] the paper's cascade against the exact simulation")
