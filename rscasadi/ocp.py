@@ -27,6 +27,7 @@ integral is exact.  Every limit of the model file is imposed at every node and c
 """
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import json
 import os
@@ -335,9 +336,14 @@ def _compiled_solver(nlp, opts, log):
     plain = ca.nlpsol("ocp", "ipopt", nlp, opts)
     directory = cache_dir() / "nlp"
     directory.mkdir(parents=True, exist_ok=True)
-    src = directory / f"nlp_gen_{os.getpid()}.c"          # CasADi writes it into the working directory
-    plain.generate_dependencies(src.name, {"with_header": False})
-    Path(src.name).replace(src)
+    # CasADi writes into the working directory and prefixes internal symbols with the file name,
+    # so the name must be fixed (or the source, and its hash, change every run); a lock keeps
+    # two processes from writing it at once.
+    src = directory / f"rscasadi_nlp_{os.getpid()}.c"
+    with open(directory / "generate.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        plain.generate_dependencies("rscasadi_nlp.c", {"with_header": False})
+        Path("rscasadi_nlp.c").replace(src)
     cc = _compiler()
     key = hashlib.sha256((src.read_text() + " ".join(cc) + ca.__version__).encode()).hexdigest()[:24]
     lib = directory / f"nlp_{key}.so"

@@ -118,3 +118,15 @@ def test_bad_problem_file_exit_code(tmp_path, capsys):
     assert main(["ocp", str(f), "--out", str(tmp_path / "o")]) == 2
     assert "field 'duration'" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_compiled_nlp_equals_vm_and_is_cached(pitch_arm):
+    path = problem(pitch_arm, "c.toml", transcription={"intervals": 30, "compiled": True})
+    logs = []
+    a = solve(load_problem(path), print_level=0, log=logs.append)
+    b = solve(load_problem(path), print_level=0, log=logs.append)
+    vm = solve(load_problem(problem(pitch_arm, "v.toml", transcription={"intervals": 30})), print_level=0,
+               log=lambda m: None)
+    assert a["success"] and b["success"] and vm["success"]
+    assert abs(a["objective"] - vm["objective"]) < 1e-8 * vm["objective"]
+    assert any(m.startswith("compiled NLP in") for m in logs) and any("cache hit" in m for m in logs)

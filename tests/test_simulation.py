@@ -115,3 +115,13 @@ def test_failed_paper_run_leaves_nothing(tmp_path):
     with pytest.raises(ModelFileError):
         run(f, tmp_path / "out", duration=0.1, sweeps=False, log=lambda m: None)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["traj.toml"]
+
+
+def test_tilted_variant_file_is_the_sweeps_point(arm3):
+    from rscasadi.paper import _variant
+    tilted = rscasadi.load(ROOT / "problems" / "arm3_tilted.toml")
+    q = np.array([0.2, -0.4, 0.9])
+    M_file = np.array(tilted.mass_matrix()(q, q))
+    M_sweep = np.array(_variant(arm3, "t", tilt=0.4).mass_matrix()(q, q))
+    assert np.allclose(M_file, M_sweep, rtol=0, atol=1e-15)
+    assert abs(M_file[0, 5]) > 1e-5 and np.isclose(M_file[1, 5], -1.03e-3 * np.cos(0.4))
