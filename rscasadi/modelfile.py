@@ -222,14 +222,17 @@ def parse(data: dict, path: str = "<memory>") -> ArmModel:
     return ArmModel(data["name"], gravity, tuple(joints), path)
 
 
-def read(path) -> ArmModel:
-    """Read and validate a model file."""
-    path = Path(path)
+def read_toml(path, kind: str = "model") -> dict:
+    """A TOML document, or a ModelFileError that names the file (kind: model, problem, trajectory)."""
     try:
         with open(path, "rb") as fh:
-            data = tomllib.load(fh)
+            return tomllib.load(fh)
     except OSError as exc:
-        raise ModelFileError(f"{path}: cannot read model file: {exc.strerror}") from exc
+        raise ModelFileError(f"{path}: cannot read {kind} file: {exc.strerror}") from exc
     except tomllib.TOMLDecodeError as exc:
         raise ModelFileError(f"{path}: not valid TOML: {exc}") from exc
-    return parse(data, str(path))
+
+
+def read(path) -> ArmModel:
+    """Read and validate a model file."""
+    return parse(read_toml(path), str(Path(path)))

@@ -33,7 +33,6 @@ import json
 import os
 import subprocess
 import time
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,7 +41,7 @@ import numpy as np
 
 from .arm import Arm, load
 from .codegen import _compiler, cache_dir
-from .modelfile import ModelFileError
+from .modelfile import ModelFileError, read_toml
 from .simulation import simulate, spring_deflection
 from .trajectory import load_trajectory
 
@@ -78,13 +77,7 @@ class Problem:
 
 def load_problem(path) -> Problem:
     path = Path(path)
-    try:
-        with open(path, "rb") as fh:
-            d = tomllib.load(fh)
-    except OSError as exc:
-        raise ModelFileError(f"{path}: cannot read problem file: {exc.strerror}") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise ModelFileError(f"{path}: not valid TOML: {exc}") from exc
+    d = read_toml(path, "problem")
 
     def fail(fld, msg):
         raise ModelFileError(f"{path}: field '{fld}': {msg}")
@@ -102,12 +95,16 @@ def load_problem(path) -> Problem:
             fail(key, "missing required field")
     if d["objective"] not in OBJECTIVES:
         fail("objective", f"must be one of {', '.join(OBJECTIVES)}, got {d['objective']!r}")
-    tr = d.get("transcription", {})
-    if not isinstance(tr, dict):
-        fail("transcription", "expected a table")
-    for key in tr:
-        if key not in TRANSCRIPTION:
-            fail(f"transcription.{key}", f"unknown key (allowed: {', '.join(sorted(TRANSCRIPTION))})")
+    def table(name, allowed):
+        t = d.get(name, {})
+        if not isinstance(t, dict):
+            fail(name, "expected a table")
+        for key in t:
+            if key not in allowed:
+                fail(f"{name}.{key}", f"unknown key (allowed: {', '.join(sorted(allowed))})")
+        return t
+
+    tr = table("transcription", TRANSCRIPTION)
     p = Problem(path=path, model_path=(path.parent / str(d["model"])).resolve(), objective=d["objective"],
                 duration=number("duration", d["duration"]), raw=d)
     if d["objective"] == "tracking":
@@ -137,13 +134,8 @@ def load_problem(path) -> Problem:
     p.dynamics = tr.get("dynamics", "explicit")
     if p.dynamics not in ("explicit", "implicit"):
         fail("transcription.dynamics", f"must be explicit or implicit, got {p.dynamics!r}")
-    ver = d.get("verification", {})
-    if not isinstance(ver, dict):
-        fail("verification", "expected a table")
-    for key in ver:
-        if key not in VERIFICATION:
-            fail(f"verification.{key}", f"unknown key (allowed: {', '.join(sorted(VERIFICATION))})")
-        setattr(p, key, number(f"verification.{key}", ver[key]))
+    for key, value in table("verification", VERIFICATION).items():
+        setattr(p, key, number(f"verification.{key}", value))
     p.compiled = tr.get("compiled", True)
     if not isinstance(p.compiled, bool):
         fail("transcription.compiled", f"must be true or false, got {p.compiled!r}")

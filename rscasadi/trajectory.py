@@ -12,14 +12,13 @@ reaches start + amplitude at period / 2 and comes back.  Derivatives come from C
 """
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
-from .modelfile import ModelFileError
+from .modelfile import ModelFileError, read_toml
 
 KEYS = {"model", "period", "duration", "start", "amplitude"}
 
@@ -50,11 +49,7 @@ class Trajectory:
 
 def load_trajectory(path) -> Trajectory:
     path = Path(path)
-    try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except (OSError, tomllib.TOMLDecodeError) as exc:
-        raise ModelFileError(f"{path}: cannot read trajectory file: {exc}") from exc
+    data = read_toml(path, "trajectory")
     for key in data:
         if key not in KEYS:
             raise ModelFileError(f"{path}: field '{key}': unknown key (allowed: {', '.join(sorted(KEYS))})")
