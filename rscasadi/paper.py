@@ -138,19 +138,25 @@ def sweep(out: Path, arm: Arm, traj: Trajectory, log):
         result[what] = []
         for value, variant, tr in points:
             t = t_of(tr.period)
-            e = {m: errors(tracking(variant, tr, t, red)[1], tr(t)[0])["max_error"] for m, red in METHODS.items()}
-            result[what].append({"value": value, **e})
+            runs = {m: tracking(variant, tr, t, red) for m, red in METHODS.items()}
+            e = {m: errors(sim, tr(t)[0])["max_error"] for m, (_, sim) in runs.items()}
+            tau_c, tau_r = runs["rotor_separated"][0]["tau"], runs["dlr"][0]["tau"]
+            dtau = float(np.max(np.abs(tau_r - tau_c)) / np.max(np.abs(tau_c)))   # drift-free measure
+            result[what].append({"value": value, **e, "torque_difference": dtau})
             log(f"  {what} = {value:g}: max tracking error DLR {max(e['dlr']):.2e} rad, "
-                f"rotor-separated {max(e['rotor_separated']):.2e} rad")
+                f"rotor-separated {max(e['rotor_separated']):.2e} rad; DLR torque off by {100 * dtau:.2f} %")
     (out / "sweep.json").write_text(json.dumps(result, indent=2) + "\n")
-    fig, axes = plt.subplots(1, 4, figsize=(15, 3.8), sharey=True)
-    for ax, (what, pts) in zip(axes, result.items()):
+    fig, axes = plt.subplots(2, 4, figsize=(15, 7), sharey="row")
+    for k, (what, pts) in enumerate(result.items()):
         x = [p["value"] for p in pts]
         for m in METHODS:
-            ax.semilogy(x, [max(p[m]) for p in pts], "o-" if m == "dlr" else "s--", label=LABELS[m])
-        ax.set(xlabel=what, title=what)
-    axes[0].set_ylabel("max tracking error, open loop (rad)")
-    axes[0].legend(fontsize=8)
+            axes[0, k].semilogy(x, [max(p[m]) for p in pts], "o-" if m == "dlr" else "s--", label=LABELS[m])
+        axes[1, k].plot(x, [100 * p["torque_difference"] for p in pts], "o-", color="C1")
+        axes[0, k].set(title=what)
+        axes[1, k].set(xlabel=what)
+    axes[0, 0].set_ylabel("max tracking error, open loop (rad)")
+    axes[1, 0].set_ylabel("max |tau_DLR - tau_RS| / max |tau_RS| (%)")
+    axes[0, 0].legend(fontsize=8)
     fig.tight_layout()
     _save(fig, out, "sweep_dlr_error")
     return result
