@@ -33,7 +33,7 @@ import json
 import os
 import subprocess
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as ca
@@ -72,7 +72,6 @@ class Problem:
     final_angle_tol: float = 1e-3
     final_speed_tol: float = 1e-2
     limit_tol: float = 1e-3
-    raw: dict = field(default_factory=dict, repr=False)
 
 
 def load_problem(path) -> Problem:
@@ -106,7 +105,7 @@ def load_problem(path) -> Problem:
 
     tr = table("transcription", TRANSCRIPTION)
     p = Problem(path=path, model_path=(path.parent / str(d["model"])).resolve(), objective=d["objective"],
-                duration=number("duration", d["duration"]), raw=d)
+                duration=number("duration", d["duration"]))
     if d["objective"] == "tracking":
         if "trajectory" not in d:
             fail("trajectory", "missing required field (objective tracking)")
