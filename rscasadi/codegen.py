@@ -81,7 +81,8 @@ def step_functions(arm: Arm, prefix: str = "", fd_jacobian: ca.Function | None =
     return step, step_jac
 
 
-AD_JACOBIAN_LIMIT = 4000   # SX instructions; above it the implicit-function Jacobian is generated
+AD_JACOBIAN_LIMIT = 1000   # forward-dynamics SX instructions above which the Jacobian comes from the
+                           # implicit-function theorem (AD through the sweep: 1165 at n = 3, 27 535 at n = 6)
 
 
 def _ad_jacobian(f: ca.Function, ins):
@@ -100,12 +101,14 @@ def functions(arm: Arm, prefix: str = "") -> tuple[dict, dict]:
             fns[name] = _renamed(getattr(arm, name)(), p + name)
         except ValueError as exc:                  # unbalanced rotors: the reduced model does not apply
             omitted[name] = str(exc)
-    for name, base in (("forward_dynamics_jacobian", arm.forward_dynamics()),
-                       ("inverse_dynamics_jacobian", arm.inverse_dynamics())):
-        fns[name] = _renamed(base, p + name, lambda *ins, base=base: [_ad_jacobian(base, ins)], ["jacobian"])
-    if fns["forward_dynamics_jacobian"].n_instructions() > AD_JACOBIAN_LIMIT:
-        fdj = arm.forward_dynamics_jacobian()              # implicit-function route: smaller C at large n
-        fns["forward_dynamics_jacobian"] = _renamed(fdj, p + "forward_dynamics_jacobian")
+    fd, inv = arm.forward_dynamics(), arm.inverse_dynamics()
+    if fd.n_instructions() > AD_JACOBIAN_LIMIT:            # implicit-function route: smaller C at large n
+        fns["forward_dynamics_jacobian"] = _renamed(arm.forward_dynamics_jacobian(), p + "forward_dynamics_jacobian")
+    else:                                                  # plain SX AD: compact and fastest for small arms
+        fns["forward_dynamics_jacobian"] = _renamed(fd, p + "forward_dynamics_jacobian",
+                                                    lambda *ins: [_ad_jacobian(fd, ins)], ["jacobian"])
+    fns["inverse_dynamics_jacobian"] = _renamed(inv, p + "inverse_dynamics_jacobian",
+                                                lambda *ins: [_ad_jacobian(inv, ins)], ["jacobian"])
     fns["step"], fns["step_jacobian"] = step_functions(arm, p, fns["forward_dynamics_jacobian"])
     return fns, omitted
 
