@@ -23,10 +23,6 @@ class Arm:
     def __repr__(self):
         return f"Arm({self.model.name!r}, n={self.n}, file={self.model.path!r})"
 
-    @property
-    def joint_names(self):
-        return [jt.name for jt in self.model.joints]
-
     # -- actuator laws (MODEL.md section 2) --------------------------------------------------
     def sea_torque(self, theta, phi, dtheta, dphi):
         """T = T_K(psi) + T_B(dpsi) = k1 psi + k3 psi^3 + d dpsi, psi = phi - theta."""

@@ -21,7 +21,7 @@ import numpy as np  # noqa: E402
 
 from .arm import Arm, load  # noqa: E402
 from .files import fresh_directory  # noqa: E402
-from .simulation import cascade_simulate, feedforward, simulate  # noqa: E402
+from .simulation import cascade_simulate, feedforward, simulate, simulate_held  # noqa: E402
 from .trajectory import Trajectory, load_trajectory  # noqa: E402
 
 METHODS = {"rotor_separated": False, "dlr": True}       # name -> reduced model for the feedforward
@@ -170,9 +170,14 @@ def ocp_method(problem_file, arm: Arm, t, log):
     if not sol["success"]:
         raise RuntimeError(f"the tracking OCP {problem_file} failed: {sol['status']}")
     t_ocp, tau = np.asarray(sol["t"]), np.asarray(sol["tau"])
-    idx = np.minimum(np.searchsorted(t_ocp, t + 1e-9 * (t_ocp[1] - t_ocp[0]), side="right") - 1, len(t_ocp) - 2)
+    substeps = int(round((t_ocp[1] - t_ocp[0]) / (t[1] - t[0])))
     x0 = np.concatenate([np.asarray(sol[k])[:, 0] for k in ("theta", "phi", "dtheta", "dphi")])
-    sim = simulate(arm, x0, t, tau[:, idx], method="cvodes", tol=1e-10, interpolation="constant")
+    full = simulate_held(arm, x0, t_ocp, tau, substeps)
+    if len(full["t"]) < len(t) or not np.allclose(full["t"][:len(t)], t, rtol=0, atol=1e-9):
+        raise ValueError(f"the tracking OCP's grid ({t_ocp[1] - t_ocp[0]} s steps up to {t_ocp[-1]} s) "
+                         f"does not contain the paper's sample times")
+    sim = {k: (v[..., :len(t)] if isinstance(v, np.ndarray) and v.shape[-1] == len(full["t"]) else v)
+           for k, v in full.items()}
     return {"t": t_ocp.tolist(), "tau": tau.tolist(), "interpolation": "constant"}, sim
 
 

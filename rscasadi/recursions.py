@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from .spatial import H, Xup, base_acceleration, coriolis, gyroscopic, joint_rotation, spatial_inertia
+from .spatial import H, Xup, base_acceleration, base_pose, coriolis, gyroscopic, joint_rotation, spatial_inertia
 
 
 @dataclass
@@ -233,9 +233,9 @@ def energy(segs, kin, gravity):
         bodies = [(seg.M, k.V, joint_rotation(seg.R, theta))]
         bodies += [(M, Vr, joint_rotation(seg.R, rotor_frame_angle(gear, spins, k.q[1])))
                    for (gear, M, _, Vr, _), (_, _, spins) in zip(k.leaves, seg.leaves)]
-        o = o_p + R_p @ ca.DM(seg.l)                               # eq. (12): J_j origin in the base frame
         for M, V, R in bodies:
+            R_b, o = base_pose(R_p, o_p, R, seg.l)                  # eq. (12): the body in the base frame
             m, mp = M[3, 3], ca.DM([M[2, 4], M[0, 5], M[1, 3]])
-            E += 0.5 * V.T @ ca.DM(M) @ V - g.T @ (m * o + R_p @ R @ mp)
-        R_p, o_p = R_p @ bodies[0][2], o
+            E += 0.5 * V.T @ ca.DM(M) @ V - g.T @ (m * o + R_b @ mp)
+        R_p, o_p = base_pose(R_p, o_p, bodies[0][2], seg.l)
     return E

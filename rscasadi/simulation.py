@@ -64,6 +64,16 @@ def simulate(arm: Arm, x0, t, tau, method: str = "cvodes", tol: float = 1e-10, s
     return trajectory_record(arm, t, X)
 
 
+def simulate_held(arm: Arm, x0, t, tau, substeps: int, tol: float = 1e-10) -> dict:
+    """Torque samples tau[:, k] held on [t_k, t_k+1) (tau_interpolation "constant"), simulated
+    with CVODES and reported `substeps` times finer than t.  Each fine sample's interval is
+    found by integer division, never by a float search (which picks the wrong torque at a switch)."""
+    t = np.asarray(t, float)
+    fine = np.linspace(t[0], t[-1], (len(t) - 1) * substeps + 1)
+    idx = np.minimum(np.arange(len(fine)) // substeps, len(t) - 2)
+    return simulate(arm, x0, fine, np.asarray(tau, float)[:, idx], tol=tol, interpolation="constant")
+
+
 def trajectory_record(arm: Arm, t, X) -> dict:
     n = arm.n
     theta, phi, dtheta, dphi = (X[i * n:(i + 1) * n] for i in range(4))
