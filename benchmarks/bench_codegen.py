@@ -20,10 +20,10 @@ import numpy as np  # noqa: E402
 from common import chain_arm, per_call, write_results  # noqa: E402
 import rscasadi  # noqa: E402
 from rscasadi.codegen import generate  # noqa: E402
-from rscasadi.numeric import Numeric  # noqa: E402
+from rscasadi.dynamics.numeric import Numeric  # noqa: E402
 
 try:
-    from rscasadi.pinocchio_route import PinocchioRoute
+    from rscasadi.dynamics.pinocchio_route import PinocchioRoute
 except ImportError:                                   # pin is optional
     PinocchioRoute = None
 

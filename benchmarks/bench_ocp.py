@@ -15,7 +15,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from common import ROOT, write_results  # noqa: E402
-from rscasadi.ocp import load_problem, solve, verify  # noqa: E402
+from rscasadi.control.ocp import load_problem, solve, verify  # noqa: E402
 
 PROBLEMS = {"min_time": ROOT / "problems" / "ocp_min_time.toml", "min_effort": ROOT / "problems" / "ocp_min_effort.toml"}
 TARGET = {"min_effort": 1.0, "min_time": 3.0}

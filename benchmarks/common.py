@@ -12,7 +12,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import rscasadi  # noqa: E402
-from rscasadi.modelfile import parse  # noqa: E402
+from rscasadi.model.modelfile import parse  # noqa: E402
 
 RESULTS = ROOT / "results"
 

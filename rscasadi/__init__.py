@@ -1,6 +1,6 @@
 """rscasadi: rotor-separated dynamics of FS-SEA arms (Chen & Li) in CasADi."""
-from .arm import Arm, load
+from .dynamics.arm import Arm, load
 from .codegen import CodegenError, load_compiled
-from .modelfile import ArmModel, ModelFileError
+from .model.modelfile import ArmModel, ModelFileError
 
 __all__ = ["Arm", "ArmModel", "CodegenError", "ModelFileError", "load", "load_compiled"]

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .arm import load
+from .dynamics.arm import load
 from .files import OutputError
-from .modelfile import ModelFileError
+from .model.modelfile import ModelFileError
 
 PROBLEMS = Path(__file__).resolve().parents[1] / "problems"
 REFERENCE = PROBLEMS / "arm3.toml"
@@ -60,7 +60,7 @@ def cmd_paper(args):
 
 
 def cmd_ocp(args):
-    from .ocp import run
+    from .control.ocp import run
     sol = run(args.problem, args.out, warm_file=args.warm, log=lambda msg: print(msg, flush=True),
               print_level=0 if args.quiet else 5)
     print(f"wrote {Path(args.out) / 'solution.json'}")
@@ -73,7 +73,7 @@ def cmd_reproduce(args):
     _write(out / "model.md", model_report(REFERENCE))
     print(f"wrote {out / 'model.md'}")
     run(TRAJECTORY, out / "paper", log=lambda msg: print(msg, flush=True), ocp_problem=PROBLEMS / "ocp_tracking.toml")
-    from .ocp import run as run_ocp
+    from .control.ocp import run as run_ocp
     failed = []
     for name in ("min_time", "min_effort", "tracking"):
         sol = run_ocp(PROBLEMS / f"ocp_{name}.toml", out / "ocp" / name, log=lambda msg: print(msg, flush=True),

@@ -19,10 +19,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .arm import Arm, load  # noqa: E402
+from .dynamics.arm import Arm, load  # noqa: E402
 from .files import fresh_directory  # noqa: E402
-from .simulation import cascade_simulate, feedforward, simulate, simulate_held  # noqa: E402
-from .trajectory import Trajectory, load_trajectory  # noqa: E402
+from .control.simulation import cascade_simulate, feedforward, simulate, simulate_held  # noqa: E402
+from .control.trajectory import Trajectory, load_trajectory  # noqa: E402
 
 METHODS = {"rotor_separated": False, "dlr": True}       # name -> reduced model for the feedforward
 LABELS = {"rotor_separated": "rotor-separated (this paper)", "dlr": "DLR / Spong reduced",
@@ -165,7 +165,7 @@ def sweep(out: Path, arm: Arm, traj: Trajectory, log):
 def ocp_method(problem_file, arm: Arm, t, log):
     """(c): the torques of the tracking OCP (piecewise constant), replayed on the complete model
     at the paper's sample times."""
-    from .ocp import load_problem, solve
+    from .control.ocp import load_problem, solve
     sol = solve(load_problem(problem_file), print_level=0, log=log)
     if not sol["success"]:
         raise RuntimeError(f"the tracking OCP {problem_file} failed: {sol['status']}")

@@ -13,7 +13,7 @@ import pytest
 import rscasadi
 from rscasadi.codegen import CodegenError, functions, generate
 from rscasadi.files import OutputError
-from rscasadi.numeric import Numeric
+from rscasadi.dynamics.numeric import Numeric
 
 from conftest import REFERENCE, cc, random_arm_doc, to_toml, write_arm
 

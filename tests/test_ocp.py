@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from rscasadi.cli import main
-from rscasadi.modelfile import ModelFileError
-from rscasadi.ocp import load_problem, run, solve, verify
+from rscasadi.model.modelfile import ModelFileError
+from rscasadi.control.ocp import load_problem, run, solve, verify
 
 from conftest import REFERENCE, to_toml
 

@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 
 import rscasadi
-from rscasadi.modelfile import ModelFileError
+from rscasadi.model.modelfile import ModelFileError
 from rscasadi.paper import run
-from rscasadi.simulation import cascade_simulate, feedforward, simulate
-from rscasadi.trajectory import load_trajectory
+from rscasadi.control.simulation import cascade_simulate, feedforward, simulate
+from rscasadi.control.trajectory import load_trajectory
 
 from conftest import ROOT
 

@@ -39,9 +39,9 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from .arm import Arm, load
-from .codegen import _compiler, cache_dir
-from .modelfile import ModelFileError, read_toml
+from ..dynamics.arm import Arm, load
+from ..codegen import _compiler, cache_dir
+from ..model.modelfile import ModelFileError, read_toml
 from .simulation import simulate_held, spring_deflection
 from .trajectory import load_trajectory
 
@@ -429,7 +429,7 @@ def verify(solution: dict, substeps: int = 20, tol: float = 1e-10) -> dict:
 
 def run(problem_file, out, warm_file=None, log=print, print_level: int = 5) -> dict:
     """`rscasadi ocp`: solve, verify, write DIR/solution.json and the plots; return the record."""
-    from .files import fresh_directory
+    from ..files import fresh_directory
     problem = load_problem(problem_file)
     warm = json.loads(Path(warm_file).read_text()) if warm_file else None
     log(f"{problem.path}: {problem.objective}, {problem.method}"

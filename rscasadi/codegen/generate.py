@@ -18,8 +18,8 @@ from pathlib import Path
 
 import casadi as ca
 
-from .arm import Arm, load
-from .files import OutputError, fresh_directory
+from ..dynamics.arm import Arm, load
+from ..files import OutputError, fresh_directory
 
 IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,62}\Z")
 LIBRARY = "librscasadi_arm.so"

@@ -5,7 +5,7 @@ import casadi as ca
 import numpy as np
 
 from . import recursions as rec
-from .modelfile import ArmModel, read
+from ..model.modelfile import ArmModel, read
 
 STATE = ["theta", "phi", "dtheta", "dphi"]
 

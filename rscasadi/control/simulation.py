@@ -9,7 +9,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from .arm import Arm
+from ..dynamics.arm import Arm
 
 
 def _uniform_step(t):

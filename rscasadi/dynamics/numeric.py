@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .modelfile import ArmModel
+from ..model.modelfile import ArmModel
 
 z3 = np.array([0.0, 0.0, 1.0])
 

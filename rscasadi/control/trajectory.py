@@ -18,7 +18,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from .modelfile import ModelFileError, read_toml
+from ..model.modelfile import ModelFileError, read_toml
 
 KEYS = {"model", "period", "duration", "start", "amplitude"}
 
