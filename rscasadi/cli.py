@@ -133,6 +133,13 @@ def main(argv=None):
     except (ModelFileError, OutputError, ValueError) as exc:
         print(f"rscasadi: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:                  # a path, permission or disk problem of the user's
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"rscasadi: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("rscasadi: interrupted; nothing half-written was kept", file=sys.stderr)
+        return 130
     return code or 0
 
 

@@ -18,6 +18,8 @@ def fresh_directory(out, marker: str):
     failure it is removed and `out` is untouched.  An existing `out` is replaced only if it
     holds `marker` (a file this project wrote there) or is empty."""
     out = Path(out).resolve()
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out} exists and is not a directory; give --out a directory")
     if out.exists() and any(out.iterdir()) and not (out / marker).exists():
         raise OutputError(f"{out} exists and was not written by rscasadi (no {marker}); refusing to replace it")
     try:

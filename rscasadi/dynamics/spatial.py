@@ -50,6 +50,13 @@ def spatial_inertia(body) -> np.ndarray:
     return np.block([[body.inertia_origin, mp], [-mp, m * np.eye(3)]])
 
 
+def transform_inertia(M, R, l) -> np.ndarray:
+    """A spatial inertia M given in a child frame moved to its parent frame: Phi M Phi^T in body
+    frames, X^T M X with X = Xup(R, l) (R: child relative to parent, l: child origin)."""
+    X = np.array(Xup(ca.DM(R), np.asarray(l, float)))
+    return X.T @ M @ X
+
+
 def coriolis(R, l, w_parent, rate):
     """a_{s,t} of eqs. (9) and (18) in the child frame: [(R^T w_s) x h rate; R^T (w_s x w_s x l)]."""
     w = R.T @ w_parent

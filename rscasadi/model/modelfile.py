@@ -51,6 +51,13 @@ class Body:
         p = self.com
         return self.inertia + self.mass * (p @ p * np.eye(3) - np.outer(p, p))
 
+    @staticmethod
+    def from_spatial(M: np.ndarray) -> "Body":
+        """The inverse of eq. (11): mass, centre of mass and inertia about it from a 6x6 M."""
+        m = M[3, 3]
+        com = np.array([M[2, 4], M[0, 5], M[1, 3]]) / m
+        return Body(m, com, M[:3, :3] - m * (com @ com * np.eye(3) - np.outer(com, com)))
+
     @property
     def balanced(self) -> bool:
         """Centre of mass on the z axis and inertia symmetric about it (MODEL.md section 3)."""
@@ -76,11 +83,13 @@ class Joint:
     slow_rotor: Body
     fast_rotor: Body
 
+    origin_R: np.ndarray | None = None   # J_j's rotation when it came from a URDF (else from origin_rpy)
+
     @property
     def R(self) -> np.ndarray:
         """Rotation of J_j relative to the parent frame; the round-off of exact right angles
         (cos(pi/2) = 6e-17) is set to 0 so that symbolic code folds it away."""
-        R = rpy_matrix(self.origin_rpy)
+        R = rpy_matrix(self.origin_rpy) if self.origin_R is None else np.array(self.origin_R, dtype=float)
         R[np.abs(R) < 1e-15] = 0.0
         return R
 
@@ -156,26 +165,42 @@ def _table(ctx, fld, value, allowed, required=()):
     return value
 
 
+def inertia_problem(inertia: np.ndarray, rtol: float = 1e-12) -> str | None:
+    """Why a 3x3 inertia about the centre of mass is not physical, or None."""
+    if not np.all(np.isfinite(inertia)):
+        return "has a value that is not finite"
+    eig = np.linalg.eigvalsh(inertia)
+    if eig[0] <= 0.0:
+        return f"not positive definite (principal moments {eig.tolist()})"
+    if eig[2] > eig[0] + eig[1] + rtol * eig[-1]:
+        return f"principal moments {eig.tolist()} break the triangle inequality"
+    return None
+
+
 def _body(ctx, fld, value) -> Body:
     t = _table(ctx, fld, value, BODY_KEYS, BODY_KEYS)
     mass = _number(ctx, f"{fld}.mass", t["mass"], positive=True)
     com = _vector(ctx, f"{fld}.com", t["com"], 3)
     ixx, iyy, izz, ixy, ixz, iyz = _vector(ctx, f"{fld}.inertia", t["inertia"], 6)
     inertia = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
-    eig = np.linalg.eigvalsh(inertia)
-    if eig[0] <= 0.0:
-        ctx.fail(f"{fld}.inertia", f"not positive definite (principal moments {eig.tolist()})")
-    tol = 1e-12 * eig[-1]
-    if eig[2] > eig[0] + eig[1] + tol:
-        ctx.fail(f"{fld}.inertia", f"principal moments {eig.tolist()} break the triangle inequality")
+    problem = inertia_problem(inertia)
+    if problem:
+        ctx.fail(f"{fld}.inertia", problem)
     return Body(mass, com, inertia)
 
 
-def _joint(path, idx, raw, names) -> Joint:
+ACTUATOR_KEYS = {"name", "gear_ratio", "sea", "gear_loss", "limits", "slow_rotor", "fast_rotor"}
+
+
+def joint_context(path, idx, raw) -> _Ctx:
     name = raw.get("name") if isinstance(raw, dict) else None
-    ctx = _Ctx(path, (idx, name if isinstance(name, str) else None))
-    t = _table(ctx, "", raw, JOINT_KEYS,
-               ("name", "origin_xyz", "origin_rpy", "gear_ratio", "sea", "link", "slow_rotor", "fast_rotor"))
+    return _Ctx(path, (idx, name if isinstance(name, str) else None))
+
+
+def actuator(ctx, t: dict, names) -> dict:
+    """The actuator part of a [[joints]] table, common to both forms of the file: name, gear
+    ratio, SEA, gear loss, limits and the two rotor bodies (given in J_j, z = joint axis)."""
+    name = t.get("name")
     if not isinstance(name, str) or not name.strip():
         ctx.fail("name", f"expected a non-empty string, got {name!r}")
     if name in names:
@@ -190,10 +215,8 @@ def _joint(path, idx, raw, names) -> Joint:
         if not lo < hi:
             ctx.fail("limits.theta", f"lower bound {lo} must be below upper bound {hi}")
         limits["theta"] = (float(lo), float(hi))
-    return Joint(
+    return dict(
         name=name,
-        origin_xyz=_vector(ctx, "origin_xyz", t["origin_xyz"], 3),
-        origin_rpy=_vector(ctx, "origin_rpy", t["origin_rpy"], 3),
         gear_ratio=_number(ctx, "gear_ratio", t["gear_ratio"], positive=True),
         k1=_number(ctx, "sea.k1", sea["k1"], positive=True),
         k3=_number(ctx, "sea.k3", sea.get("k3", 0.0), nonneg=True),
@@ -202,13 +225,26 @@ def _joint(path, idx, raw, names) -> Joint:
         c=_number(ctx, "gear_loss.c", loss.get("c", 0.0), nonneg=True),
         eps=_number(ctx, "gear_loss.eps", loss.get("eps", 0.01), positive=True),
         limits=limits,
-        **{b: _body(ctx, b, t[b]) for b in BODIES},
+        slow_rotor=_body(ctx, "slow_rotor", t["slow_rotor"]),
+        fast_rotor=_body(ctx, "fast_rotor", t["fast_rotor"]),
     )
+
+
+def _joint(path, idx, raw, names) -> Joint:
+    ctx = joint_context(path, idx, raw)
+    t = _table(ctx, "", raw, JOINT_KEYS,
+               ("name", "origin_xyz", "origin_rpy", "gear_ratio", "sea", "link", "slow_rotor", "fast_rotor"))
+    return Joint(origin_xyz=_vector(ctx, "origin_xyz", t["origin_xyz"], 3),
+                 origin_rpy=_vector(ctx, "origin_rpy", t["origin_rpy"], 3),
+                 link=_body(ctx, "link", t["link"]), **actuator(ctx, t, names))
 
 
 def parse(data: dict, path: str = "<memory>") -> ArmModel:
     """Validate a decoded TOML document (MODEL.md section 4) into an ArmModel."""
     ctx = _Ctx(path)
+    if isinstance(data, dict) and "urdf" in data:
+        from .urdf import parse_urdf_form
+        return parse_urdf_form(data, path)
     _table(ctx, "", data, TOP_KEYS, ("name", "joints"))
     if not isinstance(data["name"], str) or not data["name"].strip():
         ctx.fail("name", f"expected a non-empty string, got {data['name']!r}")
