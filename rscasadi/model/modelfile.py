@@ -265,7 +265,7 @@ def read_toml(path, kind: str = "model") -> dict:
             return tomllib.load(fh)
     except OSError as exc:
         raise ModelFileError(f"{path}: cannot read {kind} file: {exc.strerror}") from exc
-    except tomllib.TOMLDecodeError as exc:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ModelFileError(f"{path}: not valid TOML: {exc}") from exc
 
 

@@ -1,0 +1,161 @@
+"""A user's mistake gets one clear line and a non-zero exit, never a traceback or a hang: generated
+broken model files, URDFs and problem files thrown at the loaders, and the commands run on wrong
+paths as a new user would."""
+import copy
+import re
+import tomllib
+
+import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+import rscasadi
+from rscasadi import ModelFileError
+from rscasadi.cli import main
+from rscasadi.control.ocp import load_problem
+
+from conftest import REFERENCE, ROOT, to_toml
+
+PANDA = ROOT / "problems" / "panda_sea.toml"
+PROBLEM = ROOT / "problems" / "ocp_min_time.toml"
+SETTINGS = settings(max_examples=60, deadline=5000, suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+values = st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6), st.floats(allow_nan=True),
+                   st.text(max_size=8), st.lists(st.floats(-10, 10), max_size=7),
+                   st.dictionaries(st.text(max_size=5), st.floats(-1, 1), max_size=3))
+
+
+def _paths(doc, prefix=()):
+    """Every (container, key) of a decoded TOML document."""
+    items = doc.items() if isinstance(doc, dict) else enumerate(doc)
+    for key, value in items:
+        yield doc, key
+        if isinstance(value, (dict, list)):
+            yield from _paths(value, prefix + (key,))
+
+
+@st.composite
+def mutated(draw, doc):
+    doc = copy.deepcopy(doc)
+    for _ in range(draw(st.integers(1, 3))):
+        places = list(_paths(doc))
+        if not places:
+            break
+        container, key = draw(st.sampled_from(places))
+        if draw(st.booleans()) and isinstance(container, dict):
+            del container[key]
+        else:
+            container[key] = draw(values)
+    return doc
+
+
+def _toml_value(v):
+    return v is not None and not (isinstance(v, dict) and any(x is None for x in v.values()))
+
+
+def _write_doc(path, doc) -> bool:
+    """Write a document as TOML; False when it holds something TOML cannot say (None)."""
+    try:
+        path.write_text(to_toml(doc))
+    except (TypeError, ValueError, AttributeError):
+        return False
+    return True
+
+
+def _must_be_named_error(load, path):
+    try:
+        load(path)
+    except ModelFileError as exc:
+        assert str(path.name) in str(exc) or "urdf" in str(exc).lower(), str(exc)
+
+
+with open(REFERENCE, "rb") as fh:
+    REFERENCE_DOC = tomllib.load(fh)
+with open(PANDA, "rb") as fh:
+    PANDA_DOC = tomllib.load(fh)
+PANDA_DOC["urdf"] = str(ROOT / "problems" / "urdf" / "panda.urdf")
+with open(PROBLEM, "rb") as fh:
+    PROBLEM_DOC = tomllib.load(fh)
+PROBLEM_DOC["model"] = str(REFERENCE)
+URDF_TEXT = (ROOT / "problems" / "urdf" / "panda.urdf").read_text()
+
+
+@SETTINGS
+@given(doc=mutated(REFERENCE_DOC))
+def test_broken_model_files_are_refused_by_name(tmp_path, doc):
+    path = tmp_path / "arm.toml"
+    if _write_doc(path, doc):
+        _must_be_named_error(rscasadi.load, path)
+
+
+@SETTINGS
+@given(doc=mutated(PANDA_DOC))
+def test_broken_urdf_form_files_are_refused_by_name(tmp_path, doc):
+    path = tmp_path / "panda.toml"
+    if _write_doc(path, doc):
+        _must_be_named_error(rscasadi.load, path)
+
+
+@SETTINGS
+@given(doc=mutated(PROBLEM_DOC))
+def test_broken_problem_files_are_refused_by_name(tmp_path, doc):
+    path = tmp_path / "problem.toml"
+    if _write_doc(path, doc):
+        _must_be_named_error(load_problem, path)
+
+
+ATTRIBUTE = re.compile(r'(\w+)="([^"]*)"')
+
+
+@st.composite
+def broken_urdf(draw):
+    text = URDF_TEXT
+    how = draw(st.sampled_from(["attribute", "cut", "element", "garbage"]))
+    if how == "attribute":
+        spots = list(ATTRIBUTE.finditer(text))
+        m = spots[draw(st.integers(0, len(spots) - 1))]
+        new = draw(st.one_of(st.text(max_size=6), st.sampled_from(["nan", "inf", "-1", "0 0 0", "1e400", "", "a b c"])))
+        text = text[:m.start(2)] + new.replace('"', "").replace("<", "").replace("&", "") + text[m.end(2):]
+    elif how == "cut":
+        text = text[:draw(st.integers(0, len(text) - 1))]
+    elif how == "element":
+        tags = list(re.finditer(r"<(inertial|joint|link|origin|axis|mass|inertia|limit)\b[^>]*/>", text))
+        m = tags[draw(st.integers(0, len(tags) - 1))]
+        text = text[:m.start()] + text[m.end():]
+    else:
+        text = draw(st.text(max_size=40))
+    return text
+
+
+@SETTINGS
+@given(text=broken_urdf())
+def test_broken_urdfs_are_refused_by_name(tmp_path, text):
+    (tmp_path / "panda.urdf").write_text(text)
+    doc = copy.deepcopy(PANDA_DOC)
+    doc["urdf"] = "panda.urdf"
+    path = tmp_path / "panda.toml"
+    path.write_text(to_toml(doc))
+    try:
+        rscasadi.load(path)
+    except ModelFileError as exc:
+        assert "panda" in str(exc), str(exc)
+
+
+def _one_line_error(capsys, argv):
+    code = main(argv)
+    err = capsys.readouterr().err.strip()
+    assert code not in (0, None), argv
+    assert err.startswith("rscasadi: error:") and "Traceback" not in err, err
+    return err
+
+
+def test_commands_on_wrong_paths_say_one_line(tmp_path, capsys):
+    a_file = tmp_path / "a_file.txt"
+    a_file.write_text("not a directory\n")
+    assert "not a directory" in _one_line_error(capsys, ["codegen", str(REFERENCE), "--out", str(a_file)])
+    assert "not a directory" in _one_line_error(capsys, ["paper", "--out", str(a_file), "--no-sweep", "--ocp", ""])
+    assert "a_file.txt" in _one_line_error(capsys, ["info", str(a_file)])
+    assert "missing.toml" in _one_line_error(capsys, ["info", str(tmp_path / "missing.toml")])
+    assert "missing.toml" in _one_line_error(capsys, ["ocp", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "o")])
+    _one_line_error(capsys, ["info", str(tmp_path)])                          # a directory as a model file
+    (tmp_path / "binary.toml").write_bytes(b"\x00\xff\xfe garbage")
+    assert "binary.toml" in _one_line_error(capsys, ["info", str(tmp_path / "binary.toml")])
