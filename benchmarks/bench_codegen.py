@@ -28,6 +28,7 @@ except ImportError:                                   # pin is optional
     PinocchioRoute = None
 
 HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
 SIZES = (3, 6, 12)
 TARGETS = {"forward_dynamics": 250, "inverse_dynamics": 150, "forward_dynamics_jacobian": 2000}
 
@@ -67,6 +68,7 @@ def main():
                   + (f"   numeric core {num_ns / 1e3:8.1f} us" if ref else "")
                   + (f"   Pinocchio route {pin_ns / 1e3:6.1f} us" if pin_ns == pin_ns else ""), flush=True)
 
+    panda = panda_row(work, harness)
     checks = [f"reference arm {name}: {c:.0f} ns (target <= {TARGETS[name]} ns): "
               + ("met" if c <= TARGETS[name] else "MISSED")
               for n, name, _, c, *_ in rows if n == 3 and name in TARGETS]
@@ -81,6 +83,13 @@ def main():
     checks.append(f"n = 12 forward dynamics: C {fd12[3]:.0f} ns vs the 20 us quoted for Pinocchio's C++ "
                   f"route in the issue: {20000 / fd12[3]:.0f}x (target >= 5x): "
                   + ("met" if 20000 / fd12[3] >= 5 else "MISSED"))
+    checks.append(f"Panda (7 joints, URDF) generate+compile of all functions: {panda['compile_s']:.1f} s "
+                  f"(target < 30 s): " + ("met" if panda["compile_s"] < 30 else "MISSED"))
+    if panda.get("pin_ns"):
+        ratio = panda["pin_ns"] / panda["forward_dynamics"]
+        checks.append(f"Panda forward dynamics: C {panda['forward_dynamics']:.0f} ns vs Pinocchio's crba + rnea "
+                      f"on the same 21-body tree {panda['pin_ns']:.0f} ns (C++ through its bindings, before the "
+                      f"projection and solve): {ratio:.1f}x (target >= 5x): " + ("met" if ratio >= 5 else "MISSED"))
     for c in checks:
         print(c)
 
@@ -98,6 +107,12 @@ def main():
     md += [f"| {n} | {name} | {ni} | {c:.0f} | {e / 1e3:.1f} | {fmt(nu)} | {fmt(p)} |"
            for n, name, ni, c, e, nu, p in rows]
     md += ["", "| n | generate + compile (s) |", "|---|---|"] + [f"| {n} | {s:.1f} |" for n, s in compile_s.items()]
+    md += ["", "## The Panda (7 joints, problems/panda_sea.toml from its URDF)", "",
+           "| forward_dynamics (ns) | inverse_dynamics (ns) | forward_dynamics_jacobian (ns) | step (ns) | "
+           "generate + compile (s) | Pinocchio crba + rnea (ns) |", "|---|---|---|---|---|---|",
+           f"| {panda['forward_dynamics']:.0f} | {panda['inverse_dynamics']:.0f} | "
+           f"{panda['forward_dynamics_jacobian']:.0f} | {panda['step']:.0f} | {panda['compile_s']:.1f} | "
+           f"{panda.get('pin_ns', float('nan')):.0f} |"]
     md += ["", "## Targets", ""] + [f"- {c}" for c in checks]
     fig, ax = plt.subplots(figsize=(7, 4))
     for name in ("forward_dynamics", "inverse_dynamics", "forward_dynamics_jacobian", "step", "step_jacobian"):
@@ -106,6 +121,29 @@ def main():
     ax.legend(fontsize=8)
     fig.tight_layout()
     write_results("bench_codegen", fig, csv, "\n".join(md) + "\n")
+
+
+def panda_row(work: Path, harness: Path) -> dict:
+    """The 7-joint Panda from its URDF: C time per call of the main functions, generate + compile
+    time, and Pinocchio's own crba + rnea on the same 21-body tree (parsed from the same URDF)."""
+    arm = rscasadi.load(ROOT / "problems" / "panda_sea.toml")
+    out = work / "panda"
+    t0 = time.perf_counter()
+    manifest = generate(arm, out, log=lambda m: None)
+    row = {"compile_s": time.perf_counter() - t0}
+    names = ["forward_dynamics", "inverse_dynamics", "forward_dynamics_jacobian", "step"]
+    run = subprocess.run([str(harness), str(out / manifest["library"])] + names, capture_output=True, text=True,
+                         check=True)
+    row.update({line.split()[0]: float(line.split()[1]) for line in run.stdout.splitlines()})
+    if PinocchioRoute:
+        import pinocchio as pin
+        route, rng = PinocchioRoute.from_urdf(arm.model), np.random.default_rng(7)
+        q, v = route.G @ rng.uniform(-1, 1, 14), route.G @ rng.uniform(-1, 1, 14)
+        a = np.zeros(route.model.nv)
+        row["pin_ns"] = 1e9 * (per_call(pin.crba, route.model, route.data, q, repeat=5, min_time=0.2)
+                               + per_call(pin.rnea, route.model, route.data, q, v, a, repeat=5, min_time=0.2))
+    print("Panda: " + ", ".join(f"{k} {v:.1f}" for k, v in row.items()), flush=True)
+    return row
 
 
 if __name__ == "__main__":

@@ -6,49 +6,65 @@ import numpy as np
 
 from . import recursions as rec
 from ..model.modelfile import ArmModel, read
+from ..model.parameters import Physics, names as parameter_names, nominal as parameter_nominal
 
 STATE = ["theta", "phi", "dtheta", "dphi"]
 
 
 class Arm:
     """An n-joint FS-SEA arm (joints base to tip). Every method returns a casadi.Function
-    whose inputs and outputs are (n, 1) columns named as in MODEL.md section 3."""
+    whose inputs and outputs are (n, 1) columns named as in docs/model.md section 3.
+
+    `parametric=True` gives the twin with one more input, p (docs/model.md, "Parameters"):
+    the same equations with every physical parameter symbolic, equal to the constant version
+    at p = arm.parameters()[1]."""
 
     def __init__(self, model: ArmModel):
         self.model = model
         self.n = model.n
         self._functions = {}
-        self._col = {a: ca.DM(model.column(a)) for a in ("gear_ratio", "k1", "k3", "d", "b", "c", "eps")}
+        self.physics = Physics.constant(model)
 
     def __repr__(self):
         return f"Arm({self.model.name!r}, n={self.n}, file={self.model.path!r})"
 
-    # -- actuator laws (MODEL.md section 2) --------------------------------------------------
-    def sea_torque(self, theta, phi, dtheta, dphi):
+    def parameters(self) -> tuple[list, np.ndarray]:
+        """The ordered parameter names and their nominal values (the model file's numbers)."""
+        return parameter_names(self.model), parameter_nominal(self.model)
+
+    # -- actuator laws (docs/model.md section 2) ---------------------------------------------
+    def sea_torque(self, theta, phi, dtheta, dphi, phys=None):
         """T = T_K(psi) + T_B(dpsi) = k1 psi + k3 psi^3 + d dpsi, psi = phi - theta."""
-        c, psi, dpsi = self._col, phi - theta, dphi - dtheta
+        c, psi, dpsi = (phys or self.physics).columns, phi - theta, dphi - dtheta
         return c["k1"] * psi + c["k3"] * psi ** 3 + c["d"] * dpsi
 
-    def gear_loss(self, dphi):
+    def gear_loss(self, dphi, phys=None):
         """T_B2 = b dphi + c tanh(dphi / eps)."""
-        c = self._col
+        c = (phys or self.physics).columns
         return c["b"] * dphi + c["c"] * ca.tanh(dphi / c["eps"])
 
-    def _phi_force(self, x, tau):
-        """Q_phi = -T - T_B2 - mu tau (MODEL.md section 3)."""
-        return -self.sea_torque(*x) - self.gear_loss(x[3]) - self._col["gear_ratio"] * tau
+    def _phi_force(self, phys, x, tau):
+        """Q_phi = -T - T_B2 - mu tau (docs/model.md section 3)."""
+        return -self.sea_torque(*x, phys=phys) - self.gear_loss(x[3], phys) - phys.columns["gear_ratio"] * tau
 
     # -- plumbing ---------------------------------------------------------------------------
     def _symbols(self, *names):
         return [ca.SX.sym(name, self.n) for name in names]
 
-    def _function(self, name, ins, outs, build):
-        if name not in self._functions:
+    def _function(self, name, ins, outs, build, parametric=False):
+        """The Function `name` built once: build(phys, *inputs); the parametric twin adds p."""
+        key = (name, parametric)
+        if key not in self._functions:
             args = self._symbols(*ins)
-            self._functions[name] = ca.Function(name, args, build(*args), ins, outs)
-        return self._functions[name]
+            if parametric:
+                p = ca.SX.sym("p", len(parameter_names(self.model)))
+                self._functions[key] = ca.Function(name, args + [p], build(Physics.of(self.model, p), *args),
+                                                   ins + ["p"], outs)
+            else:
+                self._functions[key] = ca.Function(name, args, build(self.physics, *args), ins, outs)
+        return self._functions[key]
 
-    def _segments(self, reduced):
+    def _segments(self, reduced, phys):
         if reduced:
             unbalanced = [f"joint {i + 1} ({jt.name!r}) {part}" for i, jt in enumerate(self.model.joints)
                           for part in ("slow_rotor", "fast_rotor") if not getattr(jt, part).balanced]
@@ -56,121 +72,124 @@ class Arm:
                 raise ValueError(f"{self.model.path}: the DLR/Spong reduced model assumes balanced rotors "
                                  f"(com on the axis, ixx = iyy, no products of inertia); unbalanced: "
                                  + ", ".join(unbalanced))
-        return rec.segments(self.model, reduced)
+        return rec.segments(self.model, phys, reduced)
 
-    def _kin(self, reduced, x):
-        segs = self._segments(reduced)
+    def _kin(self, reduced, phys, x):
+        segs = self._segments(reduced, phys)
         return segs, rec.kinematics(segs, *x)
 
-    def _inverse(self, reduced):
-        def build(theta, phi, dtheta, dphi, ddtheta, ddphi):
+    def _inverse(self, reduced, parametric=False):
+        def build(phys, theta, phi, dtheta, dphi, ddtheta, ddphi):
             x = (theta, phi, dtheta, dphi)
-            segs, kin = self._kin(reduced, x)
-            T, Qi_phi = rec.inverse_dynamics(segs, kin, ddtheta, ddphi, self.model.gravity)   # eq. (26)
-            tau = -(Qi_phi + self.sea_torque(*x) + self.gear_loss(dphi)) / self._col["gear_ratio"]  # eq. (22)
+            segs, kin = self._kin(reduced, phys, x)
+            T, Qi_phi = rec.inverse_dynamics(segs, kin, ddtheta, ddphi, phys.gravity)        # eq. (26)
+            tau = -(Qi_phi + self.sea_torque(*x, phys=phys) + self.gear_loss(dphi, phys)) \
+                / phys.columns["gear_ratio"]                                                  # eq. (22)
             return [tau, T]
         name = "reduced_inverse_dynamics" if reduced else "inverse_dynamics"
-        return self._function(name, STATE + ["ddtheta", "ddphi"], ["tau", "T"], build)
+        return self._function(name, STATE + ["ddtheta", "ddphi"], ["tau", "T"], build, parametric)
 
-    def _forward(self, reduced):
-        def build(theta, phi, dtheta, dphi, tau):
+    def _forward(self, reduced, parametric=False):
+        def build(phys, theta, phi, dtheta, dphi, tau):
             x = (theta, phi, dtheta, dphi)
-            segs, kin = self._kin(reduced, x)
-            return list(rec.forward_dynamics(segs, kin, self.sea_torque(*x), self._phi_force(x, tau),
-                                             self.model.gravity))
+            segs, kin = self._kin(reduced, phys, x)
+            return list(rec.forward_dynamics(segs, kin, self.sea_torque(*x, phys=phys), self._phi_force(phys, x, tau),
+                                             phys.gravity))
         name = "reduced_forward_dynamics" if reduced else "forward_dynamics"
-        return self._function(name, STATE + ["tau"], ["ddtheta", "ddphi"], build)
+        return self._function(name, STATE + ["tau"], ["ddtheta", "ddphi"], build, parametric)
 
     # -- public Functions -------------------------------------------------------------------
-    def inverse_dynamics(self) -> ca.Function:
+    def inverse_dynamics(self, parametric: bool = False) -> ca.Function:
         """theta, phi, dtheta, dphi, ddtheta, ddphi -> tau (eq. 22), T (eq. 26)."""
-        return self._inverse(False)
+        return self._inverse(False, parametric)
 
-    def forward_dynamics(self) -> ca.Function:
+    def forward_dynamics(self, parametric: bool = False) -> ca.Function:
         """theta, phi, dtheta, dphi, tau -> ddtheta, ddphi: the complete model, one O(n) sweep."""
-        return self._forward(False)
+        return self._forward(False, parametric)
 
-    def reduced_inverse_dynamics(self) -> ca.Function:
+    def reduced_inverse_dynamics(self, parametric: bool = False) -> ca.Function:
         """The DLR/Spong reduced model: M_tt ddtheta + C dtheta + g = T; B ddphi + T + T_B2 = -mu tau."""
-        return self._inverse(True)
+        return self._inverse(True, parametric)
 
-    def reduced_forward_dynamics(self) -> ca.Function:
-        return self._forward(True)
+    def reduced_forward_dynamics(self, parametric: bool = False) -> ca.Function:
+        return self._forward(True, parametric)
 
-    def joint_forward_dynamics(self) -> ca.Function:
+    def joint_forward_dynamics(self, parametric: bool = False) -> ca.Function:
         """Paper eq. (23), flexible-joint forward dynamics:
         theta, phi, dtheta, dphi, tau, ddtheta -> ddphi.  ddtheta gives the parent links'
         spatial accelerations alpha_{k+1} (only the joints inboard of each rotor matter);
         T is the SEA torque of the spring law at the state."""
-        def build(theta, phi, dtheta, dphi, tau, ddtheta):
+        def build(phys, theta, phi, dtheta, dphi, tau, ddtheta):
             x = (theta, phi, dtheta, dphi)
-            segs, kin = self._kin(False, x)
-            return [rec.joint_forward_dynamics(segs, kin, ddtheta, self._phi_force(x, tau), self.model.gravity)]
-        return self._function("joint_forward_dynamics", STATE + ["tau", "ddtheta"], ["ddphi"], build)
+            segs, kin = self._kin(False, phys, x)
+            return [rec.joint_forward_dynamics(segs, kin, ddtheta, self._phi_force(phys, x, tau), phys.gravity)]
+        return self._function("joint_forward_dynamics", STATE + ["tau", "ddtheta"], ["ddphi"], build, parametric)
 
-    def arm_forward_dynamics(self) -> ca.Function:
+    def arm_forward_dynamics(self, parametric: bool = False) -> ca.Function:
         """Paper eqs. (29)-(32), whole-arm forward dynamics:
         theta, phi, dtheta, dphi, ddphi, ddtheta_guess -> ddtheta.  T is the SEA torque of the
         spring law at the state; ddphi are the rotor accelerations (from eq. 23) and
         ddtheta_guess the predicted link accelerations that form the rotors' spatial
         accelerations in eq. (29).  At the exact ddtheta, ddtheta == ddtheta_guess."""
-        def build(theta, phi, dtheta, dphi, ddphi, ddtheta_guess):
+        def build(phys, theta, phi, dtheta, dphi, ddphi, ddtheta_guess):
             x = (theta, phi, dtheta, dphi)
-            segs, kin = self._kin(False, x)
-            return [rec.arm_forward_dynamics(segs, kin, self.sea_torque(*x), ddphi, ddtheta_guess,
-                                             self.model.gravity)]
-        return self._function("arm_forward_dynamics", STATE + ["ddphi", "ddtheta_guess"], ["ddtheta"], build)
+            segs, kin = self._kin(False, phys, x)
+            return [rec.arm_forward_dynamics(segs, kin, self.sea_torque(*x, phys=phys), ddphi, ddtheta_guess,
+                                             phys.gravity)]
+        return self._function("arm_forward_dynamics", STATE + ["ddphi", "ddtheta_guess"], ["ddtheta"], build,
+                              parametric)
 
-    def energy(self) -> ca.Function:
+    def energy(self, parametric: bool = False) -> ca.Function:
         """theta, phi, dtheta, dphi -> E: kinetic + gravitational + SEA spring energy."""
-        def build(theta, phi, dtheta, dphi):
-            segs, kin = self._kin(False, (theta, phi, dtheta, dphi))
-            psi, c = phi - theta, self._col
+        def build(phys, theta, phi, dtheta, dphi):
+            segs, kin = self._kin(False, phys, (theta, phi, dtheta, dphi))
+            psi, c = phi - theta, phys.columns
             spring = ca.sum1(0.5 * c["k1"] * psi ** 2 + 0.25 * c["k3"] * psi ** 4)
-            return [rec.energy(segs, kin, self.model.gravity) + spring]
-        return self._function("energy", STATE, ["E"], build)
+            return [rec.energy(segs, kin, phys.gravity) + spring]
+        return self._function("energy", STATE, ["E"], build, parametric)
 
-    def residual_jacobian(self) -> ca.Function:
+    def residual_jacobian(self, parametric: bool = False) -> ca.Function:
         """theta, phi, dtheta, dphi, ddtheta, ddphi -> dr/d(theta, phi, dtheta, dphi) (2n x 4n), where
-        r = M ddq + c - Q without its tau term (the rows of MODEL.md section 3)."""
-        def build(theta, phi, dtheta, dphi, ddtheta, ddphi):
+        r = M ddq + c - Q without its tau term (the rows of docs/model.md section 3)."""
+        def build(phys, theta, phi, dtheta, dphi, ddtheta, ddphi):
             x = (theta, phi, dtheta, dphi)
-            segs, kin = self._kin(False, x)
-            T, Qi_phi = rec.inverse_dynamics(segs, kin, ddtheta, ddphi, self.model.gravity)
-            T_s = self.sea_torque(*x)
-            r = ca.vertcat(T - T_s, Qi_phi + T_s + self.gear_loss(dphi))
+            segs, kin = self._kin(False, phys, x)
+            T, Qi_phi = rec.inverse_dynamics(segs, kin, ddtheta, ddphi, phys.gravity)
+            T_s = self.sea_torque(*x, phys=phys)
+            r = ca.vertcat(T - T_s, Qi_phi + T_s + self.gear_loss(dphi, phys))
             return ca.cse([ca.jacobian(r, ca.vertcat(*x))])
-        return self._function("residual_jacobian", STATE + ["ddtheta", "ddphi"], ["jacobian"], build)
+        return self._function("residual_jacobian", STATE + ["ddtheta", "ddphi"], ["jacobian"], build, parametric)
 
-    def forward_dynamics_jacobian(self) -> ca.Function:
+    def forward_dynamics_jacobian(self, parametric: bool = False) -> ca.Function:
         """theta, phi, dtheta, dphi, tau -> jacobian = d(ddtheta, ddphi)/d(theta, phi, dtheta, dphi, tau)
         (2n x 5n) by the implicit-function theorem on M ddq + c = Q at ddq = forward dynamics:
         M J = [-dr/d(q, dq) | dQ/dtau], one LDL^T solve.  An MX graph calling compact SX
         Functions: its size grows like the inverse-dynamics derivative, not like AD through
         the articulated sweep."""
-        if "forward_dynamics_jacobian" not in self._functions:
+        key = ("forward_dynamics_jacobian", parametric)
+        if key not in self._functions:
             n = self.n
             x = [ca.MX.sym(name, n) for name in STATE]
             tau = ca.MX.sym("tau", n)
-            ddtheta, ddphi = self.forward_dynamics()(*x, tau)
-            Jr = self.residual_jacobian()(*x, ddtheta, ddphi)
+            p = [ca.MX.sym("p", len(parameter_names(self.model)))] if parametric else []
+            ddtheta, ddphi = self.forward_dynamics(parametric)(*x, tau, *p)
+            Jr = self.residual_jacobian(parametric)(*x, ddtheta, ddphi, *p)
             dQ_dtau = ca.vertcat(ca.MX.zeros(n, n), -ca.diag(ca.DM(self.model.column("gear_ratio"))))
-            J = ca.solve(self.mass_matrix()(x[0], x[1]), ca.horzcat(-Jr, dQ_dtau), "ldl")
-            self._functions["forward_dynamics_jacobian"] = ca.Function(
-                "forward_dynamics_jacobian", x + [tau], [J], STATE + ["tau"], ["jacobian"])
-        return self._functions["forward_dynamics_jacobian"]
+            J = ca.solve(self.mass_matrix(parametric=parametric)(x[0], x[1], *p), ca.horzcat(-Jr, dQ_dtau), "ldl")
+            self._functions[key] = ca.Function("forward_dynamics_jacobian", x + [tau] + p, [J],
+                                               STATE + ["tau"] + (["p"] if parametric else []), ["jacobian"])
+        return self._functions[key]
 
-    def mass_matrix(self, reduced: bool = False) -> ca.Function:
+    def mass_matrix(self, reduced: bool = False, parametric: bool = False) -> ca.Function:
         """theta, phi -> M (2n x 2n, q = (theta, phi)), the Jacobian of the generalized inertial
         forces of the recursion with respect to (ddtheta, ddphi)."""
-        name = "reduced_mass_matrix" if reduced else "mass_matrix"
-        if name not in self._functions:
-            theta, phi = self._symbols("theta", "phi")
+        def build(phys, theta, phi):
             ddq, zero = ca.SX.sym("ddq", 2 * self.n), ca.DM.zeros(self.n)
-            segs, kin = self._kin(reduced, (theta, phi, zero, zero))
+            segs, kin = self._kin(reduced, phys, (theta, phi, zero, zero))
             Q = ca.vertcat(*rec.inverse_dynamics(segs, kin, ddq[:self.n], ddq[self.n:], np.zeros(3)))
-            self._functions[name] = ca.Function(name, [theta, phi], [ca.jacobian(Q, ddq)], ["theta", "phi"], ["M"])
-        return self._functions[name]
+            return [ca.jacobian(Q, ddq)]
+        name = "reduced_mass_matrix" if reduced else "mass_matrix"
+        return self._function(name, ["theta", "phi"], ["M"], build, parametric)
 
 
 def load(path) -> Arm:

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from .spatial import H, Xup, base_acceleration, base_pose, coriolis, gyroscopic, joint_rotation, spatial_inertia
+from .spatial import H, Xup, as_casadi, base_acceleration, base_pose, coriolis, gyroscopic, joint_rotation
 
 
 @dataclass
@@ -46,19 +46,21 @@ def rotor_frame_angle(gear, spins, phi):
     return gear * phi if spins else 0
 
 
-def segments(model, reduced: bool = False) -> list:
-    """The constant tree of the complete model, or of the DLR reduced model."""
+def segments(model, phys, reduced: bool = False) -> list:
+    """The tree of the complete model, or of the DLR reduced model, with the inertias of `phys`
+    (numbers, or expressions of the parameters: then every rotor spins in its own frame)."""
     segs = []
-    for jt in model.joints:
-        rotors = [(gear, spatial_inertia(body), not body.balanced)
-                  for gear, body in ((1.0, jt.slow_rotor), (-jt.gear_ratio, jt.fast_rotor))]
-        segs.append(Segment(jt.R, jt.origin_xyz, spatial_inertia(jt.link), [] if reduced else rotors,
-                            jt.rotor_inertia if reduced else 0.0, jt.gear_ratio))
+    for j, jt in enumerate(model.joints):
+        M = phys.inertias[j]
+        rotors = [(gear, M[part], phys.symbolic or not getattr(jt, part).balanced)
+                  for gear, part in ((1.0, "slow_rotor"), (-jt.gear_ratio, "fast_rotor"))]
+        segs.append(Segment(jt.R, jt.origin_xyz, M["link"], [] if reduced else rotors,
+                            phys.rotor_inertia(j) if reduced else 0.0, jt.gear_ratio))
     if reduced:  # rotor j+1 carried rigidly by link j at its zero angle (exact for balanced rotors)
-        for seg, jt in zip(segs[:-1], model.joints[1:]):
-            X0 = np.array(ca.DM(Xup(ca.DM(jt.R), jt.origin_xyz)))
-            for body in (jt.slow_rotor, jt.fast_rotor):
-                seg.M = seg.M + X0.T @ spatial_inertia(body) @ X0
+        for seg, jt, M in zip(segs[:-1], model.joints[1:], phys.inertias[1:]):
+            X0 = Xup(ca.DM(jt.R), jt.origin_xyz)
+            for part in ("slow_rotor", "fast_rotor"):
+                seg.M = as_casadi(seg.M) + X0.T @ as_casadi(M[part]) @ X0
     return segs
 
 
@@ -116,7 +118,7 @@ def leaf_articulated(seg, k, Qphi_j):
     D = seg.B_spin + sum(gear ** 2 * M[2, 2] for gear, M, *_ in k.leaves)
     U, eps, P_add, z_add = ca.DM.zeros(6), Qphi_j, ca.DM.zeros(6, 6), ca.DM.zeros(6)
     for gear, M, Xr, Vr, ar in k.leaves:
-        Mr, F = ca.DM(M), rotor_force(M, Vr, ar)           # F_ks, F_kf of eq. (24) without alpha_p
+        Mr, F = as_casadi(M), rotor_force(M, Vr, ar)           # F_ks, F_kf of eq. (24) without alpha_p
         U += gear * Xr.T @ (Mr @ H)
         eps -= gear * F[2]
         P_add += Xr.T @ Mr @ Xr
@@ -227,7 +229,7 @@ def arm_forward_dynamics(segs, kin, T, ddphi, ddtheta_guess, gravity):
 
 def energy(segs, kin, gravity):
     """Kinetic (0.5 V^T M V per body) plus gravitational (-m g . p_com, eq. 12 for the poses)."""
-    E, R_p, o_p, g = 0, ca.DM.eye(3), ca.DM.zeros(3), ca.DM(gravity)
+    E, R_p, o_p, g = 0, ca.DM.eye(3), ca.DM.zeros(3), as_casadi(gravity)
     for seg, k in zip(segs, kin):
         theta = k.q[0]
         bodies = [(seg.M, k.V, joint_rotation(seg.R, theta))]
@@ -235,7 +237,7 @@ def energy(segs, kin, gravity):
                    for (gear, M, _, Vr, _), (_, _, spins) in zip(k.leaves, seg.leaves)]
         for M, V, R in bodies:
             R_b, o = base_pose(R_p, o_p, R, seg.l)                  # eq. (12): the body in the base frame
-            m, mp = M[3, 3], ca.DM([M[2, 4], M[0, 5], M[1, 3]])
-            E += 0.5 * V.T @ ca.DM(M) @ V - g.T @ (m * o + R_b @ mp)
+            m, mp = M[3, 3], ca.vertcat(M[2, 4], M[0, 5], M[1, 3])
+            E += 0.5 * V.T @ as_casadi(M) @ V - g.T @ (m * o + R_b @ mp)
         R_p, o_p = base_pose(R_p, o_p, bodies[0][2], seg.l)
     return E

@@ -20,6 +20,11 @@ H = ca.DM([0, 0, 1, 0, 0, 0])          # eq. (7): every joint turns about its lo
 Z3 = ca.DM.zeros(3, 3)
 
 
+def as_casadi(x):
+    """A CasADi matrix as it is; numbers (numpy) as a DM."""
+    return x if isinstance(x, (ca.SX, ca.MX, ca.DM)) else ca.DM(x)
+
+
 def skew(v):
     """The cross-product matrix: skew(v) @ w = v x w (the paper's tilde)."""
     return ca.vertcat(ca.horzcat(0, -v[2], v[1]), ca.horzcat(v[2], 0, -v[0]), ca.horzcat(-v[1], v[0], 0))
@@ -67,13 +72,13 @@ def coriolis(R, l, w_parent, rate):
 
 def gyroscopic(M, w):
     """b_k of eq. (10): [w x I_O w; w x (w x m p)], read off a spatial inertia M (eq. 11)."""
-    I_O, mp = ca.DM(M[:3, :3]), ca.DM([M[2, 4], M[0, 5], M[1, 3]])   # m p~ = M[:3, 3:]
+    I_O, mp = as_casadi(M[:3, :3]), ca.vertcat(M[2, 4], M[0, 5], M[1, 3])   # m p~ = M[:3, 3:]
     return ca.vertcat(ca.cross(w, I_O @ w), ca.cross(w, ca.cross(w, mp)))
 
 
 def base_acceleration(gravity):
     """alpha_base with gravity as a base acceleration (end of section II): [0; -g]."""
-    return ca.vertcat(ca.DM.zeros(3), -ca.DM(gravity))
+    return ca.vertcat(ca.DM.zeros(3), -as_casadi(gravity))
 
 
 def base_pose(R_parent, o_parent, R, l):

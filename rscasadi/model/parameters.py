@@ -1,0 +1,112 @@
+"""Physical parameters as numbers or as symbolic inputs.
+
+The parameter vector p of an arm, in this order:
+
+- for each joint j (base to tip), for each of its bodies (link, slow_rotor, fast_rotor), the ten
+  inertial parameters that the dynamics is linear in: mass m, first moment m c (`mx, my, mz`),
+  and the inertia about the body-frame origin (`Ixx, Iyy, Izz, Ixy, Ixz, Iyz`), all in the
+  body's own frame (docs/model.md section 2);
+- then its actuator: `sea.k1, sea.k3, sea.d, gear_loss.b, gear_loss.c`;
+- last, `gravity.x, gravity.y, gravity.z`.
+
+Names are dotted: "elbow_pitch.link.mass", "elbow_pitch.fast_rotor.Izz", "elbow_pitch.sea.k1".
+Everything before gravity is p_lin: inverse dynamics is linear in it (with eps, the gear ratios
+and gravity fixed).  Gear ratios and eps are not parameters: they shape the equations.
+
+`Physics` holds what the recursions read (spatial inertias, actuator columns, gravity), either
+as numbers from the model file or as CasADi expressions of p.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from ..dynamics.spatial import spatial_inertia
+from .modelfile import BODIES, ArmModel, Body
+
+INERTIAL = ("mass", "mx", "my", "mz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
+ACTUATOR = ("sea.k1", "sea.k3", "sea.d", "gear_loss.b", "gear_loss.c")
+ACTUATOR_ATTR = ("k1", "k3", "d", "b", "c")
+GRAVITY = ("gravity.x", "gravity.y", "gravity.z")
+PER_JOINT = len(BODIES) * len(INERTIAL) + len(ACTUATOR)
+
+
+def body_parameters(body: Body) -> np.ndarray:
+    """m, m c, I_O (about the frame origin): the ten parameters of eq. (11)."""
+    I, h = body.inertia_origin, body.mass * body.com
+    return np.r_[body.mass, h, I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]
+
+
+def body_from_parameters(v) -> Body:
+    """The inverse of body_parameters: mass, centre of mass and inertia about it."""
+    m, h = float(v[0]), np.asarray(v[1:4], float)
+    I_O = np.array([[v[4], v[7], v[8]], [v[7], v[5], v[9]], [v[8], v[9], v[6]]], float)
+    c = h / m
+    return Body(m, c, I_O - m * (c @ c * np.eye(3) - np.outer(c, c)))
+
+
+def spatial_from_parameters(v):
+    """Eq. (11) from the ten parameters: [[I_O, (m c)~], [-(m c)~, m 1]] (numbers or SX)."""
+    m, hx, hy, hz, ixx, iyy, izz, ixy, ixz, iyz = (v[i] for i in range(10))
+    H = ca.vertcat(ca.horzcat(0, -hz, hy), ca.horzcat(hz, 0, -hx), ca.horzcat(-hy, hx, 0))
+    I_O = ca.vertcat(ca.horzcat(ixx, ixy, ixz), ca.horzcat(ixy, iyy, iyz), ca.horzcat(ixz, iyz, izz))
+    return ca.vertcat(ca.horzcat(I_O, H), ca.horzcat(-H, m * ca.SX.eye(3)))
+
+
+def names(model: ArmModel) -> list[str]:
+    out = []
+    for jt in model.joints:
+        out += [f"{jt.name}.{body}.{q}" for body in BODIES for q in INERTIAL]
+        out += [f"{jt.name}.{a}" for a in ACTUATOR]
+    return out + list(GRAVITY)
+
+
+def nominal(model: ArmModel) -> np.ndarray:
+    out = []
+    for jt in model.joints:
+        out += [body_parameters(getattr(jt, body)) for body in BODIES]
+        out.append([getattr(jt, a) for a in ACTUATOR_ATTR])
+    return np.concatenate(out + [model.gravity])
+
+
+def n_linear(model: ArmModel) -> int:
+    """Length of p_lin, the leading part of p that inverse dynamics is linear in."""
+    return model.n * PER_JOINT
+
+
+@dataclass
+class Physics:
+    """What the recursions read: per joint the spatial inertias {link, slow_rotor, fast_rotor}
+    (6x6), the actuator columns k1, k3, d, b, c (n x 1), the constants eps and gear_ratio, and
+    gravity.  `symbolic` says whether they are expressions of p (then every rotor is written in
+    its spinning frame, exact for any p) or the model file's numbers."""
+    inertias: list
+    columns: dict
+    gravity: object
+    symbolic: bool
+
+    @staticmethod
+    def constant(model: ArmModel) -> "Physics":
+        cols = {a: ca.DM(model.column(a)) for a in ACTUATOR_ATTR + ("eps", "gear_ratio")}
+        inertias = [{b: spatial_inertia(getattr(jt, b)) for b in BODIES} for jt in model.joints]
+        return Physics(inertias, cols, np.asarray(model.gravity, float), False)
+
+    @staticmethod
+    def of(model: ArmModel, p) -> "Physics":
+        """Physics as expressions of p (an SX or MX column of len(names(model)))."""
+        n, inertias, act = model.n, [], []
+        for j in range(n):
+            base = j * PER_JOINT
+            inertias.append({b: spatial_from_parameters(p[base + 10 * i: base + 10 * (i + 1)])
+                             for i, b in enumerate(BODIES)})
+            act.append(p[base + 30: base + PER_JOINT])
+        cols = {a: ca.vertcat(*[act[j][i] for j in range(n)]) for i, a in enumerate(ACTUATOR_ATTR)}
+        cols.update({a: ca.DM(model.column(a)) for a in ("eps", "gear_ratio")})
+        return Physics(inertias, cols, p[n * PER_JOINT: n * PER_JOINT + 3], True)
+
+    def rotor_inertia(self, j: int):
+        """B_j = Izz_O(S_j) + mu_j^2 Izz_O(F_j)."""
+        M = self.inertias[j]
+        return M["slow_rotor"][2, 2] + self.columns["gear_ratio"][j] ** 2 * M["fast_rotor"][2, 2]
