@@ -89,7 +89,7 @@ def cmd_codegen(args):
     from .codegen import generate
     t0 = time.perf_counter()
     manifest = generate(args.model, args.out, prefix=args.prefix, opt=args.opt,
-                        log=lambda msg: print(msg, flush=True))
+                        log=lambda msg: print(msg, flush=True), parametric=args.parametric)
     for name, info in manifest["functions"].items():
         print(f"  {info['symbol']:40s} n_instructions {info['n_instructions']}")
     for name, why in manifest["omitted"].items():
@@ -109,6 +109,9 @@ def main(argv=None):
     p.add_argument("--out", required=True, help="directory for the sources, header, library and manifest.json")
     p.add_argument("--prefix", default=None, help="C identifier put before every function name (P_name)")
     p.add_argument("--opt", default="-O3", help="optimisation flag (default -O3)")
+    p.add_argument("--parametric", action="store_true",
+                   help="every function takes the parameter vector p last (names in manifest.json): one library "
+                        "for every arm with these joints, no recompilation when a number changes")
     p.set_defaults(func=cmd_codegen)
     p = sub.add_parser("paper", help="reproduce the paper's simulation (Figs. 5-11), the cascade study and sweeps")
     p.add_argument("--trajectory", default=str(TRAJECTORY), help="expected-trajectory file (names its model)")

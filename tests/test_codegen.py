@@ -161,3 +161,33 @@ def test_unwritable_or_foreign_directory(tmp_path):
         generate(REFERENCE, foreign, opt="-O1", log=lambda m: None)
     assert (foreign / "precious.txt").read_text() == "keep me"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "foreign"]
+
+
+def test_parametric_library_serves_every_arm_with_the_same_joints(tmp_path, arm3):
+    """`--parametric`: one library, the same source hash for an arm whose every physical number
+    differs (no recompilation), equal to each arm's constant Functions at its own p."""
+    from test_parameters import _other_arm
+    import tomllib
+    with open(REFERENCE, "rb") as fh:
+        doc = tomllib.load(fh)
+    other = _other_arm(tmp_path, doc, np.random.default_rng(17), balanced=True)
+    m_a = generate(REFERENCE, tmp_path / "a", opt="-O1", log=lambda m: None, parametric=True)
+    log = []
+    m_b = generate(other, tmp_path / "b", opt="-O1", log=log.append, parametric=True)
+    assert m_a["source_hash"] == m_b["source_hash"] and any("cache hit" in m for m in log)
+    assert m_a["parameters"]["names"] == arm3.parameters()[0]
+    assert [i["name"] for i in m_a["functions"]["step"]["inputs"]] == ["x", "tau", "h", "p"]
+    lib = rscasadi.load_compiled(tmp_path / "a")
+    rng = np.random.default_rng(18)
+    for arm in (arm3, other):
+        p = arm.parameters()[1]
+        twins, _ = functions(arm)
+        for name in ("forward_dynamics", "inverse_dynamics", "energy", "forward_dynamics_jacobian", "step",
+                     "step_jacobian", "reduced_forward_dynamics"):
+            g = twins[name]
+            args = [rng.normal(size=(g.size1_in(i), g.size2_in(i))) for i in range(g.n_in())]
+            if name.startswith("step"):
+                args[2] = np.array([[1e-3]])                     # a 1 kHz step
+            got, want = lib[name].call(args + [p]), g.call(args)
+            for a, b in zip(got, want):
+                assert rel(np.array(a), np.array(b)) < 1e-10, name

@@ -48,36 +48,39 @@ def rk4(f, x, h):
     return x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4), (x, x + h / 2 * k1, x + h / 2 * k2, x + h * k3)
 
 
-def rhs(arm: Arm) -> ca.Function:
-    """The state equation as a compact SX Function: (x, tau) -> dx/dt, x = (theta, phi, dtheta, dphi)."""
+def rhs(arm: Arm, parametric: bool = False) -> ca.Function:
+    """The state equation as a compact SX Function: (x, tau[, p]) -> dx/dt, x = (theta, phi, dtheta, dphi)."""
     n = arm.n
     x, tau = ca.SX.sym("x", 4 * n), ca.SX.sym("tau", n)
-    p = ca.vertsplit(x, n)
-    xdot = ca.vertcat(p[2], p[3], *arm.forward_dynamics()(*p, tau))
-    return ca.Function("rhs", [x, tau], ca.cse([xdot]), ["x", "tau"], ["xdot"])
+    p = [ca.SX.sym("p", len(arm.parameters()[0]))] if parametric else []
+    q = ca.vertsplit(x, n)
+    xdot = ca.vertcat(q[2], q[3], *arm.forward_dynamics(parametric)(*q, tau, *p))
+    return ca.Function("rhs", [x, tau] + p, ca.cse([xdot]), ["x", "tau"] + ["p"] * len(p), ["xdot"])
 
 
-def step_functions(arm: Arm, prefix: str = "", fd_jacobian: ca.Function | None = None):
-    """step: (x, tau, h) -> x_next, one RK4 step of the complete model; step_jacobian: (x, tau, h)
-    -> A = dx_next/dx, B = dx_next/dtau by the chain rule through the four stages.  Both are
+def step_functions(arm: Arm, prefix: str = "", fd_jacobian: ca.Function | None = None, parametric: bool = False):
+    """step: (x, tau, h[, p]) -> x_next, one RK4 step of the complete model; step_jacobian: (x, tau,
+    h[, p]) -> A = dx_next/dx, B = dx_next/dtau by the chain rule through the four stages.  Both are
     MX graphs that call the SX right-hand side and the forward-dynamics Jacobian, so the
     generated C grows with the size of that Jacobian, not with four inlined copies of it."""
-    n, f = arm.n, rhs(arm)
-    fd_jacobian = fd_jacobian or arm.forward_dynamics_jacobian()
+    n, f = arm.n, rhs(arm, parametric)
+    fd_jacobian = fd_jacobian or arm.forward_dynamics_jacobian(parametric)
     x, tau, h = ca.MX.sym("x", 4 * n), ca.MX.sym("tau", n), ca.MX.sym("h")
-    x_next, stages = rk4(lambda z: f(z, tau), x, h)
+    p = [ca.MX.sym("p", len(arm.parameters()[0]))] if parametric else []
+    x_next, stages = rk4(lambda z: f(z, tau, *p), x, h)
     kinematic = ca.horzcat(ca.MX.zeros(2 * n, 2 * n), ca.MX.eye(2 * n), ca.MX.zeros(2 * n, n))
     I = ca.horzcat(ca.MX.eye(4 * n), ca.MX.zeros(4 * n, n))           # d x / d(x, tau)
     E = ca.horzcat(ca.MX.zeros(n, 4 * n), ca.MX.eye(n))               # d tau / d(x, tau)
     dk = []
     for xi, factor in zip(stages, (0.0, 0.5, 0.5, 1.0)):
         dX = I + factor * h * dk[-1] if dk else I                     # d(stage point)/d(x, tau)
-        J = ca.vertcat(kinematic, fd_jacobian(*ca.vertsplit(xi, n), tau))   # d xdot / d(x, tau)
+        J = ca.vertcat(kinematic, fd_jacobian(*ca.vertsplit(xi, n), tau, *p))   # d xdot / d(x, tau)
         dk.append(ca.mtimes(J, ca.vertcat(dX, E)))
     dnext = I + h / 6 * (dk[0] + 2 * dk[1] + 2 * dk[2] + dk[3])
-    step = ca.Function(prefix + "step", [x, tau, h], [x_next], ["x", "tau", "h"], ["x_next"])
-    step_jac = ca.Function(prefix + "step_jacobian", [x, tau, h], [dnext[:, :4 * n], dnext[:, 4 * n:]],
-                           ["x", "tau", "h"], ["A", "B"])
+    names = ["x", "tau", "h"] + ["p"] * len(p)
+    step = ca.Function(prefix + "step", [x, tau, h] + p, [x_next], names, ["x_next"])
+    step_jac = ca.Function(prefix + "step_jacobian", [x, tau, h] + p, [dnext[:, :4 * n], dnext[:, 4 * n:]],
+                           names, ["A", "B"])
     return step, step_jac
 
 
@@ -85,31 +88,34 @@ AD_JACOBIAN_LIMIT = 1000   # forward-dynamics SX instructions above which the Ja
                            # implicit-function theorem (AD through the sweep: 1165 at n = 3, 27 535 at n = 6)
 
 
-def _ad_jacobian(f: ca.Function, ins):
-    """The dense Jacobian of all outputs of f with respect to all its inputs, by SX AD."""
-    return ca.densify(ca.jacobian(ca.vertcat(*f.call(list(ins))), ca.vertcat(*ins)))
+def _ad_jacobian(f: ca.Function, ins, parametric: bool):
+    """The dense Jacobian of all outputs of f with respect to its inputs but p, by SX AD."""
+    wrt = ins[:-1] if parametric else ins
+    return ca.densify(ca.jacobian(ca.vertcat(*f.call(list(ins))), ca.vertcat(*wrt)))
 
 
-def functions(arm: Arm, prefix: str = "") -> tuple[dict, dict]:
-    """The Functions to generate, by their public name; and those omitted, with the reason."""
+def functions(arm: Arm, prefix: str = "", parametric: bool = False) -> tuple[dict, dict]:
+    """The Functions to generate, by their public name; and those omitted, with the reason.
+    parametric: every Function takes the parameter vector p as its last input."""
     p = f"{prefix}_" if prefix else ""
     fns, omitted = {}, {}
     for name in ("forward_dynamics", "inverse_dynamics", "energy"):
-        fns[name] = _renamed(getattr(arm, name)(), p + name)
+        fns[name] = _renamed(getattr(arm, name)(parametric), p + name)
     for name in ("reduced_forward_dynamics", "reduced_inverse_dynamics"):
         try:
-            fns[name] = _renamed(getattr(arm, name)(), p + name)
+            fns[name] = _renamed(getattr(arm, name)(parametric), p + name)
         except ValueError as exc:                  # unbalanced rotors: the reduced model does not apply
             omitted[name] = str(exc)
-    fd, inv = arm.forward_dynamics(), arm.inverse_dynamics()
+    fd, inv = arm.forward_dynamics(parametric), arm.inverse_dynamics(parametric)
     if fd.n_instructions() > AD_JACOBIAN_LIMIT:            # implicit-function route: smaller C at large n
-        fns["forward_dynamics_jacobian"] = _renamed(arm.forward_dynamics_jacobian(), p + "forward_dynamics_jacobian")
+        fns["forward_dynamics_jacobian"] = _renamed(arm.forward_dynamics_jacobian(parametric),
+                                                    p + "forward_dynamics_jacobian")
     else:                                                  # plain SX AD: compact and fastest for small arms
         fns["forward_dynamics_jacobian"] = _renamed(fd, p + "forward_dynamics_jacobian",
-                                                    lambda *ins: [_ad_jacobian(fd, ins)], ["jacobian"])
+                                                    lambda *ins: [_ad_jacobian(fd, ins, parametric)], ["jacobian"])
     fns["inverse_dynamics_jacobian"] = _renamed(inv, p + "inverse_dynamics_jacobian",
-                                                lambda *ins: [_ad_jacobian(inv, ins)], ["jacobian"])
-    fns["step"], fns["step_jacobian"] = step_functions(arm, p, fns["forward_dynamics_jacobian"])
+                                                lambda *ins: [_ad_jacobian(inv, ins, parametric)], ["jacobian"])
+    fns["step"], fns["step_jacobian"] = step_functions(arm, p, fns["forward_dynamics_jacobian"], parametric)
     return fns, omitted
 
 
@@ -148,8 +154,10 @@ def _compile(cc, flags, sources, lib: Path, workdir: Path):
         (workdir / (s.stem + ".o")).unlink()
 
 
-def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print) -> dict:
-    """Write C sources, one header, one shared library and manifest.json into `out`."""
+def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print, parametric: bool = False) -> dict:
+    """Write C sources, one header, one shared library and manifest.json into `out`.
+    parametric: every function takes the parameter vector p (manifest "parameters") last, so
+    one library serves every arm with the same joints, axes, gear ratios and eps."""
     prefix = prefix or ""
     if prefix and not IDENTIFIER.match(prefix):
         raise CodegenError(f"prefix {prefix!r} is not a C identifier ([A-Za-z_][A-Za-z0-9_]*, at most 63)")
@@ -160,7 +168,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print)
     cc = _compiler()
     flags = [opt, "-std=c99"]
     with fresh_directory(out, "manifest.json") as tmp:
-        fns, omitted = functions(arm, prefix)
+        fns, omitted = functions(arm, prefix, parametric)
         header_gen = ca.CodeGenerator(HEADER.removesuffix(".h"), {"with_header": True})
         sources = []
         for name, f in fns.items():
@@ -197,6 +205,9 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print)
             "functions": {name: {"symbol": f.name(), "inputs": _io(f, False), "outputs": _io(f, True),
                                  "n_instructions": f.n_instructions()} for name, f in fns.items()},
             "omitted": omitted,
+            "parametric": parametric,
+            "parameters": ({"names": arm.parameters()[0], "nominal": arm.parameters()[1].tolist()}
+                           if parametric else None),
             "prefix": prefix,
             "compiler": cc + flags,
             "source_hash": key,
