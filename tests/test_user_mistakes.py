@@ -2,6 +2,7 @@
 broken model files, URDFs and problem files thrown at the loaders, and the commands run on wrong
 paths as a new user would."""
 import copy
+import os
 import re
 import tomllib
 
@@ -17,7 +18,10 @@ from conftest import REFERENCE, ROOT, to_toml
 
 PANDA = ROOT / "problems" / "panda_sea.toml"
 PROBLEM = ROOT / "problems" / "ocp_min_time.toml"
-SETTINGS = settings(max_examples=60, deadline=5000, suppress_health_check=[HealthCheck.function_scoped_fixture])
+# CI explores the same examples on every run (derandomize); RSCASADI_FUZZ=N explores N fresh ones locally.
+SETTINGS = settings(max_examples=int(os.environ.get("RSCASADI_FUZZ", 60)), deadline=5000,
+                    derandomize=bool(os.environ.get("CI")) and "RSCASADI_FUZZ" not in os.environ,
+                    suppress_health_check=[HealthCheck.function_scoped_fixture])
 
 values = st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6), st.floats(allow_nan=True),
                    st.text(max_size=8), st.lists(st.floats(-10, 10), max_size=7),

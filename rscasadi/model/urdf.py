@@ -63,14 +63,31 @@ def _link_spatial(urdf_path, link) -> np.ndarray:
     if problem:
         raise ModelFileError(f"{where}: inertia {problem}")
     T = np.asarray(inertial.origin if inertial.origin is not None else np.eye(4), float)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise ModelFileError(f"{where}: <origin> is not finite numbers")
     body = Body(float(inertial.mass), np.zeros(3), I)
     return transform_inertia(spatial_inertia(body), T[:3, :3], T[:3, 3])
 
 
-def _joint_motion(joint, q) -> np.ndarray:
+def _axis(urdf_path, joint) -> np.ndarray:
+    """A joint's unit axis (URDF default: x), or a ModelFileError naming the joint."""
+    a = np.asarray(joint.axis if joint.axis is not None else [1.0, 0.0, 0.0], float).ravel()
+    if a.shape != (3,) or not np.all(np.isfinite(a)) or np.linalg.norm(a) < 1e-9:
+        raise ModelFileError(f"{urdf_path}: joint {joint.name!r}, <axis>: expected 3 finite numbers, not all "
+                             f"zero, got {joint.axis!r}")
+    return a / np.linalg.norm(a)
+
+
+def _origin(urdf_path, joint) -> np.ndarray:
+    T = np.asarray(joint.origin if joint.origin is not None else np.eye(4), float)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise ModelFileError(f"{urdf_path}: joint {joint.name!r}, <origin>: not finite numbers")
+    return T
+
+
+def _joint_motion(urdf_path, joint, q) -> np.ndarray:
     """The 4x4 motion of a locked joint at q about/along its axis."""
-    a = np.asarray(joint.axis if joint.axis is not None else [1.0, 0.0, 0.0], float)
-    a = a / np.linalg.norm(a)
+    a = _axis(urdf_path, joint)
     if joint.type == "prismatic":
         return _homogeneous(np.eye(3), a * q)
     return _homogeneous(Rotation.from_rotvec(a * q).as_matrix(), np.zeros(3))
@@ -121,7 +138,7 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
         idx, act = actuators[ujoint.name]
         jctx = joint_context(path, idx, {"name": ujoint.name})
         T_acc = bodies[j]["T_joint"]                          # parent body's URDF frame -> joint origin
-        R_a = axis_rotation(ujoint.axis if ujoint.axis is not None else [1.0, 0.0, 0.0])
+        R_a = axis_rotation(_axis(urdf_path, ujoint))
         R_J = R_prev.T @ T_acc[:3, :3] @ R_a
         R_J[np.abs(R_J) < 1e-15] = 0.0
         M = bodies[j + 1]["M"]
@@ -136,7 +153,8 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
         limits = dict(act.pop("limits"))
         lim = ujoint.limit
         if "theta" not in limits and ujoint.type == "revolute" and lim is not None \
-                and lim.lower is not None and lim.upper is not None and lim.lower < lim.upper:
+                and lim.lower is not None and lim.upper is not None and np.isfinite([lim.lower, lim.upper]).all() \
+                and lim.lower < lim.upper:
             limits["theta"] = (float(lim.lower), float(lim.upper))
         rpy = Rotation.from_matrix(R_J).as_euler("xyz") if not _gimbal(R_J) else np.zeros(3)
         joints.append(Joint(origin_xyz=R_prev.T @ T_acc[:3, 3], origin_rpy=np.asarray(rpy), link=link,
@@ -181,12 +199,12 @@ def _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuator
             bodies[b]["M"] = bodies[b]["M"] + transform_inertia(_link_spatial(urdf_path, links_by_name[link_name]),
                                                                 T[:3, :3], T[:3, 3])
         for jt in children.get(link_name, []):
-            origin = np.asarray(jt.origin if jt.origin is not None else np.eye(4), float)
+            origin = _origin(urdf_path, jt)
             if jt.name in locked and jt.type not in MOVING + ("prismatic",):
                 ctx.fail(f"locked.{jt.name}", f"{urdf_path}: joint {jt.name!r} is {jt.type}: only revolute, "
                                               f"continuous and prismatic joints can be locked")
             if jt.type == "fixed" or jt.name in locked:
-                motion = np.eye(4) if jt.type == "fixed" else _joint_motion(jt, float(locked[jt.name]))
+                motion = np.eye(4) if jt.type == "fixed" else _joint_motion(urdf_path, jt, float(locked[jt.name]))
                 stack.append((jt.child, b, T @ origin @ motion))
                 continue
             if jt.type not in MOVING:
