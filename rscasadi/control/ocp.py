@@ -21,6 +21,9 @@ Problem file (TOML), every field checked and named in errors:
     final_speed_tol = 1e-2               # dtheta, dphi at the end (rad/s): 1e-2 rad/s of SEA ringing
                                          # at ~100 rad/s is 1e-4 rad of amplitude
     limit_tol = 1e-3                     # largest violation between grid points, relative to the limit
+    [solver]
+    hessian = "exact"                    # exact | limited-memory (L-BFGS: no second derivatives to
+                                         # generate; for large arms, where the exact Hessian's C is huge)
 
 Controls are held constant on each interval (tau_interpolation "constant"), so the effort
 integral is exact.  Every limit of the model file is imposed at every node and collocation point.
@@ -48,7 +51,9 @@ from .trajectory import load_trajectory
 OBJECTIVES = ("min_time", "min_effort", "tracking")
 METHODS = ("radau", "legendre", "hermite-simpson")
 TOP = {"model", "objective", "theta_start", "theta_end", "duration", "max_duration", "trajectory",
-       "effort_weight", "transcription", "verification"}
+       "effort_weight", "transcription", "verification", "solver"}
+SOLVER = {"hessian"}
+HESSIANS = ("exact", "limited-memory")
 VERIFICATION = {"final_angle_tol", "final_speed_tol", "limit_tol"}
 TRANSCRIPTION = {"method", "degree", "intervals", "dynamics", "compiled"}
 
@@ -69,6 +74,7 @@ class Problem:
     intervals: int = 100
     dynamics: str = "explicit"
     compiled: bool = True
+    hessian: str = "exact"
     final_angle_tol: float = 1e-3
     final_speed_tol: float = 1e-2
     limit_tol: float = 1e-3
@@ -135,6 +141,9 @@ def load_problem(path) -> Problem:
         fail("transcription.dynamics", f"must be explicit or implicit, got {p.dynamics!r}")
     for key, value in table("verification", VERIFICATION).items():
         setattr(p, key, number(f"verification.{key}", value))
+    p.hessian = table("solver", SOLVER).get("hessian", "exact")
+    if p.hessian not in HESSIANS:
+        fail("solver.hessian", f"must be one of {', '.join(HESSIANS)}, got {p.hessian!r}")
     p.compiled = tr.get("compiled", True)
     if not isinstance(p.compiled, bool):
         fail("transcription.compiled", f"must be true or false, got {p.compiled!r}")
@@ -377,7 +386,8 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
     opts = {"ipopt.print_level": print_level, "print_time": False, "ipopt.sb": "yes",
             "ipopt.max_iter": 1000, "ipopt.tol": 1e-8, "ipopt.mu_strategy": "adaptive",
             "ipopt.mumps_pivot_order": 0,          # AMD: min-time N = 100 in 1.8 s instead of 4.5 s here
-            "ipopt.obj_scaling_factor": scale, **{f"ipopt.{k}": v for k, v in (ipopt or {}).items()}}
+            "ipopt.obj_scaling_factor": scale, "ipopt.hessian_approximation": problem.hessian,
+            **{f"ipopt.{k}": v for k, v in (ipopt or {}).items()}}
     t0 = time.perf_counter()
     solver = _compiled_solver(nlp, opts, log) if problem.compiled else ca.nlpsol("ocp", "ipopt", nlp, opts)
     setup = time.perf_counter() - t0
