@@ -7,29 +7,10 @@ import numpy as np
 import pytest
 
 import rscasadi
+from rscasadi.model.modelfile import to_toml  # noqa: F401  (tests write model files)
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "problems" / "arm3.toml"
-
-
-def _fmt(v):
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, (list, tuple, np.ndarray)):
-        return "[" + ", ".join(_fmt(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{ " + ", ".join(f"{k} = {_fmt(x)}" for k, x in v.items()) + " }"
-    return repr(float(v))
-
-
-def to_toml(doc: dict) -> str:
-    """A minimal TOML writer for model documents (tables of scalars, arrays, inline tables)."""
-    lines = [f"{k} = {_fmt(v)}" for k, v in doc.items() if k != "joints" or not v]
-    for jt in doc.get("joints", []):
-        lines += ["", "[[joints]]"] + [f"{k} = {_fmt(v)}" for k, v in jt.items()]
-    return "\n".join(lines) + "\n"
 
 
 def random_body(rng, mass_range, size, balanced=False):

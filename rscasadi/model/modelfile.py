@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -272,3 +273,50 @@ def read_toml(path, kind: str = "model") -> dict:
 def read(path) -> ArmModel:
     """Read and validate a model file."""
     return parse(read_toml(path), str(Path(path)))
+
+
+# ----------------------------------------------------------------------------- writing
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
+    return repr(float(v))
+
+
+def to_toml(doc: dict) -> str:
+    """TOML text of a model document (top-level scalars and arrays, [[joints]] of inline tables)."""
+    lines = [f"{k} = {_toml_value(v)}" for k, v in doc.items() if k != "joints" or not v]
+    for jt in doc.get("joints", []):
+        lines += ["", "[[joints]]"] + [f"{k} = {_toml_value(v)}" for k, v in jt.items()]
+    return "\n".join(lines) + "\n"
+
+
+def body_document(body: Body) -> dict:
+    I = body.inertia
+    return {"mass": float(body.mass), "com": [float(c) for c in body.com],
+            "inertia": [float(I[0, 0]), float(I[1, 1]), float(I[2, 2]), float(I[0, 1]), float(I[0, 2]), float(I[1, 2])]}
+
+
+def document(model: ArmModel) -> dict:
+    """The link-list form (docs/model.md section 4) of any model, URDF-based ones included."""
+    from scipy.spatial.transform import Rotation
+    joints = []
+    for jt in model.joints:
+        with warnings.catch_warnings():                              # gimbal lock is checked below
+            warnings.simplefilter("ignore")
+            rpy = Rotation.from_matrix(jt.R).as_euler("xyz")
+        if np.max(np.abs(rpy_matrix(rpy) - jt.R)) > 1e-12:          # gimbal lock: scipy's angles are off
+            raise ModelFileError(f"{model.path}: joint {jt.name!r}: its rotation has no exact roll-pitch-yaw")
+        limits = {k: (list(v) if isinstance(v, tuple) else v) for k, v in jt.limits.items()}
+        joints.append({"name": jt.name, "origin_xyz": [float(x) for x in jt.origin_xyz],
+                       "origin_rpy": [float(x) for x in rpy], "gear_ratio": jt.gear_ratio,
+                       "sea": {"k1": jt.k1, "k3": jt.k3, "d": jt.d},
+                       "gear_loss": {"b": jt.b, "c": jt.c, "eps": jt.eps}, **({"limits": limits} if limits else {}),
+                       **{b: body_document(getattr(jt, b)) for b in BODIES}})
+    return {"name": model.name, "gravity": [float(g) for g in model.gravity], "joints": joints}
