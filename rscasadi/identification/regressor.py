@@ -29,16 +29,18 @@ from ..model.parameters import n_linear
 STATE_ACC = ["theta", "phi", "dtheta", "dphi", "ddtheta", "ddphi"]
 
 
-def regressor(arm, known=()) -> ca.Function:
+def regressor(arm, known=(), reduced: bool = False) -> ca.Function:
     """theta, phi, dtheta, dphi, ddtheta, ddphi -> Y (2n x n_free), y0 (2n) with
-    [tau; T] = Y p_free + y0; p_free are the linear parameters not in `known`."""
+    [tau; T] = Y p_free + y0; p_free are the linear parameters not in `known`.
+    reduced: the same for the DLR/Spong reduced model."""
     names, nominal = arm.parameters()
     n_lin = n_linear(arm.model)
     free = [i for i in range(n_lin) if names[i] not in set(known)]
     p = ca.SX.sym("p", n_lin)
     full = ca.vertcat(p, ca.DM(nominal[n_lin:]))                        # gravity at its nominal value
     args = [ca.SX.sym(s, arm.n) for s in STATE_ACC]
-    tau, T = arm.inverse_dynamics(parametric=True)(*args, full)
+    inverse = arm.reduced_inverse_dynamics if reduced else arm.inverse_dynamics
+    tau, T = inverse(parametric=True)(*args, full)
     out = ca.vertcat(tau, T)
     Y = ca.jacobian(out, p[free])
     fixed = ca.DM(nominal[:n_lin])
@@ -119,19 +121,23 @@ class BaseParameters:
         return d
 
 
-def base_parameters(arm, samples: int = 200, rng=None, rtol: float = 1e-9) -> BaseParameters:
-    """The identifiable combinations of p_lin, from the rows of random samples (tau rows and the
-    spring-driven link rows), by QR with column pivoting of the equilibrated matrix."""
-    rng = np.random.default_rng(0) if rng is None else rng
-    W = stacked(arm, random_samples(arm, samples, rng))
-    names = arm.parameters()[0][:W.shape[1]]
-    norms = np.linalg.norm(W, axis=0)
+def base_of(A: np.ndarray, names: list, rtol: float = 1e-7) -> BaseParameters:
+    """Base parameters of the columns of A: QR with column pivoting of the equilibrated matrix;
+    columns whose pivot falls below rtol of the first are combinations of the others."""
+    norms = np.linalg.norm(A, axis=0)
     zero = norms <= 1e-12 * norms.max()
     scale = np.where(zero, 1.0, norms)
-    _, R, piv = scipy.linalg.qr(W / scale, mode="economic", pivoting=True)
+    _, R, piv = scipy.linalg.qr(A / scale, mode="economic", pivoting=True)
     diag = np.abs(np.diag(R))
     r = int(np.sum(diag > rtol * diag[0]))
     ind, dep = piv[:r], piv[r:]
-    K_scaled = scipy.linalg.solve_triangular(R[:r, :r], R[:r, r:])
-    K = K_scaled * scale[dep][None, :] / scale[ind][:, None]             # back to physical units
+    K = scipy.linalg.solve_triangular(R[:r, :r], R[:r, r:]) * scale[dep][None, :] / scale[ind][:, None]
     return BaseParameters(names, ind, dep, K, [names[i] for i in np.flatnonzero(zero)])
+
+
+def base_parameters(arm, samples: int = 200, rng=None, rtol: float = 1e-9) -> BaseParameters:
+    """The identifiable combinations of p_lin, from the rows of random samples (tau rows and the
+    spring-driven link rows)."""
+    rng = np.random.default_rng(0) if rng is None else rng
+    W = stacked(arm, random_samples(arm, samples, rng))
+    return base_of(W, arm.parameters()[0][:W.shape[1]], rtol)

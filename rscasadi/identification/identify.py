@@ -1,0 +1,468 @@
+"""Identification of the complete FS-SEA model from logs (`rscasadi identify`).
+
+1. Signals (`prepare`): every logged angle is low-passed by a zero-phase Butterworth filter
+   (scipy.signal, order 4, run forwards and backwards) and differentiated twice; the logged
+   torques go through the same filter, so regressor and torque see the same attenuation.
+   The cut-off is 2.5 times the highest SEA mode of the arm (at least 20 Hz, below Nyquist/2):
+   the modes are in the data (they carry k1 and d) and must pass, while the encoder
+   quantisation, amplified by differentiation, is cut above them.
+2. Rows: the motor-torque rows tau = Y_tau theta, the link rows, whose torque is the spring
+   (T - T_spring = 0, measured angles only), and T = Y_T theta when a torque sensor is logged.
+3. Least squares in the base parameters (`BaseParameters`), each row block weighted by the
+   inverse of its residual standard deviation (two passes): the estimate, its covariance, and
+   the standard deviation of every identifiable combination.
+4. A physically consistent model (`physical_fit`): each link's pseudo-inertia J = U U^T with U
+   upper triangular with a positive diagonal (log-Cholesky, Rucker & Wensing), balanced rotors
+   as balanced pseudo-inertias, k1 > 0 and k3, d, b, c >= 0, fitted with IPOPT to the base
+   estimate in its covariance metric plus a weak prior (30 %) on the model file's values for
+   the directions the data cannot see.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import scipy.linalg
+import scipy.signal
+
+from ..dynamics.arm import Arm, load
+from ..files import fresh_directory
+from ..model.modelfile import BODIES, ArmModel, document, to_toml
+from ..model.parameters import INERTIAL, PER_JOINT, body_from_parameters, n_linear
+from .logs import Log, read_log
+from .regressor import BaseParameters, base_of, random_samples, regressor, spring_regressor, stacked
+
+PRIOR = 0.3          # relative standard deviation of the prior on the model file's values
+EDGE_S = 0.25        # seconds dropped at both ends of a log (filter transients)
+
+
+# ----------------------------------------------------------------------------- the unknowns
+
+@dataclass
+class Unknowns:
+    """The identification vector th: p_lin = E th.  Links keep their ten parameters; a rotor
+    that is balanced in the model file stays balanced (mass, mz, Ixx = Iyy, Izz); every
+    actuator keeps k1, k3, d, b, c."""
+    names: list
+    E: np.ndarray
+    kinds: list        # per entry: ("link" | "rotor", joint, body) or ("actuator", joint, attr)
+
+    @staticmethod
+    def of(model: ArmModel) -> "Unknowns":
+        n_lin = n_linear(model)
+        cols, names, kinds = [], [], []
+
+        def add(name, rows, kind):
+            c = np.zeros(n_lin)
+            c[rows] = 1.0
+            cols.append(c), names.append(name), kinds.append(kind)
+
+        for j, jt in enumerate(model.joints):
+            base = j * PER_JOINT
+            for i, body in enumerate(BODIES):
+                first = base + 10 * i
+                if body != "link" and getattr(jt, body).balanced:
+                    for q, rows in (("mass", [0]), ("mz", [3]), ("Ixx=Iyy", [4, 5]), ("Izz", [6])):
+                        add(f"{jt.name}.{body}.{q}", [first + r for r in rows], ("rotor", j, body))
+                else:
+                    for r, q in enumerate(INERTIAL):
+                        add(f"{jt.name}.{body}.{q}", [first + r], ("link" if body == "link" else "body", j, body))
+            for r, a in enumerate(("sea.k1", "sea.k3", "sea.d", "gear_loss.b", "gear_loss.c")):
+                add(f"{jt.name}.{a}", [base + 30 + r], ("actuator", j, a))
+        return Unknowns(names, np.array(cols).T, kinds)
+
+    def from_p(self, p_lin) -> np.ndarray:
+        """th from p_lin (a least-squares inverse: exact for p_lin in the range of E)."""
+        return np.linalg.lstsq(self.E, p_lin, rcond=None)[0]
+
+
+# ----------------------------------------------------------------------------- signals
+
+def sea_modes_hz(arm: Arm, theta) -> np.ndarray:
+    """Undamped frequencies of the SEA modes linearised at the pose theta (static deflection
+    neglected): eigenvalues of M^-1 K, K the spring stiffness between theta and phi."""
+    n = arm.n
+    M = np.array(arm.mass_matrix()(theta, theta))
+    k1 = arm.model.column("k1")
+    K = np.block([[np.diag(k1), -np.diag(k1)], [-np.diag(k1), np.diag(k1)]])
+    w2 = np.real(scipy.linalg.eigvals(K, M))
+    return np.sqrt(np.clip(np.sort(w2)[n:], 0, None)) / (2 * np.pi)
+
+
+def cutoff_hz(arm: Arm, log: Log) -> tuple[float, str]:
+    modes = sea_modes_hz(arm, np.mean(log.theta, axis=1))
+    nyquist = 0.5 / log.dt
+    fc = min(max(20.0, 2.5 * modes.max()), 0.5 * nyquist)
+    why = (f"{fc:.1f} Hz: 2.5x the highest SEA mode ({modes.max():.1f} Hz; modes "
+           f"{', '.join(f'{m:.1f}' for m in modes)} Hz at the mean pose), so the spring dynamics that carry "
+           f"k1 and d pass, while encoder quantisation amplified by differentiation is cut above them "
+           f"(Nyquist {nyquist:.0f} Hz)")
+    return fc, why
+
+
+@dataclass
+class Signals:
+    theta: np.ndarray
+    phi: np.ndarray
+    dtheta: np.ndarray
+    dphi: np.ndarray
+    ddtheta: np.ndarray
+    ddphi: np.ndarray
+    tau: np.ndarray
+    T: np.ndarray | None
+    t: np.ndarray
+
+    def state(self):
+        return [self.theta, self.phi, self.dtheta, self.dphi, self.ddtheta, self.ddphi]
+
+
+def prepare(log: Log, fc: float, decimate: int = 5) -> Signals:
+    """Zero-phase low-pass of angles and torques alike, derivatives, edges dropped, decimated."""
+    sos = scipy.signal.butter(4, fc, fs=1.0 / log.dt, output="sos")
+    lp = lambda x: scipy.signal.sosfiltfilt(sos, x, axis=1)
+    d = lambda x: np.gradient(x, log.dt, axis=1)
+    theta, phi = lp(log.theta), lp(log.phi)
+    dtheta, dphi = d(theta), d(phi)
+    keep = slice(int(EDGE_S / log.dt), len(log.t) - int(EDGE_S / log.dt), decimate)
+    return Signals(theta[:, keep], phi[:, keep], dtheta[:, keep], dphi[:, keep], d(dtheta)[:, keep],
+                   d(dphi)[:, keep], lp(log.tau)[:, keep], None if log.T is None else lp(log.T)[:, keep],
+                   log.t[keep])
+
+
+# ----------------------------------------------------------------------------- rows
+
+@dataclass
+class Rows:
+    """Stacked rows, one block per kind and joint: A th = y."""
+    A: np.ndarray
+    y: np.ndarray
+    block: np.ndarray           # block index of every row
+    labels: list                # name of every block: tau_j, spring_j, T_j
+
+
+def rows(arm: Arm, sig: Signals, unknowns: Unknowns, reduced: bool = False) -> Rows:
+    n, count = arm.n, sig.t.size
+    Yf = regressor(arm, reduced=reduced).map(count)
+    Y = np.array(Yf(*sig.state())[0]).reshape(2 * n, count, -1) @ unknowns.E        # (2n, count, m)
+    Ys = np.array(spring_regressor(arm).map(count)(*sig.state()[:4])).reshape(n, count, -1) @ unknowns.E
+    blocks = [(f"tau_{j + 1}", Y[j], sig.tau[j]) for j in range(n)]
+    blocks += [(f"spring_{j + 1}", Y[n + j] - Ys[j], np.zeros(count)) for j in range(n)]
+    if sig.T is not None:
+        blocks += [(f"T_{j + 1}", Y[n + j], sig.T[j]) for j in range(n)]
+    return Rows(np.vstack([b[1] for b in blocks]), np.concatenate([b[2] for b in blocks]),
+                np.repeat(np.arange(len(blocks)), count), [b[0] for b in blocks])
+
+
+def combine(parts: list[Rows]) -> Rows:
+    return Rows(np.vstack([r.A for r in parts]), np.concatenate([r.y for r in parts]),
+                np.concatenate([r.block for r in parts]), parts[0].labels)
+
+
+# ----------------------------------------------------------------------------- estimation
+
+@dataclass
+class LeastSquares:
+    base: BaseParameters
+    beta: np.ndarray
+    info: np.ndarray            # Fisher information of beta (inverse covariance)
+    sigma: np.ndarray           # residual standard deviation of every block
+    condition: float
+
+    @property
+    def cov(self) -> np.ndarray:
+        return np.linalg.pinv(self.info, rcond=1e-15, hermitian=True)
+
+    def std_of(self, c) -> float | None:
+        d = self.base.functional(c)
+        return None if d is None else float(np.sqrt(max(d @ self.cov @ d, 0.0)))
+
+
+def structural_base(arm: Arm, unknowns: Unknowns, samples: int = 200) -> BaseParameters:
+    """The base parameters of th, from random samples: what no data can separate."""
+    W = stacked(arm, random_samples(arm, samples, np.random.default_rng(0))) @ unknowns.E
+    return base_of(W, unknowns.names, rtol=1e-9)
+
+
+def least_squares(rows_: Rows, base: BaseParameters, th_nominal: np.ndarray) -> LeastSquares:
+    """Weighted least squares in the base parameters.  Each block (a joint's motor-torque rows,
+    its spring rows, ...) is weighted by 1 / its residual RMS, re-estimated twice; the weights
+    start from, and are floored at 1e-4 of, the block's torque under the nominal model, so that
+    the homogeneous spring rows (T - T_spring = 0) cannot pull the estimate to zero."""
+    Ab = rows_.A[:, base.independent]
+    nb = len(rows_.labels)
+    size = np.array([max(np.sqrt(np.mean((rows_.A[rows_.block == b] @ th_nominal) ** 2)), 1e-12) for b in range(nb)])
+    sigma = size.copy()
+    for _ in range(3):
+        w = 1.0 / sigma[rows_.block]
+        beta, *_ = np.linalg.lstsq(Ab * w[:, None], rows_.y * w, rcond=None)
+        res = Ab @ beta - rows_.y
+        sigma = np.array([max(np.sqrt(np.mean(res[rows_.block == b] ** 2)), 1e-4 * size[b]) for b in range(nb)])
+    w = 1.0 / sigma[rows_.block]
+    Aw = Ab * w[:, None]
+    dof = max(Aw.shape[0] - Aw.shape[1], 1)
+    s2 = float(np.sum((Aw @ beta - rows_.y * w) ** 2) / dof)
+    sv = np.linalg.svd(Aw / np.linalg.norm(Aw, axis=0), compute_uv=False)
+    return LeastSquares(base, beta, Aw.T @ Aw / s2, sigma, float(sv[0] / sv[-1]))
+
+
+def _upper_from(J):
+    """U upper triangular with J = U U^T (J positive definite)."""
+    P = np.eye(4)[::-1]
+    L = np.linalg.cholesky(P @ J @ P)
+    return P @ L @ P
+
+
+def _pseudo_inertia(v):
+    """J = [[tr(I)/2 1 - I, h], [h^T, m]] from the ten parameters (I about the frame origin)."""
+    m, h = v[0], np.asarray(v[1:4])
+    I = np.array([[v[4], v[7], v[8]], [v[7], v[5], v[9]], [v[8], v[9], v[6]]])
+    return np.block([[0.5 * np.trace(I) * np.eye(3) - I, h[:, None]], [h[None, :], np.array([[m]])]])
+
+
+def _params_from_U(U):
+    """The ten parameters of J = U U^T (CasADi)."""
+    J = U @ U.T
+    S = J[:3, :3]
+    I = ca.trace(S) * ca.DM.eye(3) - S
+    return ca.vertcat(J[3, 3], J[0, 3], J[1, 3], J[2, 3], I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2])
+
+
+def physical_fit(arm: Arm, unknowns: Unknowns, ls: LeastSquares, th_nominal: np.ndarray) -> np.ndarray:
+    """The physically consistent th closest to the base estimate (covariance metric) with a
+    weak prior on the model file's values."""
+    model, m = arm.model, len(unknowns.names)
+    z_parts, z0, th_expr, lbz, ubz = [], [], [None] * m, [], []
+    p_nom = unknowns.E @ th_nominal
+    for j, jt in enumerate(model.joints):
+        for i, body in enumerate(BODIES):
+            idx = [k for k, kind in enumerate(unknowns.kinds) if kind[1] == j and kind[2:] == (body,)]
+            v_nom = p_nom[j * PER_JOINT + 10 * i: j * PER_JOINT + 10 * (i + 1)]
+            U0 = _upper_from(_pseudo_inertia(v_nom))
+            if len(idx) == 4:                             # balanced rotor: diag(a, a, b) and t3, c
+                z = ca.SX.sym(f"z{j}{i}", 4)
+                U = ca.SX.zeros(4, 4)
+                U[0, 0] = U[1, 1] = ca.exp(z[0])
+                U[2, 2], U[2, 3], U[3, 3] = ca.exp(z[1]), z[2], ca.exp(z[3])
+                z_init = [np.log(U0[0, 0]), np.log(U0[2, 2]), U0[2, 3], np.log(U0[3, 3])]
+                v = _params_from_U(U)
+                for k, (row) in zip(idx, (0, 3, 4, 6)):
+                    th_expr[k] = v[row]
+            else:                                         # general body: U upper, exp on the diagonal
+                z = ca.SX.sym(f"z{j}{i}", 10)
+                U = ca.SX.zeros(4, 4)
+                pos = [(0, 0), (1, 1), (2, 2), (3, 3), (0, 1), (0, 2), (1, 2), (0, 3), (1, 3), (2, 3)]
+                for k, (r, c) in enumerate(pos):
+                    U[r, c] = ca.exp(z[k]) if r == c else z[k]
+                z_init = [np.log(U0[r, c]) if r == c else U0[r, c] for r, c in pos]
+                v = _params_from_U(U)
+                for k, row in zip(idx, range(10)):
+                    th_expr[k] = v[row]
+            z_parts.append(z), z0.extend(z_init), lbz.extend([-np.inf] * z.numel()), ubz.extend([np.inf] * z.numel())
+        for r, attr in enumerate(("sea.k1", "sea.k3", "sea.d", "gear_loss.b", "gear_loss.c")):
+            k = unknowns.names.index(f"{jt.name}.{attr}")
+            z = ca.SX.sym(f"a{j}{r}")
+            th_expr[k] = z
+            z_parts.append(z), z0.append(th_nominal[k])
+            lbz.append(1e-3 * th_nominal[k] if attr == "sea.k1" else 0.0), ubz.append(np.inf)
+    z = ca.vertcat(*z_parts)
+    th = ca.vertcat(*th_expr)
+    scale = prior_scale(unknowns, th_nominal)
+    P = ca.DM(ls.base.P)
+    r = P @ th - ca.DM(ls.beta)
+    data = r.T @ ca.DM(ls.info) @ r
+    prior = ca.sumsqr((th - ca.DM(th_nominal)) / ca.DM(PRIOR * scale))
+    solver = ca.nlpsol("fit", "ipopt", {"x": z, "f": data + prior},
+                       {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.tol": 1e-10,
+                        "ipopt.max_iter": 3000})
+    res = solver(x0=z0, lbx=lbz, ubx=ubz)
+    if not solver.stats()["success"]:
+        raise RuntimeError(f"the physically consistent fit did not converge: {solver.stats()['return_status']}")
+    return np.array(ca.Function("th", [z], [th])(res["x"])).ravel()
+
+
+def prior_scale(unknowns: Unknowns, th_nominal) -> np.ndarray:
+    """A size for every unknown: its nominal magnitude, or for zero nominals that of its kind
+    in the same body (first moments: mass x 5 cm; inertias: the body's largest moment)."""
+    scale = np.abs(np.asarray(th_nominal, float)).copy()
+    for k, (name, kind) in enumerate(zip(unknowns.names, unknowns.kinds)):
+        if scale[k] > 0:
+            continue
+        same = [i for i, kd in enumerate(unknowns.kinds) if kd[:3] == kind[:3]]
+        q = name.rsplit(".", 1)[1]
+        if q in ("mx", "my", "mz"):
+            mass = th_nominal[next(i for i in same if unknowns.names[i].endswith(".mass"))]
+            scale[k] = 0.05 * mass
+        elif q.startswith("I"):
+            scale[k] = max(abs(th_nominal[i]) for i in same if unknowns.names[i].rsplit(".", 1)[1].startswith("I"))
+        elif q == "k3":
+            k1 = th_nominal[unknowns.names.index(name.replace("sea.k3", "sea.k1"))]
+            scale[k] = k1 / 0.05 ** 2
+        else:                                             # a loss (b, c, d) with nominal 0
+            scale[k] = 1.0
+    return np.maximum(scale, 1e-12)
+
+
+# ----------------------------------------------------------------------------- the model
+
+def identified_model(arm: Arm, unknowns: Unknowns, th: np.ndarray) -> ArmModel:
+    import dataclasses
+    p = unknowns.E @ th
+    joints = []
+    for j, jt in enumerate(arm.model.joints):
+        base = j * PER_JOINT
+        bodies = {b: body_from_parameters(p[base + 10 * i: base + 10 * (i + 1)]) for i, b in enumerate(BODIES)}
+        k1, k3, d, b, c = p[base + 30: base + 35]
+        joints.append(dataclasses.replace(jt, k1=float(k1), k3=float(k3), d=float(d), b=float(b), c=float(c),
+                                          **bodies))
+    return dataclasses.replace(arm.model, joints=tuple(joints), name=arm.model.name + "-identified")
+
+
+def predict(rows_: Rows, th: np.ndarray) -> dict:
+    """Per block: RMS of the measured torque, RMS of the prediction error, their ratio."""
+    out, pred = {}, rows_.A @ th
+    for b, label in enumerate(rows_.labels):
+        sel = rows_.block == b
+        if label.startswith("spring"):
+            continue
+        rms, err = float(np.sqrt(np.mean(rows_.y[sel] ** 2))), float(np.sqrt(np.mean((pred[sel] - rows_.y[sel]) ** 2)))
+        out[label] = {"rms": rms, "error_rms": err, "relative": err / max(rms, 1e-300)}
+    return out
+
+
+@dataclass
+class Identification:
+    unknowns: Unknowns
+    ls: LeastSquares
+    th: np.ndarray
+    th_nominal: np.ndarray
+    model: ArmModel
+    cutoff_hz: float
+    cutoff_why: str
+    rows: Rows
+
+    def std(self) -> np.ndarray:
+        out = np.full(len(self.th), np.nan)
+        for k in range(len(self.th)):
+            s = self.ls.std_of(np.eye(len(self.th))[k])
+            out[k] = np.nan if s is None else s
+        return out
+
+    def combination(self, c) -> tuple[float, float | None]:
+        """The estimate of c . th and its standard deviation (None if not identifiable)."""
+        c = np.asarray(c, float)
+        return float(c @ self.th), self.ls.std_of(c)
+
+
+def identify(arm: Arm, logs: list[Log], reduced: bool = False, fc: float | None = None) -> Identification:
+    """Everything from logs to a physically consistent model."""
+    unknowns = Unknowns.of(arm.model)
+    th_nominal = unknowns.from_p(arm.parameters()[1][:n_linear(arm.model)])
+    if fc is None:
+        fc, why = cutoff_hz(arm, logs[0])
+    else:
+        why = f"{fc:.1f} Hz, set by the user"
+    rows_ = combine([rows(arm, prepare(log, fc), unknowns, reduced) for log in logs])
+    ls = least_squares(rows_, structural_base(arm, unknowns), th_nominal)
+    th = physical_fit(arm, unknowns, ls, th_nominal)
+    return Identification(unknowns, ls, th, th_nominal, identified_model(arm, unknowns, th), fc, why, rows_)
+
+
+# ----------------------------------------------------------------------------- command
+
+def reflected_inertia(unknowns: Unknowns, model: ArmModel, j: int) -> np.ndarray:
+    """c with c . th = B_j = Izz_O(S_j) + mu_j^2 Izz_O(F_j)."""
+    jt, c = model.joints[j], np.zeros(len(unknowns.names))
+    c[unknowns.names.index(f"{jt.name}.slow_rotor.Izz")] = 1.0
+    c[unknowns.names.index(f"{jt.name}.fast_rotor.Izz")] = jt.gear_ratio ** 2
+    return c
+
+
+def report(ident: Identification, arm: Arm, validation: dict | None, log_files: list) -> dict:
+    std = ident.std()
+    u = ident.unknowns
+    base = [{"combination": line.split(" = ", 1)[1], "estimate": float(b), "std": float(np.sqrt(ident.ls.cov[i, i]))}
+            for i, (line, b) in enumerate(zip(ident.ls.base.explain(), ident.ls.beta))]
+    reflected = {}
+    for j, jt in enumerate(arm.model.joints):
+        est, s = ident.combination(reflected_inertia(u, arm.model, j))
+        reflected[jt.name] = {"nominal": float(reflected_inertia(u, arm.model, j) @ ident.th_nominal),
+                              "estimate": est, "std": s}
+    residual = {label: float(s) for label, s in zip(ident.rows.labels, ident.ls.sigma)}
+    return {
+        "model": str(arm.model.path), "logs": [str(f) for f in log_files],
+        "cutoff_hz": ident.cutoff_hz, "cutoff_why": ident.cutoff_why,
+        "condition_number": ident.ls.condition, "base_parameters": base,
+        "parameters": {name: {"nominal": float(nom), "estimate": float(est), "std": None if np.isnan(s) else float(s)}
+                       for name, nom, est, s in zip(u.names, ident.th_nominal, ident.th, std)},
+        "reflected_rotor_inertia": reflected,
+        "residual_rms": residual,
+        "fit": predict(ident.rows, ident.th),
+        "validation": validation,
+        "notes": "std from the residual covariance of the weighted least squares in the base parameters; "
+                 "null where a parameter is identifiable only in combination with others (see base_parameters). "
+                 "Balanced rotors are identified as balanced (mass, mz, Ixx = Iyy, Izz).",
+    }
+
+
+def plot(out: Path, rows_: Rows, th: np.ndarray, t_rows: np.ndarray, title: str):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    taus = [b for b, label in enumerate(rows_.labels) if label.startswith("tau")]
+    fig, axes = plt.subplots(len(taus), 1, figsize=(8, 2.2 * len(taus)), sharex=True, squeeze=False)
+    pred = rows_.A @ th
+    for ax, b in zip(axes[:, 0], taus):
+        sel = rows_.block == b
+        ax.plot(t_rows, rows_.y[sel], lw=1.0, label="measured (filtered)")
+        ax.plot(t_rows, pred[sel], "--", lw=1.0, label="identified model")
+        ax.set_ylabel(f"{rows_.labels[b]} (N m)")
+    axes[0, 0].legend(fontsize=8)
+    axes[0, 0].set_title(title)
+    axes[-1, 0].set_xlabel("t (s)")
+    fig.tight_layout()
+    fig.savefig(out.with_suffix(".png"), dpi=110)
+    fig.savefig(out.with_suffix(".pdf"))
+    plt.close(fig)
+
+
+def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, reduced=False, log=print) -> dict:
+    arm = load(model_file)
+    logs = [read_log(f, arm.n) for f in log_files]
+    val_log = read_log(validate, arm.n) if validate else None
+    if explain:
+        u = Unknowns.of(arm.model)
+        fc = cutoff or cutoff_hz(arm, logs[0])[0]
+        th_nominal = u.from_p(arm.parameters()[1][:n_linear(arm.model)])
+        ls = least_squares(combine([rows(arm, prepare(lg, fc), u, reduced) for lg in logs]), structural_base(arm, u),
+                           th_nominal)
+        for line in ls.base.explain():
+            log(line)
+        log(f"{ls.base.rank} base parameters of {len(u.names)}; not identifiable at all: "
+            f"{', '.join(ls.base.unidentifiable) or 'none'}")
+    log(f"identifying {arm.model.name} from {len(logs)} log(s) ...")
+    ident = identify(arm, logs, reduced=reduced, fc=cutoff)
+    log(f"cut-off {ident.cutoff_why}")
+    log(f"{ident.ls.base.rank} base parameters, condition number {ident.ls.condition:.3g}")
+    validation, val_rows = None, None
+    if val_log is not None:
+        sig = prepare(val_log, ident.cutoff_hz)
+        val_rows = rows(arm, sig, ident.unknowns, reduced)
+        validation = {"log": str(validate), "prediction": predict(val_rows, ident.th)}
+        worst = max(v["relative"] for v in validation["prediction"].values())
+        log(f"validation on {validate}: worst relative RMS error {worst:.3%}")
+    rep = report(ident, arm, validation, log_files)
+    with fresh_directory(out, "report.json") as tmp:
+        (tmp / "model.toml").write_text(f"# identified by rscasadi identify from {', '.join(map(str, log_files))}\n"
+                                         + to_toml(document(ident.model)))
+        (tmp / "report.json").write_text(json.dumps(rep, indent=2) + "\n")
+        first = prepare(logs[0], ident.cutoff_hz)
+        plot(tmp / "fit", rows(arm, first, ident.unknowns, reduced), ident.th, first.t,
+             f"identification log {Path(log_files[0]).name}")
+        if val_rows is not None:
+            plot(tmp / "validation", val_rows, ident.th, prepare(val_log, ident.cutoff_hz).t,
+                 f"held-out log {Path(validate).name}")
+    log(f"wrote {Path(out) / 'model.toml'}, report.json and figures")
+    return rep
