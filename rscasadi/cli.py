@@ -98,6 +98,17 @@ def cmd_codegen(args):
           f"({time.perf_counter() - t0:.1f} s)")
 
 
+def cmd_excite(args):
+    from .identification.excitation import run
+    run(args.model, args.out, period=args.period, harmonics=args.harmonics, log=lambda msg: print(msg, flush=True))
+
+
+def cmd_identify(args):
+    from .identification.identify import run
+    run(args.model, args.logs, args.out, validate=args.validate, cutoff=args.cutoff, explain=args.explain,
+        reduced=args.reduced, log=lambda msg: print(msg, flush=True))
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="rscasadi", description="Rotor-separated FS-SEA arm dynamics in CasADi")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -127,6 +138,21 @@ def main(argv=None):
     p.add_argument("--warm", default=None, help="a previous solution.json to start from")
     p.add_argument("--quiet", action="store_true", help="no IPOPT iteration log")
     p.set_defaults(func=cmd_ocp)
+    p = sub.add_parser("excite", help="design a periodic excitation trajectory for identification")
+    p.add_argument("model")
+    p.add_argument("--out", required=True, help="directory for trajectory.toml, feedforward.csv, excitation.json")
+    p.add_argument("--period", type=float, default=10.0, help="period of the Fourier series (s), default 10")
+    p.add_argument("--harmonics", type=int, default=5, help="harmonics per joint, default 5")
+    p.set_defaults(func=cmd_excite)
+    p = sub.add_parser("identify", help="identify the complete model from logs (CSV: t,theta_j,phi_j,tau_j[,T_j])")
+    p.add_argument("model", help="model file: kinematics, gear ratios and the starting guess")
+    p.add_argument("logs", nargs="+", help="one or more logs")
+    p.add_argument("--out", required=True, help="directory for model.toml, report.json and figures")
+    p.add_argument("--validate", default=None, help="a held-out log: prediction error of the identified model")
+    p.add_argument("--cutoff", type=float, default=None, help="filter cut-off (Hz); default 2x the highest SEA mode")
+    p.add_argument("--explain", action="store_true", help="print the base parameters as combinations of physical ones")
+    p.add_argument("--reduced", action="store_true", help="identify the DLR/Spong reduced model instead (ablation)")
+    p.set_defaults(func=cmd_identify)
     p = sub.add_parser("reproduce", help="the main job: everything the project reproduces, into --out")
     p.add_argument("--out", default="results")
     p.set_defaults(func=cmd_reproduce)

@@ -3,9 +3,11 @@
 1. Signals (`prepare`): every logged angle is low-passed by a zero-phase Butterworth filter
    (scipy.signal, order 4, run forwards and backwards) and differentiated twice; the logged
    torques go through the same filter, so regressor and torque see the same attenuation.
-   The cut-off is 2.5 times the highest SEA mode of the arm (at least 20 Hz, below Nyquist/2):
+   The cut-off is twice the highest SEA mode of the arm (at least 20 Hz, at most Nyquist/2):
    the modes are in the data (they carry k1 and d) and must pass, while the encoder
-   quantisation, amplified by differentiation, is cut above them.
+   quantisation, amplified by differentiation, is cut above them.  Measured on the synthetic
+   arm of the tests: at 1.5x the modes the estimates of k1 move by 100 standard deviations.
+   Rows are kept every 1 / (2 fc) s, so that their noise is close to independent.
 2. Rows: the motor-torque rows tau = Y_tau theta, the link rows, whose torque is the spring
    (T - T_spring = 0, measured angles only), and T = Y_T theta when a torque sensor is logged.
 3. Least squares in the base parameters (`BaseParameters`), each row block weighted by the
@@ -13,9 +15,10 @@
    the standard deviation of every identifiable combination.
 4. A physically consistent model (`physical_fit`): each link's pseudo-inertia J = U U^T with U
    upper triangular with a positive diagonal (log-Cholesky, Rucker & Wensing), balanced rotors
-   as balanced pseudo-inertias, k1 > 0 and k3, d, b, c >= 0, fitted with IPOPT to the base
-   estimate in its covariance metric plus a weak prior (30 %) on the model file's values for
-   the directions the data cannot see.
+   as balanced pseudo-inertias, k1 > 0 and k3, d, b, c >= 0, fitted to the base
+   estimate in its information metric plus a weak prior (30 %) on the model file's values for
+   the directions the data cannot see: a bounded nonlinear least-squares problem (residuals
+   and Jacobian from CasADi, scipy.optimize.least_squares, trust region).
 """
 from __future__ import annotations
 
@@ -26,6 +29,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 import scipy.linalg
+import scipy.optimize
 import scipy.signal
 
 from ..dynamics.arm import Arm, load
@@ -36,6 +40,7 @@ from .logs import Log, read_log
 from .regressor import BaseParameters, base_of, random_samples, regressor, spring_regressor, stacked
 
 PRIOR = 0.3          # relative standard deviation of the prior on the model file's values
+CUTOFF_FACTOR = 2.0  # filter cut-off / highest SEA mode (1.5 biases k1 by 100 sigma, see above)
 EDGE_S = 0.25        # seconds dropped at both ends of a log (filter transients)
 
 
@@ -75,8 +80,8 @@ class Unknowns:
         return Unknowns(names, np.array(cols).T, kinds)
 
     def from_p(self, p_lin) -> np.ndarray:
-        """th from p_lin (a least-squares inverse: exact for p_lin in the range of E)."""
-        return np.linalg.lstsq(self.E, p_lin, rcond=None)[0]
+        """th from p_lin: each unknown read off its first physical parameter (tied ones are equal)."""
+        return np.asarray(p_lin, float)[np.argmax(self.E > 0, axis=0)]
 
 
 # ----------------------------------------------------------------------------- signals
@@ -95,8 +100,8 @@ def sea_modes_hz(arm: Arm, theta) -> np.ndarray:
 def cutoff_hz(arm: Arm, log: Log) -> tuple[float, str]:
     modes = sea_modes_hz(arm, np.mean(log.theta, axis=1))
     nyquist = 0.5 / log.dt
-    fc = min(max(20.0, 2.5 * modes.max()), 0.5 * nyquist)
-    why = (f"{fc:.1f} Hz: 2.5x the highest SEA mode ({modes.max():.1f} Hz; modes "
+    fc = min(max(20.0, CUTOFF_FACTOR * modes.max()), 0.5 * nyquist)
+    why = (f"{fc:.1f} Hz: {CUTOFF_FACTOR:g}x the highest SEA mode ({modes.max():.1f} Hz; modes "
            f"{', '.join(f'{m:.1f}' for m in modes)} Hz at the mean pose), so the spring dynamics that carry "
            f"k1 and d pass, while encoder quantisation amplified by differentiation is cut above them "
            f"(Nyquist {nyquist:.0f} Hz)")
@@ -119,8 +124,10 @@ class Signals:
         return [self.theta, self.phi, self.dtheta, self.dphi, self.ddtheta, self.ddphi]
 
 
-def prepare(log: Log, fc: float, decimate: int = 5) -> Signals:
-    """Zero-phase low-pass of angles and torques alike, derivatives, edges dropped, decimated."""
+def prepare(log: Log, fc: float, decimate: int | None = None) -> Signals:
+    """Zero-phase low-pass of angles and torques alike, derivatives, edges dropped, decimated
+    (by default to one row every 1 / (2 fc))."""
+    decimate = decimate or max(1, int(0.5 / (fc * log.dt)))
     sos = scipy.signal.butter(4, fc, fs=1.0 / log.dt, output="sos")
     lp = lambda x: scipy.signal.sosfiltfilt(sos, x, axis=1)
     d = lambda x: np.gradient(x, log.dt, axis=1)
@@ -173,16 +180,19 @@ class LeastSquares:
 
     @property
     def cov(self) -> np.ndarray:
-        return np.linalg.pinv(self.info, rcond=1e-15, hermitian=True)
+        """The inverse of the information, computed in equilibrated coordinates (its diagonal
+        spans many decades: a spring's k3 column is psi^3)."""
+        d = 1.0 / np.sqrt(np.maximum(np.diag(self.info), 1e-300))
+        return d[:, None] * np.linalg.inv(d[:, None] * self.info * d[None, :]) * d[None, :]
 
     def std_of(self, c) -> float | None:
         d = self.base.functional(c)
         return None if d is None else float(np.sqrt(max(d @ self.cov @ d, 0.0)))
 
 
-def structural_base(arm: Arm, unknowns: Unknowns, samples: int = 200) -> BaseParameters:
+def structural_base(arm: Arm, unknowns: Unknowns, samples: int = 200, reduced: bool = False) -> BaseParameters:
     """The base parameters of th, from random samples: what no data can separate."""
-    W = stacked(arm, random_samples(arm, samples, np.random.default_rng(0))) @ unknowns.E
+    W = stacked(arm, random_samples(arm, samples, np.random.default_rng(0)), reduced=reduced) @ unknowns.E
     return base_of(W, unknowns.names, rtol=1e-9)
 
 
@@ -203,9 +213,21 @@ def least_squares(rows_: Rows, base: BaseParameters, th_nominal: np.ndarray) -> 
     w = 1.0 / sigma[rows_.block]
     Aw = Ab * w[:, None]
     dof = max(Aw.shape[0] - Aw.shape[1], 1)
-    s2 = float(np.sum((Aw @ beta - rows_.y * w) ** 2) / dof)
+    res_w = Aw @ beta - rows_.y * w
+    s2 = float(np.sum(res_w ** 2) / dof) * _correlation_inflation(res_w, rows_.block)
     sv = np.linalg.svd(Aw / np.linalg.norm(Aw, axis=0), compute_uv=False)
     return LeastSquares(base, beta, Aw.T @ Aw / s2, sigma, float(sv[0] / sv[-1]))
+
+
+def _correlation_inflation(res, block) -> float:
+    """(1 + rho) / (1 - rho) for the lag-1 correlation rho of the residuals within blocks: filtered
+    noise is not white, and the variance of a mean of AR(1) samples grows by this factor."""
+    num = den = 0.0
+    for b in np.unique(block):
+        r = res[block == b]
+        num, den = num + float(r[1:] @ r[:-1]), den + float(r @ r)
+    rho = min(max(num / max(den, 1e-300), 0.0), 0.95)
+    return (1 + rho) / (1 - rho)
 
 
 def _upper_from(J):
@@ -235,6 +257,7 @@ def physical_fit(arm: Arm, unknowns: Unknowns, ls: LeastSquares, th_nominal: np.
     weak prior on the model file's values."""
     model, m = arm.model, len(unknowns.names)
     z_parts, z0, th_expr, lbz, ubz = [], [], [None] * m, [], []
+    scale = prior_scale(unknowns, th_nominal)
     p_nom = unknowns.E @ th_nominal
     for j, jt in enumerate(model.joints):
         for i, body in enumerate(BODIES):
@@ -263,24 +286,29 @@ def physical_fit(arm: Arm, unknowns: Unknowns, ls: LeastSquares, th_nominal: np.
             z_parts.append(z), z0.extend(z_init), lbz.extend([-np.inf] * z.numel()), ubz.extend([np.inf] * z.numel())
         for r, attr in enumerate(("sea.k1", "sea.k3", "sea.d", "gear_loss.b", "gear_loss.c")):
             k = unknowns.names.index(f"{jt.name}.{attr}")
-            z = ca.SX.sym(f"a{j}{r}")
-            th_expr[k] = z
-            z_parts.append(z), z0.append(th_nominal[k])
-            lbz.append(1e-3 * th_nominal[k] if attr == "sea.k1" else 0.0), ubz.append(np.inf)
+            z = ca.SX.sym(f"a{j}{r}")                    # in units of the parameter's size
+            th_expr[k] = z * scale[k]
+            z_parts.append(z), z0.append(th_nominal[k] / scale[k])
+            lbz.append(1e-3 if attr == "sea.k1" else 0.0), ubz.append(np.inf)
     z = ca.vertcat(*z_parts)
     th = ca.vertcat(*th_expr)
-    scale = prior_scale(unknowns, th_nominal)
-    P = ca.DM(ls.base.P)
-    r = P @ th - ca.DM(ls.beta)
-    data = r.T @ ca.DM(ls.info) @ r
-    prior = ca.sumsqr((th - ca.DM(th_nominal)) / ca.DM(PRIOR * scale))
-    solver = ca.nlpsol("fit", "ipopt", {"x": z, "f": data + prior},
-                       {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.tol": 1e-10,
-                        "ipopt.max_iter": 3000})
-    res = solver(x0=z0, lbx=lbz, ubx=ubz)
-    if not solver.stats()["success"]:
-        raise RuntimeError(f"the physically consistent fit did not converge: {solver.stats()['return_status']}")
-    return np.array(ca.Function("th", [z], [th])(res["x"])).ravel()
+    # whitened residuals: the base estimate in its information metric, then the prior
+    d = 1.0 / np.sqrt(np.maximum(np.diag(ls.info), 1e-300))
+    C = np.linalg.cholesky(d[:, None] * ls.info * d[None, :])
+    W = ca.DM((C.T / d[None, :]))                       # W^T W = info
+    res = ca.vertcat(W @ (ca.DM(ls.base.P) @ th - ca.DM(ls.beta)),
+                     (th - ca.DM(th_nominal)) / ca.DM(PRIOR * scale))
+    f_res = ca.Function("res", [z], [res])
+    f_jac = ca.Function("res_jacobian", [z], [ca.jacobian(res, z)])
+    sol = scipy.optimize.least_squares(lambda v: np.array(f_res(v)).ravel(), np.array(z0),
+                                       jac=lambda v: np.array(f_jac(v)), bounds=(lbz, ubz), method="trf",
+                                       x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-10, max_nfev=5000)
+    if sol.status < 0:
+        raise RuntimeError(f"the physically consistent fit failed: {sol.message}")
+    if __import__("os").environ.get("RSCASADI_FIT_LOG"):
+        print("fit:", sol.status, sol.message, "cost", sol.cost, "start", 0.5 * np.sum(np.array(f_res(z0)) ** 2),
+              "nfev", sol.nfev, "optimality", sol.optimality)
+    return np.array(ca.Function("th", [z], [th])(sol.x)).ravel()
 
 
 def prior_scale(unknowns: Unknowns, th_nominal) -> np.ndarray:
@@ -365,7 +393,7 @@ def identify(arm: Arm, logs: list[Log], reduced: bool = False, fc: float | None 
     else:
         why = f"{fc:.1f} Hz, set by the user"
     rows_ = combine([rows(arm, prepare(log, fc), unknowns, reduced) for log in logs])
-    ls = least_squares(rows_, structural_base(arm, unknowns), th_nominal)
+    ls = least_squares(rows_, structural_base(arm, unknowns, reduced=reduced), th_nominal)
     th = physical_fit(arm, unknowns, ls, th_nominal)
     return Identification(unknowns, ls, th, th_nominal, identified_model(arm, unknowns, th), fc, why, rows_)
 
@@ -436,8 +464,8 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
         u = Unknowns.of(arm.model)
         fc = cutoff or cutoff_hz(arm, logs[0])[0]
         th_nominal = u.from_p(arm.parameters()[1][:n_linear(arm.model)])
-        ls = least_squares(combine([rows(arm, prepare(lg, fc), u, reduced) for lg in logs]), structural_base(arm, u),
-                           th_nominal)
+        ls = least_squares(combine([rows(arm, prepare(lg, fc), u, reduced) for lg in logs]),
+                           structural_base(arm, u, reduced=reduced), th_nominal)
         for line in ls.base.explain():
             log(line)
         log(f"{ls.base.rank} base parameters of {len(u.names)}; not identifiable at all: "

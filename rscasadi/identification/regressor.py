@@ -69,11 +69,11 @@ def random_samples(arm, count: int, rng) -> list:
             rng.normal(0, 2, (n, count)), rng.normal(0, 5, (n, count)), rng.normal(0, 5, (n, count))]
 
 
-def stacked(arm, samples, with_spring: bool = True) -> np.ndarray:
+def stacked(arm, samples, with_spring: bool = True, reduced: bool = False) -> np.ndarray:
     """The rows tau, and T - T_spring (the link equations with the spring as their torque), of
     every sample stacked: the matrix whose column space identification works in."""
     count = samples[0].shape[1]
-    Y = np.array(regressor(arm).map(count)(*samples)[0])                 # (2n, count * n_lin)
+    Y = np.array(regressor(arm, reduced=reduced).map(count)(*samples)[0])   # (2n, count * n_lin)
     n, n_lin = arm.n, n_linear(arm.model)
     Y = Y.reshape(2 * n, count, n_lin)                                    # [row, sample, column]
     rows = [Y[:n]]

@@ -1,0 +1,263 @@
+"""Excitation trajectories for identification (`rscasadi excite`), after Swevers et al.: a
+periodic link motion as a finite Fourier series whose stacked base regressor is as well
+conditioned as the limits allow.
+
+Unknowns: the offsets and the sine and cosine coefficients of every joint (trajectory.fourier).
+At rest at t = 0 (and so at the end of every period): velocity, acceleration and jerk vanish,
+which are linear constraints on the coefficients.  On M sample points of one period the design
+model gives the regressor rows and the limits:
+
+- the link motion theta(t) is the series; the SEA deflection is the one of the rigid motion,
+  psi = T/k1 with T from eq. (26) at phi = theta, its rate by forward AD in time;
+- rows: motor torque (weighted by 1 / its noise, 0.5 % of the limit) and the spring-driven
+  link rows (weighted by 1 / 1 % of the spring torque at the deflection limit), in the base
+  parameters, each column scaled by the size of its parameter (relative errors);
+- limits (times `margin`): motor torque, slow-side speed, deflection, link angles.
+
+The condition number kappa = lambda_max / lambda_min of A = sum Y^T Y is minimised exactly by
+its epigraph: min log t - log s subject to s 1 <= A <= t 1, each matrix inequality written as
+A - s 1 = L1 L1^T and t 1 - A = L2 L2^T with L1, L2 lower triangular (IPOPT, limited-memory
+Hessian).  The result is checked and, if needed, scaled down until the exact feedforward
+(the paper's pipeline) respects every limit.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from ..control.simulation import feedforward
+from ..control.trajectory import Trajectory
+from ..dynamics.arm import Arm, load
+from ..files import fresh_directory
+from ..model.parameters import n_linear
+from .identify import Unknowns, prior_scale, structural_base
+from .regressor import regressor, spring_regressor
+
+TORQUE_NOISE = 0.005
+
+
+def _basis(period, K, t):
+    """Matrices B_d (K x M), d = 0..4, with d-th derivative of theta = offset (d = 0) + a B_d^s + b B_d^c."""
+    w = 2 * np.pi / period
+    out = []
+    for d in range(5):
+        S, C = np.zeros((K, len(t))), np.zeros((K, len(t)))
+        for l in range(1, K + 1):
+            wl = w * l
+            # d/dt^d of sin(wl t)/wl and of -cos(wl t)/wl
+            s, c = np.sin(wl * t), np.cos(wl * t)
+            S[l - 1] = (s / wl, c, -wl * s, -wl ** 2 * c, wl ** 3 * s)[d]
+            C[l - 1] = (-c / wl, s, wl * c, -wl ** 2 * s, -wl ** 3 * c)[d]
+        out.append((S, C))
+    return out
+
+
+def _sample_function(arm: Arm, unknowns: Unknowns, columns, col_scale, weights):
+    """(q, dq, ddq, d3q, d4q) -> weighted, scaled base rows (2n x r) and tau, psi, dphi, for one
+    sample.  psi = T/k1 of the rigid motion, its time derivatives by forward AD along the motion."""
+    n = arm.n
+    q, dq, ddq, d3q, d4q = (ca.SX.sym(s, n) for s in ("q", "dq", "ddq", "d3q", "d4q"))
+    inv = arm.inverse_dynamics()
+    _, T = inv(q, q, dq, dq, ddq, ddq)
+    psi = T / ca.DM(arm.model.column("k1"))
+    x, dx = ca.vertcat(q, dq, ddq, d3q), ca.vertcat(dq, ddq, d3q, d4q)
+    dpsi = ca.jtimes(psi, x, dx)
+    ddpsi = ca.jtimes(dpsi, x, dx)
+    phi, dphi, ddphi = q + psi, dq + dpsi, ddq + ddpsi
+    tau, _ = inv(q, phi, dq, dphi, ddq, ddphi)
+    Y = regressor(arm)(q, phi, dq, dphi, ddq, ddphi)[0] @ ca.DM(unknowns.E)
+    Ys = spring_regressor(arm)(q, phi, dq, dphi) @ ca.DM(unknowns.E)
+    rows = ca.vertcat(Y[:n, :], Y[n:, :] - Ys)[:, columns]
+    rows = ca.diag(ca.DM(weights)) @ rows @ ca.diag(ca.DM(col_scale))
+    return ca.Function("sample", [q, dq, ddq, d3q, d4q], [rows, tau, psi, dphi])
+
+
+def _limits(arm: Arm):
+    lim = {}
+    for key in ("tau", "dphi", "psi"):
+        lim[key] = np.array([jt.limits.get(key, np.inf) for jt in arm.model.joints])
+    lo = np.array([jt.limits.get("theta", (-np.pi, np.pi))[0] for jt in arm.model.joints])
+    hi = np.array([jt.limits.get("theta", (-np.pi, np.pi))[1] for jt in arm.model.joints])
+    return lim, lo, hi
+
+
+def condition_number(arm: Arm, traj: Trajectory, samples: int = 400) -> float:
+    """kappa of the weighted, scaled base regressor of the design model along traj (one period)."""
+    g, _ = _design_parts(arm)
+    t = np.linspace(0, traj.period, samples, endpoint=False)
+    q = traj(t)
+    rows = np.array(g.map(samples)(*q)[0])
+    Z = rows.reshape(2 * arm.n, samples, -1).reshape(-1, rows.shape[1] // samples)
+    sv = np.linalg.svd(Z, compute_uv=False)
+    return float(sv[0] / sv[-1])
+
+
+def _design_parts(arm: Arm):
+    unknowns = Unknowns.of(arm.model)
+    base = structural_base(arm, unknowns)
+    th_nom = unknowns.from_p(arm.parameters()[1][:n_linear(arm.model)])
+    col_scale = np.abs(base.P) @ prior_scale(unknowns, th_nom)
+    lim, _, _ = _limits(arm)
+    tau_noise = TORQUE_NOISE * np.where(np.isfinite(lim["tau"]), lim["tau"], 1.0)
+    spring = 0.01 * arm.model.column("k1") * np.where(np.isfinite(lim["psi"]), lim["psi"], 0.1)
+    weights = np.r_[1.0 / tau_noise, 1.0 / spring]
+    return _sample_function(arm, unknowns, list(base.independent), col_scale, weights), base
+
+
+def design(arm: Arm, period: float = 10.0, harmonics: int = 5, margin: float = 0.85, samples: int | None = None,
+           offset=None, rng=None, log=print) -> tuple[Trajectory, dict]:
+    n, K = arm.n, harmonics
+    M = samples or max(60, 12 * K)
+    rng = np.random.default_rng(1) if rng is None else rng
+    g, base = _design_parts(arm)
+    r = base.rank
+    lim, lo, hi = _limits(arm)
+    mid = 0.5 * (lo + hi) if offset is None else np.asarray(offset, float)
+    t = np.linspace(0, period, M, endpoint=False)
+    B = _basis(period, K, t)
+    a, b, q0 = ca.MX.sym("a", n, K), ca.MX.sym("b", n, K), ca.MX.sym("q0", n)
+    Q = [(q0 @ ca.DM.ones(1, M) if d == 0 else 0) + a @ ca.DM(B[d][0]) + b @ ca.DM(B[d][1]) for d in range(5)]
+    rows, tau, psi, dphi = g.map(M)(*Q)
+    Z = ca.reshape(rows.T, r, 2 * n * M)
+    A = Z @ Z.T / M
+    log_s, log_t = ca.MX.sym("log_s"), ca.MX.sym("log_t")              # kappa = exp(log_t - log_s)
+    s, tt = ca.exp(log_s), ca.exp(log_t)
+    tri = np.tril_indices(r)
+    l1, l2 = ca.MX.sym("l1", len(tri[0])), ca.MX.sym("l2", len(tri[0]))
+
+    def lower(v):
+        L = ca.MX(r, r)
+        for k, (i, j) in enumerate(zip(*tri)):
+            L[i, j] = v[k]
+        return L
+
+    L1, L2 = lower(l1), lower(l2)
+    I = ca.DM.eye(r)
+    g_sdp = ca.vertcat(_tril(A - s * I - L1 @ L1.T, tri), _tril(tt * I - A - L2 @ L2.T, tri))
+    w = ca.vertcat(ca.vec(a), ca.vec(b), q0, log_s, log_t, l1, l2)
+    lvec = lambda v: np.repeat(v, M)                           # limits per sample, joint-major after vec
+    rest = ca.vertcat(ca.sum2(a), b @ ca.DM(np.arange(1, K + 1)), a @ ca.DM(np.arange(1, K + 1) ** 2))
+    cons = ca.vertcat(g_sdp, rest, ca.vec(tau.T), ca.vec(psi.T), ca.vec(dphi.T), ca.vec(Q[0].T))
+    big = 1e20
+    fin = lambda v: np.where(np.isfinite(v), v, big)
+    lbg = np.r_[np.zeros(g_sdp.numel()), np.zeros(3 * n), -margin * lvec(fin(lim["tau"])),
+                -margin * lvec(fin(lim["psi"])), -margin * lvec(fin(lim["dphi"])),
+                lvec(lo + (1 - margin) * (hi - lo) / 2)]
+    ubg = np.r_[np.zeros(g_sdp.numel()), np.zeros(3 * n), margin * lvec(fin(lim["tau"])),
+                margin * lvec(fin(lim["psi"])), margin * lvec(fin(lim["dphi"])),
+                lvec(hi - (1 - margin) * (hi - lo) / 2)]
+    # a feasible start: small random coefficients meeting the rest conditions
+    a0, b0 = _rest_projection(rng.normal(0, 1, (n, K)), rng.normal(0, 1, (n, K)))
+    peak = np.max(np.abs(np.hstack([a0, b0]))) + 1e-12
+    scale0 = 0.5 * np.min(fin(lim["dphi"])) / (K * peak)
+    a0, b0 = a0 * scale0, b0 * scale0
+    f_A = ca.Function("A", [a, b, q0], [A])
+    A0 = np.array(f_A(a0, b0, mid))
+    ev = np.linalg.eigvalsh(A0)
+    s0, t0 = 0.5 * ev[0], 2.0 * ev[-1]
+    L10, L20 = np.linalg.cholesky(A0 - s0 * np.eye(r)), np.linalg.cholesky(t0 * np.eye(r) - A0)
+    w0 = np.r_[a0.ravel(order="F"), b0.ravel(order="F"), mid, np.log(s0), np.log(t0), L10[tri], L20[tri]]
+    lbw = np.r_[-np.inf * np.ones(2 * n * K), lo, -np.inf, -np.inf, -np.inf * np.ones(2 * len(tri[0]))]
+    ubw = np.r_[np.inf * np.ones(2 * n * K), hi, np.inf, np.inf, np.inf * np.ones(2 * len(tri[0]))]
+    nlp = {"x": w, "f": log_t - log_s, "g": cons}
+    solver = ca.nlpsol("excite", "ipopt", nlp, {
+        "ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 400,
+        "ipopt.hessian_approximation": "limited-memory", "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4})
+    log(f"excitation: {n} joints, {K} harmonics, period {period} s, {M} samples, {r} base parameters; "
+        f"start kappa {ev[-1] / ev[0]:.3g}")
+    res = solver(x0=w0, lbx=lbw, ubx=ubw, lbg=lbg, ubg=ubg)
+    stats = solver.stats()
+    wopt = np.array(res["x"]).ravel()
+    a_opt = wopt[:n * K].reshape(n, K, order="F")
+    b_opt = wopt[n * K:2 * n * K].reshape(n, K, order="F")
+    q_opt = wopt[2 * n * K:2 * n * K + n]
+    log(f"excitation: IPOPT {stats['return_status']} after {stats['iter_count']} iterations")
+    traj = Trajectory(model_path=Path(arm.model.path), period=period, duration=period, kind="fourier",
+                      offset=q_opt, a=a_opt, b=b_opt)
+    return traj, {"status": stats["return_status"], "iterations": int(stats["iter_count"]), "samples": M,
+                  "base_parameters": r}
+
+
+def _tril(X, tri):
+    return ca.vertcat(*[X[i, j] for i, j in zip(*tri)])
+
+
+def _rest_projection(a, b):
+    """The nearest coefficients with velocity, acceleration and jerk zero at t = 0."""
+    K = a.shape[1]
+    l = np.arange(1, K + 1, dtype=float)
+    Ca = np.vstack([np.ones(K), l ** 2])                    # sum a = 0, sum a l^2 = 0
+    Cb = l[None, :]                                          # sum b l = 0
+    proj = lambda C: np.eye(K) - C.T @ np.linalg.solve(C @ C.T, C)
+    return a @ proj(Ca).T, b @ proj(Cb).T
+
+
+def check_limits(arm: Arm, ff: dict) -> dict:
+    """Largest use of each limit by the exact feedforward (1 = at the limit)."""
+    lim, lo, hi = _limits(arm)
+    th = ff["theta_d"]
+    use = {"tau": np.max(np.abs(ff["tau"]) / lim["tau"][:, None]),
+           "dphi": np.max(np.abs(ff["dphi"]) / lim["dphi"][:, None]),
+           "psi": np.max(np.abs(ff["phi"] - th) / lim["psi"][:, None]),
+           "theta": np.max(np.maximum((th - hi[:, None]) / (hi - lo)[:, None], (lo[:, None] - th) / (hi - lo)[:, None])) + 1}
+    return {k: float(v) for k, v in use.items() if np.isfinite(v)}
+
+
+def hand_picked(arm: Arm, period: float, amplitude: float = 0.5) -> Trajectory:
+    """The baseline: the paper's raised-cosine bump on every joint, `amplitude` rad, mid-range."""
+    _, lo, hi = _limits(arm)
+    return Trajectory(model_path=Path(arm.model.path), period=period, duration=period, kind="bump",
+                      start=0.5 * (lo + hi), amplitude=np.full(arm.n, amplitude))
+
+
+def run(model_file, out, period: float = 10.0, harmonics: int = 5, rate: float = 1000.0, log=print) -> dict:
+    arm = load(model_file)
+    traj, info = design(arm, period, harmonics, log=log)
+    t = np.arange(int(round(period * rate)) + 1) / rate
+    for attempt in range(6):
+        ff = feedforward(arm, traj, t)
+        use = check_limits(arm, ff)
+        if max(use.values()) <= 1.0:
+            break
+        shrink = 0.97 / max(use.values())
+        log(f"excitation: exact feedforward uses {max(use.values()):.3f} of a limit; scaling the motion by {shrink:.3f}")
+        traj = Trajectory(model_path=traj.model_path, period=period, duration=period, kind="fourier",
+                          offset=traj.offset, a=traj.a * shrink, b=traj.b * shrink)
+    else:
+        raise RuntimeError("could not bring the excitation trajectory within the limits")
+    kappa, kappa_hand = condition_number(arm, traj), condition_number(arm, hand_picked(arm, period))
+    log(f"excitation: condition number {kappa:.4g} (hand-picked bump of 0.5 rad: {kappa_hand:.4g})")
+    summary = {"model": str(model_file), **info, "period": period, "harmonics": harmonics,
+               "condition_number": kappa, "condition_number_hand_picked": kappa_hand, "limit_use": use}
+    with fresh_directory(out, "excitation.json") as tmp:
+        model_rel = Path(model_file).resolve()
+        traj.write(tmp / "trajectory.toml", str(model_rel))
+        cols = ["t"] + [f"tau_{j + 1}" for j in range(arm.n)] + [f"theta_{j + 1}" for j in range(arm.n)] \
+            + [f"phi_{j + 1}" for j in range(arm.n)]
+        data = np.vstack([t, ff["tau"], ff["theta_d"], ff["phi"]]).T
+        np.savetxt(tmp / "feedforward.csv", data, delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
+        (tmp / "excitation.json").write_text(json.dumps(summary, indent=2) + "\n")
+        _plot(tmp / "excitation", t, ff, arm)
+    log(f"wrote {Path(out) / 'trajectory.toml'}, feedforward.csv, excitation.json")
+    return summary
+
+
+def _plot(stem: Path, t, ff, arm: Arm):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
+    for j in range(arm.n):
+        axes[0].plot(t, ff["theta_d"][j], label=f"theta_{j + 1}")
+        axes[1].plot(t, ff["tau"][j] / arm.model.joints[j].limits.get("tau", 1.0), label=f"tau_{j + 1} / limit")
+    axes[0].set_ylabel("link angle (rad)")
+    axes[1].set_ylabel("motor torque / limit")
+    axes[1].set_xlabel("t (s)")
+    for ax in axes:
+        ax.legend(fontsize=7, ncol=arm.n)
+    fig.tight_layout()
+    fig.savefig(stem.with_suffix(".png"), dpi=110)
+    plt.close(fig)
