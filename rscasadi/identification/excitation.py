@@ -206,6 +206,39 @@ def check_limits(arm: Arm, ff: dict) -> dict:
     return {k: float(v) for k, v in use.items() if np.isfinite(v)}
 
 
+def _theta_scale(arm: Arm, traj: Trajectory, t) -> float:
+    """The largest factor on the Fourier coefficients that keeps the link angles in their limits."""
+    _, lo, hi = _limits(arm)
+    q = traj(t)[0]
+    up, down = np.max(q - traj.offset[:, None], axis=1), np.max(traj.offset[:, None] - q, axis=1)
+    room_up, room_down = hi - traj.offset, traj.offset - lo
+    with np.errstate(divide="ignore"):
+        return float(np.min(np.r_[np.where(up > 0, room_up / up, np.inf), np.where(down > 0, room_down / down, np.inf)]))
+
+
+def within_limits(arm: Arm, traj: Trajectory, t, log=print, iterations: int = 20):
+    """Scale the motion (about its offset) until the exact feedforward (the paper's pipeline)
+    respects every limit: the link angles exactly, the rest by their ratio to the limit."""
+    _, lo, hi = _limits(arm)
+    offset = np.clip(traj.offset, lo + 0.02 * (hi - lo), hi - 0.02 * (hi - lo))
+    scaled = lambda k: Trajectory(model_path=traj.model_path, period=traj.period, duration=traj.duration,
+                                  kind="fourier", offset=offset, a=traj.a * k, b=traj.b * k)
+    traj = scaled(1.0)
+    for _ in range(iterations):
+        room = _theta_scale(arm, traj, t)
+        ff = feedforward(arm, traj, t)
+        use = check_limits(arm, ff)
+        worst = max(v for k, v in use.items() if k != "theta")
+        if worst <= 1.0 and room >= 1.0:
+            return traj, ff, use
+        k = min(0.99 * room, 0.97 / worst, 1.0)
+        log(f"excitation: the exact feedforward uses {worst:.3f} of a limit (angles: room {room:.3f}); "
+            f"scaling the motion by {k:.3f}")
+        traj = Trajectory(model_path=traj.model_path, period=traj.period, duration=traj.duration, kind="fourier",
+                          offset=offset, a=traj.a * k, b=traj.b * k)
+    raise RuntimeError("could not bring the excitation trajectory within the limits")
+
+
 def hand_picked(arm: Arm, period: float, amplitude: float = 0.5) -> Trajectory:
     """The baseline: the paper's raised-cosine bump on every joint, `amplitude` rad, mid-range."""
     _, lo, hi = _limits(arm)
@@ -217,17 +250,7 @@ def run(model_file, out, period: float = 10.0, harmonics: int = 5, rate: float =
     arm = load(model_file)
     traj, info = design(arm, period, harmonics, log=log)
     t = np.arange(int(round(period * rate)) + 1) / rate
-    for attempt in range(6):
-        ff = feedforward(arm, traj, t)
-        use = check_limits(arm, ff)
-        if max(use.values()) <= 1.0:
-            break
-        shrink = 0.97 / max(use.values())
-        log(f"excitation: exact feedforward uses {max(use.values()):.3f} of a limit; scaling the motion by {shrink:.3f}")
-        traj = Trajectory(model_path=traj.model_path, period=period, duration=period, kind="fourier",
-                          offset=traj.offset, a=traj.a * shrink, b=traj.b * shrink)
-    else:
-        raise RuntimeError("could not bring the excitation trajectory within the limits")
+    traj, ff, use = within_limits(arm, traj, t, log)
     kappa, kappa_hand = condition_number(arm, traj), condition_number(arm, hand_picked(arm, period))
     log(f"excitation: condition number {kappa:.4g} (hand-picked bump of 0.5 rad: {kappa_hand:.4g})")
     summary = {"model": str(model_file), **info, "period": period, "harmonics": harmonics,
