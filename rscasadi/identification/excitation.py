@@ -160,8 +160,9 @@ def design(arm: Arm, period: float = 10.0, harmonics: int = 5, margin: float = 0
     s0, t0 = 0.5 * ev[0], 2.0 * ev[-1]
     L10, L20 = np.linalg.cholesky(A0 - s0 * np.eye(r)), np.linalg.cholesky(t0 * np.eye(r) - A0)
     w0 = np.r_[a0.ravel(order="F"), b0.ravel(order="F"), mid, np.log(s0), np.log(t0), L10[tri], L20[tri]]
-    lbw = np.r_[-np.inf * np.ones(2 * n * K), lo, -np.inf, -np.inf, -np.inf * np.ones(2 * len(tri[0]))]
-    ubw = np.r_[np.inf * np.ones(2 * n * K), hi, np.inf, np.inf, np.inf * np.ones(2 * len(tri[0]))]
+    span = [np.log(max(ev[0], 1e-300 * ev[-1])) - 20, np.log(ev[-1]) + 20]     # keeps exp() finite
+    lbw = np.r_[-np.inf * np.ones(2 * n * K), lo, span[0], span[0], -np.inf * np.ones(2 * len(tri[0]))]
+    ubw = np.r_[np.inf * np.ones(2 * n * K), hi, span[1], span[1], np.inf * np.ones(2 * len(tri[0]))]
     nlp = {"x": w, "f": log_t - log_s, "g": cons}
     solver = ca.nlpsol("excite", "ipopt", nlp, {
         "ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 400,
@@ -174,6 +175,7 @@ def design(arm: Arm, period: float = 10.0, harmonics: int = 5, margin: float = 0
     a_opt = wopt[:n * K].reshape(n, K, order="F")
     b_opt = wopt[n * K:2 * n * K].reshape(n, K, order="F")
     q_opt = wopt[2 * n * K:2 * n * K + n]
+    a_opt, b_opt = _rest_projection(a_opt, b_opt)          # exactly at rest, whatever IPOPT's last iterate
     log(f"excitation: IPOPT {stats['return_status']} after {stats['iter_count']} iterations")
     traj = Trajectory(model_path=Path(arm.model.path), period=period, duration=period, kind="fourier",
                       offset=q_opt, a=a_opt, b=b_opt)

@@ -153,6 +153,7 @@ class Rows:
     y: np.ndarray
     block: np.ndarray           # block index of every row
     labels: list                # name of every block: tau_j, spring_j, T_j
+    t: np.ndarray               # time of every row
 
 
 def rows(arm: Arm, sig: Signals, unknowns: Unknowns, reduced: bool = False) -> Rows:
@@ -164,17 +165,18 @@ def rows(arm: Arm, sig: Signals, unknowns: Unknowns, reduced: bool = False) -> R
     # the filtered torque no longer equals the loss at the filtered speed: those rows are left out
     eps = arm.model.column("eps")
     moving = [np.abs(sig.dphi[j]) > REVERSAL * eps[j] for j in range(n)]
-    blocks = [(f"tau_{j + 1}", Y[j][moving[j]], sig.tau[j][moving[j]]) for j in range(n)]
-    blocks += [(f"spring_{j + 1}", Y[n + j] - Ys[j], np.zeros(count)) for j in range(n)]
+    blocks = [(f"tau_{j + 1}", Y[j][moving[j]], sig.tau[j][moving[j]], sig.t[moving[j]]) for j in range(n)]
+    blocks += [(f"spring_{j + 1}", Y[n + j] - Ys[j], np.zeros(count), sig.t) for j in range(n)]
     if sig.T is not None:
-        blocks += [(f"T_{j + 1}", Y[n + j], sig.T[j]) for j in range(n)]
+        blocks += [(f"T_{j + 1}", Y[n + j], sig.T[j], sig.t) for j in range(n)]
     return Rows(np.vstack([b[1] for b in blocks]), np.concatenate([b[2] for b in blocks]),
-                np.concatenate([np.full(len(b[2]), i) for i, b in enumerate(blocks)]), [b[0] for b in blocks])
+                np.concatenate([np.full(len(b[2]), i) for i, b in enumerate(blocks)]), [b[0] for b in blocks],
+                np.concatenate([b[3] for b in blocks]))
 
 
 def combine(parts: list[Rows]) -> Rows:
     return Rows(np.vstack([r.A for r in parts]), np.concatenate([r.y for r in parts]),
-                np.concatenate([r.block for r in parts]), parts[0].labels)
+                np.concatenate([r.block for r in parts]), parts[0].labels, np.concatenate([r.t for r in parts]))
 
 
 # ----------------------------------------------------------------------------- estimation
@@ -444,7 +446,7 @@ def report(ident: Identification, arm: Arm, validation: dict | None, log_files: 
     }
 
 
-def plot(out: Path, rows_: Rows, th: np.ndarray, t_rows: np.ndarray, title: str):
+def plot(out: Path, rows_: Rows, th: np.ndarray, title: str):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -453,8 +455,8 @@ def plot(out: Path, rows_: Rows, th: np.ndarray, t_rows: np.ndarray, title: str)
     pred = rows_.A @ th
     for ax, b in zip(axes[:, 0], taus):
         sel = rows_.block == b
-        ax.plot(t_rows, rows_.y[sel], lw=1.0, label="measured (filtered)")
-        ax.plot(t_rows, pred[sel], "--", lw=1.0, label="identified model")
+        ax.plot(rows_.t[sel], rows_.y[sel], ".", ms=2, label="measured (filtered)")
+        ax.plot(rows_.t[sel], pred[sel], ".", ms=2, label="identified model")
         ax.set_ylabel(f"{rows_.labels[b]} (N m)")
     axes[0, 0].legend(fontsize=8)
     axes[0, 0].set_title(title)
@@ -496,10 +498,9 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
                                          + to_toml(document(ident.model)))
         (tmp / "report.json").write_text(json.dumps(rep, indent=2) + "\n")
         first = prepare(logs[0], ident.cutoff_hz)
-        plot(tmp / "fit", rows(arm, first, ident.unknowns, reduced), ident.th, first.t,
+        plot(tmp / "fit", rows(arm, first, ident.unknowns, reduced), ident.th,
              f"identification log {Path(log_files[0]).name}")
         if val_rows is not None:
-            plot(tmp / "validation", val_rows, ident.th, prepare(val_log, ident.cutoff_hz).t,
-                 f"held-out log {Path(validate).name}")
+            plot(tmp / "validation", val_rows, ident.th, f"held-out log {Path(validate).name}")
     log(f"wrote {Path(out) / 'model.toml'}, report.json and figures")
     return rep

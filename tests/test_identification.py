@@ -1,0 +1,231 @@
+"""Identification, tested honestly: the regressor against the inverse dynamics on random arms,
+the base parameters out of sample, the log checks, the excitation under the limits, and the
+whole workflow on synthetic logs of a *different* arm than the model file describes."""
+import json
+
+import numpy as np
+import pytest
+
+import rscasadi
+from rscasadi.cli import main
+from rscasadi.control.trajectory import load_trajectory
+from rscasadi.identification import identify as ident_mod
+from rscasadi.identification.demo import recovered_table
+from rscasadi.identification.logs import LogError, Log, header, read_log, write_log
+from rscasadi.identification.regressor import base_parameters, random_samples, regressor, stacked
+from rscasadi.identification.synthetic import perturbed_arm, record
+from rscasadi.model.parameters import n_linear
+
+from conftest import REFERENCE, ROOT, dm
+
+
+def _rel(a, b):
+    return np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300)
+
+
+# ----------------------------------------------------------------------------- regressor
+
+def test_regressor_reproduces_inverse_dynamics_on_random_arms(arm3, random_arms, balanced_arms):
+    rng = np.random.default_rng(41)
+    cases = [(a, False) for a in [arm3] + random_arms] + [(a, True) for a in balanced_arms[:4]]
+    for arm, reduced in cases:
+        inv = arm.reduced_inverse_dynamics() if reduced else arm.inverse_dynamics()
+        p = arm.parameters()[1][:n_linear(arm.model)]
+        R = regressor(arm, reduced=reduced)
+        for _ in range(3):
+            s = [v[:, 0] for v in random_samples(arm, 1, rng)]
+            Y, y0 = R(*s)
+            assert np.max(np.abs(dm(y0))) == 0.0                       # nothing known: y0 = 0
+            want = np.concatenate([dm(v) for v in inv(*s)])
+            assert _rel(np.array(Y) @ p, want) < 1e-10, arm
+
+
+def test_known_parameters_move_into_y0(arm3):
+    names, nominal = arm3.parameters()
+    known = [n for n in names if ".link." in n]
+    R = regressor(arm3, known=known)
+    s = [v[:, 0] for v in random_samples(arm3, 1, np.random.default_rng(2))]
+    Y, y0 = R(*s)
+    free = [i for i in range(n_linear(arm3.model)) if names[i] not in known]
+    want = np.concatenate([dm(v) for v in arm3.inverse_dynamics()(*s)])
+    assert np.array(Y).shape[1] == len(free) and np.max(np.abs(dm(y0))) > 0
+    assert _rel(np.array(Y) @ nominal[free] + dm(y0), want) < 1e-10
+
+
+def test_base_parameters_hold_out_of_sample(arm3, random_arms):
+    """beta = P p reproduces every row of *new* samples, for any p, and the rank does not
+    depend on the samples."""
+    rng = np.random.default_rng(43)
+    for arm in [arm3] + random_arms[:3]:
+        base = base_parameters(arm, rng=np.random.default_rng(1))
+        assert base.rank == base_parameters(arm, rng=np.random.default_rng(2)).rank
+        W = stacked(arm, random_samples(arm, 30, rng))
+        for _ in range(3):
+            p = rng.normal(size=W.shape[1])
+            assert _rel(W[:, base.independent] @ (base.P @ p), W @ p) < 1e-8
+
+
+def test_base_parameters_of_the_reference_arm_make_physical_sense(arm3):
+    base = base_parameters(arm3)
+    # a link turning about the vertical base axis with its centre of mass on it: its mass does nothing
+    assert "shoulder_yaw.link.mass" in base.unidentifiable
+    text = "\n".join(base.explain())
+    # the base joint's rotors act only through B_1 = Izz_S + mu^2 Izz_F (here divided by mu^2)
+    assert "shoulder_yaw.fast_rotor.Izz + 0.0001 shoulder_yaw.slow_rotor.Izz" in text
+    for name in ("elbow_pitch.sea.k1", "shoulder_pitch.sea.d", "elbow_pitch.gear_loss.c"):
+        assert any(line.endswith(f"= {name}") for line in base.explain()), name
+
+
+# ----------------------------------------------------------------------------- logs
+
+def _log(n=3, N=200):
+    t = np.arange(N) * 1e-3
+    return Log("x", t, np.zeros((n, N)), np.zeros((n, N)), np.zeros((n, N)))
+
+
+def _cell(row: str, k: int, value: str) -> str:
+    cells = row.split(",")
+    cells[k] = value
+    return ",".join(cells)
+
+
+@pytest.mark.parametrize("mutate, words", [
+    (lambda rows: rows.__setitem__(0, rows[0].replace("phi_2", "phi2")), "missing column 'phi_2'"),
+    (lambda rows: rows.__setitem__(0, rows[0] + ",extra"), "unexpected column 'extra'"),
+    (lambda rows: rows.__setitem__(5, _cell(rows[5], 4, "nan")), "column 'phi_1'"),
+    (lambda rows: rows.__setitem__(5, _cell(rows[5], 4, "nan")), "NaN"),
+    (lambda rows: rows.__setitem__(7, "0.1," + rows[7].split(",", 1)[1]), "column 't'"),
+    (lambda rows: rows.__setitem__(9, _cell(rows[9], 1, "abc")), "column 'theta_1'"),
+    (lambda rows: rows.__setitem__(9, "0.0075," + rows[9].split(",", 1)[1]), "not uniform"),
+    (lambda rows: rows.__setitem__(slice(30, None), []), "only"),
+    (lambda rows: rows.__setitem__(3, rows[3] + ",1.0"), "line 4"),
+])
+def test_bad_logs_are_refused_naming_file_and_column(tmp_path, mutate, words):
+    path = tmp_path / "run.csv"
+    write_log(path, _log())
+    rows = path.read_text().splitlines()
+    mutate(rows)
+    path.write_text("\n".join(rows) + "\n")
+    with pytest.raises(LogError) as err:
+        read_log(path, 3)
+    assert "run.csv" in str(err.value) and words in str(err.value)
+
+
+def test_log_round_trip_with_torque_sensor(tmp_path):
+    lg = _log()
+    lg.T = np.ones((3, 200))
+    write_log(tmp_path / "a.csv", lg)
+    back = read_log(tmp_path / "a.csv", 3)
+    assert back.T is not None and np.allclose(back.T, 1.0) and np.allclose(back.t, lg.t)
+    assert (tmp_path / "a.csv").read_text().splitlines()[0] == ",".join(header(3, True))
+
+
+# ----------------------------------------------------------------------------- the workflow
+
+@pytest.fixture(scope="module")
+def excitation(tmp_path_factory):
+    out = tmp_path_factory.mktemp("excite") / "arm3"
+    assert main(["excite", str(REFERENCE), "--out", str(out), "--period", "10", "--harmonics", "5"]) == 0
+    return out
+
+
+def test_excitation_is_at_rest_within_limits_and_better_than_a_hand_picked_motion(excitation, arm3):
+    summary = json.loads((excitation / "excitation.json").read_text())
+    traj = load_trajectory(excitation / "trajectory.toml")
+    q = traj(np.array([0.0, traj.period]))
+    assert np.max(np.abs(q[1])) < 1e-12 and np.max(np.abs(q[2])) < 1e-12 and np.max(np.abs(q[3])) < 1e-12
+    assert np.allclose(q[0][:, 0], q[0][:, 1])                         # periodic
+    assert max(summary["limit_use"].values()) <= 1.0
+    # the limits are checked again here on the written feedforward, independently of the summary
+    ff = np.loadtxt(excitation / "feedforward.csv", delimiter=",", skiprows=1)
+    tau = ff[:, 1:4]
+    assert np.all(np.abs(tau) <= arm3.model.column("tau") if hasattr(arm3.model, "tau") else
+                  np.abs(tau) <= np.array([jt.limits["tau"] for jt in arm3.model.joints]))
+    theta = ff[:, 4:7]
+    lo = np.array([jt.limits["theta"][0] for jt in arm3.model.joints])
+    hi = np.array([jt.limits["theta"][1] for jt in arm3.model.joints])
+    assert np.all(theta >= lo) and np.all(theta <= hi)
+    assert np.max(np.abs(ff[:, 7:10] - theta)) <= 0.15                  # deflection limit
+    assert summary["condition_number"] * 100 < summary["condition_number_hand_picked"]
+
+
+@pytest.fixture(scope="module")
+def synthetic(excitation, arm3, tmp_path_factory):
+    """A different arm (every parameter off by 10-40 %, k3 and Coulomb added), its logs under
+    the excitation (identification) and under the paper's trajectory (held out)."""
+    rng = np.random.default_rng(2026)
+    true = perturbed_arm(arm3, rng)
+    d = tmp_path_factory.mktemp("logs")
+    logs = {}
+    for name, traj in (("identification", load_trajectory(excitation / "trajectory.toml")),
+                       ("validation", load_trajectory(ROOT / "problems" / "trajectory_arm3.toml"))):
+        lg, _ = record(true, arm3, traj, rng=rng)
+        write_log(d / f"{name}.csv", lg)
+        logs[name] = d / f"{name}.csv"
+    return true, logs
+
+
+@pytest.fixture(scope="module")
+def identified(synthetic, tmp_path_factory):
+    _, logs = synthetic
+    out = tmp_path_factory.mktemp("ident") / "arm3"
+    assert main(["identify", str(REFERENCE), str(logs["identification"]), "--out", str(out),
+                 "--validate", str(logs["validation"])]) == 0
+    return out
+
+
+def test_identified_model_file_round_trips(identified, arm3):
+    model = rscasadi.load(identified / "model.toml")
+    assert [jt.name for jt in model.model.joints] == [jt.name for jt in arm3.model.joints]
+    for a, b in zip(model.model.joints, arm3.model.joints):
+        assert np.allclose(a.R, b.R, atol=1e-12) and np.allclose(a.origin_xyz, b.origin_xyz) \
+            and a.gear_ratio == b.gear_ratio and a.eps == b.eps
+    report = json.loads((identified / "report.json").read_text())
+    names = arm3.parameters()[0]
+    assert all({"nominal", "estimate", "std"} <= set(v) for v in report["parameters"].values())
+    assert "shoulder_yaw.sea.k1" in report["parameters"] and "residual_rms" in report and report["cutoff_hz"] > 20
+    assert (identified / "validation.png").exists() and (identified / "fit.png").exists()
+    assert len(names) > len(report["parameters"])                        # balanced rotors stay balanced
+
+
+def test_prediction_of_held_out_torques(identified, synthetic, arm3):
+    """Within 2 % RMS of each motor torque's RMS, beyond the sensor noise that no model can
+    predict (the true arm's own error on the same filtered log)."""
+    true, logs = synthetic
+    report = json.loads((identified / "report.json").read_text())
+    val = read_log(logs["validation"], 3)
+    u = ident_mod.Unknowns.of(arm3.model)
+    rows = ident_mod.rows(arm3, ident_mod.prepare(val, report["cutoff_hz"]), u)
+    floor = ident_mod.predict(rows, u.from_p(true.parameters()[1][:n_linear(arm3.model)]))
+    nominal = ident_mod.predict(rows, u.from_p(arm3.parameters()[1][:n_linear(arm3.model)]))
+    for ch, got in report["validation"]["prediction"].items():
+        assert got["relative"] ** 2 <= floor[ch]["relative"] ** 2 + 0.02 ** 2, (ch, got, floor[ch])
+        assert got["relative"] < 0.2 * nominal[ch]["relative"], ch             # and far better than the file
+
+
+def test_actuator_parameters_recovered_within_their_standard_deviation(synthetic, arm3):
+    true, logs = synthetic
+    ident = ident_mod.identify(arm3, [read_log(logs["identification"], 3)])
+    table = recovered_table(ident, arm3, true)
+    checked = [r for r in table if r["z"] is not None]
+    assert len(checked) >= 17                                            # k1, k3, d, b, c, B of every joint
+    for r in checked:
+        assert abs(r["z"]) < 4.0, r
+    for r in checked:                                                    # and useful: much closer than the file
+        if r["std"] < 0.1 * abs(r["true"] - r["nominal"]):
+            assert abs(r["estimate"] - r["true"]) < 0.25 * abs(r["true"] - r["nominal"]), r
+
+
+def test_reduced_model_ablation_runs(synthetic, tmp_path):
+    _, logs = synthetic
+    out = tmp_path / "reduced"
+    assert main(["identify", str(REFERENCE), str(logs["identification"]), "--out", str(out), "--reduced"]) == 0
+    assert rscasadi.load(out / "model.toml").n == 3
+
+
+def test_identify_refuses_a_log_of_another_arm(synthetic, tmp_path, capsys):
+    _, logs = synthetic
+    code = main(["identify", str(ROOT / "problems" / "panda_sea.toml"), str(logs["identification"]),
+                 "--out", str(tmp_path / "x")])
+    err = capsys.readouterr().err
+    assert code == 2 and "identification.csv" in err and "theta_4" in err and not (tmp_path / "x").exists()
