@@ -75,11 +75,13 @@ def cmd_reproduce(args):
     run(TRAJECTORY, out / "paper", log=lambda msg: print(msg, flush=True), ocp_problem=PROBLEMS / "ocp_tracking.toml")
     from .control.ocp import run as run_ocp
     failed = []
-    for name in ("min_time", "min_effort", "tracking"):
+    for name in ("min_time", "min_effort", "tracking", "panda_min_time"):
         sol = run_ocp(PROBLEMS / f"ocp_{name}.toml", out / "ocp" / name, log=lambda msg: print(msg, flush=True),
                       print_level=0)
         if not sol["success"]:
             failed.append(name)
+    from .identification.demo import run as run_identification
+    run_identification(REFERENCE, out / "identification", log=lambda msg: print(msg, flush=True))
     if failed:
         print(f"rscasadi: error: optimal-control problems not solved and verified: {', '.join(failed)}", file=sys.stderr)
         return 1

@@ -83,28 +83,18 @@ PROBLEM_DOC["model"] = str(REFERENCE)
 URDF_TEXT = (ROOT / "problems" / "urdf" / "panda.urdf").read_text()
 
 
+KINDS = {"model file": (REFERENCE_DOC, rscasadi.load), "URDF-form model file": (PANDA_DOC, rscasadi.load),
+         "problem file": (PROBLEM_DOC, load_problem)}
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
 @SETTINGS
-@given(doc=mutated(REFERENCE_DOC))
-def test_broken_model_files_are_refused_by_name(tmp_path, doc):
-    path = tmp_path / "arm.toml"
-    if _write_doc(path, doc):
-        _must_be_named_error(rscasadi.load, path)
-
-
-@SETTINGS
-@given(doc=mutated(PANDA_DOC))
-def test_broken_urdf_form_files_are_refused_by_name(tmp_path, doc):
-    path = tmp_path / "panda.toml"
-    if _write_doc(path, doc):
-        _must_be_named_error(rscasadi.load, path)
-
-
-@SETTINGS
-@given(doc=mutated(PROBLEM_DOC))
-def test_broken_problem_files_are_refused_by_name(tmp_path, doc):
-    path = tmp_path / "problem.toml"
-    if _write_doc(path, doc):
-        _must_be_named_error(load_problem, path)
+@given(data=st.data())
+def test_broken_files_are_refused_by_name(tmp_path, kind, data):
+    doc, load = KINDS[kind]
+    path = tmp_path / "broken.toml"
+    if _write_doc(path, data.draw(mutated(doc))):
+        _must_be_named_error(load, path)
 
 
 ATTRIBUTE = re.compile(r'(\w+)="([^"]*)"')

@@ -445,6 +445,7 @@ def run(problem_file, out, warm_file=None, log=print, print_level: int = 5) -> d
     log(f"{problem.path}: {problem.objective}, {problem.method}"
         + (f" degree {problem.degree}" if problem.method != "hermite-simpson" else "")
         + f", {problem.intervals} intervals, {problem.dynamics} dynamics, {'compiled' if problem.compiled else 'not compiled'}")
+    log("solving with IPOPT" + (" (log quieted)" if print_level == 0 else "") + " ...")
     sol = solve(problem, warm, log=log, print_level=print_level)
     log(f"IPOPT: {sol['status']} after {sol['iterations']} iterations, {sol['solve_time_s']:.2f} s, "
         f"objective {sol['objective']:.6g}")

@@ -45,6 +45,25 @@ def recovered_table(ident, arm: Arm, true_arm: Arm) -> list[dict]:
     return out
 
 
+def model_errors(arm: Arm, true_arm: Arm, ident, ident_red, val_log) -> dict:
+    """Noise-free model error on the held-out motion: each identified model's motor torques
+    against the true arm's, on the same filtered signals, relative to the true torques' RMS."""
+    u = ident.unknowns
+    sig = ident_mod.prepare(val_log, ident.cutoff_hz)
+    th_true = u.from_p(true_arm.parameters()[1][:n_linear(arm.model)])
+    complete, reduced = ident_mod.rows(arm, sig, u), ident_mod.rows(arm, sig, u, reduced=True)
+    out = {}
+    for b, label in enumerate(complete.labels):
+        if not label.startswith("tau"):
+            continue
+        sel = complete.block == b
+        truth = complete.A[sel] @ th_true
+        rms = np.sqrt(np.mean(truth ** 2))
+        out[label] = {"complete": float(np.sqrt(np.mean((complete.A[sel] @ ident.th - truth) ** 2)) / rms),
+                      "reduced": float(np.sqrt(np.mean((reduced.A[sel] @ ident_red.th - truth) ** 2)) / rms)}
+    return out
+
+
 def paper_loop(true_arm: Arm, models: dict, traj, t) -> dict:
     """Feedforward from each model along the paper's trajectory, open loop on the true arm,
     which starts at rest in its own static equilibrium."""
@@ -92,8 +111,10 @@ def run(model_file, out, log=print) -> dict:
         log(f"{stamp()} 4. recovered parameters against the truth")
         from .logs import read_log
         ident = ident_mod.identify(arm, [read_log(f, arm.n) for f in logs])
+        ident_red = ident_mod.identify(arm, [read_log(f, arm.n) for f in logs], reduced=True)
         table = recovered_table(ident, arm, true_arm)
         (tmp / "recovered.md").write_text("# Recovered parameters of the synthetic arm\n\n" + _md_table(table))
+        model_error = model_errors(arm, true_arm, ident, ident_red, read_log(val, arm.n))
         log(f"{stamp()} 5. the paper's loop closed: feedforward from each model on the true arm")
         traj = load_trajectory(Path(__file__).resolve().parents[2] / "problems" / "trajectory_arm3.toml")
         t = np.linspace(0, traj.duration, int(round(traj.duration * 500)) + 1)
@@ -103,7 +124,7 @@ def run(model_file, out, log=print) -> dict:
                                      "identified, DLR/Spong feedforward": (identified, True),
                                      "nominal model file": (arm, False)}, traj, t)
         _loop_outputs(tmp, loop, t)
-        summary = {"model": str(model_file), "seed": SEED, "recovered": table,
+        summary = {"model": str(model_file), "seed": SEED, "recovered": table, "model_error": model_error,
                    "validation": rep["validation"], "validation_reduced": rep_red["validation"],
                    "paper_loop": {k: {m: v[m] for m in ("max_error", "rms_error")} for k, v in loop.items()}}
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
