@@ -40,7 +40,8 @@ def test_manifest_describes_the_library(built):
     assert [o["name"] for o in manifest["functions"]["step_jacobian"]["outputs"]] == ["A", "B"]
     assert set(manifest["functions"]) == {"forward_dynamics", "inverse_dynamics", "reduced_forward_dynamics",
                                           "reduced_inverse_dynamics", "energy", "forward_dynamics_jacobian",
-                                          "inverse_dynamics_jacobian", "step", "step_jacobian"}
+                                          "inverse_dynamics_jacobian", "step", "step_jacobian",
+                                          "feedforward_init", "feedforward_step"}
 
 
 def test_compiled_equals_symbolic_twin(built, arm3):
@@ -191,3 +192,22 @@ def test_parametric_library_serves_every_arm_with_the_same_joints(tmp_path, arm3
             got, want = lib[name].call(args + [p]), g.call(args)
             for a, b in zip(got, want):
                 assert rel(np.array(a), np.array(b)) < 1e-10, name
+
+
+def test_compiled_feedforward_equals_the_pipeline_over_the_paper_trajectory(built, arm3):
+    """feedforward_init/step in C, run sample by sample at 1 kHz, give the torques of the
+    paper's pipeline (whose tracking on the complete model is tested in test_simulation)."""
+    from rscasadi.control.simulation import feedforward
+    from rscasadi.control.trajectory import load_trajectory
+    out, _ = built
+    lib = rscasadi.load_compiled(out)
+    traj = load_trajectory(REFERENCE.parent / "trajectory_arm3.toml")
+    t = np.linspace(0, 2, 2001)
+    want = feedforward(arm3, traj, t)["tau"]
+    q = traj(t)
+    tau, state = lib["feedforward_init"](q[0][:, 0], q[1][:, 0], q[2][:, 0])
+    got = [np.array(tau).ravel()]
+    for k in range(1, len(t)):
+        tau, state = lib["feedforward_step"](state, q[0][:, k], q[1][:, k], q[2][:, k], 1e-3)
+        got.append(np.array(tau).ravel())
+    assert np.max(np.abs(np.array(got).T - want)) < 1e-9 * np.max(np.abs(want))

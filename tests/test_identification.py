@@ -229,3 +229,12 @@ def test_identify_refuses_a_log_of_another_arm(synthetic, tmp_path, capsys):
                  "--out", str(tmp_path / "x")])
     err = capsys.readouterr().err
     assert code == 2 and "identification.csv" in err and "theta_4" in err and not (tmp_path / "x").exists()
+
+
+def test_identify_explain_prints_the_base_parameters(synthetic, tmp_path, capsys):
+    _, logs = synthetic
+    assert main(["identify", str(REFERENCE), str(logs["identification"]), "--out", str(tmp_path / "e"),
+                 "--explain"]) == 0
+    out = capsys.readouterr().out
+    assert "beta_1 = " in out and "base parameters of" in out
+    assert "shoulder_yaw.fast_rotor.Izz + 0.0001 shoulder_yaw.slow_rotor.Izz" in out

@@ -170,3 +170,20 @@ def test_refusals_of_the_model_file(urdf_dir, old_doc):
         with pytest.raises(ModelFileError) as err:
             rscasadi.load(_write(urdf_dir, doc))
         assert words in str(err.value) and "arm3_urdf.toml" in str(err.value)
+
+
+def test_commands_take_the_urdf_form(tmp_path, capsys):
+    """info and codegen on a URDF-based file; the compiled forward dynamics of the UR5 (axes
+    along y) equals Pinocchio parsing the URDF."""
+    from rscasadi.cli import main
+    ur5 = REAL_ARMS[1]
+    assert main(["info", str(ur5)]) == 0
+    assert "shoulder_lift_joint" in capsys.readouterr().out
+    assert main(["codegen", str(ur5), "--out", str(tmp_path / "ur5"), "--opt=-O1"]) == 0
+    fd = rscasadi.load_compiled(tmp_path / "ur5")["forward_dynamics"]
+    arm = rscasadi.load(ur5)
+    route, rng = PinocchioRoute.from_urdf(arm.model), np.random.default_rng(9)
+    x, tau = random_state(rng, 6), rng.normal(size=6)
+    ours = np.concatenate([dm(v) for v in fd(*x, tau)])
+    theirs = np.concatenate(route.forward_dynamics(*x, tau))
+    assert np.max(np.abs(ours - theirs)) < 1e-9 * np.max(np.abs(theirs))

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import casadi as ca
 
+from ..control.feedforward import feedforward_functions
 from ..dynamics.arm import Arm, load
 from ..files import OutputError, fresh_directory
 
@@ -116,6 +117,8 @@ def functions(arm: Arm, prefix: str = "", parametric: bool = False) -> tuple[dic
     fns["inverse_dynamics_jacobian"] = _renamed(inv, p + "inverse_dynamics_jacobian",
                                                 lambda *ins: [_ad_jacobian(inv, ins, parametric)], ["jacobian"])
     fns["step"], fns["step_jacobian"] = step_functions(arm, p, fns["forward_dynamics_jacobian"], parametric)
+    for f in feedforward_functions(arm, parametric=parametric):      # the paper's feedforward, on line
+        fns[f.name()] = _renamed(f, p + f.name())
     return fns, omitted
 
 

@@ -94,46 +94,24 @@ def spring_deflection(arm: Arm, T, psi=None):
 
 
 def feedforward(arm: Arm, trajectory, t, reduced: bool = False) -> dict:
-    """Motor torques that make the arm follow the expected link motion, by the cascade of the
-    whole-arm inverse dynamics (eq. 26) and the flexible-joint inverse dynamics (eq. 22).
-
-    The SEA deflection psi = phi - theta must produce the torque T that eq. (26) requires:
-    T = k1 psi + k3 psi^3 + d dpsi, integrated in time by the trapezoidal rule (implicit, as
-    d/k1 is about a millisecond).  Eq. (26) itself needs ddphi = ddtheta + ddpsi (through the
-    coupling S): it is predicted by linear extrapolation and corrected once (PECE).
+    """Motor torques that make the arm follow the expected link motion: the paper's cascade of
+    the whole-arm inverse dynamics (eq. 26), the spring law integrated by the trapezoidal rule
+    (implicit: d/k1 is about a millisecond) and the flexible-joint inverse dynamics (eq. 22),
+    one sample at a time by `feedforward_step` (rscasadi.control.feedforward, also generated to C).
     Starts in the spring-consistent static equilibrium of theta(0) (the trajectory starts at rest).
     Returns tau (n, len(t)), the initial state x0, and the rotor motion phi, dphi, ddphi."""
-    n, h = arm.n, _uniform_step(t)
-    inv = arm.reduced_inverse_dynamics() if reduced else arm.inverse_dynamics()
+    from .feedforward import feedforward_functions
+    n, h, N = arm.n, _uniform_step(t), len(t)
     th, dth, ddth = trajectory(t)[:3]
-    k1, k3, d = (arm.model.column(a) for a in ("k1", "k3", "d"))
-    N = len(t)
-    psi, dpsi, ddpsi, tau = np.zeros((n, N)), np.zeros((n, N)), np.zeros((n, N)), np.zeros((n, N))
-
-    def T_required(k, psi_k, dpsi_k, ddpsi_k):                         # eq. (26)
-        return np.array(inv(th[:, k], th[:, k] + psi_k, dth[:, k], dth[:, k] + dpsi_k, ddth[:, k],
-                            ddth[:, k] + ddpsi_k)[1]).ravel()
-
-    psi[:, 0] = spring_deflection(arm, T_required(0, np.zeros(n), np.zeros(n), np.zeros(n)))
-    psi[:, 0] = spring_deflection(arm, T_required(0, psi[:, 0], np.zeros(n), np.zeros(n)), psi[:, 0])
-    for k in range(N - 1):
-        prev = max(k - 1, 0)
-        ddpsi_new = 2 * ddpsi[:, k] - ddpsi[:, prev]                     # predictor
-        dpsi_new = dpsi[:, k] + h * ddpsi[:, k]
-        psi_new = psi[:, k] + h * dpsi[:, k]
-        for _ in range(2):                                              # evaluate, correct
-            T = T_required(k + 1, psi_new, dpsi_new, ddpsi_new)
-            for _ in range(4):                                          # trapezoid + spring law, Newton
-                g = 2 * d / h * (psi_new - psi[:, k]) - d * dpsi[:, k] + k1 * psi_new + k3 * psi_new ** 3 - T
-                psi_new = psi_new - g / (2 * d / h + k1 + 3 * k3 * psi_new ** 2)
-            dpsi_new = 2 / h * (psi_new - psi[:, k]) - dpsi[:, k]
-            ddpsi_new = (dpsi_new - dpsi[:, k]) / h
-        psi[:, k + 1], dpsi[:, k + 1], ddpsi[:, k + 1] = psi_new, dpsi_new, ddpsi_new
+    init, step = feedforward_functions(arm, reduced)
+    tau0, s0 = init(th[:, 0], dth[:, 0], ddth[:, 0])
+    tau, states = step.mapaccum("feedforward", N - 1, [0], [1])(s0, th[:, 1:], dth[:, 1:], ddth[:, 1:], h)
+    S = np.hstack([np.array(s0), np.array(states)])
+    psi, dpsi, ddpsi = S[:n], S[n:2 * n], S[2 * n:3 * n]
     phi, dphi, ddphi = th + psi, dth + dpsi, ddth + ddpsi
-    for k in range(N):                                                  # eq. (22)
-        tau[:, k] = np.array(inv(th[:, k], phi[:, k], dth[:, k], dphi[:, k], ddth[:, k], ddphi[:, k])[0]).ravel()
     x0 = np.concatenate([th[:, 0], phi[:, 0], dth[:, 0], dphi[:, 0]])
-    return {"t": np.asarray(t, float), "tau": tau, "x0": x0, "theta_d": th, "phi": phi, "dphi": dphi, "ddphi": ddphi}
+    return {"t": np.asarray(t, float), "tau": np.hstack([np.array(tau0), np.array(tau)]), "x0": x0,
+            "theta_d": th, "phi": phi, "dphi": dphi, "ddphi": ddphi}
 
 
 # ------------------------------------------------------------------ the paper's cascade, forward

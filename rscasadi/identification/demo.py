@@ -124,7 +124,7 @@ def run(model_file, out, log=print) -> dict:
                                      "identified, DLR/Spong feedforward": (identified, True),
                                      "nominal model file": (arm, False)}, traj, t)
         _loop_outputs(tmp, loop, t)
-        summary = {"model": str(model_file), "seed": SEED, "recovered": table, "model_error": model_error,
+        summary = {"model": Path(model_file).name, "seed": SEED, "recovered": table, "model_error": model_error,
                    "validation": rep["validation"], "validation_reduced": rep_red["validation"],
                    "paper_loop": {k: {m: v[m] for m in ("max_error", "rms_error")} for k, v in loop.items()}}
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")

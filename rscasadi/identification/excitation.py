@@ -23,6 +23,7 @@ Hessian).  The result is checked and, if needed, scaled down until the exact fee
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import casadi as ca
@@ -255,11 +256,11 @@ def run(model_file, out, period: float = 10.0, harmonics: int = 5, rate: float =
     traj, ff, use = within_limits(arm, traj, t, log)
     kappa, kappa_hand = condition_number(arm, traj), condition_number(arm, hand_picked(arm, period))
     log(f"excitation: condition number {kappa:.4g} (hand-picked bump of 0.5 rad: {kappa_hand:.4g})")
-    summary = {"model": str(model_file), **info, "period": period, "harmonics": harmonics,
+    summary = {"model": os.path.relpath(Path(model_file).resolve(), Path(out).resolve()), **info, "period": period, "harmonics": harmonics,
                "condition_number": kappa, "condition_number_hand_picked": kappa_hand, "limit_use": use}
     with fresh_directory(out, "excitation.json") as tmp:
-        model_rel = Path(model_file).resolve()
-        traj.write(tmp / "trajectory.toml", str(model_rel))
+        # the model as seen from DIR, as trajectory files name theirs
+        traj.write(tmp / "trajectory.toml", os.path.relpath(Path(model_file).resolve(), Path(out).resolve()))
         cols = ["t"] + [f"tau_{j + 1}" for j in range(arm.n)] + [f"theta_{j + 1}" for j in range(arm.n)] \
             + [f"phi_{j + 1}" for j in range(arm.n)]
         data = np.vstack([t, ff["tau"], ff["theta_d"], ff["phi"]]).T

@@ -23,6 +23,7 @@
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -492,9 +493,13 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
         validation = {"log": str(validate), "prediction": predict(val_rows, ident.th)}
         worst = max(v["relative"] for v in validation["prediction"].values())
         log(f"validation on {validate}: worst relative RMS error {worst:.3%}")
-    rep = report(ident, arm, validation, log_files)
+    here = lambda f: os.path.relpath(Path(f).resolve(), Path(out).resolve())   # paths as seen from DIR
+    if validation:
+        validation["log"] = here(validate)
+    rep = report(ident, arm, validation, [here(f) for f in log_files])
+    rep["model"] = here(model_file)
     with fresh_directory(out, "report.json") as tmp:
-        (tmp / "model.toml").write_text(f"# identified by rscasadi identify from {', '.join(map(str, log_files))}\n"
+        (tmp / "model.toml").write_text(f"# identified by rscasadi identify from {', '.join(rep['logs'])}\n"
                                          + to_toml(document(ident.model)))
         (tmp / "report.json").write_text(json.dumps(rep, indent=2) + "\n")
         first = prepare(logs[0], ident.cutoff_hz)
