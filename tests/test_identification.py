@@ -139,8 +139,7 @@ def test_excitation_is_at_rest_within_limits_and_better_than_a_hand_picked_motio
     # the limits are checked again here on the written feedforward, independently of the summary
     ff = np.loadtxt(excitation / "feedforward.csv", delimiter=",", skiprows=1)
     tau = ff[:, 1:4]
-    assert np.all(np.abs(tau) <= arm3.model.column("tau") if hasattr(arm3.model, "tau") else
-                  np.abs(tau) <= np.array([jt.limits["tau"] for jt in arm3.model.joints]))
+    assert np.all(np.abs(tau) <= np.array([jt.limits["tau"] for jt in arm3.model.joints]))
     theta = ff[:, 4:7]
     lo = np.array([jt.limits["theta"][0] for jt in arm3.model.joints])
     hi = np.array([jt.limits["theta"][1] for jt in arm3.model.joints])

@@ -26,13 +26,13 @@ CORRECTIONS = 2         # evaluate-correct passes of eq. (26) per sample
 
 
 def _spring(arm, parametric):
-    phys = arm.physics
-    if parametric:
-        from ..model.parameters import Physics
-        p = ca.SX.sym("p", len(arm.parameters()[0]))
-        phys = Physics.of(arm.model, p)
-        return p, phys.columns
-    return None, phys.columns
+    """The actuator columns (k1, k3, d, ...): the model file's numbers, or expressions of a new
+    parameter vector p (returned too)."""
+    if not parametric:
+        return None, arm.physics.columns
+    from ..model.parameters import Physics
+    p = ca.SX.sym("p", len(arm.parameters()[0]))
+    return p, Physics.of(arm.model, p).columns
 
 
 def feedforward_functions(arm, reduced: bool = False, parametric: bool = False) -> tuple[ca.Function, ca.Function]:

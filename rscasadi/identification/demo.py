@@ -18,7 +18,7 @@ from ..dynamics.arm import Arm, load
 from ..files import fresh_directory
 from ..model.parameters import n_linear
 from . import excitation, identify as ident_mod
-from .logs import write_log
+from .logs import read_log, write_log
 from .synthetic import perturbed_arm, record
 
 SEED = 20261122
@@ -109,7 +109,6 @@ def run(model_file, out, log=print) -> dict:
         rep = ident_mod.run(model_file, logs, tmp / "identified", validate=val, log=log)
         rep_red = ident_mod.run(model_file, logs, tmp / "identified_reduced", validate=val, reduced=True, log=log)
         log(f"{stamp()} 4. recovered parameters against the truth")
-        from .logs import read_log
         ident = ident_mod.identify(arm, [read_log(f, arm.n) for f in logs])
         ident_red = ident_mod.identify(arm, [read_log(f, arm.n) for f in logs], reduced=True)
         table = recovered_table(ident, arm, true_arm)

@@ -41,6 +41,7 @@ from .logs import Log, read_log
 from .regressor import BaseParameters, base_of, random_samples, regressor, spring_regressor, stacked
 
 PRIOR = 0.3          # relative standard deviation of the prior on the model file's values
+LOG_SPAN = 3.0       # bound on the log-Cholesky factor's growth from the model file's value
 CUTOFF_FACTOR = 2.0  # filter cut-off / highest SEA mode (1.5 biases k1 by 100 sigma, see above)
 EDGE_S = 0.25        # seconds dropped at both ends of a log (filter transients)
 REVERSAL = 10.0      # motor-torque rows with |dphi| < REVERSAL * eps (Coulomb's tanh) are left out
@@ -264,7 +265,7 @@ def _params_from_U(U):
     return ca.vertcat(J[3, 3], J[0, 3], J[1, 3], J[2, 3], I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2])
 
 
-def physical_fit(arm: Arm, unknowns: Unknowns, ls: LeastSquares, th_nominal: np.ndarray) -> np.ndarray:
+def physical_fit(arm: Arm, unknowns: Unknowns, ls: LeastSquares, th_nominal: np.ndarray) -> tuple[np.ndarray, str]:
     """The physically consistent th closest to the base estimate (covariance metric) with a
     weak prior on the model file's values."""
     model, m = arm.model, len(unknowns.names)
@@ -282,6 +283,7 @@ def physical_fit(arm: Arm, unknowns: Unknowns, ls: LeastSquares, th_nominal: np.
                 U[0, 0] = U[1, 1] = ca.exp(z[0])
                 U[2, 2], U[2, 3], U[3, 3] = ca.exp(z[1]), z[2], ca.exp(z[3])
                 z_init = [np.log(U0[0, 0]), np.log(U0[2, 2]), U0[2, 3], np.log(U0[3, 3])]
+                logs = [0, 1, 3]
                 v = _params_from_U(U)
                 for k, (row) in zip(idx, (0, 3, 4, 6)):
                     th_expr[k] = v[row]
@@ -292,16 +294,22 @@ def physical_fit(arm: Arm, unknowns: Unknowns, ls: LeastSquares, th_nominal: np.
                 for k, (r, c) in enumerate(pos):
                     U[r, c] = ca.exp(z[k]) if r == c else z[k]
                 z_init = [np.log(U0[r, c]) if r == c else U0[r, c] for r, c in pos]
+                logs = [0, 1, 2, 3]
                 v = _params_from_U(U)
                 for k, row in zip(idx, range(10)):
                     th_expr[k] = v[row]
-            z_parts.append(z), z0.extend(z_init), lbz.extend([-np.inf] * z.numel()), ubz.extend([np.inf] * z.numel())
+            # U may grow e^LOG_SPAN-fold (J, and so a mass or an inertia, e^(2 LOG_SPAN)-fold): a wide
+            # physical box, which keeps the trust region from trial steps whose J overflows
+            z_parts.append(z), z0.extend(z_init)
+            big = np.exp(LOG_SPAN) * np.max(np.abs(U0))
+            lbz.extend([z_init[k] - LOG_SPAN if k in logs else -big for k in range(len(z_init))])
+            ubz.extend([z_init[k] + LOG_SPAN if k in logs else big for k in range(len(z_init))])
         for r, attr in enumerate(("sea.k1", "sea.k3", "sea.d", "gear_loss.b", "gear_loss.c")):
             k = unknowns.names.index(f"{jt.name}.{attr}")
             z = ca.SX.sym(f"a{j}{r}")                    # in units of the parameter's size
             th_expr[k] = z * scale[k]
             z_parts.append(z), z0.append(th_nominal[k] / scale[k])
-            lbz.append(1e-3 if attr == "sea.k1" else 0.0), ubz.append(np.inf)
+            lbz.append(1e-3 if attr == "sea.k1" else 0.0), ubz.append(1e3)
     z = ca.vertcat(*z_parts)
     th = ca.vertcat(*th_expr)
     # whitened residuals: the base estimate in its information metric, then the prior
@@ -312,15 +320,15 @@ def physical_fit(arm: Arm, unknowns: Unknowns, ls: LeastSquares, th_nominal: np.
                      (th - ca.DM(th_nominal)) / ca.DM(PRIOR * scale))
     f_res = ca.Function("res", [z], [res])
     f_jac = ca.Function("res_jacobian", [z], [ca.jacobian(res, z)])
-    sol = scipy.optimize.least_squares(lambda v: np.array(f_res(v)).ravel(), np.array(z0),
-                                       jac=lambda v: np.array(f_jac(v)), bounds=(lbz, ubz), method="trf",
-                                       x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-10, max_nfev=5000)
+    lbz, ubz = np.array(lbz), np.array(ubz)
+    inside = lambda v: np.clip(v, lbz, ubz)           # trial points are evaluated inside the box
+    sol = scipy.optimize.least_squares(lambda v: np.array(f_res(inside(v))).ravel(), np.array(z0),
+                                       jac=lambda v: np.array(f_jac(inside(v))), bounds=(lbz, ubz), method="trf",
+                                       xtol=1e-12, ftol=1e-12, gtol=1e-10, max_nfev=5000)
     if sol.status < 0:
         raise RuntimeError(f"the physically consistent fit failed: {sol.message}")
-    if __import__("os").environ.get("RSCASADI_FIT_LOG"):
-        print("fit:", sol.status, sol.message, "cost", sol.cost, "start", 0.5 * np.sum(np.array(f_res(z0)) ** 2),
-              "nfev", sol.nfev, "optimality", sol.optimality)
-    return np.array(ca.Function("th", [z], [th])(sol.x)).ravel()
+    status = "converged" if sol.status > 0 else f"stopped: {sol.message}"
+    return np.array(ca.Function("th", [z], [th])(sol.x)).ravel(), status
 
 
 def prior_scale(unknowns: Unknowns, th_nominal) -> np.ndarray:
@@ -382,6 +390,7 @@ class Identification:
     cutoff_hz: float
     cutoff_why: str
     rows: Rows
+    fit_status: str = "converged"
 
     def std(self) -> np.ndarray:
         out = np.full(len(self.th), np.nan)
@@ -406,8 +415,8 @@ def identify(arm: Arm, logs: list[Log], reduced: bool = False, fc: float | None 
         why = f"{fc:.1f} Hz, set by the user"
     rows_ = combine([rows(arm, prepare(log, fc), unknowns, reduced) for log in logs])
     ls = least_squares(rows_, structural_base(arm, unknowns, reduced=reduced), th_nominal)
-    th = physical_fit(arm, unknowns, ls, th_nominal)
-    return Identification(unknowns, ls, th, th_nominal, identified_model(arm, unknowns, th), fc, why, rows_)
+    th, status = physical_fit(arm, unknowns, ls, th_nominal)
+    return Identification(unknowns, ls, th, th_nominal, identified_model(arm, unknowns, th), fc, why, rows_, status)
 
 
 # ----------------------------------------------------------------------------- command
@@ -434,7 +443,7 @@ def report(ident: Identification, arm: Arm, validation: dict | None, log_files: 
     return {
         "model": str(arm.model.path), "logs": [str(f) for f in log_files],
         "cutoff_hz": ident.cutoff_hz, "cutoff_why": ident.cutoff_why,
-        "condition_number": ident.ls.condition, "base_parameters": base,
+        "condition_number": ident.ls.condition, "physical_fit": ident.fit_status, "base_parameters": base,
         "parameters": {name: {"nominal": float(nom), "estimate": float(est), "std": None if np.isnan(s) else float(s)}
                        for name, nom, est, s in zip(u.names, ident.th_nominal, ident.th, std)},
         "reflected_rotor_inertia": reflected,
@@ -485,7 +494,8 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
     log(f"identifying {arm.model.name} from {len(logs)} log(s) ...")
     ident = identify(arm, logs, reduced=reduced, fc=cutoff)
     log(f"cut-off {ident.cutoff_why}")
-    log(f"{ident.ls.base.rank} base parameters, condition number {ident.ls.condition:.3g}")
+    log(f"{ident.ls.base.rank} base parameters, condition number {ident.ls.condition:.3g}; "
+        f"physically consistent fit {ident.fit_status}")
     validation, val_rows = None, None
     if val_log is not None:
         sig = prepare(val_log, ident.cutoff_hz)
