@@ -324,7 +324,7 @@ def physical_fit(arm: Arm, unknowns: Unknowns, ls: LeastSquares, th_nominal: np.
     inside = lambda v: np.clip(v, lbz, ubz)           # trial points are evaluated inside the box
     sol = scipy.optimize.least_squares(lambda v: np.array(f_res(inside(v))).ravel(), np.array(z0),
                                        jac=lambda v: np.array(f_jac(inside(v))), bounds=(lbz, ubz), method="trf",
-                                       xtol=1e-12, ftol=1e-12, gtol=1e-10, max_nfev=5000)
+                                       x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-10, max_nfev=5000)
     if sol.status < 0:
         raise RuntimeError(f"the physically consistent fit failed: {sol.message}")
     status = "converged" if sol.status > 0 else f"stopped: {sol.message}"
