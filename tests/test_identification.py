@@ -237,3 +237,17 @@ def test_identify_explain_prints_the_base_parameters(synthetic, tmp_path, capsys
     out = capsys.readouterr().out
     assert "beta_1 = " in out and "base parameters of" in out
     assert "shoulder_yaw.fast_rotor.Izz + 0.0001 shoulder_yaw.slow_rotor.Izz" in out
+
+
+def test_logs_that_cannot_identify_are_refused(synthetic, arm3):
+    """Too short to filter, or a motion that leaves parameter combinations undetermined."""
+    _, logs = synthetic
+    lg = read_log(logs["identification"], 3)
+    short = Log("short.csv", lg.t[:800], lg.theta[:, :800], lg.phi[:, :800], lg.tau[:, :800])
+    with pytest.raises(LogError, match="short.csv.*too short"):
+        ident_mod.identify(arm3, [short])
+    N = 3000                                            # the arm held still: no dynamics to fit
+    still = Log("still.csv", lg.t[:N], np.repeat(lg.theta[:, :1], N, 1), np.repeat(lg.phi[:, :1], N, 1),
+                np.repeat(lg.tau[:, :1], N, 1))
+    with pytest.raises(LogError, match="still.csv.*determines only"):
+        ident_mod.identify(arm3, [still])

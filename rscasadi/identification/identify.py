@@ -37,7 +37,7 @@ from ..dynamics.arm import Arm, load
 from ..files import fresh_directory
 from ..model.modelfile import BODIES, ArmModel, document, to_toml
 from ..model.parameters import INERTIAL, PER_JOINT, body_from_parameters, n_linear
-from .logs import Log, read_log
+from .logs import Log, LogError, read_log
 from .regressor import BaseParameters, base_of, random_samples, regressor, spring_regressor, stacked
 
 PRIOR = 0.3          # relative standard deviation of the prior on the model file's values
@@ -207,6 +207,15 @@ def structural_base(arm: Arm, unknowns: Unknowns, samples: int = 200, reduced: b
     """The base parameters of th, from random samples: what no data can separate."""
     W = stacked(arm, random_samples(arm, samples, np.random.default_rng(0)), reduced=reduced) @ unknowns.E
     return base_of(W, unknowns.names, rtol=1e-9)
+
+
+def excitation_rank(rows_: Rows, base: BaseParameters, rtol: float = 1e-10) -> int:
+    """How many base parameters the rows determine (numerical rank of the equilibrated columns)."""
+    A = rows_.A[:, base.independent]
+    A = A / np.maximum(np.linalg.norm(A, axis=0), 1e-300)
+    if A.shape[0] < A.shape[1]:
+        return A.shape[0]
+    return int(np.linalg.matrix_rank(A, tol=rtol * np.sqrt(A.shape[0])))
 
 
 def least_squares(rows_: Rows, base: BaseParameters, th_nominal: np.ndarray) -> LeastSquares:
@@ -413,8 +422,18 @@ def identify(arm: Arm, logs: list[Log], reduced: bool = False, fc: float | None 
         fc, why = cutoff_hz(arm, logs[0])
     else:
         why = f"{fc:.1f} Hz, set by the user"
+    short = [lg.path for lg in logs if lg.t[-1] - lg.t[0] <= 4 * EDGE_S]
+    if short:
+        raise LogError(f"{', '.join(short)}: column 't': shorter than {4 * EDGE_S:g} s, too short to filter and "
+                       f"excite the parameters")
     rows_ = combine([rows(arm, prepare(log, fc), unknowns, reduced) for log in logs])
-    ls = least_squares(rows_, structural_base(arm, unknowns, reduced=reduced), th_nominal)
+    base = structural_base(arm, unknowns, reduced=reduced)
+    excited = excitation_rank(rows_, base)
+    if excited < base.rank:
+        raise LogError(f"{', '.join(lg.path for lg in logs)}: the logged motion determines only {excited} of the "
+                       f"{base.rank} identifiable parameter combinations: log a longer or richer motion "
+                       f"(rscasadi excite designs one)")
+    ls = least_squares(rows_, base, th_nominal)
     th, status = physical_fit(arm, unknowns, ls, th_nominal)
     return Identification(unknowns, ls, th, th_nominal, identified_model(arm, unknowns, th), fc, why, rows_, status)
 
