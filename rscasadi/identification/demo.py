@@ -106,11 +106,10 @@ def run(model_file, out, log=print) -> dict:
         log(f"{stamp()} 3. rscasadi identify (complete model, then the DLR reduced model as an ablation)")
         logs = [tmp / "logs" / "identification.csv"]
         val = tmp / "logs" / "validation.csv"
-        rep = ident_mod.run(model_file, logs, tmp / "identified", validate=val, log=log)
-        rep_red = ident_mod.run(model_file, logs, tmp / "identified_reduced", validate=val, reduced=True, log=log)
+        rep, ident = ident_mod.run(model_file, logs, tmp / "identified", validate=val, log=log)
+        rep_red, ident_red = ident_mod.run(model_file, logs, tmp / "identified_reduced", validate=val, reduced=True,
+                                           log=log)
         log(f"{stamp()} 4. recovered parameters against the truth")
-        ident = ident_mod.identify(arm, [read_log(f, arm.n) for f in logs])
-        ident_red = ident_mod.identify(arm, [read_log(f, arm.n) for f in logs], reduced=True)
         table = recovered_table(ident, arm, true_arm)
         (tmp / "recovered.md").write_text("# Recovered parameters of the synthetic arm\n\n" + _md_table(table))
         model_error = model_errors(arm, true_arm, ident, ident_red, read_log(val, arm.n))

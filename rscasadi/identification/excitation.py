@@ -22,6 +22,7 @@ Hessian).  The result is checked and, if needed, scaled down until the exact fee
 """
 from __future__ import annotations
 
+import functools
 import json
 import os
 from pathlib import Path
@@ -96,7 +97,9 @@ def condition_number(arm: Arm, traj: Trajectory, samples: int = 400) -> float:
     return float(sv[0] / sv[-1])
 
 
+@functools.lru_cache(maxsize=8)
 def _design_parts(arm: Arm):
+    """The design model's sample function and the base parameters (built once per arm)."""
     unknowns = Unknowns.of(arm.model)
     base = structural_base(arm, unknowns)
     th_nom = unknowns.from_p(arm.parameters()[1][:n_linear(arm.model)])

@@ -537,4 +537,4 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
         if val_rows is not None:
             plot(tmp / "validation", val_rows, ident.th, f"held-out log {Path(validate).name}")
     log(f"wrote {Path(out) / 'model.toml'}, report.json and figures")
-    return rep
+    return rep, ident

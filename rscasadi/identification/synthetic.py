@@ -15,6 +15,7 @@ import dataclasses
 import casadi as ca
 import numpy as np
 
+from ..codegen import rk4
 from ..control.simulation import feedforward
 from ..dynamics.arm import Arm
 from ..model.modelfile import Body, inertia_problem
@@ -77,8 +78,7 @@ def _closed_loop_step(true_arm: Arm, dt: float, substeps: int, gains):
     f = lambda z: ca.vertcat(z[2 * n:], *fd(*ca.vertsplit(z, n), tau))
     z = x
     for _ in range(substeps):
-        k1 = f(z); k2 = f(z + h / 2 * k1); k3 = f(z + h / 2 * k2); k4 = f(z + h * k3)
-        z = z + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        z = rk4(f, z, h)[0]
     state, state_next = ca.vertcat(x, phi_prev), ca.vertcat(z, phi_m)
     return ca.Function("sample", [state, ref], [state_next, ca.vertcat(theta_m, phi_m, tau)])
 

@@ -303,15 +303,22 @@ def body_document(body: Body) -> dict:
             "inertia": [float(I[0, 0]), float(I[1, 1]), float(I[2, 2]), float(I[0, 1]), float(I[0, 2]), float(I[1, 2])]}
 
 
+def rpy_of(R) -> np.ndarray | None:
+    """Roll, pitch, yaw (URDF convention) of a rotation, or None where scipy's angles do not give
+    R back to 1e-12 (a gimbal lock it resolves badly)."""
+    from scipy.spatial.transform import Rotation
+    with warnings.catch_warnings():                                  # gimbal lock: checked below
+        warnings.simplefilter("ignore")
+        rpy = Rotation.from_matrix(R).as_euler("xyz")
+    return rpy if np.max(np.abs(rpy_matrix(rpy) - R)) <= 1e-12 else None
+
+
 def document(model: ArmModel) -> dict:
     """The link-list form (docs/model.md section 4) of any model, URDF-based ones included."""
-    from scipy.spatial.transform import Rotation
     joints = []
     for jt in model.joints:
-        with warnings.catch_warnings():                              # gimbal lock is checked below
-            warnings.simplefilter("ignore")
-            rpy = Rotation.from_matrix(jt.R).as_euler("xyz")
-        if np.max(np.abs(rpy_matrix(rpy) - jt.R)) > 1e-12:          # gimbal lock: scipy's angles are off
+        rpy = rpy_of(jt.R)
+        if rpy is None:
             raise ModelFileError(f"{model.path}: joint {jt.name!r}: its rotation has no exact roll-pitch-yaw")
         limits = {k: (list(v) if isinstance(v, tuple) else v) for k, v in jt.limits.items()}
         joints.append({"name": jt.name, "origin_xyz": [float(x) for x in jt.origin_xyz],

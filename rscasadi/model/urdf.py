@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from ..dynamics.spatial import spatial_inertia, transform_inertia
 from .modelfile import (DEFAULT_GRAVITY, ACTUATOR_KEYS, ArmModel, Body, Joint, ModelFileError, _Ctx, _number,
-                        _table, _vector, actuator, inertia_problem, joint_context)
+                        _table, _vector, actuator, inertia_problem, joint_context, rpy_of)
 
 URDF_TOP_KEYS = {"name", "urdf", "tip", "locked", "gravity", "joints"}
 MOVING = ("revolute", "continuous")
@@ -156,17 +156,14 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
                 and lim.lower is not None and lim.upper is not None and np.isfinite([lim.lower, lim.upper]).all() \
                 and lim.lower < lim.upper:
             limits["theta"] = (float(lim.lower), float(lim.upper))
-        rpy = Rotation.from_matrix(R_J).as_euler("xyz") if not _gimbal(R_J) else np.zeros(3)
-        joints.append(Joint(origin_xyz=R_prev.T @ T_acc[:3, 3], origin_rpy=np.asarray(rpy), link=link,
+        rpy = rpy_of(R_J)                               # informative only: origin_R is what counts
+        joints.append(Joint(origin_xyz=R_prev.T @ T_acc[:3, 3], origin_rpy=np.full(3, np.nan) if rpy is None else rpy,
+                            link=link,
                             limits=limits, origin_R=R_J, **act))
         R_prev = R_a
     extra = {"urdf": str(urdf_path), "tip_link": tip_body, "locked": dict(locked),
              "links": [b["links"] for b in bodies]}
     return ArmModel(data["name"], gravity, tuple(joints), path, extra)
-
-
-def _gimbal(R) -> bool:
-    return abs(abs(R[2, 0]) - 1.0) < 1e-9
 
 
 def _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuators, tip, ctx):
