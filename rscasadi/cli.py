@@ -62,7 +62,7 @@ def cmd_paper(args):
 def cmd_ocp(args):
     from .control.ocp import run
     sol = run(args.problem, args.out, warm_file=args.warm, log=lambda msg: print(msg, flush=True),
-              print_level=0 if args.quiet else 5)
+              print_level=0 if args.quiet else 5, solver=args.solver)
     print(f"wrote {Path(args.out) / 'solution.json'}")
     return 0 if sol["success"] else 1
 
@@ -75,7 +75,7 @@ def cmd_reproduce(args):
     run(TRAJECTORY, out / "paper", log=lambda msg: print(msg, flush=True), ocp_problem=PROBLEMS / "ocp_tracking.toml")
     from .control.ocp import run as run_ocp
     failed = []
-    for name in ("min_time", "min_effort", "tracking", "panda_min_time"):
+    for name in ("min_time", "min_effort", "tracking", "min_time_codesign", "panda_min_time"):
         sol = run_ocp(PROBLEMS / f"ocp_{name}.toml", out / "ocp" / name, log=lambda msg: print(msg, flush=True),
                       print_level=0)
         if not sol["success"]:
@@ -138,7 +138,8 @@ def main(argv=None):
     p.add_argument("problem")
     p.add_argument("--out", default="results/ocp")
     p.add_argument("--warm", default=None, help="a previous solution.json to start from")
-    p.add_argument("--quiet", action="store_true", help="no IPOPT iteration log")
+    p.add_argument("--quiet", action="store_true", help="no solver iteration log")
+    p.add_argument("--solver", choices=("ipopt", "fatrop"), help="override the problem file's [solver] name")
     p.set_defaults(func=cmd_ocp)
     p = sub.add_parser("excite", help="design a periodic excitation trajectory for identification")
     p.add_argument("model")

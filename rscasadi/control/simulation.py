@@ -65,13 +65,28 @@ def simulate(arm: Arm, x0, t, tau, method: str = "cvodes", tol: float = 1e-10, s
 
 
 def simulate_held(arm: Arm, x0, t, tau, substeps: int, tol: float = 1e-10) -> dict:
-    """Torque samples tau[:, k] held on [t_k, t_k+1) (tau_interpolation "constant"), simulated
-    with CVODES and reported `substeps` times finer than t.  Each fine sample's interval is
-    found by integer division, never by a float search (which picks the wrong torque at a switch)."""
-    t = np.asarray(t, float)
-    fine = np.linspace(t[0], t[-1], (len(t) - 1) * substeps + 1)
-    idx = np.minimum(np.arange(len(fine)) // substeps, len(t) - 2)
-    return simulate(arm, x0, fine, np.asarray(tau, float)[:, idx], tol=tol, interpolation="constant")
+    """Torque samples tau[:, k] held on [t_k, t_k+1) (tau_interpolation "constant"; t may be
+    non-uniform), simulated with CVODES and reported `substeps` times finer than t.  Each fine
+    sample's interval is found by integer division, never by a float search (which picks the
+    wrong torque at a switch)."""
+    t, n = np.asarray(t, float), arm.n
+    F = held_interval(arm, tol)
+    idx = np.arange((len(t) - 1) * substeps) // substeps
+    h = np.diff(t)[idx] / substeps
+    X = np.array(F.mapaccum(len(idx))(x0, np.vstack([np.asarray(tau, float)[:, idx], h])))
+    fine = np.concatenate([[t[0]], t[idx] + h * (np.arange(len(idx)) % substeps + 1)])
+    return trajectory_record(arm, fine, np.hstack([np.asarray(x0, float).reshape(-1, 1), X]))
+
+
+def held_interval(arm: Arm, tol: float = 1e-10) -> ca.Function:
+    """(x, [tau; h]) -> x after h seconds of the complete model under the held torque tau (CVODES,
+    time scaled to [0, 1] so that one Function serves every interval length)."""
+    n = arm.n
+    x, p = ca.SX.sym("x", 4 * n), ca.SX.sym("p", n + 1)
+    ode = {"x": x, "p": p, "ode": p[n] * _xdot(arm, False)(x, p[:n])}
+    F = ca.integrator("F", "cvodes", ode, 0.0, 1.0, {"abstol": tol, "reltol": tol, "max_num_steps": 100000})
+    xs, ps = ca.MX.sym("x", 4 * n), ca.MX.sym("p", n + 1)
+    return ca.Function("held", [xs, ps], [F(x0=xs, p=ps)["xf"]])
 
 
 def trajectory_record(arm: Arm, t, X) -> dict:

@@ -17,13 +17,24 @@ class Arm:
 
     `parametric=True` gives the twin with one more input, p (docs/model.md, "Parameters"):
     the same equations with every physical parameter symbolic, equal to the constant version
-    at p = arm.parameters()[1]."""
+    at p = arm.parameters()[1].  `Arm(model, free=[names])` makes p only those parameters (in
+    that order), the others staying the model file's numbers: compact expressions for design
+    studies that free a few constants (Physics.partial)."""
 
-    def __init__(self, model: ArmModel):
+    def __init__(self, model: ArmModel, free: list | None = None):
         self.model = model
         self.n = model.n
+        self.free = None if free is None else list(free)
         self._functions = {}
         self.physics = Physics.constant(model)
+
+    def _physics_of(self, p) -> Physics:
+        return Physics.of(self.model, p) if self.free is None else Physics.partial(self.model, self.free, p)
+
+    @property
+    def n_p(self) -> int:
+        """Length of the parametric twins' input p."""
+        return len(parameter_names(self.model)) if self.free is None else len(self.free)
 
     def __repr__(self):
         return f"Arm({self.model.name!r}, n={self.n}, file={self.model.path!r})"
@@ -57,8 +68,8 @@ class Arm:
         if key not in self._functions:
             args = self._symbols(*ins)
             if parametric:
-                p = ca.SX.sym("p", len(parameter_names(self.model)))
-                self._functions[key] = ca.Function(name, args + [p], build(Physics.of(self.model, p), *args),
+                p = ca.SX.sym("p", self.n_p)
+                self._functions[key] = ca.Function(name, args + [p], build(self._physics_of(p), *args),
                                                    ins + ["p"], outs)
             else:
                 self._functions[key] = ca.Function(name, args, build(self.physics, *args), ins, outs)
@@ -171,7 +182,7 @@ class Arm:
             n = self.n
             x = [ca.MX.sym(name, n) for name in STATE]
             tau = ca.MX.sym("tau", n)
-            p = [ca.MX.sym("p", len(parameter_names(self.model)))] if parametric else []
+            p = [ca.MX.sym("p", self.n_p)] if parametric else []
             ddtheta, ddphi = self.forward_dynamics(parametric)(*x, tau, *p)
             Jr = self.residual_jacobian(parametric)(*x, ddtheta, ddphi, *p)
             dQ_dtau = ca.vertcat(ca.MX.zeros(n, n), -ca.diag(ca.DM(self.model.column("gear_ratio"))))

@@ -110,3 +110,65 @@ class Physics:
         """B_j = Izz_O(S_j) + mu_j^2 Izz_O(F_j)."""
         M = self.inertias[j]
         return M["slow_rotor"][2, 2] + self.columns["gear_ratio"][j] ** 2 * M["fast_rotor"][2, 2]
+
+    @staticmethod
+    def partial(model: ArmModel, free: list, p) -> "Physics":
+        """Physics with only the parameters named in `free` symbolic (p, one entry each) and the
+        rest the model file's numbers.  When only actuator constants (sea.*, gear_loss.*) or
+        gravity are free, the inertias stay numbers and the rotors stay in the joint frame, so
+        the expressions are as compact as the constant version's."""
+        all_names, values = names(model), nominal(model)
+        idx = [all_names.index(name) for name in free]
+        S = ca.MX if isinstance(p, ca.MX) else ca.SX
+        cheap = all(i >= model.n * PER_JOINT or i % PER_JOINT >= len(BODIES) * len(INERTIAL) for i in idx)
+        if not cheap:
+            entries = [S(v) for v in values]
+            for k, i in enumerate(idx):
+                entries[i] = p[k]
+            return Physics.of(model, ca.vertcat(*entries))
+        phys = Physics.constant(model)
+        for k, i in enumerate(idx):
+            if i >= model.n * PER_JOINT:
+                g = [S(float(v)) for v in np.array(phys.gravity).ravel()] if not isinstance(
+                    phys.gravity, (ca.SX, ca.MX)) else ca.vertsplit(phys.gravity)
+                g[i - model.n * PER_JOINT] = p[k]
+                phys.gravity = ca.vertcat(*g)
+            else:
+                j, a = divmod(i, PER_JOINT)
+                attr = ACTUATOR_ATTR[a - len(BODIES) * len(INERTIAL)]
+                col = [S(float(v)) for v in np.array(phys.columns[attr]).ravel()] if isinstance(
+                    phys.columns[attr], ca.DM) else ca.vertsplit(phys.columns[attr])
+                col[j] = p[k]
+                phys.columns[attr] = ca.vertcat(*col)
+        return phys
+
+
+def check_names(model: ArmModel, wanted, where: str) -> list:
+    """The names in `wanted`, each one of the model's parameter names, or an error naming it."""
+    known = names(model)
+    for name in wanted:
+        if name not in known:
+            close = [k for k in known if k.split(".")[-1] == str(name).split(".")[-1]][:4]
+            raise ValueError(f"{where}: '{name}' is not a parameter of {model.path}"
+                             + (f" (e.g. {', '.join(close)})" if close else ""))
+    return list(wanted)
+
+
+def with_values(model: ArmModel, values: dict) -> ArmModel:
+    """The same arm with the named parameters set (names as in `names(model)`)."""
+    import dataclasses
+    if not values:
+        return model
+    p = nominal(model)
+    all_names = names(model)
+    for name, v in values.items():
+        p[all_names.index(name)] = float(v)
+    joints = []
+    for j, jt in enumerate(model.joints):
+        base = j * PER_JOINT
+        bodies = {b: body_from_parameters(p[base + 10 * i: base + 10 * (i + 1)]) for i, b in enumerate(BODIES)}
+        act = dict(zip(ACTUATOR_ATTR, p[base + 30: base + PER_JOINT]))
+        changed = {b: bodies[b] for b in BODIES
+                   if any(f"{jt.name}.{b}.{q}" in values for q in INERTIAL)}
+        joints.append(dataclasses.replace(jt, **changed, **{a: float(v) for a, v in act.items()}))
+    return dataclasses.replace(model, joints=tuple(joints), gravity=p[model.n * PER_JOINT:].copy())

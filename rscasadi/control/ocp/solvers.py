@@ -1,0 +1,72 @@
+"""The NLP solvers: fatrop (exploits the stage structure; a Riccati-based interior point) or
+IPOPT (general sparse, MUMPS), on the NLP's functions generated to C and compiled once
+(cached by the hash of the source), or in CasADi's virtual machine."""
+from __future__ import annotations
+
+import fcntl
+import hashlib
+import os
+import subprocess
+import time
+from pathlib import Path
+
+import casadi as ca
+
+from ...codegen import _compiler, cache_dir
+from .problem import Problem
+from .transcription import Transcription
+
+
+def options(problem: Problem, tr: Transcription, print_level: int, extra: dict | None = None) -> dict:
+    """Solver options: tolerances alike for both, so that their times compare."""
+    extra = extra or {}
+    if problem.solver == "fatrop":
+        return {**tr.structure(), "print_time": False, "expand": False,
+                "fatrop": {"print_level": 10 if print_level else 0, "tol": 1e-8, "max_iter": 1000,
+                           "mu_init": 1e-1, **extra}}
+    return {"print_time": False, "ipopt.print_level": print_level, "ipopt.sb": "yes", "ipopt.max_iter": 1000,
+            "ipopt.tol": 1e-8, "ipopt.mu_strategy": "adaptive",
+            "ipopt.mumps_pivot_order": 0,          # AMD: min-time N = 100 in 1.8 s instead of 4.5 s here
+            "ipopt.hessian_approximation": problem.hessian, **{f"ipopt.{k}": v for k, v in extra.items()}}
+
+
+def make_solver(problem: Problem, tr: Transcription, nlp: dict, log=print, print_level: int = 5,
+                extra: dict | None = None):
+    """(solver, objective(x, p) Function) for this problem's NLP."""
+    opts = options(problem, tr, print_level, extra)
+    objective = ca.Function("f", [nlp["x"], nlp["p"]], [nlp["f"]])
+    if not problem.compiled:
+        return ca.nlpsol("ocp", problem.solver, nlp, opts), objective
+    return ca.nlpsol("ocp", problem.solver, compiled_nlp(problem.solver, nlp, opts, log), opts), objective
+
+
+def compiled_nlp(solver: str, nlp: dict, opts: dict, log=print) -> str:
+    """The shared library of the NLP's functions for `solver`, compiled at -O1 once and cached."""
+    plain = ca.nlpsol("ocp", solver, nlp, opts)
+    directory = cache_dir() / "nlp"
+    directory.mkdir(parents=True, exist_ok=True)
+    # CasADi writes into the working directory and prefixes internal symbols with the file name,
+    # so the name must be fixed (or the source, and its hash, change every run); a lock keeps
+    # two processes from writing it at once.
+    src = directory / f"rscasadi_nlp_{os.getpid()}.c"
+    with open(directory / "generate.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        plain.generate_dependencies("rscasadi_nlp.c", {"with_header": False})
+        Path("rscasadi_nlp.c").replace(src)
+    cc = _compiler()
+    key = hashlib.sha256((src.read_text() + " ".join(cc) + ca.__version__).encode()).hexdigest()[:24]
+    lib = directory / f"nlp_{key}.so"
+    if lib.exists():
+        log(f"compiled NLP: cache hit {lib}")
+        src.unlink()
+        return str(lib)
+    t0 = time.perf_counter()
+    part = lib.with_suffix(f".{os.getpid()}.part")
+    run = subprocess.run([*cc, "-O1", "-fPIC", "-shared", str(src), "-o", str(part), "-lm"],
+                         capture_output=True, text=True)
+    src.unlink()
+    if run.returncode != 0:
+        raise RuntimeError(f"compiling the NLP failed:\n{run.stderr[-2000:]}")
+    part.replace(lib)
+    log(f"compiled NLP in {time.perf_counter() - t0:.1f} s: {lib}")
+    return str(lib)
