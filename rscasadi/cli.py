@@ -67,6 +67,13 @@ def cmd_ocp(args):
     return 0 if sol["success"] else 1
 
 
+def cmd_sweep(args):
+    from .control.sweep import run
+    res = run(args.sweep, args.out, scheduler=args.scheduler, workers=args.workers,
+              log=lambda msg: print(msg, flush=True))
+    return 0 if res["solved"] == len(res["rows"]) else 1
+
+
 def cmd_reproduce(args):
     from .paper import run
     out = Path(args.out)
@@ -141,6 +148,12 @@ def main(argv=None):
     p.add_argument("--quiet", action="store_true", help="no solver iteration log")
     p.add_argument("--solver", choices=("ipopt", "fatrop"), help="override the problem file's [solver] name")
     p.set_defaults(func=cmd_ocp)
+    p = sub.add_parser("sweep", help="solve an optimal-control problem over a grid of parameters, in parallel on Dask")
+    p.add_argument("sweep", help="sweep file (TOML): problem and [grid]")
+    p.add_argument("--out", default="results/sweep")
+    p.add_argument("--scheduler", help="address of an existing Dask scheduler (default: a local cluster)")
+    p.add_argument("--workers", type=int, help="local cluster size (default: this machine's cores)")
+    p.set_defaults(func=cmd_sweep)
     p = sub.add_parser("excite", help="design a periodic excitation trajectory for identification")
     p.add_argument("model")
     p.add_argument("--out", required=True, help="directory for trajectory.toml, feedforward.csv, excitation.json")

@@ -99,3 +99,37 @@ def built(tmp_path_factory, private_cache):
 
 def cc():
     return shutil.which("cc") or shutil.which("gcc")
+
+
+# ------------------------------------------------------------- optimal-control problems
+
+@pytest.fixture(scope="session")
+def pitch_arm(tmp_path_factory):
+    """The reference arm's shoulder pitch alone: one joint working against gravity."""
+    import tomllib
+    with open(REFERENCE, "rb") as fh:
+        doc = tomllib.load(fh)
+    doc["joints"] = [doc["joints"][1]]
+    d = tmp_path_factory.mktemp("ocp")
+    (d / "pitch.toml").write_text(to_toml(doc))
+    return d
+
+
+TABLES = ("transcription", "solver", "design", "refinement", "verification")
+
+
+def problem(directory, name="p.toml", **over):
+    """Write a problem file for the pitch arm: top-level fields and tables ([transcription] is
+    merged into a small default: 40 intervals, not compiled)."""
+    text = {"model": "pitch.toml", "objective": "min_effort", "theta_start": [0.2], "theta_end": [0.9],
+            "duration": 1.0}
+    text.update({k: v for k, v in over.items() if k not in TABLES})
+    tables = {"transcription": {"method": "radau", "degree": 3, "intervals": 40, "dynamics": "explicit",
+                                "compiled": False}}
+    tables["transcription"].update(over.get("transcription", {}))
+    tables.update({k: v for k, v in over.items() if k in TABLES and k != "transcription"})
+    body = to_toml(text) + "".join(f"\n[{t}]\n" + "".join(f"{json.dumps(k)} = {json.dumps(v)}\n" for k, v in d.items())
+                                   for t, d in tables.items())
+    path = directory / name
+    path.write_text(body)
+    return path

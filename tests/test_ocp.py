@@ -1,6 +1,5 @@
 """Optimal control: problem files, transcriptions, honest verification, the `ocp` command."""
 import json
-import tomllib
 
 import numpy as np
 import pytest
@@ -9,31 +8,7 @@ from rscasadi.cli import main
 from rscasadi.model.modelfile import ModelFileError
 from rscasadi.control.ocp import load_problem, run, solve, verify
 
-from conftest import REFERENCE, to_toml
-
-
-@pytest.fixture(scope="module")
-def pitch_arm(tmp_path_factory):
-    """The reference arm's shoulder pitch alone: one joint working against gravity."""
-    with open(REFERENCE, "rb") as fh:
-        doc = tomllib.load(fh)
-    doc["joints"] = [doc["joints"][1]]
-    d = tmp_path_factory.mktemp("ocp")
-    (d / "pitch.toml").write_text(to_toml(doc))
-    return d
-
-
-def problem(directory, name="p.toml", **over):
-    text = {"model": "pitch.toml", "objective": "min_effort", "theta_start": [0.2], "theta_end": [0.9],
-            "duration": 1.0}
-    text.update({k: v for k, v in over.items() if k != "transcription"})
-    tr = {"method": "radau", "degree": 3, "intervals": 40, "dynamics": "explicit", "compiled": False}
-    tr.update(over.get("transcription", {}))
-    body = to_toml({k: v for k, v in text.items()}) + "\n[transcription]\n" + "\n".join(
-        f"{k} = {json.dumps(v)}" for k, v in tr.items()) + "\n"
-    path = directory / name
-    path.write_text(body)
-    return path
+from conftest import problem
 
 
 @pytest.mark.parametrize("over,field", [

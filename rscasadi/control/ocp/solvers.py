@@ -42,9 +42,17 @@ def make_solver(problem: Problem, tr: Transcription, nlp: dict, log=print, print
 
 def compiled_nlp(solver: str, nlp: dict, opts: dict, log=print) -> str:
     """The shared library of the NLP's functions for `solver`, compiled at -O1 once and cached."""
-    plain = ca.nlpsol("ocp", solver, nlp, opts)
     directory = cache_dir() / "nlp"
     directory.mkdir(parents=True, exist_ok=True)
+    # generating the C just to hash it takes seconds: an index keyed by the serialised NLP finds
+    # a library built before (sweep tasks, repeated solves) without generating anything
+    graph = ca.Function("nlp", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]]).serialize()
+    index = directory / ("index_" + hashlib.sha256((graph + solver + repr(sorted(opts.items())) + " ".join(_compiler())
+                                                     + ca.__version__).encode()).hexdigest()[:24])
+    if index.exists() and Path(index.read_text()).exists():
+        log(f"compiled NLP: cache hit {index.read_text()}")
+        return index.read_text()
+    plain = ca.nlpsol("ocp", solver, nlp, opts)
     # CasADi writes into the working directory and prefixes internal symbols with the file name,
     # so the name must be fixed (or the source, and its hash, change every run); a lock keeps
     # two processes from writing it at once.
@@ -59,6 +67,7 @@ def compiled_nlp(solver: str, nlp: dict, opts: dict, log=print) -> str:
     if lib.exists():
         log(f"compiled NLP: cache hit {lib}")
         src.unlink()
+        index.write_text(str(lib))
         return str(lib)
     t0 = time.perf_counter()
     part = lib.with_suffix(f".{os.getpid()}.part")
@@ -68,5 +77,6 @@ def compiled_nlp(solver: str, nlp: dict, opts: dict, log=print) -> str:
     if run.returncode != 0:
         raise RuntimeError(f"compiling the NLP failed:\n{run.stderr[-2000:]}")
     part.replace(lib)
+    index.write_text(str(lib))
     log(f"compiled NLP in {time.perf_counter() - t0:.1f} s: {lib}")
     return str(lib)

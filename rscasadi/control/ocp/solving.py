@@ -231,7 +231,7 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
         warm = nominal if nominal["solver_success"] else None
     # on the nominal's refined mesh: a coarse mesh lets the design exploit the discretisation
     # (seen: a stiffer design 'faster' on 100 intervals whose replay broke a limit)
-    w, rounds = (np.asarray(nominal["mesh"]) if warm else None), []
+    w, rounds = (np.asarray(nominal["mesh"]) if nominal is not None and warm else None), []
     for r in range(problem.rounds + 1):
         # a refinement round starts next to the answer: a small barrier keeps the solver there
         # (seen: a co-design round wandered from T = 0.2472 s to another local minimum, 0.2506 s)

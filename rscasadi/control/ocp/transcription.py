@@ -75,6 +75,11 @@ class Transcription:
         phys = self.arm.physics if pf is None else self.arm._physics_of(pf)
         return ca.vertcat(q[0] - theta, q[2], q[3], self.arm.sea_torque(q[0], q[1], z, z, phys=phys) - T_g)
 
+    def _pf(self, design, p_fixed):
+        """The free parameters' values, in the order of Arm(free=design + fixed); None if none."""
+        parts = ([design] if self.design else []) + ([p_fixed] if self.fixed else [])
+        return ca.vertcat(*parts) if parts else None
+
     def _acceleration_scale(self):
         """Implicit form: accelerations are variables A = s * A_scaled, s per coordinate about the
         largest acceleration the motor torque limit can cause, so every variable is O(1)."""
@@ -97,7 +102,7 @@ class Transcription:
         dur, pfix = ca.SX.sym("duration"), ca.SX.sym("p_fixed", len(self.fixed))
         q, z = x[:4 * n], x[4 * n:]
         T = z[0] if self.nT else dur
-        pf = ca.vertcat(z[self.nT:], pfix) if (self.design or self.fixed) else None
+        pf = self._pf(z[self.nT:self.nz] if self.design else None, pfix)
         tau = u[:n]
         Xc = ca.reshape(u[n:n + 4 * n * m], 4 * n, m)
         A = ca.reshape(u[n + 4 * n * m:], 2 * n, self.n_acc) * ca.repmat(ca.DM(self.acc_scale), 1, self.n_acc) \
@@ -150,8 +155,8 @@ class Transcription:
         x_next, path, effort = self.stage.map(N, "serial")(X[:, :N], U, ca.reshape(par["w"], 1, N),
                                                            par["duration"], par["p_fixed"])
         gap = X[:, 1:] - x_next
-        pf0 = ca.vertcat(X[4 * n + self.nT:, 0], par["p_fixed"]) if (self.design or self.fixed) else None
-        pfN = ca.vertcat(X[4 * n + self.nT:, N], par["p_fixed"]) if (self.design or self.fixed) else None
+        design = lambda k: X[4 * n + self.nT:, k] if self.design else None
+        pf0, pfN = self._pf(design(0), par["p_fixed"]), self._pf(design(N), par["p_fixed"])
         start = self.rest_residual(X[:, 0], par["theta_start"], pf0)
         blocks = ca.vertcat(gap, path)
         g = [blocks[:, 0], start, ca.vec(blocks[:, 1:])]
