@@ -1,12 +1,20 @@
-"""Benchmark of the optimal-control problems (issue 5): solve time and iterations for N = 50,
-100, 200 intervals (Radau, degree 3), explicit against implicit dynamics, compiled NLP against
-CasADi's virtual machine, for problems (a) minimum time and (b) minimum effort.  The compiled
-N = 100 cases are timed as the median of 5 solves (the compile itself, cached, is reported apart).
+"""Benchmark of the optimal-control layer (issues 5 and 10), in one run:
 
-    python benchmarks/bench_ocp.py       # writes results/bench_ocp.{md,csv,png}
+1. fatrop against IPOPT: problems (a) minimum time and (b) minimum effort, Radau degree 3,
+   N = 100 and 200, explicit and implicit dynamics, compiled NLP; solve time (median of 5 at
+   N = 100), iterations, and fatrop's own profile (time in its search direction = its linear
+   algebra, against function evaluations);
+2. the mesh-refinement history of problem (b) under the tightened rest tolerances;
+3. co-design: problem (a) with the three SEA stiffnesses free, against the nominal arm;
+4. sweeps: points per second on Dask with 1 and 2 workers (problems/sweep_spring_stiffness.toml).
+
+    python benchmarks/bench_ocp.py       # writes results/bench_ocp.{md,csv,png} and results/sweep/
 """
 import dataclasses
+import shutil
+import tempfile
 import time
+from pathlib import Path
 
 import matplotlib
 
@@ -14,72 +22,131 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from common import ROOT, write_results  # noqa: E402
-from rscasadi.control.ocp import load_problem, solve, verify  # noqa: E402
+from common import RESULTS, ROOT, write_results  # noqa: E402
+import rscasadi.control.ocp.solving as solving  # noqa: E402
+from rscasadi.control.ocp import load_problem, solve, solve_once  # noqa: E402
+from rscasadi.control.sweep import run as run_sweep  # noqa: E402
 
 PROBLEMS = {"min_time": ROOT / "problems" / "ocp_min_time.toml", "min_effort": ROOT / "problems" / "ocp_min_effort.toml"}
-TARGET = {"min_effort": 1.0, "min_time": 3.0}
+TARGET = {"min_effort": 0.1, "min_time": 0.25}
+QUIET = {"print_level": 0, "log": lambda m: None}
 
 
-def main():
+def timed(p, repeats):
+    """Median solve time over `repeats` solves, the first solve's record, and the solver's stats."""
+    holder = {}
+    original = solving.make_solver
+
+    def spy(*args, **kw):
+        holder["solver"], f = original(*args, **kw)
+        return holder["solver"], f
+    solving.make_solver = spy
+    try:
+        sols = [solve_once(p, **QUIET) for _ in range(repeats)]
+    finally:
+        solving.make_solver = original
+    return float(np.median([s["solve_time_s"] for s in sols])), sols[0], holder["solver"].stats()
+
+
+def solver_rows():
     rows = []
     for name, path in PROBLEMS.items():
         base = load_problem(path)
-        for N in (50, 100, 200):
+        for N in (100, 200):
             for dynamics in ("explicit", "implicit"):
-                for compiled in (True, False):
-                    p = dataclasses.replace(base, intervals=N, dynamics=dynamics, compiled=compiled)
-                    t0 = time.perf_counter()
-                    sol = solve(p, print_level=0, log=lambda m: None)
-                    first = time.perf_counter() - t0
-                    repeats = 5 if (compiled and N == 100) else 1
-                    times = [sol["solve_time_s"]] + [solve(p, print_level=0, log=lambda m: None)["solve_time_s"]
-                                                     for _ in range(repeats - 1)]
-                    rep = verify(sol)
-                    rows.append((name, N, dynamics, compiled, sol["status"], sol["iterations"], float(np.median(times)),
-                                 first - sol["solve_time_s"], max(rep["final_angle_error"], rep["final_speed_error"]),
-                                 rep["max_limit_violation"]))
-                    print(f"{name:10s} N={N:3d} {dynamics:8s} {'compiled' if compiled else 'VM':8s} "
-                          f"{sol['status']:22s} it {sol['iterations']:4d}  solve {rows[-1][6]:7.2f} s "
-                          f"(median of {repeats})  setup {rows[-1][7]:6.1f} s  final-state error {rows[-1][8]:.1e} (rad, rad/s)",
-                          flush=True)
-    panda = load_problem(ROOT / "problems" / "ocp_panda_min_time.toml")
-    sol = solve(panda, print_level=0, log=lambda m: None)
-    rep = verify(sol)
-    rows.append(("panda_min_time (7 joints)", panda.intervals, panda.dynamics, panda.compiled, sol["status"],
-                 sol["iterations"], sol["solve_time_s"], sol["setup_time_s"],
-                 max(rep["final_angle_error"], rep["final_speed_error"]), rep["max_limit_violation"]))
-    print(f"Panda minimum time N={panda.intervals}: {sol['status']} it {sol['iterations']} solve "
-          f"{sol['solve_time_s']:.1f} s, T = {sol['t'][-1]:.3f} s, limit violation {rep['max_limit_violation']:.1e}",
-          flush=True)
-    checks = []
+                for solver in ("ipopt", "fatrop"):
+                    p = dataclasses.replace(base, intervals=N, dynamics=dynamics, solver=solver, compiled=True)
+                    solve_once(p, **QUIET)                                   # compile (cached) first
+                    t, sol, stats = timed(p, 5 if N == 100 else 1)
+                    fat = stats.get("fatrop", {})
+                    la = fat.get("compute_sd_time", float("nan"))
+                    evals = sum(fat.get(k, 0.0) for k in ("eval_hess_time", "eval_jac_time", "eval_cv_time",
+                                                          "eval_grad_time", "eval_obj_time")) if fat else float("nan")
+                    rows.append(dict(problem=name, N=N, dynamics=dynamics, solver=solver, status=sol["status"],
+                                     iterations=sol["iterations"], solve_s=t, objective=sol["objective"],
+                                     linear_algebra_s=la, evaluations_s=evals))
+                    print(f"{name:10s} N={N:3d} {dynamics:8s} {solver:6s} {sol['status']:16s} it {sol['iterations']:4d} "
+                          f"solve {t:6.3f} s" + (f"  (fatrop: search direction {la:.3f} s, evaluations {evals:.3f} s)"
+                                                  if fat else ""), flush=True)
+    return rows
+
+
+def main():
+    rows = solver_rows()
+    md = ["# Optimal control: fatrop against IPOPT, refinement, co-design, sweeps", "",
+          "`python benchmarks/bench_ocp.py` on this 2-core machine; Radau degree 3, compiled NLP (-O1), exact",
+          "Hessians, the same tolerance (1e-8) for both solvers; solve = wall time of the solver call, median",
+          "of 5 at N = 100.  fatrop's split: its search-direction time (its Riccati linear algebra) and its",
+          "function evaluations.", "",
+          "| problem | N | dynamics | solver | status | iterations | solve (s) | fatrop search direction (s) | fatrop evaluations (s) |",
+          "|---|---|---|---|---|---|---|---|---|"]
+    md += [f"| {r['problem']} | {r['N']} | {r['dynamics']} | {r['solver']} | {r['status']} | {r['iterations']} | "
+           f"{r['solve_s']:.3f} | {r['linear_algebra_s']:.3f} | {r['evaluations_s']:.3f} |" for r in rows]
+    md += ["", "## Targets (N = 100, explicit, compiled)", ""]
     for name, limit in TARGET.items():
-        r = next(r for r in rows if r[0] == name and r[1] == 100 and r[2] == "explicit" and r[3])
-        checks.append(f"{name}, N = 100, Radau 3, compiled, explicit: {r[6]:.2f} s (target < {limit:g} s): "
-                      + ("met" if r[6] < limit else "MISSED"))
-    for c in checks:
-        print(c)
-    csv = "problem,N,dynamics,compiled,status,iterations,solve_s,setup_s,final_state_error,max_limit_violation\n" + "".join(
-        f"{a},{b},{c},{d},{e},{f},{g:.3f},{h:.1f},{i:.3e},{j:.3e}\n" for a, b, c, d, e, f, g, h, i, j in rows)
-    md = ["# Optimal control: solve time and iterations", "",
-          "`python benchmarks/bench_ocp.py`, Radau degree 3, IPOPT (MUMPS), exact Hessians, 2-core machine.",
-          "solve = IPOPT wall time (median of 5 for compiled N = 100); setup = building the NLP and, for",
-          "compiled, generating and compiling its C (-O1) the first time (cached afterwards).", "",
-          "| problem | N | dynamics | NLP | status | iterations | solve (s) | setup (s) | final-state error | limit violation |",
-          "|---|---|---|---|---|---|---|---|---|---|"]
-    md += [f"| {a} | {b} | {c} | {'compiled' if d else 'CasADi VM'} | {e} | {f} | {g:.2f} | {h:.1f} | {i:.1e} | {j:.1e} |"
-           for a, b, c, d, e, f, g, h, i, j in rows]
-    md += ["", "## Targets", ""] + [f"- {c}" for c in checks]
+        pick = {r["solver"]: r for r in rows if r["problem"] == name and r["N"] == 100 and r["dynamics"] == "explicit"}
+        best = min(pick.values(), key=lambda r: r["solve_s"])
+        md.append(f"- {name}: ipopt {pick['ipopt']['solve_s']:.3f} s, fatrop {pick['fatrop']['solve_s']:.3f} s "
+                  f"(fatrop/ipopt speed-up {pick['ipopt']['solve_s'] / pick['fatrop']['solve_s']:.2f}x); target "
+                  f"< {limit:g} s and 5x: " + ("met" if best["solve_s"] < limit else "MISSED"))
+    md += ["", "## Implicit against explicit iterations", ""]
+    for name in PROBLEMS:
+        for N in (100, 200):
+            it = {r["dynamics"]: r["iterations"] for r in rows if r["problem"] == name and r["N"] == N and r["solver"] == "ipopt"}
+            md.append(f"- {name}, N = {N}, IPOPT: explicit {it['explicit']}, implicit {it['implicit']} "
+                      f"({it['implicit'] / it['explicit']:.2f}x; target <= 1.5x)")
+
+    # 2. refinement history of problem (b)
+    sol = solve(load_problem(PROBLEMS["min_effort"]), **QUIET)
+    md += ["", "## Mesh refinement, problem (b) (rest tolerances 1e-4 rad, 1e-3 rad/s on the replay)", "",
+           "| round | intervals | iterations | solve (s) | final angle error (rad) | final speed error (rad/s) | limit violation | passed |",
+           "|---|---|---|---|---|---|---|---|"]
+    md += [f"| {r['round']} | {r['intervals']} | {r['iterations']} | {r['solve_time_s']:.2f} | {r['final_angle_error']:.1e} | "
+           f"{r['final_speed_error']:.1e} | {r['max_limit_violation']:.1e} | {r['passed']} |" for r in sol["rounds"]]
+    print("refinement of (b):", [(r["intervals"], r["passed"]) for r in sol["rounds"]], flush=True)
+
+    # 3. co-design
+    cod = solve(load_problem(ROOT / "problems" / "ocp_min_time_codesign.toml"), **QUIET)
+    nom = cod["nominal"]
+    md += ["", "## Co-design: minimum time with the three SEA stiffnesses free (300-3000 N m/rad)", "",
+           "| arm | " + " | ".join(cod["design"]) + " | minimum time (s) | verified |",
+           "|---|" + "---|" * len(cod["design"]) + "---|---|",
+           "| nominal | " + " | ".join(f"{v:.0f}" for v in nom["design"].values()) + f" | {nom['duration']:.4f} | {nom['success']} |",
+           "| co-designed | " + " | ".join(f"{v:.0f}" for v in cod["design"].values()) + f" | {cod['t'][-1]:.4f} | {cod['success']} |"]
+    print(f"co-design: T {nom['duration']:.4f} -> {cod['t'][-1]:.4f} s with {cod['design']}", flush=True)
+
+    # 4. sweeps: points per second with 1 and 2 workers
+    sweep_file = ROOT / "problems" / "sweep_spring_stiffness.toml"
+    rates = {}
+    for workers in (1, 2):
+        tmp = Path(tempfile.mkdtemp())
+        res = run_sweep(sweep_file, tmp / "s", workers=workers, log=lambda m: None)
+        rates[workers] = res["points_per_second"]
+        print(f"sweep with {workers} worker(s): {rates[workers]:.2f} points/s", flush=True)
+        if workers == 2:
+            shutil.rmtree(RESULTS / "sweep", ignore_errors=True)
+            shutil.copytree(tmp / "s", RESULTS / "sweep")
+        shutil.rmtree(tmp, ignore_errors=True)
+    md += ["", "## Sweeps on Dask (12 minimum-time problems, local cluster)", "",
+           "| workers | points per second |", "|---|---|"] + [f"| {w} | {r:.2f} |" for w, r in rates.items()]
+    md += ["", "Figure: results/sweep/sweep.png; table: results/sweep/sweep.csv."]
+
+    csv = "problem,N,dynamics,solver,status,iterations,solve_s,objective,fatrop_search_direction_s,fatrop_evaluations_s\n" + "".join(
+        f"{r['problem']},{r['N']},{r['dynamics']},{r['solver']},{r['status']},{r['iterations']},{r['solve_s']:.4f},"
+        f"{r['objective']:.8g},{r['linear_algebra_s']:.4f},{r['evaluations_s']:.4f}\n" for r in rows)
     fig, ax = plt.subplots(figsize=(7, 4))
-    for name in PROBLEMS:                                 # the Panda's single row is in the table only
-        for dyn in ("explicit", "implicit"):
-            pts = [(r[1], r[6]) for r in rows if r[0] == name and r[2] == dyn and r[3]]
-            ax.loglog(*zip(*pts), "o-", label=f"{name}, {dyn}, compiled")
-    ax.set(xlabel="intervals N", ylabel="IPOPT wall time (s)", title="direct collocation, Radau 3")
+    for name in PROBLEMS:
+        for solver in ("ipopt", "fatrop"):
+            pts = [(r["N"], r["solve_s"]) for r in rows if r["problem"] == name and r["solver"] == solver
+                   and r["dynamics"] == "explicit"]
+            ax.loglog(*zip(*pts), "o-", label=f"{name}, {solver}")
+    ax.set(xlabel="intervals N", ylabel="solve time (s)", title="Radau 3, explicit, compiled")
     ax.legend(fontsize=8)
     fig.tight_layout()
     write_results("bench_ocp", fig, csv, "\n".join(md) + "\n")
 
 
 if __name__ == "__main__":
+    t0 = time.perf_counter()
     main()
+    print(f"bench_ocp: {time.perf_counter() - t0:.0f} s")
