@@ -40,14 +40,16 @@ def make_solver(problem: Problem, tr: Transcription, nlp: dict, log=print, print
     return ca.nlpsol("ocp", problem.solver, compiled_nlp(problem.solver, nlp, opts, log), opts), objective
 
 
-def compiled_nlp(solver: str, nlp: dict, opts: dict, log=print) -> str:
-    """The shared library of the NLP's functions for `solver`, compiled at -O1 once and cached."""
+def compiled_nlp(solver: str, nlp: dict, opts: dict, log=print, opt: str | None = None) -> str:
+    """The shared library of the NLP's functions for `solver`, compiled once and cached; at -O1
+    by default (RSCASADI_NLP_OPT, e.g. -O2, for the fastest solves at a longer compile)."""
+    opt = opt or os.environ.get("RSCASADI_NLP_OPT", "-O1")
     directory = cache_dir() / "nlp"
     directory.mkdir(parents=True, exist_ok=True)
     # generating the C just to hash it takes seconds: an index keyed by the serialised NLP finds
     # a library built before (sweep tasks, repeated solves) without generating anything
     graph = ca.Function("nlp", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]]).serialize()
-    index = directory / ("index_" + hashlib.sha256((graph + solver + repr(sorted(opts.items())) + " ".join(_compiler())
+    index = directory / ("index_" + hashlib.sha256((graph + solver + opt + repr(sorted(opts.items())) + " ".join(_compiler())
                                                      + ca.__version__).encode()).hexdigest()[:24])
     if index.exists() and Path(index.read_text()).exists():
         log(f"compiled NLP: cache hit {index.read_text()}")
@@ -62,7 +64,7 @@ def compiled_nlp(solver: str, nlp: dict, opts: dict, log=print) -> str:
         plain.generate_dependencies("rscasadi_nlp.c", {"with_header": False})
         Path("rscasadi_nlp.c").replace(src)
     cc = _compiler()
-    key = hashlib.sha256((src.read_text() + " ".join(cc) + ca.__version__).encode()).hexdigest()[:24]
+    key = hashlib.sha256((src.read_text() + " ".join(cc) + opt + ca.__version__).encode()).hexdigest()[:24]
     lib = directory / f"nlp_{key}.so"
     if lib.exists():
         log(f"compiled NLP: cache hit {lib}")
@@ -71,7 +73,7 @@ def compiled_nlp(solver: str, nlp: dict, opts: dict, log=print) -> str:
         return str(lib)
     t0 = time.perf_counter()
     part = lib.with_suffix(f".{os.getpid()}.part")
-    run = subprocess.run([*cc, "-O1", "-fPIC", "-shared", str(src), "-o", str(part), "-lm"],
+    run = subprocess.run([*cc, opt, "-fPIC", "-shared", str(src), "-o", str(part), "-lm"],
                          capture_output=True, text=True)
     src.unlink()
     if run.returncode != 0:

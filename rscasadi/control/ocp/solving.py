@@ -45,10 +45,11 @@ def _reference(problem: Problem, t):
 def guess(tr: Transcription, problem: Problem, arm: Arm, t, warm: dict | None):
     """Straight line between the rest states (or along the reference), holding the start's
     torque; or a previous solution interpolated onto this mesh (states at every point, the
-    torque of the old interval that holds each new interval's midpoint)."""
-    n, N = tr.n, tr.N
+    torque of the old interval that holds each new interval's midpoint).  Accelerations at the
+    collocation points: the forward dynamics there."""
+    n, N, m = tr.n, tr.N, tr.m
     T = t[-1]
-    tc = (t[:-1, None] + np.diff(t)[:, None] * tr.fractions[None, :]).ravel()
+    tc = (t[:-1, None] + np.diff(t)[:, None] * tr.fractions[None, :]).ravel()       # interval-major
     design = np.array([np.clip(v, *problem.design[k]) for k, v in _design_start(problem, arm).items()])
     if warm:
         tw = np.asarray(warm["t"]) * T / warm["t"][-1]
@@ -70,15 +71,10 @@ def guess(tr: Transcription, problem: Problem, arm: Arm, t, warm: dict | None):
                 X[:n], X[n:2 * n] = r, r + (x0[n:2 * n] - x0[:n])[:, None]
         z = np.zeros(n)
         U = np.repeat(np.array(arm.inverse_dynamics()(Xs[:n, 0], Xs[n:2 * n, 0], z, z, z, z)[0]), N, axis=1)
-    A = None
-    if tr.n_acc:
-        pts = np.stack([Xs[:, :N], Xc.reshape(4 * n, N, -1)[:, :, 0], Xs[:, 1:]], 2) \
-            if problem.method == "hermite-simpson" else Xc.reshape(4 * n, N, tr.m)
-        X = pts.reshape(4 * n, -1)
-        u = np.repeat(U, pts.shape[2], axis=1)
-        fd = arm.forward_dynamics().map(X.shape[1])
-        A = np.vstack([np.array(v) for v in fd(X[:n], X[n:2 * n], X[2 * n:3 * n], X[3 * n:], u)])
-    return tr.pack(Xs, Xc, U, T, design, A)
+    u = np.repeat(U, m, axis=1)
+    fd = arm.forward_dynamics().map(N * m)
+    acc = np.vstack([np.array(a) for a in fd(Xc[:n], Xc[n:2 * n], Xc[2 * n:3 * n], Xc[3 * n:], u)])
+    return tr.pack(Xs, U, T, design, acc.reshape(2 * n, N, m).transpose(0, 2, 1))
 
 
 def _design_start(problem: Problem, arm: Arm) -> dict:

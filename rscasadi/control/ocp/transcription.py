@@ -1,12 +1,24 @@
 """Direct collocation, stage by stage, so that a structure-exploiting solver (fatrop) sees the
 optimal-control structure and a general one (IPOPT) is none the worse.
 
+Collocation is written as the implicit Runge-Kutta method it is (Butcher tableau A, b, c of
+the collocation points: Radau IIA, Gauss-Legendre, or Lobatto IIIA for Hermite-Simpson), with
+the *accelerations* at the points as the unknowns.  For q'' = a the positions and speeds at the
+points are then linear in them,
+
+    v_j = v_k + h sum_l A_jl a_l,   q_j = q_k + h c_j v_k + h^2 sum_l (A A)_jl a_l,
+
+so an interval carries 2n m unknowns and 2n m dynamics equations instead of 4n m of each: the
+same polynomial solution as collocating the states, half the stage size (fatrop's Riccati
+recursion costs about the cube of it).
+
 Stage k = 0..N-1 has the state x_k = (theta, phi, dtheta, dphi, [T], [design]) and the
-"control" u_k = (tau_k, the collocation states of interval k, [their accelerations]).  The
-constraints come in stage order:
+"control" u_k = (tau_k, the accelerations at its m points, scaled).  Constraints in stage order:
 
     x_{k+1} - F(x_k, u_k) = 0           gap closing: the interval's end point (T, design carried)
-    c_k(x_k, u_k) (=, <=) 0             collocation defects, SEA deflection limits, (stage 0) the start
+    c_k(x_k, u_k) (=, <=) 0             dynamics at the points (explicit: a_j = FD(q_j, v_j, tau);
+                                        implicit: the inverse-dynamics residual), limits at the
+                                        interior points and the SEA deflection at x_k, (stage 0) the start
     c_N(x_N)                            the end at rest (rest-to-rest problems)
 
 Rest is the SEA's static equilibrium, stated as constraints (theta given, speeds zero, spring
@@ -33,18 +45,15 @@ class Transcription:
         free = self.design + self.fixed
         self.arm = Arm(arm.model, free=free) if free else arm
         n = self.n
-        if problem.method == "hermite-simpson":
-            self.fractions = np.array([0.5, 1.0])                            # midpoint, end
-        else:
-            tau = ca.collocation_points(problem.degree, problem.method)
-            self.C, self.D, _ = (np.array(m) for m in ca.collocation_coeff(tau))
-            self.fractions = np.array(tau)
-        self.m = len(self.fractions)
-        self.n_acc = {"explicit": 0, "implicit": 3 if problem.method == "hermite-simpson" else self.m}[problem.dynamics]
+        c = np.array([0.0, 0.5, 1.0]) if problem.method == "hermite-simpson" else \
+            np.array(ca.collocation_points(problem.degree, problem.method))
+        self.A, self.b = butcher(c)
+        self.fractions, self.m = c, len(c)
+        self.interior = [j for j in range(self.m) if 0.0 < c[j] < 1.0]
         self.nT = 1 if problem.objective == "min_time" else 0
         self.nz = self.nT + len(self.design)                                 # carried constants
         self.nx = 4 * n + self.nz
-        self.nu = n + 4 * n * self.m + 2 * n * self.n_acc
+        self.nu = n + 2 * n * self.m
         self.tracking = problem.objective == "tracking"
         self.acc_scale = self._acceleration_scale()
         self.stage = self._stage_function()
@@ -81,14 +90,11 @@ class Transcription:
         return ca.vertcat(*parts) if parts else None
 
     def _acceleration_scale(self):
-        """Implicit form: accelerations are variables A = s * A_scaled, s per coordinate about the
-        largest acceleration the motor torque limit can cause, so every variable is O(1)."""
-        if not self.n_acc:
-            return np.ones(0)
-        z, n = np.zeros(self.n), self.n
-        theta = self.p.theta_start if self.p.theta_start is not None else z
-        M = np.array(self.arm.mass_matrix()(theta, theta) if not self.arm.free else
-                     Arm(self.model).mass_matrix()(theta, theta))
+        """The accelerations are variables a = s * a_scaled, s per coordinate about the largest
+        acceleration the torque and deflection limits can cause, so that every variable is O(1)
+        (unscaled, the implicit form took 149 iterations where the explicit one took 18)."""
+        theta = self.p.theta_start if self.p.theta_start is not None else np.zeros(self.n)
+        M = np.array(Arm(self.model).mass_matrix()(theta, theta))
         tau = np.array([jt.limits.get("tau", 1.0) for jt in self.model.joints]) * self.model.column("gear_ratio")
         k_psi = np.array([jt.k1 * jt.limits.get("psi", 0.1) for jt in self.model.joints])
         force = np.concatenate([k_psi, tau + k_psi])
@@ -97,39 +103,31 @@ class Transcription:
 
     def _stage_function(self) -> ca.Function:
         """(x_k, u_k, w_k, P) -> (x_{k+1} target, path constraints, effort): SX, mapped over N."""
-        n, m, p = self.n, self.m, self.p
+        n, m, A, b, c = self.n, self.m, self.A, self.b, self.fractions
         x, u, w = ca.SX.sym("x", self.nx), ca.SX.sym("u", self.nu), ca.SX.sym("w")
         dur, pfix = ca.SX.sym("duration"), ca.SX.sym("p_fixed", len(self.fixed))
-        q, z = x[:4 * n], x[4 * n:]
-        T = z[0] if self.nT else dur
+        q, v, z = x[:2 * n], x[2 * n:4 * n], x[4 * n:]
+        h = (z[0] if self.nT else dur) * w
         pf = self._pf(z[self.nT:self.nz] if self.design else None, pfix)
-        tau = u[:n]
-        Xc = ca.reshape(u[n:n + 4 * n * m], 4 * n, m)
-        A = ca.reshape(u[n + 4 * n * m:], 2 * n, self.n_acc) * ca.repmat(ca.DM(self.acc_scale), 1, self.n_acc) \
-            if self.n_acc else None
-        h = T * w
-        defects = []
-
-        def f_at(xj, j):
-            if A is None:
-                return self._f(xj, tau, pf)
-            defects.append(self._residual(xj, A[:, j], tau, pf))
-            return ca.vertcat(xj[2 * n:], A[:, j])
-
-        if p.method == "hermite-simpson":
-            xm, xe = Xc[:, 0], Xc[:, 1]
-            fs, fm, fe = f_at(q, 0), f_at(xm, 1), f_at(xe, 2)
-            defects += [xe - q - h / 6 * (fs + 4 * fm + fe), xm - (q + xe) / 2 - h / 8 * (fs - fe)]
-            x_end = xe
-        else:
-            P = [q] + [Xc[:, j] for j in range(m)]
-            for j in range(m):
-                defects.append(sum(self.C[r, j] * P[r] for r in range(m + 1)) - h * f_at(P[j + 1], j))
-            x_end = sum(self.D[r, 0] * P[r] for r in range(m + 1))
-        points = [Xc[:, j] for j in range(m)] + ([q] if p.method == "legendre" else [])
-        psi = [pt[n:2 * n] - pt[:n] for pt in points]                          # SEA deflection
+        tau, s = u[:n], ca.DM(self.acc_scale)
+        acc = [s * u[n + 2 * n * j: n + 2 * n * (j + 1)] for j in range(m)]        # ddtheta, ddphi
+        AA = A @ A
+        V = [v + h * sum(A[j, l] * acc[l] for l in range(m)) for j in range(m)]
+        Q = [q + h * c[j] * v + h ** 2 * sum(AA[j, l] * acc[l] for l in range(m)) for j in range(m)]
+        dynamics = []
+        for j in range(m):
+            xj = ca.vertcat(Q[j], V[j])
+            if self.p.dynamics == "implicit":
+                dynamics.append(self._residual(xj, acc[j], tau, pf))
+            else:
+                dynamics.append((acc[j] - self._f(xj, tau, pf)[2 * n:]) / s)
+        x_end = ca.vertcat(q + h * v + h ** 2 * sum((b @ A)[l] * acc[l] for l in range(m)),
+                           v + h * sum(b[l] * acc[l] for l in range(m)))
+        limits = [q[n:] - q[:n]]                                                # psi at x_k
+        for j in self.interior:                                                 # theta, psi, dphi inside
+            limits += [Q[j][:n], Q[j][n:] - Q[j][:n], V[j][n:]]
         return ca.Function("stage", [x, u, w, dur, pfix],
-                           [ca.vertcat(x_end, z), ca.vertcat(*defects, *psi), h * ca.sumsqr(tau)],
+                           [ca.vertcat(x_end, z), ca.vertcat(*dynamics, *limits), h * ca.sumsqr(tau)],
                            ["x", "u", "w", "duration", "p_fixed"], ["x_next", "path", "effort"])
 
     # -- the NLP ----------------------------------------------------------------------------
@@ -160,19 +158,15 @@ class Transcription:
         start = self.rest_residual(X[:, 0], par["theta_start"], pf0)
         blocks = ca.vertcat(gap, path)
         g = [blocks[:, 0], start, ca.vec(blocks[:, 1:])]
-        n_path = path.shape[0]
-        n_psi = n * (self.m + (1 if p.method == "legendre" else 0))
-        psi_max = np.array([jt.limits.get("psi", np.inf) for jt in self.model.joints])
-        stage_lo = np.concatenate([np.zeros(self.nx + n_path - n_psi), np.tile(-psi_max, n_psi // n)])
-        stage_hi = np.concatenate([np.zeros(self.nx + n_path - n_psi), np.tile(psi_max, n_psi // n)])
+        stage_lo, stage_hi = self._path_bounds()
         lbg = [stage_lo, np.zeros(4 * n), np.tile(stage_lo, N - 1)]
         ubg = [stage_hi, np.zeros(4 * n), np.tile(stage_hi, N - 1)]
         if not self.tracking:
             g.append(self.rest_residual(X[:, N], par["theta_end"], pfN))
             lbg.append(np.zeros(4 * n)), ubg.append(np.zeros(4 * n))
-        if p.method == "legendre":
-            g.append(X[n:2 * n, N] - X[:n, N])
-            lbg.append(-psi_max), ubg.append(psi_max)
+        psi_max = self._limit("psi")
+        g.append(X[n:2 * n, N] - X[:n, N])                                    # psi at the end
+        lbg.append(-psi_max), ubg.append(psi_max)
         total_effort = ca.sum2(effort)
         if p.objective == "min_time":
             f = X[4 * n, 0] + par["effort_weight"] * total_effort
@@ -184,12 +178,25 @@ class Transcription:
             f = ca.sum2(h * ca.sum1(e ** 2)) / ca.fmax(par["effort_weight"], 1e-12) + total_effort
         return {"x": w, "f": par["scale"] * f, "g": ca.vertcat(*g), "p": P}, np.concatenate(lbg), np.concatenate(ubg)
 
+    def _limit(self, key):
+        return np.array([jt.limits.get(key, np.inf) for jt in self.model.joints])
+
+    def _path_bounds(self):
+        """Bounds of one stage's path rows: gap rows and dynamics = 0, then the limits."""
+        n, inf = self.n, np.inf
+        lo_th = np.array([jt.limits.get("theta", (-inf, inf))[0] for jt in self.model.joints])
+        hi_th = np.array([jt.limits.get("theta", (-inf, inf))[1] for jt in self.model.joints])
+        psi, dphi = self._limit("psi"), self._limit("dphi")
+        lo = [np.zeros(self.nx + 2 * n * self.m), -psi] + [np.r_[lo_th, -psi, -dphi]] * len(self.interior)
+        hi = [np.zeros(self.nx + 2 * n * self.m), psi] + [np.r_[hi_th, psi, dphi]] * len(self.interior)
+        return np.concatenate(lo), np.concatenate(hi)
+
     def structure(self) -> dict:
         """fatrop's manual structure: per stage nx, nu and the number of non-gap constraints."""
         n, N = self.n, self.N
         n_path = self.stage.size1_out(1)
         ng = [n_path + 4 * n] + [n_path] * (N - 1)
-        ng.append((0 if self.tracking else 4 * n) + (n if self.p.method == "legendre" else 0))
+        ng.append((0 if self.tracking else 4 * n) + n)
         return {"structure_detection": "manual", "N": N, "nx": [self.nx] * (N + 1),
                 "nu": [self.nu] * N + [0], "ng": ng}
 
@@ -205,8 +212,8 @@ class Transcription:
         lo_z = ([1e-3] if self.nT else []) + [b[0] for b in self.p.design.values()]
         hi_z = ([max_duration] if self.nT else []) + [b[1] for b in self.p.design.values()]
         tau_max = np.array([jt.limits.get("tau", np.inf) for jt in jts])
-        lo_u = np.concatenate([-tau_max, np.tile(lo_q, self.m), np.full(2 * n * self.n_acc, -np.inf)])
-        hi_u = np.concatenate([tau_max, np.tile(hi_q, self.m), np.full(2 * n * self.n_acc, np.inf)])
+        lo_u = np.concatenate([-tau_max, np.full(2 * n * self.m, -np.inf)])
+        hi_u = np.concatenate([tau_max, np.full(2 * n * self.m, np.inf)])
         lo_x, hi_x = np.concatenate([lo_q, lo_z]), np.concatenate([hi_q, hi_z])
         lb = np.concatenate([np.tile(np.concatenate([lo_x, lo_u]), N), lo_x])
         ub = np.concatenate([np.tile(np.concatenate([hi_x, hi_u]), N), hi_x])
@@ -223,25 +230,34 @@ class Transcription:
         return P
 
     # -- guesses and solutions --------------------------------------------------------------
-    def pack(self, Xs, Xc, U, T, design, A=None):
-        """Stage-ordered vector from Xs (4n, N+1), Xc (4n, m N), U (n, N), T, design, A (2n, n_acc N)."""
+    def pack(self, Xs, U, T, design, acc):
+        """Stage-ordered vector from Xs (4n, N+1), U (n, N), T, design, acc (2n, m, N) unscaled."""
         n, N = self.n, self.N
         z = np.concatenate([[T] if self.nT else [], design])
-        X = np.vstack([Xs, np.repeat(z[:, None], N + 1, axis=1)])
-        parts = [U, Xc.reshape(4 * n, N, self.m).transpose(0, 2, 1).reshape(4 * n * self.m, N, order="F")]
-        if self.n_acc:
-            As = (A.reshape(2 * n, N, self.n_acc) / self.acc_scale[:, None, None])
-            parts.append(As.transpose(0, 2, 1).reshape(2 * n * self.n_acc, N, order="F"))
-        Ustage = np.vstack(parts)
-        return np.concatenate([np.vstack([X[:, :N], Ustage]).ravel("F"), X[:, N]])
+        X = np.vstack([Xs, np.repeat(np.reshape(z, (-1, 1)), N + 1, axis=1)])
+        scaled = (np.asarray(acc) / self.acc_scale[:, None, None]).reshape(2 * n * self.m, N, order="F")
+        return np.concatenate([np.vstack([X[:, :N], U, scaled]).ravel("F"), X[:, N]])
 
     def unpack(self, w) -> dict:
-        n, N, m = self.n, self.N, self.m
+        n, N = self.n, self.N
         w = np.asarray(w, float).ravel()
         body = w[:N * (self.nx + self.nu)].reshape(self.nx + self.nu, N, order="F")
         X = np.hstack([body[:self.nx], w[N * (self.nx + self.nu):, None]])
-        Uall = body[self.nx:]
-        Xc = Uall[n:n + 4 * n * m].reshape(4 * n, m, N, order="F").transpose(0, 2, 1).reshape(4 * n, N * m)
         z = X[4 * n:, 0]
-        return {"Xs": X[:4 * n], "U": Uall[:n], "Xc": Xc, "T": float(z[0]) if self.nT else None,
-                "design": z[self.nT:]}
+        acc = body[self.nx + n:].reshape(2 * n, self.m, N, order="F") * self.acc_scale[:, None, None]
+        return {"Xs": X[:4 * n], "U": body[self.nx:self.nx + n], "acc": acc,
+                "T": float(z[0]) if self.nT else None, "design": z[self.nT:]}
+
+
+def butcher(c):
+    """The collocation method on points c as a Runge-Kutta tableau: A_jl = int_0^c_j L_l,
+    b_l = int_0^1 L_l, L_l the Lagrange polynomials on c."""
+    from numpy.polynomial import polynomial as P
+    m = len(c)
+    A, b = np.zeros((m, m)), np.zeros(m)
+    for l in range(m):
+        others = [c[i] for i in range(m) if i != l]
+        L = P.polyint(P.polyfromroots(others) / np.prod([c[l] - o for o in others]))
+        b[l] = P.polyval(1.0, L) - P.polyval(0.0, L)
+        A[:, l] = P.polyval(np.asarray(c), L) - P.polyval(0.0, L)
+    return A, b
