@@ -6,15 +6,12 @@
    algebra, against function evaluations);
 2. the mesh-refinement history of problem (b) under the tightened rest tolerances;
 3. co-design: problem (a) with the three SEA stiffnesses free, against the nominal arm;
-4. sweeps: points per second on Dask with 1 and 2 workers (problems/sweep_spring_stiffness.toml).
+(sweeps: benchmarks/bench_sweep.py)
 
-    python benchmarks/bench_ocp.py       # writes results/bench_ocp.{md,csv,png} and results/sweep/
+    python benchmarks/bench_ocp.py       # writes results/bench_ocp.{md,csv,png}
 """
 import dataclasses
-import shutil
-import tempfile
 import time
-from pathlib import Path
 
 import matplotlib
 
@@ -25,7 +22,6 @@ import numpy as np  # noqa: E402
 from common import RESULTS, ROOT, write_results  # noqa: E402
 import rscasadi.control.ocp.solving as solving  # noqa: E402
 from rscasadi.control.ocp import load_problem, solve, solve_once  # noqa: E402
-from rscasadi.control.sweep import run as run_sweep  # noqa: E402
 
 PROBLEMS = {"min_time": ROOT / "problems" / "ocp_min_time.toml", "min_effort": ROOT / "problems" / "ocp_min_effort.toml"}
 TARGET = {"min_effort": 0.1, "min_time": 0.25}
@@ -73,7 +69,7 @@ def solver_rows():
 
 def main():
     rows = solver_rows()
-    md = ["# Optimal control: fatrop against IPOPT, refinement, co-design, sweeps", "",
+    md = ["# Optimal control: fatrop against IPOPT, refinement, co-design", "",
           "`python benchmarks/bench_ocp.py` on this 2-core machine; Radau degree 3, compiled NLP (-O1), exact",
           "Hessians, the same tolerance (1e-8) for both solvers; solve = wall time of the solver call, median",
           "of 5 at N = 100.  fatrop's split: its search-direction time (its Riccati linear algebra) and its",
@@ -114,22 +110,6 @@ def main():
            "| nominal | " + " | ".join(f"{v:.0f}" for v in nom["design"].values()) + f" | {nom['duration']:.4f} | {nom['success']} |",
            "| co-designed | " + " | ".join(f"{v:.0f}" for v in cod["design"].values()) + f" | {cod['t'][-1]:.4f} | {cod['success']} |"]
     print(f"co-design: T {nom['duration']:.4f} -> {cod['t'][-1]:.4f} s with {cod['design']}", flush=True)
-
-    # 4. sweeps: points per second with 1 and 2 workers
-    sweep_file = ROOT / "problems" / "sweep_spring_stiffness.toml"
-    rates = {}
-    for workers in (1, 2):
-        tmp = Path(tempfile.mkdtemp())
-        res = run_sweep(sweep_file, tmp / "s", workers=workers, log=lambda m: None)
-        rates[workers] = res["points_per_second"]
-        print(f"sweep with {workers} worker(s): {rates[workers]:.2f} points/s", flush=True)
-        if workers == 2:
-            shutil.rmtree(RESULTS / "sweep", ignore_errors=True)
-            shutil.copytree(tmp / "s", RESULTS / "sweep")
-        shutil.rmtree(tmp, ignore_errors=True)
-    md += ["", "## Sweeps on Dask (12 minimum-time problems, local cluster)", "",
-           "| workers | points per second |", "|---|---|"] + [f"| {w} | {r:.2f} |" for w, r in rates.items()]
-    md += ["", "Figure: results/sweep/sweep.png; table: results/sweep/sweep.csv."]
 
     csv = "problem,N,dynamics,solver,status,iterations,solve_s,objective,fatrop_search_direction_s,fatrop_evaluations_s\n" + "".join(
         f"{r['problem']},{r['N']},{r['dynamics']},{r['solver']},{r['status']},{r['iterations']},{r['solve_s']:.4f},"

@@ -168,7 +168,7 @@ def run(sweep_file, out, scheduler: str | None = None, workers: int | None = Non
     rows = [dict(r, point=i) for i, p in enumerate(points) if (r := done.get(_key(p)))]
     todo = [(i, p) for i, p in enumerate(points) if _key(p) not in done]
     log(f"{sweep.path}: {len(points)} points over {', '.join(keys)}; {len(rows)} already done, {len(todo)} to solve")
-    t0 = time.perf_counter()
+    t0 = time.perf_counter()                  # points per second: from the first task on
     if todo:
         base = load_problem(sweep.problem_path)
         if base.compiled:                   # compile the shared NLP once, here, before the tasks
@@ -184,6 +184,7 @@ def run(sweep_file, out, scheduler: str | None = None, workers: int | None = Non
         try:
             log(f"Dask: {len(client.scheduler_info()['workers'])} workers"
                 + (f" at {scheduler}" if scheduler else " (local cluster)"))
+            t0 = time.perf_counter()
             futures = [client.submit(solve_point, str(sweep.problem_path), names, p, i, pure=False) for i, p in todo]
             for k, fut in enumerate(as_completed(futures), 1):
                 try:
