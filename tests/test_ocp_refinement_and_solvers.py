@@ -77,6 +77,12 @@ def test_min_effort_reference_problem_passes_after_refinement():
     assert sol["verification"]["final_speed_error"] < 1e-3 and sol["verification"]["final_angle_error"] < 1e-4
 
 
+@pytest.mark.parametrize("name", ["min_time", "tracking"])
+def test_other_reference_problems_pass_the_tight_verification(name):
+    sol = solve(dataclasses.replace(load_problem(REFERENCE.parent / f"ocp_{name}.toml"), compiled=False), **QUIET)
+    assert sol["success"] and sol["verification"]["passed"], sol["rounds"]
+
+
 def test_implicit_form_converges_like_the_explicit_one():
     base = dataclasses.replace(load_problem(REFERENCE.parent / "ocp_min_effort.toml"), compiled=False)
     it = {dyn: solve_once(dataclasses.replace(base, dynamics=dyn), **QUIET) for dyn in ("explicit", "implicit")}
