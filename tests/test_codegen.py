@@ -211,3 +211,24 @@ def test_compiled_feedforward_equals_the_pipeline_over_the_paper_trajectory(buil
         tau, state = lib["feedforward_step"](state, q[0][:, k], q[1][:, k], q[2][:, k], 1e-3)
         got.append(np.array(tau).ravel())
     assert np.max(np.abs(np.array(got).T - want)) < 1e-9 * np.max(np.abs(want))
+
+
+@pytest.mark.parametrize("n", [3, 12])
+def test_structured_step_jacobian_equals_ad_of_the_step(n):
+    """The step Jacobian by the structured chain rule (straight-line SX at n = 3, dense products
+    at n = 12) equals CasADi's AD of the step function itself, a route sharing no chain rule."""
+    import sys
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from common import chain_arm
+    from rscasadi.codegen.generate import functions
+    fns, _ = functions(chain_arm(n))
+    step, step_jac = fns["step"], fns["step_jacobian"]
+    assert step_jac.is_a("SXFunction") == (n == 3)
+    rng = np.random.default_rng(n)
+    xs, us = ca.MX.sym("x", 4 * n), ca.MX.sym("u", n)
+    for h in (1e-3, 4e-3):
+        ad = ca.Function("ad", [xs, us], [ca.jacobian(step(xs, us, h), ca.vertcat(xs, us))])
+        x, tau = rng.normal(size=4 * n) * 0.3, rng.normal(size=n) * 0.2
+        ref = np.array(ad(x, tau))
+        got = np.hstack([np.array(v) for v in step_jac(x, tau, h)])
+        assert np.max(np.abs(got - ref)) < 1e-12 * np.max(np.abs(ref))

@@ -254,6 +254,10 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
     if nominal is not None:
         sol["nominal"] = {"objective": nominal["objective"], "duration": nominal["t"][-1],
                           "success": nominal["success"], "design": _design_start(problem, solution_arm(nominal))}
+        sol["improved"] = bool(sol["objective"] <= nominal["objective"] * (1 + 1e-9))
+        if not sol["improved"]:
+            log(f"note: the co-design ended in a local minimum worse than the nominal arm ({sol['objective']:.6g} "
+                f"> {nominal['objective']:.6g}); try the other solver or other design bounds")
     return sol
 
 
