@@ -158,6 +158,7 @@ def test_refusals_of_the_model_file(urdf_dir, old_doc):
         (lambda d: d["joints"][1].update(name="no_such_joint"), "no_such_joint"),
         (lambda d: d["joints"].pop(2), "elbow_pitch"),                     # moving, no entry, not locked
         (lambda d: d["locked"].update(ghost=0.1), "ghost"),
+        (lambda d: d.update(locked=False), "'locked'"),                    # not a table (found by the fuzzer)
         (lambda d: d.update(tip="l2"), "tip"),                               # elbow beyond the tip
         (lambda d: d.update(urdf="missing.urdf"), "missing.urdf"),
         (lambda d: d["joints"][0].update(link={"mass": 1.0}), "link"),       # links come from the URDF

@@ -108,7 +108,10 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
     robot = _load(urdf_path, ctx)
     joints_by_name = {jt.name: jt for jt in robot.robot.joints}
     links_by_name = {lk.name: lk for lk in robot.robot.links}
-    locked = _table(ctx, "locked", data.get("locked", {}), set(joints_by_name) | set(data.get("locked", {})))
+    raw_locked = data.get("locked", {})
+    if not isinstance(raw_locked, dict):
+        ctx.fail("locked", f"expected a table of joint names and positions, got {raw_locked!r}")
+    locked = _table(ctx, "locked", raw_locked, set(joints_by_name) | set(raw_locked))
     for name, value in locked.items():
         if name not in joints_by_name:
             ctx.fail(f"locked.{name}", f"no joint {name!r} in {urdf_path}")
