@@ -87,3 +87,11 @@ def test_sweep_refuses_a_foreign_directory(pitch_arm, tmp_path, capsys):
     code = main(["sweep", str(write_sweep(pitch_arm, "s.toml", {"duration": [1.0]})), "--out", str(tmp_path)])
     assert code == 2 and "refusing" in capsys.readouterr().err
     assert (tmp_path / "notes.txt").read_text() == "mine"
+
+
+def test_unreachable_scheduler_is_named(pitch_arm, tmp_path, capsys):
+    problem(pitch_arm, "sweep_base.toml")
+    path = write_sweep(pitch_arm, "s2.toml", {"duration": [1.0]})
+    code = main(["sweep", str(path), "--out", str(tmp_path / "o"), "--scheduler", "tcp://127.0.0.1:9"])
+    assert code == 2 and "tcp://127.0.0.1:9" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()                    # nothing half-written

@@ -159,7 +159,6 @@ def run(sweep_file, out, scheduler: str | None = None, workers: int | None = Non
     out = Path(out)
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not (out / "sweep.csv").exists())):
         raise ModelFileError(f"{out}: exists and was not written by rscasadi sweep (no sweep.csv); refusing to write there")
-    out.mkdir(parents=True, exist_ok=True)
     keys = list(sweep.grid)
     names = [k for k in keys if k not in SWEEPABLE]
     points = sweep.points()
@@ -176,7 +175,10 @@ def run(sweep_file, out, scheduler: str | None = None, workers: int | None = Non
             solve_once(point_problem(base, {**_nominal(base, names), **todo[0][1]}), print_level=0, log=log)
         cluster = None
         if scheduler:
-            client = Client(scheduler)
+            try:
+                client = Client(scheduler, timeout=10)
+            except (OSError, TimeoutError) as exc:
+                raise ModelFileError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there ({exc})") from None
         else:
             cluster = LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1, processes=True,
                                    dashboard_address=None)
@@ -185,6 +187,7 @@ def run(sweep_file, out, scheduler: str | None = None, workers: int | None = Non
             log(f"Dask: {len(client.scheduler_info()['workers'])} workers"
                 + (f" at {scheduler}" if scheduler else " (local cluster)"))
             t0 = time.perf_counter()
+            out.mkdir(parents=True, exist_ok=True)
             futures = [client.submit(solve_point, str(sweep.problem_path), names, p, i, pure=False) for i, p in todo]
             for k, fut in enumerate(as_completed(futures), 1):
                 try:
@@ -201,6 +204,7 @@ def run(sweep_file, out, scheduler: str | None = None, workers: int | None = Non
             if cluster is not None:
                 cluster.close()
     else:
+        out.mkdir(parents=True, exist_ok=True)
         _write_csv(csv_path, keys, rows)
     elapsed = time.perf_counter() - t0
     _plot(out, keys, rows)
