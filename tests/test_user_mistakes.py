@@ -13,6 +13,7 @@ import rscasadi
 from rscasadi import ModelFileError
 from rscasadi.cli import main
 from rscasadi.control.ocp import load_problem
+from rscasadi.control.sweep import load_sweep
 
 from conftest import REFERENCE, ROOT, to_toml
 
@@ -80,11 +81,18 @@ PANDA_DOC["urdf"] = str(ROOT / "problems" / "urdf" / "panda.urdf")
 with open(PROBLEM, "rb") as fh:
     PROBLEM_DOC = tomllib.load(fh)
 PROBLEM_DOC["model"] = str(REFERENCE)
+with open(ROOT / "problems" / "ocp_min_time_codesign.toml", "rb") as fh:
+    CODESIGN_DOC = tomllib.load(fh)
+CODESIGN_DOC["model"] = str(REFERENCE)
+with open(ROOT / "problems" / "sweep_spring_stiffness.toml", "rb") as fh:
+    SWEEP_DOC = tomllib.load(fh)
+SWEEP_DOC["problem"] = str(PROBLEM)
 URDF_TEXT = (ROOT / "problems" / "urdf" / "panda.urdf").read_text()
 
 
 KINDS = {"model file": (REFERENCE_DOC, rscasadi.load), "URDF-form model file": (PANDA_DOC, rscasadi.load),
-         "problem file": (PROBLEM_DOC, load_problem)}
+         "problem file": (PROBLEM_DOC, load_problem), "co-design problem file": (CODESIGN_DOC, load_problem),
+         "sweep file": (SWEEP_DOC, load_sweep)}
 
 
 @pytest.mark.parametrize("kind", list(KINDS))

@@ -61,11 +61,16 @@ def load_sweep(path) -> Sweep:
     for key in ("problem", "grid"):
         if key not in d:
             fail(key, "missing required field")
+    if not isinstance(d["problem"], str) or not d["problem"].strip():
+        fail("problem", f"expected the path of a problem file, got {d['problem']!r}")
     if not isinstance(d["grid"], dict) or not d["grid"]:
         fail("grid", "expected a table of lists")
-    sweep = Sweep(path, (path.parent / str(d["problem"])).resolve(), {})
-    problem = load_problem(sweep.problem_path)
-    model = read(problem.model_path)
+    sweep = Sweep(path, (path.parent / d["problem"]).resolve(), {})
+    try:
+        problem = load_problem(sweep.problem_path)
+        model = read(problem.model_path)
+    except ModelFileError as exc:
+        fail("problem", str(exc))
     for key, values in d["grid"].items():
         if not isinstance(values, list) or not values:
             fail(f"grid.{key}", f"expected a non-empty list, got {values!r}")

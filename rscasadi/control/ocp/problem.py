@@ -108,6 +108,9 @@ def load_problem(path) -> Problem:
     for key in ("model", "objective", "duration"):
         if key not in d:
             fail(key, "missing required field")
+    for key in ("model", "trajectory"):
+        if key in d and (not isinstance(d[key], str) or not d[key].strip()):
+            fail(key, f"expected the path of a file, got {d[key]!r}")
     if d["objective"] not in OBJECTIVES:
         fail("objective", f"must be one of {', '.join(OBJECTIVES)}, got {d['objective']!r}")
     tr = table("transcription")
