@@ -74,6 +74,19 @@ def cmd_sweep(args):
     return 0 if res["solved"] == len(res["rows"]) else 1
 
 
+def cmd_mpc(args):
+    from .control.mpc import closed_loop, generate_mpc
+    generate_mpc(args.problem, args.out, opt=args.opt, log=lambda msg: print(msg, flush=True))
+    if args.study is not None:
+        import json
+        import os
+        res = closed_loop(args.problem, args.out, duration=args.study or None, log=lambda msg: print(msg, flush=True))
+        tmp = Path(args.out) / f".closed_loop.{os.getpid()}.json"
+        tmp.write_text(json.dumps(res, indent=1) + "\n")
+        tmp.replace(Path(args.out) / "closed_loop.json")
+        print(f"wrote {Path(args.out) / 'closed_loop.json'}")
+
+
 def cmd_reproduce(args):
     from .paper import run
     out = Path(args.out)
@@ -148,6 +161,14 @@ def main(argv=None):
     p.add_argument("--quiet", action="store_true", help="no solver iteration log")
     p.add_argument("--solver", choices=("ipopt", "fatrop"), help="override the problem file's [solver] name")
     p.set_defaults(func=cmd_ocp)
+    p = sub.add_parser("mpc", help="generate a nonlinear MPC (real-time iteration on the complete model) as C")
+    p.add_argument("problem", help="MPC problem file (TOML)")
+    p.add_argument("--out", default="build/mpc")
+    p.add_argument("--opt", default="-O2", help="optimisation flag for the library (default -O2)")
+    p.add_argument("--study", type=float, nargs="?", const=0.0, metavar="SECONDS",
+                   help="then run the closed-loop study (heavier tip, quantised encoders) for SECONDS "
+                        "(default: the whole trajectory) and write closed_loop.json")
+    p.set_defaults(func=cmd_mpc)
     p = sub.add_parser("sweep", help="solve an optimal-control problem over a grid of parameters, in parallel on Dask")
     p.add_argument("sweep", help="sweep file (TOML): problem and [grid]")
     p.add_argument("--out", default="results/sweep")
