@@ -59,3 +59,37 @@ def test_bad_mpc_problem_names_the_field(tmp_path, text, field):
     path.write_text(text)
     with pytest.raises(ModelFileError, match=rf"bad_mpc\.toml: field '{field}'"):
         load_mpc_problem(path)
+
+
+@pytest.fixture(scope="module")
+def mpc_example(built, mpc_dir, tmp_path_factory):
+    import subprocess
+    from conftest import cc
+    arm_dir, exe = built[0], tmp_path_factory.mktemp("mpc_example") / "mpc_example"
+    subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", f"-I{arm_dir}", f"-I{mpc_dir}",
+                    str(ROOT / "examples" / "mpc.c"), f"-L{arm_dir}", f"-L{mpc_dir}", "-lrscasadi_arm",
+                    "-lrscasadi_mpc", f"-Wl,-rpath,{arm_dir}", f"-Wl,-rpath,{mpc_dir}", "-lm", "-o", str(exe)],
+                   check=True)
+    return exe
+
+
+def test_mpc_example_tracks_within_limits(mpc_example):
+    import subprocess
+    run = subprocess.run([str(mpc_example), "0.01", "1.0"], capture_output=True, text=True, check=True)
+    rows = np.array([[float(v) for v in line.split()] for line in run.stdout.splitlines() if not line.startswith("#")])
+    assert rows.shape == (100, 7)
+    assert np.all(np.abs(rows[:, 4:]) <= np.array([0.6, 0.6, 0.4]) + 1e-12)     # the torque limits
+    assert np.ptp(rows[:, 2]) > 0.1, "the shoulder pitch must move"
+    max_err = float(run.stdout.splitlines()[-1].split("=")[1].split()[0])
+    assert max_err < 1e-3
+
+
+def test_mpc_example_is_valgrind_clean_and_refuses_bad_arguments(mpc_example):
+    import shutil
+    import subprocess
+    if shutil.which("valgrind") is not None:
+        run = subprocess.run(["valgrind", "-q", "--error-exitcode=9", "--leak-check=full", str(mpc_example), "0.01",
+                              "0.52"], capture_output=True, text=True)
+        assert run.returncode == 0, run.stderr
+    run = subprocess.run([str(mpc_example), "fast"], capture_output=True, text=True)
+    assert run.returncode == 2 and "argument 1" in run.stderr and run.stdout == ""

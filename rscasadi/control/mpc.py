@@ -152,7 +152,7 @@ def rti_function(arm: Arm, p: MPCProblem) -> ca.Function:
         fixed = ca.logic_or(ca.logic_and(du <= lo + 1e-12, grad > 0), ca.logic_and(du >= hi - 1e-12, grad < 0))
         free = 1 - fixed
         D = ca.diag(free)
-        step = ca.solve(ca.mtimes(ca.mtimes(D, H), D) + ca.diag(fixed), free * grad)
+        step = ca.solve(ca.mtimes(ca.mtimes(D, H), D) + ca.diag(fixed), free * grad, "ldl")
         du = ca.fmin(ca.fmax(du - step, lo), hi)
     U_next = U + ca.reshape(du, n, N)
     return ca.Function("mpc_rti", [xm, ref, U], [U_next[:, 0], U_next], ["x", "reference", "U"], ["tau", "U_next"])

@@ -1,0 +1,105 @@
+/* The generated nonlinear MPC at 1 kHz on the reference arm (3 joints), in C.
+ *
+ * Desired link motion theta_d(t) = A (1 - cos(2 pi t / 2 s)).  Every millisecond the controller
+ * gets the state and the reference at the ends of its N intervals (theta_d, dtheta_d at
+ * t + k h), returns the motor torques, and the arm (the same complete model, one RK4 step of
+ * `step` from rscasadi codegen per millisecond, 4 substeps) moves.  Each mpc_step is timed with
+ * clock_gettime.  No allocation.
+ *
+ * build: rscasadi codegen problems/arm3.toml --out build/arm3
+ *        rscasadi mpc problems/mpc_arm3.toml --out build/mpc
+ *        cc -std=c99 -Wall -Wextra -Werror -O2 -Ibuild/arm3 -Ibuild/mpc examples/mpc.c \
+ *           -Lbuild/arm3 -Lbuild/mpc -lrscasadi_arm -lrscasadi_mpc \
+ *           -Wl,-rpath,build/arm3 -Wl,-rpath,build/mpc -lm -o mpc_example
+ * run:   ./mpc_example INTERVAL_S [SECONDS]     (INTERVAL_S: the problem file's interval, 0.01;
+ *        SECONDS includes 0.5 s of settling at rest before the motion)
+ * prints every 10 ms: t theta[3] tau[3], then the largest tracking error and the step times. */
+#define _POSIX_C_SOURCE 199309L
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <time.h>
+#include "rscasadi_arm.h"
+#include "rscasadi_mpc.h"
+
+#define N 3
+#define RATE_HZ 1000
+#define MAX_STEPS 100000
+static const double A[N] = {0.5, 0.6, -0.7}; /* rad */
+static const double PERIOD = 2.0;              /* s */
+static double step_times[MAX_STEPS];
+
+static double now(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return t.tv_sec + 1e-9 * t.tv_nsec;
+}
+
+static int cmp(const void *a, const void *b) {
+  double x = *(const double *)a, y = *(const double *)b;
+  return (x > y) - (x < y);
+}
+
+static const double SETTLE = 0.5;              /* s at rest first: the arm starts without spring deflection */
+
+static void desired(double t, double *q, double *dq) {
+  const double w = 2.0 * 3.14159265358979323846 / PERIOD;
+  t = t > SETTLE ? t - SETTLE : 0.0;
+  for (int i = 0; i < N; ++i) {
+    q[i] = A[i] * (1.0 - cos(w * t));
+    dq[i] = A[i] * w * sin(w * t);
+  }
+}
+
+/* step(x, tau, h) -> x_next: one RK4 step of the complete model */
+static void advance(double *x, const double *tau, double h) {
+  double next[4 * N];
+  const casadi_real *arg[step_SZ_ARG + 1] = {x, tau, &h};
+  casadi_real *res[step_SZ_RES + 1] = {next};
+  casadi_int iw[step_SZ_IW + 1];
+  casadi_real w[step_SZ_W + 1];
+  step(arg, res, iw, w, 0);
+  for (int i = 0; i < 4 * N; ++i) x[i] = next[i];
+}
+
+int main(int argc, char **argv) {
+  if (argc < 2) {
+    fprintf(stderr, "usage: %s INTERVAL_S [SECONDS]\n", argv[0]);
+    return 2;
+  }
+  double args[2] = {0.0, 2.0};
+  for (int i = 0; i < 2 && 1 + i < argc; ++i) {
+    char *end;
+    args[i] = strtod(argv[1 + i], &end);
+    if (*end != '\0' || !(args[i] > 0.0) || !isfinite(args[i])) {
+      fprintf(stderr, "%s: argument %d (%s) must be a positive number\n", argv[0], 1 + i, argv[1 + i]);
+      return 2;
+    }
+  }
+  const double interval = args[0], seconds = args[1], dt = 1.0 / RATE_HZ;
+  const long steps = (long)(seconds * RATE_HZ + 0.5);
+  if (steps > MAX_STEPS) {
+    fprintf(stderr, "%s: at most %d s\n", argv[0], MAX_STEPS / RATE_HZ);
+    return 2;
+  }
+  /* start at theta = phi = 0, springs undeflected: the MPC settles the arm during SETTLE, then the
+   * motion starts; the tracking error is counted from then on */
+  double x[4 * N] = {0}, tau[N], reference[MPC_NREF], max_err = 0.0;
+  if (mpc_init(x) != 0) return 1;
+  for (long k = 0; k < steps; ++k) {
+    const double t = k * dt;
+    for (int j = 0; j < MPC_HORIZON; ++j) desired(t + (j + 1) * interval, reference + 2 * N * j, reference + 2 * N * j + N);
+    const double t0 = now();
+    if (mpc_step(x, reference, tau) != 0) return 1;
+    step_times[k] = now() - t0;
+    if (k % 10 == 0) printf("%.3f %.9f %.9f %.9f %.9f %.9f %.9f\n", t, x[0], x[1], x[2], tau[0], tau[1], tau[2]);
+    for (int s = 0; s < 4; ++s) advance(x, tau, dt / 4);
+    double q[N], dq[N];
+    desired(t + dt, q, dq);
+    for (int i = 0; i < N && t + dt > SETTLE; ++i) max_err = fmax(max_err, fabs(x[i] - q[i]));
+  }
+  qsort(step_times, (size_t)steps, sizeof step_times[0], cmp);
+  printf("# max tracking error = %.3e rad; mpc_step median %.1f us, worst %.1f us over %ld steps\n", max_err,
+         1e6 * step_times[steps / 2], 1e6 * step_times[steps - 1], steps);
+  return 0;
+}
