@@ -102,6 +102,16 @@ def cmd_reproduce(args):
             failed.append(name)
     from .identification.demo import run as run_identification
     run_identification(REFERENCE, out / "identification", log=lambda msg: print(msg, flush=True))
+    import json
+    import tempfile
+    from .control.mpc import closed_loop, generate_mpc
+    from .files import fresh_directory
+    with tempfile.TemporaryDirectory() as build, fresh_directory(out / "mpc", "closed_loop.json") as tmp:
+        print("MPC: generating the C controller and running the closed-loop study ...", flush=True)
+        generate_mpc(PROBLEMS / "mpc_arm3.toml", Path(build) / "mpc", log=lambda msg: print(msg, flush=True))
+        res = closed_loop(PROBLEMS / "mpc_arm3.toml", Path(build) / "mpc", log=lambda msg: print(msg, flush=True))
+        (tmp / "closed_loop.json").write_text(json.dumps(res, indent=1) + "\n")
+    print(f"wrote {out / 'mpc' / 'closed_loop.json'}")
     if failed:
         print(f"rscasadi: error: optimal-control problems not solved and verified: {', '.join(failed)}", file=sys.stderr)
         return 1
