@@ -19,7 +19,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from common import RESULTS, ROOT, write_results  # noqa: E402
+from common import ROOT, write_results  # noqa: E402
 import rscasadi.control.ocp.solving as solving  # noqa: E402
 from rscasadi.control.ocp import load_problem, solve, solve_once  # noqa: E402
 

@@ -9,8 +9,8 @@ import pytest
 from rscasadi.cli import main
 from rscasadi.control.ocp import load_problem, solve, solve_once, verify
 from rscasadi.control.ocp.solving import local_errors
-from rscasadi.dynamics.arm import Arm, load
-from rscasadi.model.modelfile import ModelFileError, read
+from rscasadi.dynamics.arm import Arm
+from rscasadi.model.modelfile import ModelFileError
 from rscasadi.model.parameters import with_values
 
 from conftest import REFERENCE, problem, random_state
@@ -119,9 +119,8 @@ def test_codesign_improves_on_the_nominal_arm_and_is_what_it_says(pitch_arm):
     assert 200.0 - 1e-6 <= k <= 5000.0 + 1e-6
     assert sol["t"][-1] <= sol["nominal"]["duration"] * (1 + 1e-6)
     # independent check: write k into a model file and solve the plain problem on the same mesh
-    doc = read(pitch_arm / "pitch.toml")
-    from rscasadi.model.modelfile import to_toml
     import tomllib
+    from rscasadi.model.modelfile import to_toml
     with open(pitch_arm / "pitch.toml", "rb") as fh:
         d = tomllib.load(fh)
     d["joints"][0]["sea"]["k1"] = k
@@ -130,7 +129,6 @@ def test_codesign_improves_on_the_nominal_arm_and_is_what_it_says(pitch_arm):
                                  max_duration=5.0, transcription={"intervals": sol["intervals"]}))
     ref = solve_once(fixed, w=sol["mesh"], warm=sol, **QUIET)
     assert ref["success"] and abs(ref["t"][-1] - sol["t"][-1]) < 1e-5 * sol["t"][-1]
-    assert doc.n == 1
 
 
 @pytest.mark.parametrize("design,field", [

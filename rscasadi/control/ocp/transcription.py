@@ -33,7 +33,6 @@ import casadi as ca
 import numpy as np
 
 from ...dynamics.arm import Arm
-from ...model.parameters import names as parameter_names, nominal as parameter_nominal
 from .problem import Problem
 
 
