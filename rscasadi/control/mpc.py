@@ -35,6 +35,7 @@ mpc_hold(x) -> U), `rscasadi_mpc.c` and `rscasadi_mpc.h` (the controller: static
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -223,7 +224,9 @@ def generate_mpc(problem_file, out, opt: str = "-O2", log=print) -> dict:
         gen.add(hold)
         gen.generate(str(tmp) + "/")
         n = arm.n
-        (tmp / "rscasadi_mpc.h").write_text(WRAPPER_H.format(model=Path(arm.model.path).name, n=n, nx=4 * n,
+        # the model's file name goes into a C comment: only characters that cannot end one
+        model_name = re.sub(r"[^A-Za-z0-9._-]", "_", Path(arm.model.path).name)
+        (tmp / "rscasadi_mpc.h").write_text(WRAPPER_H.format(model=model_name, n=n, nx=4 * n,
                                                            N=p.horizon, nref=2 * n * p.horizon, ts=p.sample_time,
                                                            h=p.interval))
         (tmp / "rscasadi_mpc.c").write_text(WRAPPER_C.format())
