@@ -43,7 +43,7 @@ import casadi as ca
 import numpy as np
 
 from ..dynamics.arm import Arm, load
-from ..model.modelfile import ModelFileError, read_toml
+from ..model.modelfile import field_checker, read_toml
 
 TOP = {"model", "trajectory", "sample_time", "horizon", "interval", "substeps", "newton_iterations", "weights"}
 WEIGHTS = {"theta": 1e5, "dtheta": 1.0, "tau": 1e-3, "limits": 1e5}
@@ -67,12 +67,7 @@ def load_mpc_problem(path) -> MPCProblem:
     path = Path(path)
     d = read_toml(path, "MPC problem")
 
-    def fail(fld, msg):
-        raise ModelFileError(f"{path}: field '{fld}': {msg}")
-
-    for key in d:
-        if key not in TOP:
-            fail(key, f"unknown key (allowed: {', '.join(sorted(TOP))})")
+    fail = field_checker(path, d, TOP)
     if not isinstance(d.get("model"), str):
         fail("model", "missing, or not the path of a model file")
     p = MPCProblem(path, (path.parent / d["model"]).resolve())
@@ -250,9 +245,6 @@ def generate_mpc(problem_file, out, opt: str = "-O2", log=print) -> dict:
 
 # ------------------------------------------------------------------ closed-loop evidence
 
-LINK_COUNTS, MOTOR_COUNTS = 2 ** 19, 2 ** 17          # encoders: link side, motor side (before the gear)
-
-
 def heavier_tip(arm: Arm, factor: float = 1.2) -> Arm:
     """The same arm with its last link's mass (and inertia) scaled: the plant of the mismatch study."""
     import dataclasses
@@ -293,6 +285,7 @@ def closed_loop(problem_file, mpc_dir, duration: float | None = None, tip_factor
     Returns per controller the tracking error (max, RMS), the largest limit violation and, for the
     MPC, its time per step."""
     from ..codegen import rk4
+    from ..identification.synthetic import LINK_COUNTS, MOTOR_COUNTS       # the same encoders as the logs
     from .simulation import feedforward
     from .trajectory import load_trajectory
     p = load_mpc_problem(problem_file)

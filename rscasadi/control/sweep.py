@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..model.modelfile import ModelFileError, read, read_toml
+from ..model.modelfile import ModelFileError, field_checker, read, read_toml
 from .ocp.problem import SWEEPABLE, check_against_model, load_problem
 
 COLUMNS = ("point", "status", "success", "verified", "objective", "final_time_s", "solve_time_s", "iterations")
@@ -52,12 +52,7 @@ def load_sweep(path) -> Sweep:
     path = Path(path)
     d = read_toml(path, "sweep")
 
-    def fail(fld, msg):
-        raise ModelFileError(f"{path}: field '{fld}': {msg}")
-
-    for key in d:
-        if key not in ("problem", "grid"):
-            fail(key, "unknown key (allowed: grid, problem)")
+    fail = field_checker(path, d, ("problem", "grid"))
     for key in ("problem", "grid"):
         if key not in d:
             fail(key, "missing required field")

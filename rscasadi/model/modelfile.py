@@ -259,6 +259,17 @@ def parse(data: dict, path: str = "<memory>") -> ArmModel:
     return ArmModel(data["name"], gravity, tuple(joints), path)
 
 
+def field_checker(path, d: dict, allowed):
+    """For a document read from `path`: refuse keys not in `allowed`, and return fail(field,
+    message), which raises the ModelFileError naming file and field."""
+    def fail(fld, msg):
+        raise ModelFileError(f"{path}: field '{fld}': {msg}")
+    for key in d:
+        if key not in allowed:
+            fail(key, f"unknown key (allowed: {', '.join(sorted(allowed))})")
+    return fail
+
+
 def read_toml(path, kind: str = "model") -> dict:
     """A TOML document, or a ModelFileError that names the file (kind: model, problem, trajectory)."""
     try:

@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...model.modelfile import ModelFileError, read_toml
+from ...model.modelfile import ModelFileError, field_checker, read_toml
 
 OBJECTIVES = ("min_time", "min_effort", "tracking")
 METHODS = ("radau", "legendre", "hermite-simpson")
@@ -84,9 +84,7 @@ class Problem:
 def load_problem(path) -> Problem:
     path = Path(path)
     d = read_toml(path, "problem")
-
-    def fail(fld, msg):
-        raise ModelFileError(f"{path}: field '{fld}': {msg}")
+    fail = field_checker(path, d, TOP)
 
     def number(fld, v, positive=True):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or (positive and v <= 0):
@@ -102,9 +100,6 @@ def load_problem(path) -> Problem:
                 fail(f"{name}.{key}", f"unknown key (allowed: {', '.join(sorted(TABLES[name]))})")
         return t
 
-    for key in d:
-        if key not in TOP:
-            fail(key, f"unknown key (allowed: {', '.join(sorted(TOP))})")
     for key in ("model", "objective", "duration"):
         if key not in d:
             fail(key, "missing required field")

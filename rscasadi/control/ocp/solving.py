@@ -104,10 +104,10 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
     # the objective is scaled to about 1 at the guess: an effort of 1e-2 otherwise leaves the
     # solver crawling with a tiny dual infeasibility (seen: 1000+ iterations instead of 20)
     f0 = float(objective(w0, P))
-    P = tr.parameters(theta_start, problem.theta_end, problem.duration, problem.effort_weight, w, ref,
-                      list(problem.parameters.values()), scale=float(np.clip(1.0 / max(abs(f0), 1e-12), 1e-2, 1e4)))
+    scaled = P.copy()
+    scaled[tr.parameter_layout()[0]["scale"]] = np.clip(1.0 / max(abs(f0), 1e-12), 1e-2, 1e4)
     t0 = time.perf_counter()
-    res = solver(x0=w0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, p=P)
+    res = solver(x0=w0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, p=scaled)
     solve_time = time.perf_counter() - t0
     stats = solver.stats()
     out = tr.unpack(np.array(res["x"]))
@@ -120,9 +120,7 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
         target = rest_state(Arm(with_values(base, {**problem.parameters, **design})), problem.theta_end).tolist()
     return {"model": str(problem.model_path), "solver": problem.solver, "status": _status(stats),
             "success": bool(stats["success"]), "solve_time_s": solve_time, "setup_time_s": setup,
-            "iterations": int(stats["iter_count"]), "objective": float(objective(res["x"], tr.parameters(
-                theta_start, problem.theta_end, problem.duration, problem.effort_weight, w, ref,
-                list(problem.parameters.values())))),
+            "iterations": int(stats["iter_count"]), "objective": float(objective(res["x"], P)),
             "intervals": len(w), "mesh": (np.asarray(w) / np.sum(w)).tolist(), "t": t.tolist(),
             **{k: Xs[i * n:(i + 1) * n].tolist() for i, k in enumerate(("theta", "phi", "dtheta", "dphi"))},
             "tau": np.hstack([U, U[:, -1:]]).tolist(), "tau_interpolation": "constant",
