@@ -76,11 +76,12 @@ def cmd_sweep(args):
 
 def cmd_mpc(args):
     from .control.mpc import closed_loop, generate_mpc
-    generate_mpc(args.problem, args.out, opt=args.opt, log=lambda msg: print(msg, flush=True))
+    generate_mpc(args.problem, args.out, opt=args.opt, log=lambda msg: print(msg, flush=True), model=args.model)
     if args.study is not None:
         import json
         import os
-        res = closed_loop(args.problem, args.out, duration=args.study or None, log=lambda msg: print(msg, flush=True))
+        res = closed_loop(args.problem, args.out, duration=args.study or None, log=lambda msg: print(msg, flush=True),
+                          model=args.model)
         tmp = Path(args.out) / f".closed_loop.{os.getpid()}.json"
         tmp.write_text(json.dumps(res, indent=1) + "\n")
         tmp.replace(Path(args.out) / "closed_loop.json")
@@ -171,9 +172,11 @@ def main(argv=None):
     p.add_argument("--quiet", action="store_true", help="no solver iteration log")
     p.add_argument("--solver", choices=("ipopt", "fatrop"), help="override the problem file's [solver] name")
     p.set_defaults(func=cmd_ocp)
-    p = sub.add_parser("mpc", help="generate a nonlinear MPC (real-time iteration on the complete model) as C")
+    p = sub.add_parser("mpc", help="generate a nonlinear MPC (multiple shooting, SQP or real-time iteration on the "
+                                   "complete model) as C")
     p.add_argument("problem", help="MPC problem file (TOML)")
     p.add_argument("--out", default="build/mpc")
+    p.add_argument("--model", default=None, help="a model file that replaces the problem's (e.g. an identified one)")
     p.add_argument("--opt", default="-O2", help="optimisation flag for the library (default -O2)")
     p.add_argument("--study", type=float, nargs="?", const=0.0, metavar="SECONDS",
                    help="then run the closed-loop study (heavier tip, quantised encoders) for SECONDS "

@@ -133,3 +133,44 @@ def problem(directory, name="p.toml", **over):
     path = directory / name
     path.write_text(body)
     return path
+
+
+# ----------------------------------------------------------------------------- identification workflow
+# (session-wide: the identification tests and the MPC's identified-model study share them)
+
+from rscasadi.cli import main  # noqa: E402
+from rscasadi.control.trajectory import load_trajectory  # noqa: E402
+from rscasadi.identification.logs import write_log  # noqa: E402
+from rscasadi.identification.synthetic import perturbed_arm, record  # noqa: E402
+
+
+@pytest.fixture(scope="session")
+def excitation(tmp_path_factory):
+    out = tmp_path_factory.mktemp("excite") / "arm3"
+    assert main(["excite", str(REFERENCE), "--out", str(out), "--period", "10", "--harmonics", "5"]) == 0
+    return out
+
+
+@pytest.fixture(scope="session")
+def synthetic(excitation, arm3, tmp_path_factory):
+    """A different arm (every parameter off by 10-40 %, k3 and Coulomb added), its logs under
+    the excitation (identification) and under the paper's trajectory (held out)."""
+    rng = np.random.default_rng(2026)
+    true = perturbed_arm(arm3, rng)
+    d = tmp_path_factory.mktemp("logs")
+    logs = {}
+    for name, traj in (("identification", load_trajectory(excitation / "trajectory.toml")),
+                       ("validation", load_trajectory(ROOT / "problems" / "trajectory_arm3.toml"))):
+        lg, _ = record(true, arm3, traj, rng=rng)
+        write_log(d / f"{name}.csv", lg)
+        logs[name] = d / f"{name}.csv"
+    return true, logs
+
+
+@pytest.fixture(scope="session")
+def identified(synthetic, tmp_path_factory):
+    _, logs = synthetic
+    out = tmp_path_factory.mktemp("ident") / "arm3"
+    assert main(["identify", str(REFERENCE), str(logs["identification"]), "--out", str(out),
+                 "--validate", str(logs["validation"])]) == 0
+    return out

@@ -13,7 +13,6 @@ from rscasadi.identification import identify as ident_mod
 from rscasadi.identification.demo import recovered_table
 from rscasadi.identification.logs import LogError, Log, header, read_log, write_log
 from rscasadi.identification.regressor import base_parameters, random_samples, regressor, stacked
-from rscasadi.identification.synthetic import perturbed_arm, record
 from rscasadi.model.parameters import n_linear
 
 from conftest import REFERENCE, ROOT, dm
@@ -122,13 +121,6 @@ def test_log_round_trip_with_torque_sensor(tmp_path):
 
 # ----------------------------------------------------------------------------- the workflow
 
-@pytest.fixture(scope="module")
-def excitation(tmp_path_factory):
-    out = tmp_path_factory.mktemp("excite") / "arm3"
-    assert main(["excite", str(REFERENCE), "--out", str(out), "--period", "10", "--harmonics", "5"]) == 0
-    return out
-
-
 def test_excitation_is_at_rest_within_limits_and_better_than_a_hand_picked_motion(excitation, arm3):
     summary = json.loads((excitation / "excitation.json").read_text())
     traj = load_trajectory(excitation / "trajectory.toml")
@@ -146,31 +138,6 @@ def test_excitation_is_at_rest_within_limits_and_better_than_a_hand_picked_motio
     assert np.all(theta >= lo) and np.all(theta <= hi)
     assert np.max(np.abs(ff[:, 7:10] - theta)) <= 0.15                  # deflection limit
     assert summary["condition_number"] * 100 < summary["condition_number_hand_picked"]
-
-
-@pytest.fixture(scope="module")
-def synthetic(excitation, arm3, tmp_path_factory):
-    """A different arm (every parameter off by 10-40 %, k3 and Coulomb added), its logs under
-    the excitation (identification) and under the paper's trajectory (held out)."""
-    rng = np.random.default_rng(2026)
-    true = perturbed_arm(arm3, rng)
-    d = tmp_path_factory.mktemp("logs")
-    logs = {}
-    for name, traj in (("identification", load_trajectory(excitation / "trajectory.toml")),
-                       ("validation", load_trajectory(ROOT / "problems" / "trajectory_arm3.toml"))):
-        lg, _ = record(true, arm3, traj, rng=rng)
-        write_log(d / f"{name}.csv", lg)
-        logs[name] = d / f"{name}.csv"
-    return true, logs
-
-
-@pytest.fixture(scope="module")
-def identified(synthetic, tmp_path_factory):
-    _, logs = synthetic
-    out = tmp_path_factory.mktemp("ident") / "arm3"
-    assert main(["identify", str(REFERENCE), str(logs["identification"]), "--out", str(out),
-                 "--validate", str(logs["validation"])]) == 0
-    return out
 
 
 def test_identified_model_file_round_trips(identified, arm3):

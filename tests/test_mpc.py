@@ -1,10 +1,13 @@
-"""The nonlinear MPC generated to C: equal to its CasADi Function, and better than feedforward +
-PD on a plant with a heavier tip and quantised encoders (a short run; the full one is
-benchmarks/bench_mpc.py)."""
+"""The nonlinear MPC generated to C: equal to its CasADi Function, its QP step against an
+independent QP solver (qpOASES), better than feedforward + PD on a plant with a heavier tip and
+on the true arm when built from the identified model (short runs; the full ones are
+benchmarks/bench_mpc.py), and its SQP mode reaching a target pose within the limits."""
+import casadi as ca
 import numpy as np
 import pytest
 
 from rscasadi.cli import main
+from rscasadi.control import mpc as M
 from rscasadi.control.mpc import CompiledMPC, closed_loop, hold_function, load_mpc_problem, rti_function
 from rscasadi.control.ocp import rest_state
 from rscasadi.dynamics.arm import load
@@ -30,14 +33,45 @@ def test_generated_c_equals_the_casadi_function(mpc_dir):
     rng = np.random.default_rng(3)
     x = rest_state(arm, [0.1, 0.4, -0.6])
     c.init(x)
-    U = np.array(hold(x))
-    for _ in range(5):                                   # the C keeps its torque plan between steps
+    X, U = (np.array(v) for v in hold(x))
+    for _ in range(5):                                   # the C keeps its state and torque plans between steps
         ref = np.vstack([x[:3, None] + rng.normal(0, 0.05, (3, p.horizon)), rng.normal(0, 0.2, (3, p.horizon))])
         tau_c, _, flag = c.step(x, ref)
-        tau_py, U = (np.array(v) for v in rti(x, ref, U))
+        tau_py, X, U = (np.array(v) for v in rti(x, ref, X, U))
         assert flag == 0 and np.max(np.abs(tau_c - tau_py.ravel())) < 1e-12
         x = x + rng.normal(0, 1e-3, x.shape)
     assert np.all(np.abs(tau_c) <= np.array([jt.limits["tau"] for jt in arm.model.joints]) + 1e-12)
+
+
+def _qpoases(H, g, lo, hi):
+    qp = ca.conic("reference", "qpoases", {"h": ca.Sparsity.dense(*H.shape), "a": ca.Sparsity(0, H.shape[0])},
+                  {"printLevel": "none"})
+    return np.array(qp(h=H, g=g, lbx=lo, ubx=hi)["x"]).ravel()
+
+
+def test_qp_step_equals_an_active_set_solver_on_a_cold_step_to_a_far_pose(arm3):
+    """The condensed QP of the first sample of a step from rest to a far pose (many torque bounds
+    active; ill-conditioned): the interior-point iterations land on qpOASES' solution."""
+    p = load_mpc_problem(PROBLEM)
+    n, N = arm3.n, p.horizon
+    F, _ = M.interval_functions(arm3, p.interval, p.substeps)
+    limits = M.limit_arrays(arm3)
+    xm, ref = ca.MX.sym("x", 4 * n), ca.MX.sym("r", 2 * n, N)
+    X, U = ca.MX.sym("X", 4 * n, N + 1), ca.MX.sym("U", n, N)
+    lin = M._Linearisation(F, p, limits, xm, ref, X, U)
+    tm = np.tile(limits["tau"], N)
+    lo, hi = -tm - ca.vec(U), tm - ca.vec(U)
+    qp = ca.Function("qp", [xm, ref, X, U], [lin.H, lin.g, lo, hi, M.box_qp(lin.H, lin.g, lo, hi, p.qp_iterations)])
+    x = rest_state(arm3, [0.0, 0.0, 0.0])
+    Xh, Uh = hold_function(arm3, p)(x)
+    rng = np.random.default_rng(7)
+    for target in [[0.6, 0.8, -0.9], [-0.3, 0.2, 0.5]] + [rng.uniform(-1.2, 1.2, 3) for _ in range(6)]:
+        R = np.vstack([np.tile(np.array(target)[:, None], (1, N)), np.zeros((n, N))])
+        H, g, lo_v, hi_v, d = (np.array(v) for v in qp(x, R, Xh, Uh))
+        d_ref = _qpoases(H, g, lo_v, hi_v)
+        active = np.sum((d_ref <= lo_v.ravel() + 1e-9) | (d_ref >= hi_v.ravel() - 1e-9))
+        assert active >= 3, "the case must exercise the bounds"
+        assert np.max(np.abs(d.ravel() - d_ref)) < 1e-6
 
 
 def test_mpc_beats_feedforward_and_pd_under_mismatch(mpc_dir):
@@ -48,11 +82,41 @@ def test_mpc_beats_feedforward_and_pd_under_mismatch(mpc_dir):
     assert res["feedforward"]["max_error"] > pd["max_error"]  # no feedback: the heavier tip drifts
 
 
+def test_mpc_of_the_identified_model_on_the_true_arm(identified, synthetic, tmp_path):
+    """Controllers built from the identified model file, the plant the (different) arm that
+    produced the logs."""
+    true_arm, _ = synthetic
+    out = tmp_path / "mpc_identified"
+    assert main(["mpc", str(PROBLEM), "--out", str(out), "--opt=-O1", "--model", str(identified / "model.toml")]) in (0, None)
+    res = closed_loop(PROBLEM, out, duration=0.4, log=lambda m: None, model=identified / "model.toml", plant=true_arm)
+    mpc, pd = res["MPC (C)"], res["feedforward + PD"]
+    assert mpc["max_limit_violation"] == 0.0
+    # the identified model is close (feedforward + PD alone: ~2e-4 rad), the MPC still halves it
+    assert mpc["max_error"] < 0.7 * pd["max_error"]
+
+
+def test_sqp_mode_reaches_a_far_target_pose_within_the_limits(tmp_path, arm3):
+    """Three SQP iterations with the line search per sample, mpc_step_to a pose 0.6-0.9 rad away
+    from rest: settled within 1 s, limits kept (the soft ones within 1 %)."""
+    problem = tmp_path / "mpc_sqp.toml"
+    problem.write_text(PROBLEM.read_text().replace("sqp_iterations = 1", "sqp_iterations = 3")
+                       .replace('"arm3.toml"', f'"{(ROOT / "problems" / "arm3.toml").as_posix()}"')
+                       .replace('"trajectory_arm3.toml"', f'"{(ROOT / "problems" / "trajectory_arm3.toml").as_posix()}"'))
+    out = tmp_path / "mpc_sqp"
+    assert main(["mpc", str(problem), "--out", str(out), "--opt=-O1"]) in (0, None)
+    res = M.reach_pose(problem, out, [0.6, 0.8, -0.9], seconds=1.0)
+    assert res["final_angle_error"] < 1e-4 and res["final_speed"] < 1e-3
+    assert res["max_limit_violation"] < 0.01
+    assert np.all(np.abs(res["tau"]) <= M.limit_arrays(arm3)["tau"] + 1e-12)
+
+
 @pytest.mark.parametrize("text,field", [
     ('model = "arm3.toml"\nhorizon = 0\n', "horizon"),
     ('model = "arm3.toml"\ninterval = -1.0\n', "interval"),
     ('model = "arm3.toml"\n[weights]\nspeed = 1.0\n', "weights.speed"),
     ('model = "arm3.toml"\ncolour = 1\n', "colour"),
+    ('model = "arm3.toml"\nsqp_iterations = 0\n', "sqp_iterations"),
+    ('model = "arm3.toml"\nqp_iterations = 2.5\n', "qp_iterations"),
 ])
 def test_bad_mpc_problem_names_the_field(tmp_path, text, field):
     path = tmp_path / "bad_mpc.toml"
