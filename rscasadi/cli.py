@@ -105,12 +105,13 @@ def cmd_reproduce(args):
     run_identification(REFERENCE, out / "identification", log=lambda msg: print(msg, flush=True))
     import json
     import tempfile
-    from .control.mpc import closed_loop, generate_mpc
+    from .control.mpc import study
     from .files import fresh_directory
+    from .identification.demo import true_arm_of
     with tempfile.TemporaryDirectory() as build, fresh_directory(out / "mpc", "closed_loop.json") as tmp:
-        print("MPC: generating the C controller and running the closed-loop study ...", flush=True)
-        generate_mpc(PROBLEMS / "mpc_arm3.toml", Path(build) / "mpc", log=lambda msg: print(msg, flush=True))
-        res = closed_loop(PROBLEMS / "mpc_arm3.toml", Path(build) / "mpc", log=lambda msg: print(msg, flush=True))
+        print("MPC: generating the C controllers and running the closed-loop studies ...", flush=True)
+        res = study(PROBLEMS / "mpc_arm3.toml", build, identified_model=out / "identification" / "identified" / "model.toml",
+                    true_arm=true_arm_of(load(REFERENCE)), log=lambda msg: print(msg, flush=True))
         (tmp / "closed_loop.json").write_text(json.dumps(res, indent=1) + "\n")
     print(f"wrote {out / 'mpc' / 'closed_loop.json'}")
     if failed:

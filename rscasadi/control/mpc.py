@@ -521,3 +521,20 @@ def closed_loop(problem_file, mpc_dir, duration: float | None = None, tip_factor
             f"limit violation {max(violation, 0.0):.1e}"
             + (f", step median {np.median(times) * 1e6:.0f} us, worst {np.max(times) * 1e6:.0f} us" if times else ""))
     return results
+
+
+def study(problem_file, build, identified_model=None, true_arm: Arm | None = None, log=print) -> dict:
+    """The closed-loop evidence, whole trajectory: the problem's model against a 20 % heavier tip;
+    if given, the identified model's controllers (MPC generated into `build`) against the true arm
+    that produced the identification logs."""
+    build = Path(build)
+    res = {}
+    log("closed loop: the model's controllers on a plant with a 20 % heavier tip, quantised encoders")
+    generate_mpc(problem_file, build / "mpc", log=log)
+    res["heavier_tip"] = closed_loop(problem_file, build / "mpc", log=log)
+    if identified_model is not None:
+        log("closed loop: the identified model's controllers on the true arm, quantised encoders")
+        generate_mpc(problem_file, build / "mpc_identified", log=log, model=identified_model)
+        res["identified_on_true_arm"] = closed_loop(problem_file, build / "mpc_identified", log=log,
+                                                    model=identified_model, plant=true_arm)
+    return res

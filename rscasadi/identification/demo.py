@@ -88,12 +88,17 @@ def _md_table(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def true_arm_of(arm: Arm) -> Arm:
+    """The demo's 'real' arm for this model: the first draw of its seeded generator (as in run)."""
+    return perturbed_arm(arm, np.random.default_rng(SEED))
+
+
 def run(model_file, out, log=print) -> dict:
     t0 = time.perf_counter()
     stamp = lambda: f"[{time.perf_counter() - t0:5.1f} s]"
     arm = load(model_file)
     rng = np.random.default_rng(SEED)
-    true_arm = perturbed_arm(arm, rng)
+    true_arm = perturbed_arm(arm, rng)                  # = true_arm_of(arm); rng goes on to the logs' noise
     with fresh_directory(out, "summary.json") as tmp:
         log(f"{stamp()} 1. rscasadi excite: identification and validation trajectories")
         excitation.run(model_file, tmp / "excitation", period=10.0, harmonics=5, log=log)
