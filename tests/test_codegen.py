@@ -2,7 +2,6 @@
 and robust to hostile input."""
 import json
 import re
-import shutil
 import subprocess
 from pathlib import Path
 

@@ -1,7 +1,6 @@
 """The example C controller: builds with -Werror, runs, equals its Python twin, valgrind-clean."""
 import shutil
 import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest

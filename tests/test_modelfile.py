@@ -1,5 +1,4 @@
 """Every rule of MODEL.md section 4 refuses a bad file with the file, the joint and the field."""
-import copy
 import tomllib
 
 import numpy as np

@@ -6,7 +6,7 @@ import pytest
 
 from rscasadi.cli import main
 from rscasadi.model.modelfile import ModelFileError
-from rscasadi.control.ocp import load_problem, run, solve, verify
+from rscasadi.control.ocp import load_problem, solve, verify
 
 from conftest import problem
 

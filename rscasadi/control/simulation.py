@@ -69,7 +69,7 @@ def simulate_held(arm: Arm, x0, t, tau, substeps: int, tol: float = 1e-10) -> di
     non-uniform), simulated with CVODES and reported `substeps` times finer than t.  Each fine
     sample's interval is found by integer division, never by a float search (which picks the
     wrong torque at a switch)."""
-    t, n = np.asarray(t, float), arm.n
+    t = np.asarray(t, float)
     F = held_interval(arm, tol)
     idx = np.arange((len(t) - 1) * substeps) // substeps
     h = np.diff(t)[idx] / substeps

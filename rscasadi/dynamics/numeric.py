@@ -207,7 +207,7 @@ class Numeric:
         n, s = self.n, self.frames(theta, phi, dtheta, dphi)
         _, alpha_s, alpha_f = self.link_accelerations(s, ddtheta_guess, ddphi)
         T = self._k(self.sea(theta, phi, dtheta, dphi)[0])
-        ph, dth, dph, ddph = self._k(phi), self._k(dtheta), self._k(dphi), self._k(ddphi)
+        dth, dph, ddph = self._k(dtheta), self._k(dphi), self._k(ddphi)
 
         def step(P, z, H, torque):                                 # D, G, tau-bar, P^+, eps, v, z^+
             D = H @ P @ H
