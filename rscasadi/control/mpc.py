@@ -128,15 +128,31 @@ def limit_arrays(arm: Arm) -> dict:
             for key in ("tau", "psi", "dphi")}
 
 
+def stage_residual(n: int, p: MPCProblem, limits: dict) -> ca.Function:
+    """(x_k, reference_k) -> (r, dr/dx): the weighted residual whose half squared norm is the stage
+    cost: tracking errors, and the psi and dphi excess beyond 90 % of their limits."""
+    x, ref = ca.SX.sym("x", 4 * n), ca.SX.sym("reference", 2 * n)
+    w = p.weights
+    parts = [np.sqrt(w["theta"]) * (x[:n] - ref[:n]), np.sqrt(w["dtheta"]) * (x[2 * n:3 * n] - ref[n:])]
+    for c, cmax in ((x[n:2 * n] - x[:n], limits["psi"]), (x[3 * n:], limits["dphi"])):
+        finite = np.isfinite(cmax)
+        if finite.any():
+            excess = ca.fmax(ca.fabs(c) - SOFT * np.where(finite, cmax, 1.0), 0) * ca.sign(c)
+            parts.append(np.sqrt(w["limits"]) * finite * excess)
+    r = ca.vertcat(*parts)
+    return ca.Function("stage_residual", [x, ref], [r, ca.jacobian(r, x)])
+
+
 class _Linearisation:
     """The Gauss-Newton QP of the multiple-shooting NLP at (X, U), condensed (Bock & Plitt):
     dx_0 = x_measured - X_0 (initial-value embedding); dx_{k+1} = A_k dx_k + B_k du_k + c_k with the
     gap c_k = F(X_k, U_k) - X_{k+1}; so dx_k = E_k + G_k dU, and the QP is in dU alone."""
 
     def __init__(self, F, p: MPCProblem, limits: dict, xm, ref, X, U):
-        n, N, w = U.shape[0], p.horizon, p.weights
+        n, N = U.shape[0], p.horizon
         nx = X.shape[0]
-        self.H, self.g = w["tau"] * ca.MX.eye(n * N), w["tau"] * ca.vec(U)
+        residual = stage_residual(n, p, limits)
+        self.H, self.g = p.weights["tau"] * ca.MX.eye(n * N), p.weights["tau"] * ca.vec(U)
         E, G = xm - X[:, 0], ca.MX.zeros(nx, n * N)
         self.E, self.G = [E], [G]
         for k in range(N):
@@ -145,24 +161,10 @@ class _Linearisation:
             G = ca.horzcat(ca.mtimes(A, G[:, :n * k]), B, ca.MX.zeros(nx, n * (N - k - 1)))
             self.E.append(E)
             self.G.append(G)
-            self._add_cost(X[:, k + 1] + E, G, ref[:, k], w, limits, n)
-
-    def _add_cost(self, x, G, ref_k, w, limits, n):
-        """Least squares on the tracking error, penalties beyond 90 % of the psi and dphi limits."""
-        for rows, target, weight in ((slice(0, n), ref_k[:n], w["theta"]), (slice(2 * n, 3 * n), ref_k[n:], w["dtheta"])):
-            J = G[rows, :]
-            self.H += weight * ca.mtimes(J.T, J)
-            self.g += weight * ca.mtimes(J.T, x[rows] - target)
-        for c, J, cmax in ((x[n:2 * n] - x[:n], G[n:2 * n, :] - G[:n, :], limits["psi"]),
-                           (x[3 * n:], G[3 * n:, :], limits["dphi"])):
-            finite = np.isfinite(cmax)
-            if not finite.any():
-                continue
-            soft = SOFT * np.where(finite, cmax, 1.0)
-            active = (ca.fabs(c) > soft) * finite                        # beyond 90 %: penalised
-            Ja = ca.mtimes(ca.diag(active), J)
-            self.H += w["limits"] * ca.mtimes(Ja.T, Ja)
-            self.g += w["limits"] * ca.mtimes(Ja.T, active * (c - ca.sign(c) * soft))
+            r, Jx = residual(X[:, k + 1] + E, ref[:, k])
+            J = ca.mtimes(Jx, G)
+            self.H += ca.mtimes(J.T, J)
+            self.g += ca.mtimes(J.T, r)
 
     def step(self, dU):
         """dX = (E_k + G_k dU)_k."""
@@ -172,16 +174,11 @@ class _Linearisation:
 def rollout(Fx, p: MPCProblem, limits: dict, xm, ref, U):
     """The plan's states simulated from the measured state, and the NLP's cost along them: the
     measure of progress of the line search (a condensed, hence gap-free, merit function)."""
-    n, w = U.shape[0], p.weights
-    xs, total = [xm], 0.5 * w["tau"] * ca.sumsqr(U)
+    residual = stage_residual(U.shape[0], p, limits)
+    xs, total = [xm], 0.5 * p.weights["tau"] * ca.sumsqr(U)
     for k in range(p.horizon):
-        x = Fx(xs[-1], U[:, k])
-        xs.append(x)
-        total += 0.5 * (w["theta"] * ca.sumsqr(x[:n] - ref[:n, k]) + w["dtheta"] * ca.sumsqr(x[2 * n:3 * n] - ref[n:, k]))
-        for c, cmax in ((x[n:2 * n] - x[:n], limits["psi"]), (x[3 * n:], limits["dphi"])):
-            finite = np.isfinite(cmax)
-            if finite.any():
-                total += 0.5 * w["limits"] * ca.sumsqr(finite * ca.fmax(ca.fabs(c) - SOFT * np.where(finite, cmax, 1.0), 0))
+        xs.append(Fx(xs[-1], U[:, k]))
+        total += 0.5 * ca.sumsqr(residual(xs[-1], ref[:, k])[0])
     return total, ca.horzcat(*xs)
 
 
