@@ -58,7 +58,7 @@ def test_qp_step_equals_an_active_set_solver_on_a_cold_step_to_a_far_pose(arm3):
     limits = M.limit_arrays(arm3)
     xm, ref = ca.MX.sym("x", 4 * n), ca.MX.sym("r", 2 * n, N)
     X, U = ca.MX.sym("X", 4 * n, N + 1), ca.MX.sym("U", n, N)
-    lin = M._Linearisation(F, p, limits, xm, ref, X, U)
+    lin = M._Linearisation(F, M.stage_residual(n, p, limits), p, xm, ref, X, U)
     tm = np.tile(limits["tau"], N)
     lo, hi = -tm - ca.vec(U), tm - ca.vec(U)
     qp = ca.Function("qp", [xm, ref, X, U], [lin.H, lin.g, lo, hi, M.box_qp(lin.H, lin.g, lo, hi, p.qp_iterations)])

@@ -148,10 +148,9 @@ class _Linearisation:
     dx_0 = x_measured - X_0 (initial-value embedding); dx_{k+1} = A_k dx_k + B_k du_k + c_k with the
     gap c_k = F(X_k, U_k) - X_{k+1}; so dx_k = E_k + G_k dU, and the QP is in dU alone."""
 
-    def __init__(self, F, p: MPCProblem, limits: dict, xm, ref, X, U):
+    def __init__(self, F, residual, p: MPCProblem, xm, ref, X, U):
         n, N = U.shape[0], p.horizon
         nx = X.shape[0]
-        residual = stage_residual(n, p, limits)
         self.H, self.g = p.weights["tau"] * ca.MX.eye(n * N), p.weights["tau"] * ca.vec(U)
         E, G = xm - X[:, 0], ca.MX.zeros(nx, n * N)
         self.E, self.G = [E], [G]
@@ -171,10 +170,9 @@ class _Linearisation:
         return ca.horzcat(*[E + ca.mtimes(G, dU) for E, G in zip(self.E, self.G)])
 
 
-def rollout(Fx, p: MPCProblem, limits: dict, xm, ref, U):
-    """The plan's states simulated from the measured state, and the NLP's cost along them: the
-    measure of progress of the line search (a condensed, hence gap-free, merit function)."""
-    residual = stage_residual(U.shape[0], p, limits)
+def rollout(Fx, residual, p: MPCProblem, xm, ref, U):
+    """The NLP's cost along the plan's states simulated from the measured state, and those states:
+    the measure of progress of the line search (a condensed, hence gap-free, merit function)."""
     xs, total = [xm], 0.5 * p.weights["tau"] * ca.sumsqr(U)
     for k in range(p.horizon):
         xs.append(Fx(xs[-1], U[:, k]))
@@ -236,26 +234,31 @@ def rti_function(arm: Arm, p: MPCProblem) -> ca.Function:
     n, N, nx = arm.n, p.horizon, 4 * arm.n
     F, Fx = interval_functions(arm, p.interval, p.substeps)
     limits = limit_arrays(arm)
+    residual = stage_residual(n, p, limits)
     xm, ref = ca.MX.sym("x", nx), ca.MX.sym("reference", 2 * n, N)
     X0, U0 = ca.MX.sym("X", nx, N + 1), ca.MX.sym("U", n, N)
-    X, U = X0, U0
+    X, U, phi0 = X0, U0, None
     tau_max = np.tile(limits["tau"], N)
-    for it in range(p.sqp_iterations):
-        lin = _Linearisation(F, p, limits, xm, ref, X, U)
+    for _ in range(p.sqp_iterations):
+        lin = _Linearisation(F, residual, p, xm, ref, X, U)
         dU = box_qp(lin.H, lin.g, -tau_max - ca.vec(U), tau_max - ca.vec(U), p.qp_iterations)
         dX = lin.step(dU)
         if p.sqp_iterations == 1:                                         # RTI: the full step
             X, U = X + dX, U + ca.reshape(dU, n, N)
             continue
         # step sizes tried in a fixed set (fixed work in C): the longest whose rollout lowers the
-        # cost, else the shortest; the states become that rollout (the gaps close)
-        phi0 = rollout(Fx, p, limits, xm, ref, U)[0]
+        # cost, else the shortest; the states become that rollout (the gaps close), and its cost
+        # is the next iteration's reference
+        if phi0 is None:
+            phi0 = rollout(Fx, residual, p, xm, ref, U)[0]
         dU = ca.reshape(dU, n, N)
-        alpha, X_new = ca.MX(LINE_SEARCH[-1]), rollout(Fx, p, limits, xm, ref, U + LINE_SEARCH[-1] * dU)[1]
+        alpha = ca.MX(LINE_SEARCH[-1])
+        phi_new, X_new = rollout(Fx, residual, p, xm, ref, U + alpha * dU)
         for a in reversed(LINE_SEARCH[:-1]):
-            phi, Xa = rollout(Fx, p, limits, xm, ref, U + a * dU)
-            alpha, X_new = ca.if_else(phi < phi0, a, alpha), ca.if_else(phi < phi0, Xa, X_new)
-        X, U = X_new, U + alpha * dU
+            phi, Xa = rollout(Fx, residual, p, xm, ref, U + a * dU)
+            better = phi < phi0
+            alpha, phi_new, X_new = ca.if_else(better, a, alpha), ca.if_else(better, phi, phi_new), ca.if_else(better, Xa, X_new)
+        X, U, phi0 = X_new, U + alpha * dU, phi_new
     X = ca.horzcat(xm, X[:, 1:])
     alpha = p.sample_time / p.interval
     return ca.Function("mpc_rti", [xm, ref, X0, U0], [U[:, 0], shifted(X, alpha), shifted(U, alpha)],
