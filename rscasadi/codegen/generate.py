@@ -73,7 +73,7 @@ def step_functions(arm: Arm, prefix: str = "", fd_jacobian: ca.Function | None =
     forward-dynamics Jacobian (`expand`, the default when it is SX) the whole Function becomes
     straight-line SX: 0.9 us instead of 7.5 us at n = 3."""
     n, f = arm.n, rhs(arm, parametric)
-    fd_jacobian = fd_jacobian or arm.forward_dynamics_jacobian(parametric)
+    fd_jacobian = fd_jacobian or forward_dynamics_jacobian(arm, parametric, prefix + "forward_dynamics_jacobian")
     x, tau, h = ca.MX.sym("x", 4 * n), ca.MX.sym("tau", n), ca.MX.sym("h")
     p = [ca.MX.sym("p", len(arm.parameters()[0]))] if parametric else []
     x_next, stages = rk4(lambda z: f(z, tau, *p), x, h)
@@ -104,6 +104,16 @@ def _ad_jacobian(f: ca.Function, ins, parametric: bool):
     return ca.densify(ca.jacobian(ca.vertcat(*f.call(list(ins))), ca.vertcat(*wrt)))
 
 
+def forward_dynamics_jacobian(arm: Arm, parametric: bool = False, name: str = "forward_dynamics_jacobian"):
+    """The faster route to d(ddtheta, ddphi)/d(x, tau) for this arm: plain SX AD for small
+    forward dynamics (compact straight-line code), the implicit-function theorem past
+    AD_JACOBIAN_LIMIT instructions (AD through the sweep explodes with n)."""
+    fd = arm.forward_dynamics(parametric)
+    if fd.n_instructions() > AD_JACOBIAN_LIMIT:
+        return _renamed(arm.forward_dynamics_jacobian(parametric), name)
+    return _renamed(fd, name, lambda *ins: [_ad_jacobian(fd, ins, parametric)], ["jacobian"])
+
+
 def functions(arm: Arm, prefix: str = "", parametric: bool = False) -> tuple[dict, dict]:
     """The Functions to generate, by their public name; and those omitted, with the reason.
     parametric: every Function takes the parameter vector p as its last input."""
@@ -116,13 +126,8 @@ def functions(arm: Arm, prefix: str = "", parametric: bool = False) -> tuple[dic
             fns[name] = _renamed(getattr(arm, name)(parametric), p + name)
         except ValueError as exc:                  # unbalanced rotors: the reduced model does not apply
             omitted[name] = str(exc)
-    fd, inv = arm.forward_dynamics(parametric), arm.inverse_dynamics(parametric)
-    if fd.n_instructions() > AD_JACOBIAN_LIMIT:            # implicit-function route: smaller C at large n
-        fns["forward_dynamics_jacobian"] = _renamed(arm.forward_dynamics_jacobian(parametric),
-                                                    p + "forward_dynamics_jacobian")
-    else:                                                  # plain SX AD: compact and fastest for small arms
-        fns["forward_dynamics_jacobian"] = _renamed(fd, p + "forward_dynamics_jacobian",
-                                                    lambda *ins: [_ad_jacobian(fd, ins, parametric)], ["jacobian"])
+    inv = arm.inverse_dynamics(parametric)
+    fns["forward_dynamics_jacobian"] = forward_dynamics_jacobian(arm, parametric, p + "forward_dynamics_jacobian")
     fns["inverse_dynamics_jacobian"] = _renamed(inv, p + "inverse_dynamics_jacobian",
                                                 lambda *ins: [_ad_jacobian(inv, ins, parametric)], ["jacobian"])
     fns["step"], fns["step_jacobian"] = step_functions(arm, p, fns["forward_dynamics_jacobian"], parametric)
