@@ -43,6 +43,29 @@ def test_generated_c_equals_the_casadi_function(mpc_dir):
     assert np.all(np.abs(tau_c) <= np.array([jt.limits["tau"] for jt in arm.model.joints]) + 1e-12)
 
 
+def test_a_nan_measurement_keeps_the_plan_and_says_so(mpc_dir, arm3):
+    """A NaN in the measured state: return code 2, the plan's first torque (finite, within the
+    limits), and the next good measurement gets the same torque as if the NaN had not come."""
+    p = load_mpc_problem(PROBLEM)
+    x = rest_state(arm3, [0.1, 0.4, -0.6])
+    ref = np.vstack([np.tile(x[:3, None] + 0.05, (1, p.horizon)), np.zeros((3, p.horizon))])
+    tau_max = M.limit_arrays(arm3)["tau"]
+    runs = []
+    for inject in (False, True):
+        c = CompiledMPC(mpc_dir)
+        c.init(x)
+        c.step(x, ref)
+        if inject:
+            bad = x.copy()
+            bad[4] = np.nan
+            tau, _, flag = c.step(bad, ref)
+            assert flag == 2 and np.all(np.isfinite(tau)) and np.all(np.abs(tau) <= tau_max + 1e-12)
+        runs.append(c.step(x, ref))
+    assert runs[1][2] == 0
+    # the NaN step left the plan untouched: the good step after it is the one without it
+    assert np.max(np.abs(runs[0][0] - runs[1][0])) < 1e-12
+
+
 def _qpoases(H, g, lo, hi):
     qp = ca.conic("reference", "qpoases", {"h": ca.Sparsity.dense(*H.shape), "a": ca.Sparsity(0, H.shape[0])},
                   {"printLevel": "none"})

@@ -287,20 +287,25 @@ WRAPPER_H = """/* rscasadi MPC for {model} ({n} joints): multiple shooting, Gaus
  * {ts} s.  No allocation; not reentrant (one controller per process: its plan is static).
  * x: theta, phi, dtheta, dphi ({nx}); reference: {nref} values, column-major 2n x N: theta_ref
  * then dtheta_ref at t + k * {h} s, k = 1..{N}; theta_target: {n} link angles (a pose to reach
- * and hold); tau_out: {n} motor torques.  Return 0 on success. */
+ * and hold); tau_out: {n} motor torques.  Return 0 on success; MPC_NOT_FINITE if the new plan
+ * is not finite (e.g. a NaN in x_measured or reference), MPC_FAILED if the generated function
+ * failed: then the plan is kept and tau_out is its first torque (within the limits). */
 #ifndef RSCASADI_MPC_H
 #define RSCASADI_MPC_H
 #define MPC_NX {nx}
 #define MPC_NU {n}
 #define MPC_HORIZON {N}
 #define MPC_NREF {nref}
+#define MPC_NOT_FINITE 2
+#define MPC_FAILED 3
 int mpc_init(const double *x_measured);
 int mpc_step(const double *x_measured, const double *reference, double *tau_out);
 int mpc_step_to(const double *x_measured, const double *theta_target, double *tau_out);
 #endif
 """
 
-WRAPPER_C = """#include "rscasadi_mpc.h"
+WRAPPER_C = """#include <math.h>
+#include "rscasadi_mpc.h"
 #include "mpc_rti.h"
 
 #define MAX(a, b) ((a) > (b) ? (a) : (b))
@@ -320,10 +325,20 @@ int mpc_init(const double *x_measured) {{
 int mpc_step(const double *x_measured, const double *reference, double *tau_out) {{
   const casadi_real *arg[mpc_rti_SZ_ARG + 1] = {{x_measured, reference, X, U}};
   casadi_real *res[mpc_rti_SZ_RES + 1] = {{tau_out, X_next, U_next}};
-  int flag = mpc_rti(arg, res, iw, w, 0);
+  int finite = 1;
+  if (mpc_rti(arg, res, iw, w, 0) != 0) {{
+    for (int i = 0; i < MPC_NU; ++i) tau_out[i] = U[i];
+    return MPC_FAILED;
+  }}
+  for (int i = 0; i < NXP; ++i) finite = finite && isfinite(X_next[i]);
+  for (int i = 0; i < NUP; ++i) finite = finite && isfinite(U_next[i]);
+  if (!finite) {{                          /* e.g. a NaN measurement: keep the plan, its first torque */
+    for (int i = 0; i < MPC_NU; ++i) tau_out[i] = U[i];
+    return MPC_NOT_FINITE;
+  }}
   for (int i = 0; i < NXP; ++i) X[i] = X_next[i];
   for (int i = 0; i < NUP; ++i) U[i] = U_next[i];
-  return flag;
+  return 0;
 }}
 
 int mpc_step_to(const double *x_measured, const double *theta_target, double *tau_out) {{
