@@ -133,6 +133,19 @@ def test_sqp_mode_reaches_a_far_target_pose_within_the_limits(tmp_path, arm3):
     assert np.all(np.abs(res["tau"]) <= M.limit_arrays(arm3)["tau"] + 1e-12)
 
 
+def test_the_documented_problem_file_is_the_shipped_one(tmp_path):
+    """docs/model.md section 6 shows the MPC problem file: every field it names is read, and its
+    values are those of problems/mpc_arm3.toml."""
+    import dataclasses
+    doc = (ROOT / "docs" / "model.md").read_text()
+    block = doc.split("**MPC problem**", 1)[1].split("```toml\n", 1)[1].split("```", 1)[0]
+    path = tmp_path / "documented.toml"
+    path.write_text(block.replace('"arm3.toml"', f'"{(ROOT / "problems" / "arm3.toml").as_posix()}"')
+                    .replace('"trajectory_arm3.toml"', f'"{(ROOT / "problems" / "trajectory_arm3.toml").as_posix()}"'))
+    documented, shipped = load_mpc_problem(path), load_mpc_problem(PROBLEM)
+    assert dataclasses.replace(documented, path=shipped.path) == shipped
+
+
 @pytest.mark.parametrize("text,field", [
     ('model = "arm3.toml"\nhorizon = 0\n', "horizon"),
     ('model = "arm3.toml"\ninterval = -1.0\n', "interval"),

@@ -15,21 +15,7 @@ dtheta_ref_k|^2 + w_tau |tau_k|^2, and a penalty w_limits (|c| - 0.9 c_max)^2 on
 deflection psi and the slow-side speed dphi beyond 90 % of their limits (Gauss-Newton on the
 part active at the linearisation point); the motor torques are hard bounds.
 
-Problem file (TOML):
-
-    model = "arm3.toml"
-    trajectory = "trajectory_arm3.toml"  # the reference of the example and the closed-loop study
-    sample_time = 0.001                  # s, one mpc_step per sample
-    horizon = 10                         # intervals N
-    interval = 0.01                      # s, h: the torque is held on each interval
-    substeps = 5                         # RK4 steps per interval (d/k1 ~ 1 ms: keep h/substeps <= 2 ms)
-    sqp_iterations = 1                   # 1: real-time iteration; more: SQP with a line search
-    qp_iterations = 16                   # interior-point iterations of the box QP, per SQP iteration
-    [weights]
-    theta = 1e5
-    dtheta = 1.0
-    tau = 1e-3
-    limits = 1e5
+Problem file and C interface: docs/model.md section 6 (`problems/mpc_arm3.toml` is an example).
 
 Generated (DIR): `mpc_rti.c` (CasADi: mpc_rti(x, reference, X, U) -> tau, X_next, U_next and
 mpc_hold(x) -> X, U), `rscasadi_mpc.c` and `rscasadi_mpc.h` (the controller: static
