@@ -25,6 +25,7 @@ buffers, `mpc_init(x_measured)`, `mpc_step(x_measured, reference, tau_out)` for 
 """
 from __future__ import annotations
 
+import functools
 import json
 import re
 from dataclasses import dataclass, field
@@ -180,11 +181,42 @@ def _max_step(v, dv, fraction: float):
     return ca.fmin(1.0, fraction * ca.mmin(ratios))
 
 
+@functools.lru_cache(maxsize=None)
+def _ipm_iteration(m: int) -> ca.Function:
+    """One Mehrotra predictor-corrector iteration (Nocedal & Wright, alg. 16.4) of box_qp on the
+    (scaled) QP of size m, as straight-line SX: the reduced KKT matrix is factored once (Cholesky)
+    and its factor serves both the predictor and the corrector."""
+    H, g, lo, hi, d, sl, su, zl, zu = (ca.SX.sym(name, *shape) for name, shape in (
+        ("H", (m, m)), ("g", (m, 1)), ("lo", (m, 1)), ("hi", (m, 1)), ("d", (m, 1)),
+        ("sl", (m, 1)), ("su", (m, 1)), ("zl", (m, 1)), ("zu", (m, 1))))
+    rd, rl, ru = ca.mtimes(H, d) + g - zl + zu, d - lo - sl, hi - d - su
+    mu = (ca.dot(sl, zl) + ca.dot(su, zu)) / (2 * m)
+    R = ca.chol(H + ca.diag(zl / sl + zu / su))                       # R' R = K
+
+    def newton(sigma_mu, cl, cu):                                     # the reduced KKT system, eq. (16.58)
+        rhs = -rd + (sigma_mu - sl * zl - cl - zl * rl) / sl - (sigma_mu - su * zu - cu - zu * ru) / su
+        dd = ca.solve(R, ca.solve(R.T, rhs))
+        dsl, dsu = dd + rl, ru - dd
+        return dd, dsl, dsu, (sigma_mu - sl * zl - cl - zl * dsl) / sl, (sigma_mu - su * zu - cu - zu * dsu) / su
+
+    def longest(dsl, dsu, dzl, dzu, fraction):
+        return ca.fmin(ca.fmin(_max_step(sl, dsl, fraction), _max_step(su, dsu, fraction)),
+                       ca.fmin(_max_step(zl, dzl, fraction), _max_step(zu, dzu, fraction)))
+
+    dd, dsl, dsu, dzl, dzu = newton(0, 0, 0)                          # predictor (affine scaling)
+    a = longest(dsl, dsu, dzl, dzu, 1)
+    mu_aff = (ca.dot(sl + a * dsl, zl + a * dzl) + ca.dot(su + a * dsu, zu + a * dzu)) / (2 * m)
+    dd, dsl, dsu, dzl, dzu = newton((mu_aff / mu) ** 3 * mu, dsl * dzl, dsu * dzu)     # corrector
+    a = longest(dsl, dsu, dzl, dzu, 0.995)
+    return ca.Function("box_qp_iteration", [H, g, lo, hi, d, sl, su, zl, zu],
+                       [d + a * dd, sl + a * dsl, su + a * dsu, zl + a * dzl, zu + a * dzu], {"cse": True})
+
+
 def box_qp(H, g, lo, hi, iterations: int):
     """min 1/2 d' H d + g' d subject to lo <= d <= hi: `iterations` primal-dual interior-point
-    iterations with Mehrotra's predictor-corrector (Nocedal & Wright, alg. 16.4), slacks for both
-    bounds, the QP scaled to O(1) first.  Fixed work and no allocation in C.  On this MPC's cold
-    steps to far poses it reaches qpOASES' solution to 3e-9 in 15 iterations (tests/test_mpc.py).
+    iterations with Mehrotra's predictor-corrector (`_ipm_iteration`), slacks for both bounds, the
+    QP scaled to O(1) first.  Fixed work and no allocation in C.  On this MPC's cold steps to far
+    poses it reaches qpOASES' solution to 3e-9 in 15 iterations (tests/test_mpc.py).
     Why not a generated solver: CasADi's qrqp returned bound-violating 'successes' on these QPs
     (casadi issue 3141), DAQP's generated C allocates in every call, and projected Newton without
     a line search cycles (with one it stalls at this conditioning, ~1e8)."""
@@ -193,24 +225,9 @@ def box_qp(H, g, lo, hi, iterations: int):
     H, g = H / c, g / c
     d = ca.fmin(ca.fmax(ca.MX.zeros(m), lo), hi)
     sl, su, zl, zu = (ca.MX.ones(m) for _ in range(4))
+    iteration = _ipm_iteration(m)
     for _ in range(iterations):
-        rd, rl, ru = ca.mtimes(H, d) + g - zl + zu, d - lo - sl, hi - d - su
-        mu = (ca.dot(sl, zl) + ca.dot(su, zu)) / (2 * m)
-        K = H + ca.diag(zl / sl + zu / su)
-
-        def newton(sigma_mu, cl, cu):                                 # the reduced KKT system, eq. (16.58)
-            rhs = -rd + (sigma_mu - sl * zl - cl - zl * rl) / sl - (sigma_mu - su * zu - cu - zu * ru) / su
-            dd = ca.solve(K, rhs, "ldl")
-            dsl, dsu = dd + rl, ru - dd
-            return dd, dsl, dsu, (sigma_mu - sl * zl - cl - zl * dsl) / sl, (sigma_mu - su * zu - cu - zu * dsu) / su
-
-        dd, dsl, dsu, dzl, dzu = newton(0, 0, 0)                          # predictor (affine scaling)
-        a = ca.fmin(ca.fmin(_max_step(sl, dsl, 1), _max_step(su, dsu, 1)), ca.fmin(_max_step(zl, dzl, 1), _max_step(zu, dzu, 1)))
-        mu_aff = (ca.dot(sl + a * dsl, zl + a * dzl) + ca.dot(su + a * dsu, zu + a * dzu)) / (2 * m)
-        dd, dsl, dsu, dzl, dzu = newton((mu_aff / mu) ** 3 * mu, dsl * dzl, dsu * dzu)     # corrector
-        a = ca.fmin(ca.fmin(_max_step(sl, dsl, 0.995), _max_step(su, dsu, 0.995)),
-                    ca.fmin(_max_step(zl, dzl, 0.995), _max_step(zu, dzu, 0.995)))
-        d, sl, su, zl, zu = d + a * dd, sl + a * dsl, su + a * dsu, zl + a * dzl, zu + a * dzu
+        d, sl, su, zl, zu = iteration(H, g, lo, hi, d, sl, su, zl, zu)
     return ca.fmin(ca.fmax(d, lo), hi)
 
 
