@@ -180,8 +180,10 @@ def test_mpc_example_tracks_within_limits(mpc_example):
     assert rows.shape == (100, 7)
     assert np.all(np.abs(rows[:, 4:]) <= np.array([0.6, 0.6, 0.4]) + 1e-12)     # the torque limits
     assert np.ptp(rows[:, 2]) > 0.1, "the shoulder pitch must move"
-    max_err = float(run.stdout.splitlines()[-1].split("=")[1].split()[0])
+    summary = run.stdout.splitlines()[-1]
+    max_err = float(summary.split("=")[1].split()[0])
     assert max_err < 1e-3
+    assert "over 1000 steps" in summary and "deadline misses" in summary     # paced at 1 kHz: 1 s, 1000 steps
 
 
 def test_mpc_example_is_valgrind_clean_and_refuses_bad_arguments(mpc_example):
@@ -193,3 +195,5 @@ def test_mpc_example_is_valgrind_clean_and_refuses_bad_arguments(mpc_example):
         assert run.returncode == 0, run.stderr
     run = subprocess.run([str(mpc_example), "fast"], capture_output=True, text=True)
     assert run.returncode == 2 and "argument 1" in run.stderr and run.stdout == ""
+    run = subprocess.run([str(mpc_example), "0.01", "1", "realtime"], capture_output=True, text=True)
+    assert run.returncode == 2 and "usage" in run.stderr and run.stdout == ""
