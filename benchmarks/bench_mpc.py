@@ -26,7 +26,7 @@ TARGET = [0.6, 0.8, -0.9]
 
 def closed_loop_rows(res):
     md = ["| plant / controllers | controller | max error (rad) | RMS error (rad) | limit violation | "
-          "step median / worst (us, from Python) |", "|---|---|---|---|---|---|"]
+          "step median / worst (us, in C) |", "|---|---|---|---|---|---|"]
     for case, rows in res.items():
         for name, r in rows.items():
             times = f"{r['step_median_s'] * 1e6:.0f} / {r['step_worst_s'] * 1e6:.0f}" if "step_median_s" in r else ""
@@ -40,10 +40,11 @@ def main():
     identified = RESULTS / "identification" / "identified" / "model.toml"
     if not identified.exists():
         identification_demo(ROOT / "problems" / "arm3.toml", RESULTS / "identification", log=print)
-    res = study(PROBLEM, work, identified_model=identified, true_arm=true_arm_of(load(ROOT / "problems" / "arm3.toml")),
-                log=print)
     (RESULTS / "mpc").mkdir(parents=True, exist_ok=True)
+    res = study(PROBLEM, work, identified_model=identified, true_arm=true_arm_of(load(ROOT / "problems" / "arm3.toml")),
+                log=print, figure=work / "closed_loop.png")
     (RESULTS / "mpc" / "closed_loop.json").write_text(json.dumps(res, indent=1) + "\n")
+    (work / "closed_loop.png").replace(RESULTS / "mpc" / "closed_loop.png")
 
     poses = {}
     for iterations in (1, 3):
@@ -84,7 +85,7 @@ def main():
           "demo's perturbed arm.", "",
           f"## A step to a far pose {TARGET} rad from rest (mpc_step_to, nominal arm, exact state)", "",
           "| SQP iterations per sample | final angle error (rad) | final speed (rad/s) | limit violation | "
-          "step median / worst (us, from Python) |", "|---|---|---|---|---|"]
+          "step median / worst (us, in C) |", "|---|---|---|---|---|"]
     for it, r in poses.items():
         md.append(f"| {it}{' (real-time iteration)' if it == 1 else ' (line search)'} | {r['final_angle_error']:.1e} | "
                   f"{r['final_speed']:.1e} | {r['max_limit_violation']:.1%} | {r['step_median_s'] * 1e6:.0f} / "

@@ -75,17 +75,21 @@ def cmd_sweep(args):
 
 
 def cmd_mpc(args):
-    from .control.mpc import closed_loop, generate_mpc
+    from .control.mpc import closed_loop, generate_mpc, plot_closed_loop
     generate_mpc(args.problem, args.out, opt=args.opt, log=lambda msg: print(msg, flush=True), model=args.model)
     if args.study is not None:
         import json
         import os
+        traces = {}
         res = closed_loop(args.problem, args.out, duration=args.study or None, log=lambda msg: print(msg, flush=True),
-                          model=args.model)
-        tmp = Path(args.out) / f".closed_loop.{os.getpid()}.json"
-        tmp.write_text(json.dumps(res, indent=1) + "\n")
-        tmp.replace(Path(args.out) / "closed_loop.json")
-        print(f"wrote {Path(args.out) / 'closed_loop.json'}")
+                          model=args.model, traces=traces)
+        out = Path(args.out)
+        tmp_json, tmp_png = out / f".closed_loop.{os.getpid()}.json", out / f".closed_loop.{os.getpid()}.png"
+        tmp_json.write_text(json.dumps(res, indent=1) + "\n")
+        plot_closed_loop({"heavier_tip": traces}, tmp_png)
+        tmp_json.replace(out / "closed_loop.json")
+        tmp_png.replace(out / "closed_loop.png")
+        print(f"wrote {out / 'closed_loop.json'} and closed_loop.png")
 
 
 def cmd_reproduce(args):
@@ -111,7 +115,8 @@ def cmd_reproduce(args):
     with tempfile.TemporaryDirectory() as build, fresh_directory(out / "mpc", "closed_loop.json") as tmp:
         print("MPC: generating the C controllers and running the closed-loop studies ...", flush=True)
         res = study(PROBLEMS / "mpc_arm3.toml", build, identified_model=out / "identification" / "identified" / "model.toml",
-                    true_arm=true_arm_of(load(REFERENCE)), log=lambda msg: print(msg, flush=True))
+                    true_arm=true_arm_of(load(REFERENCE)), log=lambda msg: print(msg, flush=True),
+                    figure=tmp / "closed_loop.png")
         (tmp / "closed_loop.json").write_text(json.dumps(res, indent=1) + "\n")
     print(f"wrote {out / 'mpc' / 'closed_loop.json'}")
     if failed:

@@ -97,9 +97,15 @@ def test_qp_step_equals_an_active_set_solver_on_a_cold_step_to_a_far_pose(arm3):
         assert np.max(np.abs(d.ravel() - d_ref)) < 1e-6
 
 
-def test_mpc_beats_feedforward_and_pd_under_mismatch(mpc_dir):
-    res = closed_loop(PROBLEM, mpc_dir, duration=0.4, log=lambda m: None)
+def test_mpc_beats_feedforward_and_pd_under_mismatch(tmp_path):
+    """`rscasadi mpc --study 0.4`: the closed loop on a 20 % heavier tip, its json and figure."""
+    import json
+    out = tmp_path / "mpc"
+    assert main(["mpc", str(PROBLEM), "--out", str(out), "--opt=-O1", "--study", "0.4"]) in (0, None)
+    res = json.loads((out / "closed_loop.json").read_text())
+    assert (out / "closed_loop.png").stat().st_size > 10_000 and not list(out.glob(".closed_loop*"))
     mpc, pd = res["MPC (C)"], res["feedforward + PD"]
+    assert 0 < mpc["step_median_s"] <= mpc["step_worst_s"]                # timed in C (mpc_step_seconds)
     assert mpc["max_limit_violation"] == 0.0
     assert mpc["max_error"] < pd["max_error"] / 3            # the full 2 s run: 13x (bench_mpc)
     assert res["feedforward"]["max_error"] > pd["max_error"]  # no feedback: the heavier tip drifts

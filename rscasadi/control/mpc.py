@@ -293,7 +293,8 @@ WRAPPER_H = """/* rscasadi MPC for {model} ({n} joints): multiple shooting, Gaus
  * then dtheta_ref at t + k * {h} s, k = 1..{N}; theta_target: {n} link angles (a pose to reach
  * and hold); tau_out: {n} motor torques.  Return 0 on success; MPC_NOT_FINITE if the new plan
  * is not finite (e.g. a NaN in x_measured or reference), MPC_FAILED if the generated function
- * failed: then the plan is kept and tau_out is its first torque (within the limits). */
+ * failed: then the plan is kept and tau_out is its first torque (within the limits).
+ * mpc_step_seconds: the duration of the last mpc_step or mpc_step_to (CLOCK_MONOTONIC). */
 #ifndef RSCASADI_MPC_H
 #define RSCASADI_MPC_H
 #define MPC_NX {nx}
@@ -305,10 +306,13 @@ WRAPPER_H = """/* rscasadi MPC for {model} ({n} joints): multiple shooting, Gaus
 int mpc_init(const double *x_measured);
 int mpc_step(const double *x_measured, const double *reference, double *tau_out);
 int mpc_step_to(const double *x_measured, const double *theta_target, double *tau_out);
+double mpc_step_seconds(void);
 #endif
 """
 
-WRAPPER_C = """#include <math.h>
+WRAPPER_C = """#define _POSIX_C_SOURCE 199309L
+#include <math.h>
+#include <time.h>
 #include "rscasadi_mpc.h"
 #include "mpc_rti.h"
 
@@ -319,6 +323,15 @@ static casadi_real X[NXP], U[NUP], X_next[NXP], U_next[NUP];
 static casadi_real target_reference[MPC_NREF];
 static casadi_real w[MAX(mpc_rti_SZ_W, mpc_hold_SZ_W) + 1];
 static casadi_int iw[MAX(mpc_rti_SZ_IW, mpc_hold_SZ_IW) + 1];
+static double last_step_seconds;
+
+static double now(void) {{
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return t.tv_sec + 1e-9 * t.tv_nsec;
+}}
+
+double mpc_step_seconds(void) {{ return last_step_seconds; }}
 
 int mpc_init(const double *x_measured) {{
   const casadi_real *arg[mpc_hold_SZ_ARG + 1] = {{x_measured}};
@@ -326,7 +339,7 @@ int mpc_init(const double *x_measured) {{
   return mpc_hold(arg, res, iw, w, 0);
 }}
 
-int mpc_step(const double *x_measured, const double *reference, double *tau_out) {{
+static int step(const double *x_measured, const double *reference, double *tau_out) {{
   const casadi_real *arg[mpc_rti_SZ_ARG + 1] = {{x_measured, reference, X, U}};
   casadi_real *res[mpc_rti_SZ_RES + 1] = {{tau_out, X_next, U_next}};
   int finite = 1;
@@ -343,6 +356,13 @@ int mpc_step(const double *x_measured, const double *reference, double *tau_out)
   for (int i = 0; i < NXP; ++i) X[i] = X_next[i];
   for (int i = 0; i < NUP; ++i) U[i] = U_next[i];
   return 0;
+}}
+
+int mpc_step(const double *x_measured, const double *reference, double *tau_out) {{
+  const double t0 = now();
+  const int flag = step(x_measured, reference, tau_out);
+  last_step_seconds = now() - t0;
+  return flag;
 }}
 
 int mpc_step_to(const double *x_measured, const double *theta_target, double *tau_out) {{
@@ -392,7 +412,7 @@ def generate_mpc(problem_file, out, opt: str = "-O2", log=print, model=None) -> 
         manifest = {"model": str(p.model_path), "problem": str(p.path), "header": "rscasadi_mpc.h",
                     "library": "librscasadi_mpc.so", "sources": ["mpc_rti.c", "rscasadi_mpc.c"],
                     "api": {"mpc_init": ["x_measured"], "mpc_step": ["x_measured", "reference", "tau_out"],
-                            "mpc_step_to": ["x_measured", "theta_target", "tau_out"]},
+                            "mpc_step_to": ["x_measured", "theta_target", "tau_out"], "mpc_step_seconds": []},
                     "sizes": {"x": 4 * n, "tau": n, "reference": [2 * n, p.horizon]},
                     "horizon": p.horizon, "interval": p.interval, "substeps": p.substeps,
                     "sample_time": p.sample_time, "sqp_iterations": p.sqp_iterations, "qp_iterations": p.qp_iterations, "weights": p.weights,
@@ -415,11 +435,13 @@ def heavier_tip(arm: Arm, factor: float = 1.2) -> Arm:
 
 
 class CompiledMPC:
-    """The generated C controller through ctypes: init(x), step(x, reference) -> tau, seconds."""
+    """The generated C controller through ctypes: init(x), step(x, reference) -> tau, seconds
+    (the step's duration measured in C, by mpc_step_seconds), flag."""
 
     def __init__(self, directory):
         import ctypes
         self.lib = ctypes.CDLL(str(Path(directory) / "librscasadi_mpc.so"))
+        self.lib.mpc_step_seconds.restype = ctypes.c_double
         self.c_double_p = ctypes.POINTER(ctypes.c_double)
 
     def _p(self, a):
@@ -436,12 +458,10 @@ class CompiledMPC:
         return self._call(self.lib.mpc_step_to, x, np.asarray(theta_target, float))
 
     def _call(self, fn, x, data):
-        import time
         tau = np.zeros(len(x) // 4)
         x, data = np.ascontiguousarray(x, float), np.ascontiguousarray(data, float)
-        t0 = time.perf_counter()
         flag = fn(self._p(x), self._p(data), tau.ctypes.data_as(self.c_double_p))
-        return tau, time.perf_counter() - t0, flag
+        return tau, self.lib.mpc_step_seconds(), flag
 
 
 def plant_step(plant: Arm, dt: float) -> ca.Function:
@@ -483,13 +503,15 @@ def reach_pose(problem_file, mpc_dir, theta_target, seconds: float = 1.0, plant:
 
 
 def closed_loop(problem_file, mpc_dir, duration: float | None = None, tip_factor: float = 1.2,
-                log=print, model=None, plant: Arm | None = None, quantised: bool = True) -> dict:
+                log=print, model=None, plant: Arm | None = None, quantised: bool = True,
+                traces: dict | None = None) -> dict:
     """Controllers from one model (the problem's, or the model file `model`, e.g. an identified
     one; the C MPC in `mpc_dir` must be generated from it) on a plant that differs (`plant`, by
     default the model with a heavier tip), at 1 kHz, encoders quantised (speeds by backward
     differences; `quantised=False`: the exact state): feedforward alone, feedforward + motor-side PD, the C MPC.  Returns per
     controller the tracking error (max, RMS), the largest limit violation and, for the MPC, its
-    time per step."""
+    time per step (measured in C); `traces`, if given, receives per controller the time, the error
+    over time and (MPC) the step times, for `plot_closed_loop`."""
     from ..identification.synthetic import LINK_COUNTS, MOTOR_COUNTS       # the same encoders as the logs
     from .simulation import feedforward
     from .trajectory import load_trajectory
@@ -538,6 +560,8 @@ def closed_loop(problem_file, mpc_dir, duration: float | None = None, tip_factor
             violation = max(violation, float(np.max(np.abs(x[n:2 * n] - x[:n]) / limits["psi"] - 1)),
                             float(np.max(np.abs(x[3 * n:]) / limits["dphi"] - 1)))
         e = np.array(errors)
+        if traces is not None:
+            traces[name] = {"t": t[1:K + 1], "error": e, "step_s": np.array(times)}
         results[name] = {"max_error": float(e.max()), "max_error_at_s": float(t[1 + int(np.argmax(e))]),
                          "rms_error": float(np.sqrt(np.mean(e ** 2))),
                          "max_limit_violation": max(violation, 0.0)}
@@ -549,18 +573,51 @@ def closed_loop(problem_file, mpc_dir, duration: float | None = None, tip_factor
     return results
 
 
-def study(problem_file, build, identified_model=None, true_arm: Arm | None = None, log=print) -> dict:
+def study(problem_file, build, identified_model=None, true_arm: Arm | None = None, log=print,
+          figure: Path | None = None) -> dict:
     """The closed-loop evidence, whole trajectory: the problem's model against a 20 % heavier tip;
     if given, the identified model's controllers (MPC generated into `build`) against the true arm
-    that produced the identification logs."""
+    that produced the identification logs.  `figure`: where to draw them (plot_closed_loop)."""
     build = Path(build)
-    res = {}
+    res, traces = {}, {}
     log("closed loop: the model's controllers on a plant with a 20 % heavier tip, quantised encoders")
     generate_mpc(problem_file, build / "mpc", log=log)
-    res["heavier_tip"] = closed_loop(problem_file, build / "mpc", log=log)
+    res["heavier_tip"] = closed_loop(problem_file, build / "mpc", log=log, traces=traces.setdefault("heavier_tip", {}))
     if identified_model is not None:
         log("closed loop: the identified model's controllers on the true arm, quantised encoders")
         generate_mpc(problem_file, build / "mpc_identified", log=log, model=identified_model)
         res["identified_on_true_arm"] = closed_loop(problem_file, build / "mpc_identified", log=log,
-                                                    model=identified_model, plant=true_arm)
+                                                    model=identified_model, plant=true_arm,
+                                                    traces=traces.setdefault("identified_on_true_arm", {}))
+    if figure is not None:
+        plot_closed_loop(traces, figure)
+        log(f"wrote {figure}")
     return res
+
+
+CASES = {"heavier_tip": "nominal model, 20 % heavier tip", "identified_on_true_arm": "identified model, true arm"}
+
+
+def plot_closed_loop(traces: dict, path: Path):
+    """Per case (a column): the tracking error of each controller over time (log scale), and the
+    C MPC's time per step against the 1 ms budget of 1 kHz."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(2, len(traces), figsize=(6 * len(traces), 6.5), squeeze=False)
+    for col, (case, ctrl) in enumerate(traces.items()):
+        ax = axes[0, col]
+        for name, tr in ctrl.items():
+            ax.semilogy(tr["t"], np.maximum(tr["error"], 1e-9), label=name, lw=1)
+        ax.set(title=CASES.get(case, case), xlabel="t (s)", ylabel="max |theta - theta_d| (rad)")
+        ax.legend(fontsize=8)
+        ax = axes[1, col]
+        steps = ctrl["MPC (C)"]["step_s"] * 1e6
+        ax.plot(ctrl["MPC (C)"]["t"], steps, ".", ms=1.5)
+        ax.axhline(1000.0, color="r", lw=1, label="1 ms (1 kHz)")
+        ax.set(xlabel="t (s)", ylabel="mpc_step in C (us)", ylim=(0, max(1100.0, steps.max() * 1.05)),
+               title=f"median {np.median(steps):.0f} us, worst {steps.max():.0f} us")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
