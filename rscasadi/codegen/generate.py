@@ -69,27 +69,33 @@ def step_functions(arm: Arm, prefix: str = "", fd_jacobian: ca.Function | None =
 
         dk_i = [dX_i[speeds]; F_i[:, x] dX_i + [0 | F_i[:, tau]]],   dX_i = [1 0] + c_i h dk_{i-1}
 
-    Dense products (CasADi's generic sparse product cost 3x more at n = 12).  With the small SX
-    forward-dynamics Jacobian (`expand`, the default when it is SX) the whole Function becomes
-    straight-line SX: 0.9 us instead of 7.5 us at n = 3."""
+    With the small SX forward-dynamics Jacobian (`expand`, the default when it is SX) the whole
+    Function becomes straight-line SX: 0.9 us instead of 7.5 us at n = 3.  Past it (the
+    implicit-function route), F_i is never formed: the bottom half is M_i^-1 (-dr/dx dX_i +
+    [0 | dQ/dtau]) (Arm.acceleration_sensitivity), the sparse residual Jacobian times dX_i instead
+    of the dense 2n x 4n F_i times it (n = 12: 206 -> 150 us)."""
     n, f = arm.n, rhs(arm, parametric)
     fd_jacobian = fd_jacobian or forward_dynamics_jacobian(arm, parametric, prefix + "forward_dynamics_jacobian")
     x, tau, h = ca.MX.sym("x", 4 * n), ca.MX.sym("tau", n), ca.MX.sym("h")
     p = [ca.MX.sym("p", len(arm.parameters()[0]))] if parametric else []
     x_next, stages = rk4(lambda z: f(z, tau, *p), x, h)
     I = ca.DM.eye(5 * n)[:4 * n, :]                                  # d x / d(x, tau)
+    small = fd_jacobian.is_a("SXFunction")
     dk = []
     for xi, c in zip(stages, (0.0, 0.5, 0.5, 1.0)):
         dX = I + c * h * dk[-1] if dk else ca.MX(I)
-        F = ca.densify(fd_jacobian(*ca.vertsplit(xi, n), tau, *p))  # d(ddtheta, ddphi)/d(x, tau)
-        bottom = ca.mtimes(F[:, :4 * n], ca.densify(dX)) + ca.horzcat(ca.MX.zeros(2 * n, 4 * n), F[:, 4 * n:])
+        if small:                                                    # F_i = d(ddtheta, ddphi)/d(x, tau)
+            F = ca.densify(fd_jacobian(*ca.vertsplit(xi, n), tau, *p))
+            bottom = ca.mtimes(F[:, :4 * n], ca.densify(dX)) + ca.horzcat(ca.MX.zeros(2 * n, 4 * n), F[:, 4 * n:])
+        else:
+            bottom = arm.acceleration_sensitivity(ca.vertsplit(xi, n), tau, None if not dk else ca.densify(dX), *p)
         dk.append(ca.vertcat(dX[2 * n:, :], bottom))
     dnext = I + h / 6 * (dk[0] + 2 * dk[1] + 2 * dk[2] + dk[3])
     names = ["x", "tau", "h"] + ["p"] * len(p)
     step = ca.Function(prefix + "step", [x, tau, h] + p, [x_next], names, ["x_next"])
     step_jac = ca.Function(prefix + "step_jacobian", [x, tau, h] + p, [dnext[:, :4 * n], dnext[:, 4 * n:]],
                            names, ["A", "B"])
-    if expand if expand is not None else fd_jacobian.is_a("SXFunction"):
+    if expand if expand is not None else small:
         step_jac = step_jac.expand(prefix + "step_jacobian", {"cse": True})
     return step, step_jac
 
