@@ -183,24 +183,26 @@ class Arm:
             x = [ca.MX.sym(name, n) for name in STATE]
             tau = ca.MX.sym("tau", n)
             p = [ca.MX.sym("p", self.n_p)] if parametric else []
-            J = self.acceleration_sensitivity(x, tau, None, *p)
+            J = self.acceleration_sensitivity(x, tau, None, None, *p)
             self._functions[key] = ca.Function("forward_dynamics_jacobian", x + [tau] + p, [J],
                                                STATE + ["tau"] + (["p"] if parametric else []), ["jacobian"])
         return self._functions[key]
 
-    def acceleration_sensitivity(self, x, tau, dX, *p):
-        """M^-1 (-dr/dx dX + [0 | dQ/dtau]) (MX, x the four state parts): the derivative of the
-        forward dynamics along dX (4n x 5n, the state's derivative with respect to (x_0, tau); None:
-        [1 0], giving the forward-dynamics Jacobian) by the implicit-function theorem, with the sparse
-        residual Jacobian multiplying dX: no dense forward-dynamics Jacobian is formed."""
+    def acceleration_sensitivity(self, x, tau, D=None, s=None, *p):
+        """The derivative of the forward dynamics along dX = [1 0] + s D (MX; x the four state parts,
+        D 4n x 5n, the state's sensitivity to (x_0, tau) being [1 0] + s D; D None: the
+        forward-dynamics Jacobian itself) by the implicit-function theorem:
+        M^-1 ([-dr/dx | dQ/dtau] - s dr/dx D).  The sparse residual Jacobian multiplies D; no dense
+        forward-dynamics Jacobian is formed."""
         n = self.n
         ddtheta, ddphi = self.forward_dynamics(bool(p))(*x, tau, *p)
         Jr = self.residual_jacobian(bool(p))(*x, ddtheta, ddphi, *p)
         dQ_dtau = ca.vertcat(ca.MX.zeros(n, n), -ca.diag(ca.DM(self.model.column("gear_ratio"))))
-        # (dX' Jr')' rather than Jr dX: CasADi's dense-times-sparse kernel runs down contiguous
-        # columns, 3x faster than its sparse-times-dense one here (n = 12: 6.5 instead of 18 us)
-        rhs = ca.horzcat(-Jr, dQ_dtau) if dX is None else \
-            ca.horzcat(ca.MX.zeros(2 * n, 4 * n), dQ_dtau) - ca.mtimes(dX.T, Jr.T).T
+        rhs = ca.horzcat(-Jr, dQ_dtau)
+        if D is not None:
+            # (D' Jr')' rather than Jr D: CasADi's dense-times-sparse kernel runs down contiguous
+            # columns, 3x faster than its sparse-times-dense one here (n = 12: 6.5 instead of 18 us)
+            rhs -= s * ca.mtimes(D.T, Jr.T).T
         return ca.solve(self.mass_matrix(parametric=bool(p))(x[0], x[1], *p), rhs, "ldl")
 
     def mass_matrix(self, reduced: bool = False, parametric: bool = False) -> ca.Function:
