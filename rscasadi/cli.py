@@ -85,10 +85,14 @@ def cmd_mpc(args):
                           model=args.model, traces=traces)
         out = Path(args.out)
         tmp_json, tmp_png = out / f".closed_loop.{os.getpid()}.json", out / f".closed_loop.{os.getpid()}.png"
-        tmp_json.write_text(json.dumps(res, indent=1) + "\n")
-        plot_closed_loop({"heavier_tip": traces}, tmp_png)
-        tmp_json.replace(out / "closed_loop.json")
-        tmp_png.replace(out / "closed_loop.png")
+        try:                                          # both files, or neither
+            tmp_json.write_text(json.dumps(res, indent=1) + "\n")
+            plot_closed_loop({"heavier_tip": traces}, tmp_png)
+            tmp_json.replace(out / "closed_loop.json")
+            tmp_png.replace(out / "closed_loop.png")
+        finally:
+            tmp_json.unlink(missing_ok=True)
+            tmp_png.unlink(missing_ok=True)
         print(f"wrote {out / 'closed_loop.json'} and closed_loop.png")
 
 

@@ -595,7 +595,8 @@ def study(problem_file, build, identified_model=None, true_arm: Arm | None = Non
     return res
 
 
-CASES = {"heavier_tip": "nominal model, 20 % heavier tip", "identified_on_true_arm": "identified model, true arm"}
+CASES = {"heavier_tip": "controllers' model, plant with a 20 % heavier tip",
+         "identified_on_true_arm": "identified model, true arm"}
 
 
 def plot_closed_loop(traces: dict, path: Path):
