@@ -530,7 +530,7 @@ def closed_loop(problem_file, mpc_dir, duration: float | None = None, tip_factor
     B = np.array([jt.rotor_inertia for jt in nominal.model.joints])
     wn = 2 * np.pi * 4.0
     kp, kd = B * wn ** 2, 2 * 0.8 * B * wn
-    limits = {key: np.array([jt.limits.get(key, np.inf) for jt in plant.model.joints]) for key in ("tau", "psi", "dphi")}
+    limits = limit_arrays(plant)
     mpc = CompiledMPC(mpc_dir)
     results = {}
     for name in ("feedforward", "feedforward + PD", "MPC (C)"):
