@@ -33,6 +33,7 @@ import casadi as ca
 import numpy as np
 
 from ...dynamics.arm import Arm
+from .assembly import Piece, constraints_and_objective
 from .problem import Problem
 
 
@@ -140,42 +141,71 @@ class Transcription:
             i += size
         return out, i
 
+    def _stage_piece(self) -> ca.Function:
+        """Stage k's constraint rows (gap closing, then path) and objective share, of its
+        variables z = (x_k, u_k, x_{k+1})."""
+        n, nx, nu = self.n, self.nx, self.nu
+        z = ca.SX.sym("z", 2 * nx + nu)
+        x, u, x1 = z[:nx], z[nx:nx + nu], z[nx + nu:]
+        w, dur, pfix = ca.SX.sym("w"), ca.SX.sym("duration"), ca.SX.sym("p_fixed", len(self.fixed))
+        ew, scale, ref = ca.SX.sym("effort_weight"), ca.SX.sym("scale"), ca.SX.sym("theta_ref", n)
+        x_next, path, effort = self.stage(x, u, w, dur, pfix)
+        if self.p.objective == "min_time":
+            f = ew * effort
+        elif self.p.objective == "min_effort":
+            f = effort
+        else:
+            f = dur * w * ca.sumsqr(x1[:n] - ref) / ca.fmax(ew, 1e-12) + effort
+        args = [w, dur, pfix, ew, scale] + ([ref] if self.tracking else [])
+        return ca.Function("stage_piece", [z, *args], [ca.vertcat(x1 - x_next, path), scale * f],
+                           ["z", "w", "duration", "p_fixed", "effort_weight", "scale"] + (["theta_ref"] if self.tracking else []),
+                           ["rows", "f"])
+
+    def _boundary_piece(self, end: bool) -> ca.Function:
+        """The start (at rest at theta_start; T is the min-time objective) or the end (at rest at
+        theta_end unless tracking; the SEA deflection within its limit) of x_0 or x_N."""
+        n = self.n
+        x, theta = ca.SX.sym("x", self.nx), ca.SX.sym("theta", n)
+        pfix, scale = ca.SX.sym("p_fixed", len(self.fixed)), ca.SX.sym("scale")
+        pf = self._pf(x[4 * n + self.nT:] if self.design else None, pfix)
+        if end:
+            rows = ([] if self.tracking else [self.rest_residual(x, theta, pf)]) + [x[n:2 * n] - x[:n]]
+            f = ca.SX(0)
+        else:
+            rows = [self.rest_residual(x, theta, pf)]
+            f = scale * x[4 * n] if self.p.objective == "min_time" else ca.SX(0)
+        return ca.Function("end_piece" if end else "start_piece", [x, theta, pfix, scale], [ca.vertcat(*rows), f],
+                           ["z", "theta", "p_fixed", "scale"], ["rows", "f"])
+
     def nlp(self):
-        """The NLP dict and its constant bounds on g; variables and constraints in stage order."""
-        n, N, p = self.n, self.N, self.p
+        """The NLP dict and its constant bounds on g; variables and constraints in stage order.
+        self.pieces: the same NLP as a sum of stage, start and end pieces (assembly.py)."""
+        n, N, nx = self.n, self.N, self.nx
         layout, n_par = self.parameter_layout()
         P = ca.MX.sym("P", n_par)
         par = {k: P[s] for k, s in layout.items()}
-        w = ca.MX.sym("w", N * (self.nx + self.nu) + self.nx)              # stage by stage
-        body = ca.reshape(w[:N * (self.nx + self.nu)], self.nx + self.nu, N)
-        X, U = ca.horzcat(body[:self.nx, :], w[N * (self.nx + self.nu):]), body[self.nx:, :]
-        x_next, path, effort = self.stage.map(N, "serial")(X[:, :N], U, ca.reshape(par["w"], 1, N),
-                                                           par["duration"], par["p_fixed"])
-        gap = X[:, 1:] - x_next
-        design = lambda k: X[4 * n + self.nT:, k] if self.design else None
-        pf0, pfN = self._pf(design(0), par["p_fixed"]), self._pf(design(N), par["p_fixed"])
-        start = self.rest_residual(X[:, 0], par["theta_start"], pf0)
-        blocks = ca.vertcat(gap, path)
-        g = [blocks[:, 0], start, ca.vec(blocks[:, 1:])]
+        stride = nx + self.nu
+        w = ca.MX.sym("w", N * stride + nx)                                 # stage by stage
+        r = nx + self.stage.size1_out(1)                                    # a stage's rows
+        n_end = (0 if self.tracking else 4 * n) + n
+        stage_rows = np.vstack([np.arange(r)] + [r + 4 * n + (k - 1) * r + np.arange(r) for k in range(1, N)])
+        n_g = r + 4 * n + (N - 1) * r + n_end
+        stage_args = [ca.reshape(par["w"], 1, N), par["duration"], par["p_fixed"], par["effort_weight"], par["scale"]]
+        if self.tracking:
+            stage_args.append(ca.reshape(par["theta_ref"], n, N))
+        self.pieces = [
+            Piece(self._stage_piece(), np.arange(N)[:, None] * stride + np.arange(stride + nx), stage_rows, stage_args),
+            Piece(self._boundary_piece(False), np.arange(nx)[None, :], r + np.arange(4 * n)[None, :],
+                  [par["theta_start"], par["p_fixed"], par["scale"]]),
+            Piece(self._boundary_piece(True), N * stride + np.arange(nx)[None, :], n_g - n_end + np.arange(n_end)[None, :],
+                  [par["theta_end"], par["p_fixed"], par["scale"]])]
+        g, f = constraints_and_objective(self.pieces, w, n_g)
         stage_lo, stage_hi = self._path_bounds()
-        lbg = [stage_lo, np.zeros(4 * n), np.tile(stage_lo, N - 1)]
-        ubg = [stage_hi, np.zeros(4 * n), np.tile(stage_hi, N - 1)]
-        if not self.tracking:
-            g.append(self.rest_residual(X[:, N], par["theta_end"], pfN))
-            lbg.append(np.zeros(4 * n)), ubg.append(np.zeros(4 * n))
         psi_max = self._limit("psi")
-        g.append(X[n:2 * n, N] - X[:n, N])                                    # psi at the end
-        lbg.append(-psi_max), ubg.append(psi_max)
-        total_effort = ca.sum2(effort)
-        if p.objective == "min_time":
-            f = X[4 * n, 0] + par["effort_weight"] * total_effort
-        elif p.objective == "min_effort":
-            f = total_effort
-        else:
-            h = par["duration"] * ca.reshape(par["w"], 1, N)
-            e = X[:n, 1:] - ca.reshape(par["theta_ref"], n, N)
-            f = ca.sum2(h * ca.sum1(e ** 2)) / ca.fmax(par["effort_weight"], 1e-12) + total_effort
-        return {"x": w, "f": par["scale"] * f, "g": ca.vertcat(*g), "p": P}, np.concatenate(lbg), np.concatenate(ubg)
+        rest = [] if self.tracking else [np.zeros(4 * n)]
+        lbg = np.concatenate([stage_lo, np.zeros(4 * n), np.tile(stage_lo, N - 1), *rest, -psi_max])
+        ubg = np.concatenate([stage_hi, np.zeros(4 * n), np.tile(stage_hi, N - 1), *rest, psi_max])
+        return {"x": w, "f": f, "g": g, "p": P}, lbg, ubg
 
     def _limit(self, key):
         return np.array([jt.limits.get(key, np.inf) for jt in self.model.joints])

@@ -1,0 +1,153 @@
+"""The NLP's derivatives assembled from its pieces' own, instead of CasADi's AD of the whole graph.
+
+An optimal-control NLP is a sum of pieces of few variables each: a stage couples (x_k, u_k,
+x_{k+1}), the start touches x_0, the end x_N.  Its constraint Jacobian is the pieces' Jacobians
+placed at their rows and columns, its Lagrangian Hessian the sum of the pieces' Hessians (each
+piece weighted by its own rows' multipliers):
+
+    J = sum_i  E_rows(i) J_i E_cols(i)^T,     H = sum_i E_cols(i) H_i(lam_rows(i), lam_f) E_cols(i)^T.
+
+Each J_i, H_i is an SX Jacobian/Hessian with numeric seeds (CasADi colours the piece and folds
+the seeds into straight-line code); the placement is a gather of nonzeros (a sum where Hessian
+blocks overlap).  Why: CasADi differentiates a *mapped* stage by directional derivatives with
+symbolic seeds (fwd25_stage, fwd15_adj1_stage), which cannot simplify; at N = 100 that made
+nlp_jac_g and nlp_hess_l 2-3x dearer than these, and they were most of a fatrop solve.
+
+`solver_functions` returns the functions a compiled solver loads by name (nlp_jac_g,
+nlp_hess_l, nlp_grad_f ...), with CasADi's own signatures.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+
+@dataclass
+class Piece:
+    """`count` instances of fn(z, *args) -> (rows, f): z the piece's variables (global indices
+    cols[k] in instance k), rows its constraints (global rows[k]), f its share of the objective;
+    args its parameters (MX; matrices of `count` columns for per-instance values)."""
+    fn: ca.Function
+    cols: np.ndarray          # (count, nz)
+    rows: np.ndarray          # (count, nr)
+    args: list
+
+    @property
+    def count(self):
+        return self.cols.shape[0]
+
+    def call(self, fn: ca.Function, w: ca.MX, *extra):
+        """fn (mapped over the instances) at the piece's variables of w and its parameters."""
+        z = ca.reshape(w[self.cols.ravel().tolist()], self.cols.shape[1], self.count)
+        f = fn if self.count == 1 else fn.map(self.count, "serial")
+        return f(z, *self.args, *extra)
+
+
+def derivative_functions(piece: Piece):
+    """The piece's (rows, f, J, grad f) and (grad L, H) Functions, L = lam' rows + lam_f f."""
+    fn = piece.fn
+    z = ca.SX.sym("z", fn.size1_in(0))
+    args = [ca.SX.sym(fn.name_in(i), fn.sparsity_in(i)) for i in range(1, fn.n_in())]
+    rows, f = fn(z, *args)
+    lam, lam_f = ca.SX.sym("lam", rows.numel()), ca.SX.sym("lam_f")
+    L = ca.dot(lam, rows) + lam_f * f
+    H, grad = ca.hessian(L, z)
+    first = ca.Function(fn.name() + "_d1", [z, *args], [rows, f, ca.jacobian(rows, z), ca.gradient(f, z)])
+    second = ca.Function(fn.name() + "_d2", [z, *args, lam, lam_f], [grad, H])
+    return first, second
+
+
+def _placement(sp: ca.Sparsity, rows: np.ndarray, cols: np.ndarray, symmetric_upper=False):
+    """Global (row, col) of every nonzero of every instance of a local pattern sp."""
+    r, c = (np.array(v, dtype=np.int64) for v in sp.get_triplet())
+    R, C = rows[:, r], cols[:, c]                      # (count, nnz) each, instance-major
+    if symmetric_upper:
+        R, C = np.minimum(R, C), np.maximum(R, C)
+    return R.ravel(), C.ravel()
+
+
+def _scatter(values: list, places: list, shape) -> ca.MX:
+    """A sparse MX of `shape` from nonzero vectors and their global places (duplicates summed)."""
+    R = np.concatenate([p[0] for p in places])
+    C = np.concatenate([p[1] for p in places])
+    src = ca.vertcat(*values)
+    key = C * shape[0] + R                             # column-major order, as CasADi stores
+    uniq, inv = np.unique(key, return_inverse=True)
+    sp = ca.Sparsity.triplet(shape[0], shape[1], (uniq % shape[0]).tolist(), (uniq // shape[0]).tolist())
+    if len(uniq) == len(key):                          # a permutation: a gather
+        order = np.empty(len(key), dtype=np.int64)
+        order[inv] = np.arange(len(key))
+        return ca.MX(sp, src[order.tolist()])
+    S = ca.DM(ca.Sparsity.triplet(len(uniq), len(key), inv.tolist(), list(range(len(key)))), 1.0)
+    return ca.MX(sp, ca.mtimes(S, src))              # overlapping blocks: a sum
+
+
+def _nz(m: ca.MX) -> ca.MX:
+    return m.nz[:] if m.nnz() else ca.MX(0, 1)
+
+
+def constraints_and_objective(pieces: list, w: ca.MX, n_g: int):
+    """g (in its global row order) and f of the NLP made of the pieces."""
+    rows, places, f = [], [], 0
+    for piece in pieces:
+        r, fi = piece.call(piece.fn, w)
+        rows.append(ca.vec(r))
+        places.append((piece.rows.ravel(), np.zeros(piece.rows.size, dtype=np.int64)))
+        f += ca.sum2(fi)
+    return ca.densify(_scatter(rows, places, (n_g, 1))), f
+
+
+def assembled(pieces: list, w: ca.MX, lam_f: ca.MX, lam_g: ca.MX, n_g: int) -> dict:
+    """grad f, J, grad L, H and triu(H) of the NLP made of the pieces, as MX of w (and of the
+    parameters the pieces take)."""
+    n_w = w.numel()
+    J, Jp, gf, gl, gp, H, Hp, U, Up = ([] for _ in range(9))
+    for piece in pieces:
+        first, second = derivative_functions(piece)
+        _, _, Ji, gfi = piece.call(first, w)
+        lam = ca.reshape(lam_g[piece.rows.ravel().tolist()], piece.rows.shape[1], piece.count)
+        gli, Hi = piece.call(second, w, lam, lam_f)
+        J.append(_nz(Ji))
+        Jp.append(_placement(first.sparsity_out(2), piece.rows, piece.cols))
+        gf.append(ca.vec(gfi))
+        gl.append(ca.vec(gli))
+        gp.append((piece.cols.ravel(), np.zeros(piece.cols.size, dtype=np.int64)))
+        R, C = _placement(second.sparsity_out(1), piece.cols, piece.cols)
+        upper = np.flatnonzero(R <= C)                 # each symmetric pair once, on the upper side
+        H.append(_nz(Hi))
+        Hp.append((R, C))
+        U.append(H[-1][upper.tolist()] if len(upper) else ca.MX(0, 1))
+        Up.append((R[upper], C[upper]))
+    dense = lambda parts, places: ca.densify(_scatter(parts, places, (n_w, 1)))
+    return {"grad_f": dense(gf, gp), "jac_g": _scatter(J, Jp, (n_g, n_w)), "grad_l": dense(gl, gp),
+            "hess": _scatter(H, Hp, (n_w, n_w)), "triu_hess": _scatter(U, Up, (n_w, n_w))}
+
+
+ASSEMBLY_VERSION = "assembled-1"        # part of the compiled-NLP cache key
+NAMES = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l", "nlp_grad")
+
+
+def solver_functions(plain: ca.Function, nlp: dict, pieces: list) -> list:
+    """The functions the compiled solver `plain` loads by name, with its signatures; the first
+    and second derivatives assembled from the pieces (nlp_grad, called once for the parameter
+    multipliers, as CasADi makes it)."""
+    w, P, n_g = nlp["x"], nlp["p"], nlp["g"].numel()
+    lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", n_g)
+    a = assembled(pieces, w, lam_f, lam_g, n_g)
+    expr = {"f": nlp["f"], "g": nlp["g"], "grad_f_x": a["grad_f"], "jac_g_x": a["jac_g"],
+            "grad_gamma_x": a["grad_l"], "hess_gamma_x_x": a["hess"], "triu_hess_gamma_x_x": a["triu_hess"]}
+    sym = {"x": w, "p": P, "lam_f": lam_f, "lam_g": lam_g}
+    out = [ca.Function("nlp", [w, P], [nlp["f"], nlp["g"]], ["x", "p"], ["f", "g"])]
+    for name in NAMES:
+        try:
+            ref = plain.get_function(name)
+        except RuntimeError:
+            continue                                   # e.g. no Hessian with limited-memory
+        if name == "nlp_grad" or not all(o in expr for o in ref.name_out()):
+            out.append(ref)
+            continue
+        out.append(ca.Function(name, [sym[i] for i in ref.name_in()], [expr[o] for o in ref.name_out()],
+                               ref.name_in(), ref.name_out()))
+    return out

@@ -1,0 +1,73 @@
+"""The NLP's derivatives assembled stage by stage (assembly.py) against CasADi's AD of the whole
+NLP graph: every objective, design variables carried as states, fixed model parameters, random
+points and multipliers; and the functions a compiled solver loads are those assembled ones."""
+import dataclasses
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from rscasadi.control.ocp import load_problem
+from rscasadi.control.ocp.assembly import assembled, solver_functions
+from rscasadi.control.ocp.solvers import options
+from rscasadi.control.ocp.transcription import Transcription
+from rscasadi.dynamics.arm import Arm
+from rscasadi.model.modelfile import read
+
+from conftest import REFERENCE
+
+
+def transcription(name, N=5, **over):
+    p = dataclasses.replace(load_problem(REFERENCE.parent / f"{name}.toml"), intervals=N, **over)
+    tr = Transcription(p, Arm(read(p.model_path)), N=N)
+    return tr, *tr.nlp()
+
+
+def whole_graph_ad(nlp):
+    """Reference: CasADi's AD of the NLP as one expression."""
+    w, P, f, g = nlp["x"], nlp["p"], nlp["f"], nlp["g"]
+    lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", g.numel())
+    H, grad_l = ca.hessian(lam_f * f + ca.dot(lam_g, g), w)
+    return ca.Function("ref", [w, P, lam_f, lam_g],
+                       [ca.gradient(f, w), ca.jacobian(g, w), grad_l, H, ca.triu(H)]), (lam_f, lam_g)
+
+
+@pytest.mark.parametrize("name,over", [
+    ("ocp_min_effort", {}), ("ocp_min_effort", {"dynamics": "implicit"}), ("ocp_min_time", {}),
+    ("ocp_tracking", {}), ("ocp_min_time_codesign", {}),
+    ("ocp_min_effort", {"parameters": {"elbow_pitch.sea.k1": 700.0, "shoulder_pitch.link.mass": 2.0}}),
+])
+def test_assembled_derivatives_equal_ad_of_the_whole_nlp(name, over):
+    tr, nlp, lbg, ubg = transcription(name, **over)
+    ref, (lam_f, lam_g) = whole_graph_ad(nlp)
+    a = assembled(tr.pieces, nlp["x"], lam_f, lam_g, nlp["g"].numel())
+    mine = ca.Function("mine", [nlp["x"], nlp["p"], lam_f, lam_g],
+                       [a["grad_f"], a["jac_g"], a["grad_l"], a["hess"], a["triu_hess"]])
+    rng = np.random.default_rng(7)
+    for _ in range(2):
+        w = 0.3 * rng.standard_normal(nlp["x"].numel())
+        P = 0.1 + rng.random(nlp["p"].numel())
+        lam = rng.standard_normal(nlp["g"].numel())
+        for k, (r, m) in enumerate(zip(ref(w, P, 0.7, lam), mine(w, P, 0.7, lam))):
+            assert r.sparsity() == m.sparsity(), f"output {k}: sparsity"
+            assert float(ca.norm_inf(r - m)) <= 1e-12 * max(1.0, float(ca.norm_inf(r))), f"output {k}"
+    assert len(lbg) == len(ubg) == nlp["g"].numel()
+
+
+@pytest.mark.parametrize("solver", ["fatrop", "ipopt"])
+def test_solver_loads_assembled_functions_with_its_own_signatures(solver):
+    tr, nlp, lbg, ubg = transcription("ocp_min_time", solver=solver)
+    plain = ca.nlpsol("plain", solver, nlp, options(tr.p, tr, 0))
+    funcs = {f.name(): f for f in solver_functions(plain, nlp, tr.pieces)}
+    assert {"nlp", "nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l"} <= set(funcs)
+    rng = np.random.default_rng(3)
+    args = {"x": 0.3 * rng.standard_normal(nlp["x"].numel()), "p": 0.1 + rng.random(nlp["p"].numel()),
+            "lam_f": 0.5, "lam_g": rng.standard_normal(nlp["g"].numel())}
+    for name in ("nlp_grad_f", "nlp_jac_g", "nlp_hess_l"):
+        theirs, mine = plain.get_function(name), funcs[name]
+        assert theirs.name_in() == mine.name_in() and theirs.name_out() == mine.name_out()
+        expect = theirs.call({k: args[k] for k in theirs.name_in()})
+        got = mine.call({k: args[k] for k in mine.name_in()})
+        for key in theirs.name_out():
+            scale = max(1.0, float(ca.norm_inf(expect[key])))
+            assert float(ca.norm_inf(ca.densify(expect[key]) - ca.densify(got[key]))) <= 1e-12 * scale, (name, key)
