@@ -7,14 +7,14 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from rscasadi.control.ocp import load_problem
+from rscasadi.control.ocp import load_problem, solve_once
 from rscasadi.control.ocp.assembly import assembled, solver_functions
 from rscasadi.control.ocp.solvers import options
 from rscasadi.control.ocp.transcription import Transcription
 from rscasadi.dynamics.arm import Arm
 from rscasadi.model.modelfile import read
 
-from conftest import REFERENCE
+from conftest import REFERENCE, problem
 
 
 def transcription(name, N=5, **over):
@@ -71,3 +71,15 @@ def test_solver_loads_assembled_functions_with_its_own_signatures(solver):
         for key in theirs.name_out():
             scale = max(1.0, float(ca.norm_inf(expect[key])))
             assert float(ca.norm_inf(ca.densify(expect[key]) - ca.densify(got[key]))) <= 1e-12 * scale, (name, key)
+
+
+def test_compiled_limited_memory_ipopt_needs_no_hessian(pitch_arm):
+    """With a quasi-Newton Hessian there is no nlp_hess_l to assemble: the library is built
+    without it and the solve succeeds, at the optimum the exact Hessian finds."""
+    sols = {}
+    for hessian in ("exact", "limited-memory"):
+        path = problem(pitch_arm, f"lm_{hessian}.toml", transcription={"intervals": 20, "compiled": True},
+                       solver={"name": "ipopt", "hessian": hessian})
+        sols[hessian] = solve_once(load_problem(path), print_level=0, log=lambda m: None)
+        assert sols[hessian]["success"], sols[hessian]["status"]
+    assert abs(sols["exact"]["objective"] - sols["limited-memory"]["objective"]) < 1e-5 * sols["exact"]["objective"]

@@ -10,8 +10,9 @@ piece weighted by its own rows' multipliers):
 Each J_i, H_i is an SX Jacobian/Hessian with numeric seeds (CasADi colours the piece and folds
 the seeds into straight-line code); the placement is a gather of nonzeros (a sum where Hessian
 blocks overlap).  Why: CasADi differentiates a *mapped* stage by directional derivatives with
-symbolic seeds (fwd25_stage, fwd15_adj1_stage), which cannot simplify; at N = 100 that made
-nlp_jac_g and nlp_hess_l 2-3x dearer than these, and they were most of a fatrop solve.
+symbolic seeds (fwd25_stage, fwd15_adj1_stage), which cannot simplify: at N = 100 (minimum
+effort, Radau 3) nlp_jac_g took 5.3 ms and nlp_hess_l 6.1 ms per call that way, 0.8 and 2.0 ms
+assembled, and they had been half of a fatrop solve.
 
 `solver_functions` returns the functions a compiled solver loads by name (nlp_jac_g,
 nlp_hess_l, nlp_grad_f ...), with CasADi's own signatures.
@@ -59,13 +60,16 @@ def derivative_functions(piece: Piece):
     return first, second
 
 
-def _placement(sp: ca.Sparsity, rows: np.ndarray, cols: np.ndarray, symmetric_upper=False):
+def _placement(sp: ca.Sparsity, rows: np.ndarray, cols: np.ndarray):
     """Global (row, col) of every nonzero of every instance of a local pattern sp."""
     r, c = (np.array(v, dtype=np.int64) for v in sp.get_triplet())
     R, C = rows[:, r], cols[:, c]                      # (count, nnz) each, instance-major
-    if symmetric_upper:
-        R, C = np.minimum(R, C), np.maximum(R, C)
     return R.ravel(), C.ravel()
+
+
+def _in_column(index: np.ndarray):
+    """Places of the entries of a column vector: rows `index`, column 0."""
+    return index.ravel(), np.zeros(index.size, dtype=np.int64)
 
 
 def _scatter(values: list, places: list, shape) -> ca.MX:
@@ -94,7 +98,7 @@ def constraints_and_objective(pieces: list, w: ca.MX, n_g: int):
     for piece in pieces:
         r, fi = piece.call(piece.fn, w)
         rows.append(ca.vec(r))
-        places.append((piece.rows.ravel(), np.zeros(piece.rows.size, dtype=np.int64)))
+        places.append(_in_column(piece.rows))
         f += ca.sum2(fi)
     return ca.densify(_scatter(rows, places, (n_g, 1))), f
 
@@ -113,7 +117,7 @@ def assembled(pieces: list, w: ca.MX, lam_f: ca.MX, lam_g: ca.MX, n_g: int) -> d
         Jp.append(_placement(first.sparsity_out(2), piece.rows, piece.cols))
         gf.append(ca.vec(gfi))
         gl.append(ca.vec(gli))
-        gp.append((piece.cols.ravel(), np.zeros(piece.cols.size, dtype=np.int64)))
+        gp.append(_in_column(piece.cols))
         R, C = _placement(second.sparsity_out(1), piece.cols, piece.cols)
         upper = np.flatnonzero(R <= C)                 # each symmetric pair once, on the upper side
         H.append(_nz(Hi))
