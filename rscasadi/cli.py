@@ -104,7 +104,7 @@ def cmd_reproduce(args):
     run(TRAJECTORY, out / "paper", log=lambda msg: print(msg, flush=True), ocp_problem=PROBLEMS / "ocp_tracking.toml")
     from .control.ocp import run as run_ocp
     failed = []
-    for name in ("min_time", "min_effort", "tracking", "min_time_codesign", "panda_min_time"):
+    for name in ("min_time", "min_effort", "tracking", "min_time_codesign", "min_time_gear_codesign", "panda_min_time"):
         sol = run_ocp(PROBLEMS / f"ocp_{name}.toml", out / "ocp" / name, log=lambda msg: print(msg, flush=True),
                       print_level=0)
         if not sol["success"]:

@@ -34,8 +34,10 @@ def whole_graph_ad(nlp):
 
 @pytest.mark.parametrize("name,over", [
     ("ocp_min_effort", {}), ("ocp_min_effort", {"dynamics": "implicit"}), ("ocp_min_time", {}),
-    ("ocp_tracking", {}), ("ocp_min_time_codesign", {}),
+    ("ocp_tracking", {}), ("ocp_min_time_codesign", {}), ("ocp_min_time_gear_codesign", {}),
+    ("ocp_tracking", {"design": {"elbow_pitch.gear_ratio": (40.0, 160.0)}}),
     ("ocp_min_effort", {"parameters": {"elbow_pitch.sea.k1": 700.0, "shoulder_pitch.link.mass": 2.0}}),
+    ("ocp_min_effort", {"parameters": {"elbow_pitch.gear_ratio": 90.0}}),
 ])
 def test_assembled_derivatives_equal_ad_of_the_whole_nlp(name, over):
     tr, nlp, lbg, ubg = transcription(name, **over)

@@ -131,6 +131,33 @@ def test_codesign_improves_on_the_nominal_arm_and_is_what_it_says(pitch_arm):
     assert ref["success"] and abs(ref["t"][-1] - sol["t"][-1]) < 1e-5 * sol["t"][-1]
 
 
+def test_gear_ratio_codesign_keeps_the_motor_speed_limit_and_is_what_it_says(pitch_arm):
+    """Minimum time with the gear ratio free: the motor's speed limit mu dphi stays (the slow
+    side's dphi limit scales by mu_nominal / mu); the same problem on a model file with the chosen
+    ratio *and* that scaled limit written in gives the same time."""
+    import tomllib
+    from rscasadi.model.modelfile import to_toml
+    path = problem(pitch_arm, "gear.toml", objective="min_time", max_duration=5.0,
+                   transcription={"intervals": 40}, design={"shoulder_pitch.gear_ratio": [30.0, 300.0]})
+    sol = solve(load_problem(path), **QUIET)
+    assert sol["success"], sol["rounds"]
+    mu = sol["design"]["shoulder_pitch.gear_ratio"]
+    assert 30.0 - 1e-6 <= mu <= 300.0 + 1e-6 and abs(mu - 100.0) > 1.0, "the ratio moved"
+    assert sol["t"][-1] <= sol["nominal"]["duration"] * (1 + 1e-6)
+    with open(pitch_arm / "pitch.toml", "rb") as fh:
+        d = tomllib.load(fh)
+    jt = d["joints"][0]
+    dphi = jt["limits"]["dphi"] * jt["gear_ratio"] / mu
+    speeds = np.abs(np.asarray(sol["dphi"][0]))
+    assert speeds.max() <= dphi * (1 + 1e-6), "the scaled slow-side speed limit holds"
+    jt["gear_ratio"], jt["limits"]["dphi"] = mu, dphi
+    (pitch_arm / "pitch_mu.toml").write_text(to_toml(d))
+    fixed = load_problem(problem(pitch_arm, "fixed_mu.toml", model="pitch_mu.toml", objective="min_time",
+                                 max_duration=5.0, transcription={"intervals": sol["intervals"]}))
+    ref = solve_once(fixed, w=sol["mesh"], warm=sol, **QUIET)
+    assert ref["success"] and abs(ref["t"][-1] - sol["t"][-1]) < 1e-5 * sol["t"][-1]
+
+
 @pytest.mark.parametrize("design,field", [
     ({"shoulder_pitch.sea.k1": [5.0, 1.0]}, "design.shoulder_pitch.sea.k1"),
     ({"shoulder_pitch.sea.k1": "stiff"}, "design.shoulder_pitch.sea.k1"),

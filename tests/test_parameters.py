@@ -96,3 +96,32 @@ def test_parametric_forward_dynamics_jacobian(arm3):
     J = np.array(arm3.forward_dynamics_jacobian()(*x, tau))
     Jp = np.array(arm3.forward_dynamics_jacobian(parametric=True)(*x, tau, arm3.parameters()[1]))
     assert np.max(np.abs(J - Jp)) < 1e-10 * np.max(np.abs(J))
+
+
+@pytest.mark.parametrize("balanced", [False, True])
+def test_free_gear_ratios_equal_a_model_file_with_those_ratios(tmp_path, balanced):
+    """Arm(model, free=[gear ratios, ...]) at values v = the constant arm of the model file with v:
+    the fast rotor's spin, its reflected inertia and the motor torque all scale with mu (design
+    studies and sweeps free gear ratios this way; identification keeps them fixed)."""
+    from rscasadi.dynamics.arm import Arm
+    from rscasadi.model.parameters import designable, value, with_values
+    rng = np.random.default_rng(31 + balanced)
+    for n in (1, 3, 7):                              # 7: the implicit-function forward-dynamics Jacobian
+        arm = rscasadi.load(write_arm(tmp_path, random_arm_doc(rng, n, balanced), f"g{n}.toml"))
+        jts = arm.model.joints
+        free = [f"{jts[-1].name}.gear_ratio", f"{jts[0].name}.gear_ratio", f"{jts[0].name}.sea.k1"]
+        if not balanced:
+            free.append(f"{jts[-1].name}.fast_rotor.Izz")            # with the inertias symbolic too
+        free = list(dict.fromkeys(free))
+        assert set(free) <= set(designable(arm.model))
+        v = [value(arm.model, k) * rng.uniform(0.5, 2.0) for k in free]
+        twin, const = Arm(arm.model, free=free), Arm(with_values(arm.model, dict(zip(free, v))))
+        assert const.model.joints[0].gear_ratio == pytest.approx(v[free.index(f"{jts[0].name}.gear_ratio")])
+        for name in ("forward_dynamics", "inverse_dynamics", "mass_matrix", "forward_dynamics_jacobian"):
+            c, t = getattr(const, name)(), getattr(twin, name)(parametric=True)
+            for _ in range(2):
+                x = random_state(rng, n, 1.5)
+                args = (list(x) + [rng.normal(size=c.size1_in(i)) for i in range(4, c.n_in())])[:c.n_in()]
+                a = np.concatenate([np.ravel(dm(o)) for o in c.call(args)])
+                b = np.concatenate([np.ravel(dm(o)) for o in t.call(args + [v])])
+                assert np.max(np.abs(a - b)) <= 1e-10 * max(1.0, np.max(np.abs(a))), (n, name)

@@ -116,9 +116,10 @@ def solve_point(problem_path: str, names: list, point: dict, index: int) -> dict
 
 
 def _nominal(problem, names) -> dict:
-    from ..dynamics.arm import load
-    all_names, values = load(problem.model_path).parameters()
-    return {k: float(values[all_names.index(k)]) for k in names}
+    from ..model.modelfile import read
+    from ..model.parameters import value
+    model = read(problem.model_path)
+    return {k: value(model, k) for k in names}
 
 
 def _key(point: dict) -> str:

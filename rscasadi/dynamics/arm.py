@@ -6,7 +6,7 @@ import numpy as np
 
 from . import recursions as rec
 from ..model.modelfile import ArmModel, read
-from ..model.parameters import Physics, names as parameter_names, nominal as parameter_nominal
+from ..model.parameters import Physics, gear_ratios, names as parameter_names, nominal as parameter_nominal
 
 STATE = ["theta", "phi", "dtheta", "dphi"]
 
@@ -197,7 +197,8 @@ class Arm:
         n = self.n
         ddtheta, ddphi = self.forward_dynamics(bool(p))(*x, tau, *p)
         Jr = self.residual_jacobian(bool(p))(*x, ddtheta, ddphi, *p)
-        dQ_dtau = ca.vertcat(ca.MX.zeros(n, n), -ca.diag(ca.DM(self.model.column("gear_ratio"))))
+        mu = gear_ratios(self.model, self.free, *p)
+        dQ_dtau = ca.vertcat(ca.MX.zeros(n, n), -ca.diag(mu))
         rhs = ca.horzcat(-Jr, dQ_dtau)
         if D is not None:
             # (D' Jr')' rather than Jr D: CasADi's dense-times-sparse kernel runs down contiguous

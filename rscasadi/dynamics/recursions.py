@@ -27,7 +27,6 @@ class Segment:
     M: np.ndarray            # spatial inertia of link j (eq. 11), link frame
     leaves: list             # [(gear, M, spins)] rotors of joint j; see `segments`
     B_spin: float = 0.0      # reduced model only: B_j on the rotor coordinate
-    mu: float = 1.0
 
 
 @dataclass
@@ -51,11 +50,11 @@ def segments(model, phys, reduced: bool = False) -> list:
     (numbers, or expressions of the parameters: then every rotor spins in its own frame)."""
     segs = []
     for j, jt in enumerate(model.joints):
-        M = phys.inertias[j]
+        M, mu = phys.inertias[j], phys.columns["gear_ratio"][j]        # mu: a number, or free
         rotors = [(gear, M[part], phys.symbolic or not getattr(jt, part).balanced)
-                  for gear, part in ((1.0, "slow_rotor"), (-jt.gear_ratio, "fast_rotor"))]
+                  for gear, part in ((1.0, "slow_rotor"), (-mu, "fast_rotor"))]
         segs.append(Segment(jt.R, jt.origin_xyz, M["link"], [] if reduced else rotors,
-                            phys.rotor_inertia(j) if reduced else 0.0, jt.gear_ratio))
+                            phys.rotor_inertia(j) if reduced else 0.0))
     if reduced:  # rotor j+1 carried rigidly by link j at its zero angle (exact for balanced rotors)
         for seg, jt, M in zip(segs[:-1], model.joints[1:], phys.inertias[1:]):
             X0 = Xup(ca.DM(jt.R), jt.origin_xyz)

@@ -11,7 +11,10 @@ The parameter vector p of an arm, in this order:
 
 Names are dotted: "elbow_pitch.link.mass", "elbow_pitch.fast_rotor.Izz", "elbow_pitch.sea.k1".
 Everything before gravity is p_lin: inverse dynamics is linear in it (with eps, the gear ratios
-and gravity fixed).  Gear ratios and eps are not parameters: they shape the equations.
+and gravity fixed).  Gear ratios and eps are not in p: identification keeps them fixed.  A
+design study or a sweep may also free a gear ratio ("elbow_pitch.gear_ratio", `designable`):
+the equations are exact for any value of it (it scales the fast rotor's spin, its reflected
+inertia and the motor torque).
 
 `Physics` holds what the recursions read (spatial inertias, actuator columns, gravity), either
 as numbers from the model file or as CasADi expressions of p.
@@ -71,6 +74,49 @@ def nominal(model: ArmModel) -> np.ndarray:
     return np.concatenate(out + [model.gravity])
 
 
+def designable(model: ArmModel) -> list[str]:
+    """Names a design study or a sweep may free: p's, and each joint's gear ratio."""
+    return names(model) + [f"{jt.name}.gear_ratio" for jt in model.joints]
+
+
+def _gear_joint(model: ArmModel, name: str):
+    """The joint index of a gear-ratio name, or None."""
+    for j, jt in enumerate(model.joints):
+        if name == f"{jt.name}.gear_ratio":
+            return j
+    return None
+
+
+def gear_ratios(model: ArmModel, free: list | None = None, p=None):
+    """The gear-ratio column: the model file's numbers, with the ones named in `free` the
+    matching entries of p."""
+    mu = [float(v) for v in model.column("gear_ratio")]
+    if not free or not any(_gear_joint(model, name) is not None for name in free):
+        return ca.DM(mu)
+    S = ca.MX if isinstance(p, ca.MX) else ca.SX
+    entries = [S(v) for v in mu]
+    for k, name in enumerate(free):
+        j = _gear_joint(model, name)
+        if j is not None:
+            entries[j] = p[k]
+    return ca.vertcat(*entries)
+
+
+def geared_limits(limits: dict, mu_old: float, mu_new: float) -> dict:
+    """A joint's limits behind another gear ratio, the same motor: its speed limit mu dphi is
+    kept, so the slow-side limit dphi scales by mu_old / mu_new (tau, the motor torque, and psi
+    stay)."""
+    if mu_new == mu_old or "dphi" not in limits:
+        return limits
+    return {**limits, "dphi": limits["dphi"] * mu_old / mu_new}
+
+
+def value(model: ArmModel, name: str) -> float:
+    """The model file's value of a designable parameter."""
+    j = _gear_joint(model, name)
+    return float(model.joints[j].gear_ratio) if j is not None else float(nominal(model)[names(model).index(name)])
+
+
 def n_linear(model: ArmModel) -> int:
     """Length of p_lin, the leading part of p that inverse dynamics is linear in."""
     return model.n * PER_JOINT
@@ -118,16 +164,22 @@ class Physics:
         gravity are free, the inertias stay numbers and the rotors stay in the joint frame, so
         the expressions are as compact as the constant version's."""
         all_names, values = names(model), nominal(model)
-        idx = [all_names.index(name) for name in free]
+        gears = {k: _gear_joint(model, name) for k, name in enumerate(free) if _gear_joint(model, name) is not None}
+        idx = {k: all_names.index(name) for k, name in enumerate(free) if k not in gears}
         S = ca.MX if isinstance(p, ca.MX) else ca.SX
-        cheap = all(i >= model.n * PER_JOINT or i % PER_JOINT >= len(BODIES) * len(INERTIAL) for i in idx)
+        cheap = all(i >= model.n * PER_JOINT or i % PER_JOINT >= len(BODIES) * len(INERTIAL) for i in idx.values())
         if not cheap:
             entries = [S(v) for v in values]
-            for k, i in enumerate(idx):
+            for k, i in idx.items():
                 entries[i] = p[k]
-            return Physics.of(model, ca.vertcat(*entries))
-        phys = Physics.constant(model)
-        for k, i in enumerate(idx):
+            phys = Physics.of(model, ca.vertcat(*entries))
+        else:
+            phys = Physics.constant(model)
+        if gears:
+            phys.columns["gear_ratio"] = gear_ratios(model, free, p)
+        if not cheap:
+            return phys
+        for k, i in idx.items():
             if i >= model.n * PER_JOINT:
                 g = [S(float(v)) for v in np.array(phys.gravity).ravel()] if not isinstance(
                     phys.gravity, (ca.SX, ca.MX)) else ca.vertsplit(phys.gravity)
@@ -144,8 +196,8 @@ class Physics:
 
 
 def check_names(model: ArmModel, wanted, where: str) -> list:
-    """The names in `wanted`, each one of the model's parameter names, or an error naming it."""
-    known = names(model)
+    """The names in `wanted`, each a designable name of the model, or an error naming it."""
+    known = designable(model)
     for name in wanted:
         if name not in known:
             close = [k for k in known if k.split(".")[-1] == str(name).split(".")[-1]][:4]
@@ -155,14 +207,18 @@ def check_names(model: ArmModel, wanted, where: str) -> list:
 
 
 def with_values(model: ArmModel, values: dict) -> ArmModel:
-    """The same arm with the named parameters set (names as in `names(model)`)."""
+    """The same arm with the named parameters set (names as in `designable(model)`)."""
     import dataclasses
     if not values:
         return model
     p = nominal(model)
-    all_names = names(model)
+    all_names, gears = names(model), {}
     for name, v in values.items():
-        p[all_names.index(name)] = float(v)
+        j = _gear_joint(model, name)
+        if j is not None:
+            gears[j] = float(v)
+        else:
+            p[all_names.index(name)] = float(v)
     joints = []
     for j, jt in enumerate(model.joints):
         base = j * PER_JOINT
@@ -170,5 +226,7 @@ def with_values(model: ArmModel, values: dict) -> ArmModel:
         act = dict(zip(ACTUATOR_ATTR, p[base + 30: base + PER_JOINT]))
         changed = {b: bodies[b] for b in BODIES
                    if any(f"{jt.name}.{b}.{q}" in values for q in INERTIAL)}
-        joints.append(dataclasses.replace(jt, **changed, **{a: float(v) for a, v in act.items()}))
+        mu = gears.get(j, jt.gear_ratio)
+        joints.append(dataclasses.replace(jt, **changed, **{a: float(v) for a, v in act.items()},
+                                          gear_ratio=mu, limits=geared_limits(jt.limits, jt.gear_ratio, mu)))
     return dataclasses.replace(model, joints=tuple(joints), gravity=p[model.n * PER_JOINT:].copy())

@@ -19,7 +19,7 @@ import numpy as np
 
 from ...dynamics.arm import Arm
 from ...model.modelfile import read
-from ...model.parameters import with_values
+from ...model.parameters import value, with_values
 from ..simulation import held_interval, simulate_held, spring_deflection
 from ..trajectory import load_trajectory
 from .problem import Problem, check_against_model, load_problem
@@ -78,8 +78,7 @@ def guess(tr: Transcription, problem: Problem, arm: Arm, t, warm: dict | None):
 
 
 def _design_start(problem: Problem, arm: Arm) -> dict:
-    names, values = arm.parameters()
-    return {k: float(values[names.index(k)]) for k in problem.design}
+    return {k: value(arm.model, k) for k in problem.design}
 
 
 def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, print_level: int = 5,

@@ -33,6 +33,7 @@ import casadi as ca
 import numpy as np
 
 from ...dynamics.arm import Arm
+from ...model.parameters import gear_ratios
 from .assembly import Piece, constraints_and_objective
 from .problem import Problem
 
@@ -44,6 +45,9 @@ class Transcription:
         self.design, self.fixed = list(problem.design), list(problem.parameters)
         free = self.design + self.fixed
         self.arm = Arm(arm.model, free=free) if free else arm
+        # joints whose gear ratio is designed or swept: their motor speed limit mu dphi is the
+        # model's, so dphi's limit becomes a constraint row instead of a bound
+        self.geared = [j for j, jt in enumerate(arm.model.joints) if f"{jt.name}.gear_ratio" in free]
         n = self.n
         c = np.array([0.0, 0.5, 1.0]) if problem.method == "hermite-simpson" else \
             np.array(ca.collocation_points(problem.degree, problem.method))
@@ -72,9 +76,8 @@ class Transcription:
         rotor rows mu (u - tau_id) are generalized forces like the link rows (N m)."""
         n, q = self.n, ca.vertsplit(x, self.n)
         tau_id, T_id = self._call("inverse_dynamics", *q, a[:n], a[n:], pf=pf)
-        mu = ca.DM(self.model.column("gear_ratio"))
         phys = self.arm.physics if pf is None else self.arm._physics_of(pf)
-        return ca.vertcat(T_id - self.arm.sea_torque(*q, phys=phys), mu * (u - tau_id))
+        return ca.vertcat(T_id - self.arm.sea_torque(*q, phys=phys), phys.columns["gear_ratio"] * (u - tau_id))
 
     def rest_residual(self, x, theta, pf):
         """At rest at theta in the SEA's static equilibrium: theta, speeds 0, T_K(psi) = gravity torque."""
@@ -88,6 +91,16 @@ class Transcription:
         """The free parameters' values, in the order of Arm(free=design + fixed); None if none."""
         parts = ([design] if self.design else []) + ([p_fixed] if self.fixed else [])
         return ca.vertcat(*parts) if parts else None
+
+    def _speed_scale(self, pf):
+        """mu / mu_nominal per joint (1 where the gear ratio is the model's)."""
+        if not self.geared:
+            return ca.DM.ones(self.n)
+        return gear_ratios(self.model, self.design + self.fixed, pf) / ca.DM(self.model.column("gear_ratio"))
+
+    def _geared_speeds(self, dphi, pf):
+        """Rows of the geared joints' speed limits: their mu dphi / mu_nominal (none if none)."""
+        return (self._speed_scale(pf) * dphi)[self.geared] if self.geared else ca.SX(0, 1)
 
     def _acceleration_scale(self):
         """The accelerations are variables a = s * a_scaled, s per coordinate about the largest
@@ -123,9 +136,10 @@ class Transcription:
                 dynamics.append((acc[j] - self._f(xj, tau, pf)[2 * n:]) / s)
         x_end = ca.vertcat(q + h * v + h ** 2 * sum((b @ A)[l] * acc[l] for l in range(m)),
                            v + h * sum(b[l] * acc[l] for l in range(m)))
-        limits = [q[n:] - q[:n]]                                                # psi at x_k
+        speed = self._speed_scale(pf)                      # dphi -> mu dphi / mu_nominal
+        limits = [q[n:] - q[:n], self._geared_speeds(v[n:], pf)]               # psi (dphi) at x_k
         for j in self.interior:                                                 # theta, psi, dphi inside
-            limits += [Q[j][:n], Q[j][n:] - Q[j][:n], V[j][n:]]
+            limits += [Q[j][:n], Q[j][n:] - Q[j][:n], speed * V[j][n:]]
         return ca.Function("stage", [x, u, w, dur, pfix],
                            [ca.vertcat(x_end, z), ca.vertcat(*dynamics, *limits), h * ca.sumsqr(tau)],
                            ["x", "u", "w", "duration", "p_fixed"], ["x_next", "path", "effort"])
@@ -169,7 +183,8 @@ class Transcription:
         pfix, scale = ca.SX.sym("p_fixed", len(self.fixed)), ca.SX.sym("scale")
         pf = self._pf(x[4 * n + self.nT:] if self.design else None, pfix)
         if end:
-            rows = ([] if self.tracking else [self.rest_residual(x, theta, pf)]) + [x[n:2 * n] - x[:n]]
+            rows = ([] if self.tracking else [self.rest_residual(x, theta, pf)]) + [x[n:2 * n] - x[:n],
+                                                                                   self._geared_speeds(x[3 * n:4 * n], pf)]
             f = ca.SX(0)
         else:
             rows = [self.rest_residual(x, theta, pf)]
@@ -187,7 +202,7 @@ class Transcription:
         stride = nx + self.nu
         w = ca.MX.sym("w", N * stride + nx)                                 # stage by stage
         r = nx + self.stage.size1_out(1)                                    # a stage's rows
-        n_end = (0 if self.tracking else 4 * n) + n
+        n_end = (0 if self.tracking else 4 * n) + n + len(self.geared)
         stage_rows = np.vstack([np.arange(r)] + [r + 4 * n + (k - 1) * r + np.arange(r) for k in range(1, N)])
         n_g = r + 4 * n + (N - 1) * r + n_end
         stage_args = [ca.reshape(par["w"], 1, N), par["duration"], par["p_fixed"], par["effort_weight"], par["scale"]]
@@ -201,10 +216,10 @@ class Transcription:
                   [par["theta_end"], par["p_fixed"], par["scale"]])]
         g, f = constraints_and_objective(self.pieces, w, n_g)
         stage_lo, stage_hi = self._path_bounds()
-        psi_max = self._limit("psi")
+        psi_max, dphi_max = self._limit("psi"), self._limit("dphi")[self.geared]
         rest = [] if self.tracking else [np.zeros(4 * n)]
-        lbg = np.concatenate([stage_lo, np.zeros(4 * n), np.tile(stage_lo, N - 1), *rest, -psi_max])
-        ubg = np.concatenate([stage_hi, np.zeros(4 * n), np.tile(stage_hi, N - 1), *rest, psi_max])
+        lbg = np.concatenate([stage_lo, np.zeros(4 * n), np.tile(stage_lo, N - 1), *rest, -psi_max, -dphi_max])
+        ubg = np.concatenate([stage_hi, np.zeros(4 * n), np.tile(stage_hi, N - 1), *rest, psi_max, dphi_max])
         return {"x": w, "f": f, "g": g, "p": P}, lbg, ubg
 
     def _limit(self, key):
@@ -216,8 +231,8 @@ class Transcription:
         lo_th = np.array([jt.limits.get("theta", (-inf, inf))[0] for jt in self.model.joints])
         hi_th = np.array([jt.limits.get("theta", (-inf, inf))[1] for jt in self.model.joints])
         psi, dphi = self._limit("psi"), self._limit("dphi")
-        lo = [np.zeros(self.nx + 2 * n * self.m), -psi] + [np.r_[lo_th, -psi, -dphi]] * len(self.interior)
-        hi = [np.zeros(self.nx + 2 * n * self.m), psi] + [np.r_[hi_th, psi, dphi]] * len(self.interior)
+        lo = [np.zeros(self.nx + 2 * n * self.m), -psi, -dphi[self.geared]] + [np.r_[lo_th, -psi, -dphi]] * len(self.interior)
+        hi = [np.zeros(self.nx + 2 * n * self.m), psi, dphi[self.geared]] + [np.r_[hi_th, psi, dphi]] * len(self.interior)
         return np.concatenate(lo), np.concatenate(hi)
 
     def structure(self) -> dict:
@@ -225,7 +240,7 @@ class Transcription:
         n, N = self.n, self.N
         n_path = self.stage.size1_out(1)
         ng = [n_path + 4 * n] + [n_path] * (N - 1)
-        ng.append((0 if self.tracking else 4 * n) + n)
+        ng.append((0 if self.tracking else 4 * n) + n + len(self.geared))
         return {"structure_detection": "manual", "N": N, "nx": [self.nx] * (N + 1),
                 "nu": [self.nu] * N + [0], "ng": ng}
 
@@ -236,7 +251,7 @@ class Transcription:
         for j, jt in enumerate(jts):
             if "theta" in jt.limits:
                 lo_q[j], hi_q[j] = jt.limits["theta"]
-            if "dphi" in jt.limits:
+            if "dphi" in jt.limits and j not in self.geared:             # geared: a row (_geared_speeds)
                 lo_q[3 * n + j], hi_q[3 * n + j] = -jt.limits["dphi"], jt.limits["dphi"]
         lo_z = ([1e-3] if self.nT else []) + [b[0] for b in self.p.design.values()]
         hi_z = ([max_duration] if self.nT else []) + [b[1] for b in self.p.design.values()]
