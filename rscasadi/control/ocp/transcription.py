@@ -18,8 +18,13 @@ Stage k = 0..N-1 has the state x_k = (theta, phi, dtheta, dphi, [T], [design]) a
     x_{k+1} - F(x_k, u_k) = 0           gap closing: the interval's end point (T, design carried)
     c_k(x_k, u_k) (=, <=) 0             dynamics at the points (explicit: a_j = FD(q_j, v_j, tau);
                                         implicit: the inverse-dynamics residual), limits at the
-                                        interior points and the SEA deflection at x_k, (stage 0) the start
-    c_N(x_N)                            the end at rest (rest-to-rest problems)
+                                        interior points and the SEA deflection (and a geared
+                                        joint's motor speed) at x_k, (stage 0) the start
+    c_N(x_N)                            the end at rest (rest-to-rest problems), deflection, motor speed
+
+A designed or swept gear ratio keeps the motor: its speed limit mu dphi is the model file's, so
+dphi's limit is a row (mu / mu_file) dphi within limits.dphi instead of a bound.  The NLP is
+built as stage, start and end pieces, whose own derivatives assembly.py places.
 
 Rest is the SEA's static equilibrium, stated as constraints (theta given, speeds zero, spring
 torque = gravity torque), so it holds for any designed or swept spring.  The mesh is the vector
