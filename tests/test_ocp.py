@@ -110,11 +110,14 @@ def test_compiled_nlp_equals_vm_and_is_cached(pitch_arm):
 def test_tracking_ocp_follows_the_trajectory_between_nodes(pitch_arm):
     (pitch_arm / "traj.toml").write_text('model = "pitch.toml"\nperiod = 1.0\nduration = 1.0\n'
                                          'start = [0.3]\namplitude = [0.6]\n')
-    # effort weight 1e-8 on one joint: fatrop stalls at a dual infeasibility of 1e-7 (tolerance 1e-8)
-    # and says so; IPOPT stops at its 'acceptable' level, which it counts as success
+    # effort weight 1e-8 on one joint: fatrop (the default) stalls (return flag 2) and says so;
+    # the solve falls back to IPOPT from the same start, which stops at its 'acceptable' level
     path = problem(pitch_arm, "track.toml", objective="tracking", trajectory="traj.toml", effort_weight=1e-8,
-                   transcription={"intervals": 100}, solver={"name": "ipopt"})
-    sol = solve(load_problem(path), print_level=0, log=lambda m: None)
+                   transcription={"intervals": 100})
+    logs = []
+    sol = solve(load_problem(path), print_level=0, log=logs.append)
     report = verify(sol)
+    assert sol["fallback_from"]["solver"] == "fatrop" and "return flag" in sol["fallback_from"]["status"]
+    assert sol["solver"] == "ipopt" and any("solving again with IPOPT" in m for m in logs)
     assert sol["success"] and sol["trajectory"].endswith("traj.toml")
     assert report["tracking_error"] < 1e-4                  # on the fine replay grid, not only at nodes

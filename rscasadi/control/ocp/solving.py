@@ -230,6 +230,15 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
         # (seen: a co-design round wandered from T = 0.2472 s to another local minimum, 0.2506 s)
         extra = {**(WARM.get(problem.solver, {}) if r else {}), **(options or {})}
         sol = solve_once(problem, w, warm, log, print_level, extra)
+        if not sol["success"] and problem.solver == "fatrop":
+            # fatrop stalls on some ill-conditioned problems (seen: tracking with an effort weight
+            # of 1e-8, return flag 2 after 20 iterations); IPOPT's restoration phase copes
+            log(f"fatrop: {sol['status']}; solving again with IPOPT from the same start")
+            problem = dataclasses.replace(problem, solver="ipopt")
+            failed_fatrop = {"solver": "fatrop", "status": sol["status"], "iterations": sol["iterations"]}
+            options = None                                     # fatrop's own options mean nothing to IPOPT
+            sol = solve_once(problem, w, warm, log, print_level, WARM["ipopt"] if r else None)
+            sol["fallback_from"] = failed_fatrop
         report = verify(sol)
         failed = checks(problem, report)
         rounds.append({"round": r, "intervals": sol["intervals"], "status": sol["status"],
