@@ -167,6 +167,23 @@ def test_bad_design_table_names_the_field(pitch_arm, design, field):
         load_problem(problem(pitch_arm, "bad_design.toml", design=design))
 
 
+@pytest.mark.parametrize("over,field", [
+    ({"design": {"shoulder_pitch.gear_ratio": [0.0, 200.0]}}, "design.shoulder_pitch.gear_ratio"),
+    ({"design": {"shoulder_pitch.gear_ratio": [-50.0, 200.0]}}, "design.shoulder_pitch.gear_ratio"),
+])
+def test_nonpositive_gear_ratio_bounds_are_refused_by_field(pitch_arm, over, field):
+    p = load_problem(problem(pitch_arm, "bad_gear.toml", **over))
+    with pytest.raises(ModelFileError, match=rf"bad_gear\.toml: field '{field}': a gear ratio stays positive"):
+        solve_once(p, **QUIET)
+
+
+def test_swept_nonpositive_gear_ratio_is_refused(pitch_arm):
+    p = dataclasses.replace(load_problem(problem(pitch_arm, "sweep_gear.toml")),
+                            parameters={"shoulder_pitch.gear_ratio": 0.0})
+    with pytest.raises(ModelFileError, match=r"sweep_gear\.toml: parameter 'shoulder_pitch\.gear_ratio' = 0"):
+        solve_once(p, **QUIET)
+
+
 def test_unknown_design_parameter_is_named(pitch_arm):
     p = load_problem(problem(pitch_arm, "unknown_design.toml", design={"shoulder_pitch.sea.k9": [1.0, 2.0]}))
     with pytest.raises(ModelFileError, match=r"unknown_design\.toml.*'shoulder_pitch\.sea\.k9'"):

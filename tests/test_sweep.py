@@ -74,11 +74,18 @@ def test_sweep_on_two_workers_equals_each_point_solved_alone(pitch_arm, capsys):
     ({"duration": []}, "grid.duration"),
     ({"duration": ["long"]}, r"grid.duration\[0\]"),
     ({"theta_end": [[0.1, 0.2]]}, r"grid.theta_end\[0\]"),
+    ({"shoulder_pitch.gear_ratio": [50.0, 0.0]}, "grid.shoulder_pitch.gear_ratio"),
 ])
 def test_bad_sweep_file_names_the_field(pitch_arm, grid, field):
     problem(pitch_arm, "sweep_base.toml")
     with pytest.raises(ModelFileError, match=rf"bad_sweep\.toml: field '{field}'"):
         load_sweep(write_sweep(pitch_arm, "bad_sweep.toml", grid))
+
+
+def test_a_gear_ratio_grid_is_a_sweep_of_parameters(pitch_arm):
+    problem(pitch_arm, "sweep_base.toml")
+    sweep = load_sweep(write_sweep(pitch_arm, "gear_sweep.toml", {"shoulder_pitch.gear_ratio": [60.0, 120.0]}))
+    assert sweep.grid == {"shoulder_pitch.gear_ratio": [60.0, 120.0]}
 
 
 def test_sweep_refuses_a_foreign_directory(pitch_arm, tmp_path, capsys):

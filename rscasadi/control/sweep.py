@@ -76,10 +76,12 @@ def load_sweep(path) -> Sweep:
                 fail(f"grid.{key}[{i}]", f"expected {'a list of ' + str(model.n) + ' numbers' if vector else 'a number'}, got {v!r}")
         if key not in SWEEPABLE:
             try:
-                check_against_model(dataclasses.replace(problem, parameters={key: 0.0}), model)
+                check_against_model(dataclasses.replace(problem, parameters={key: 1.0}), model)
             except ModelFileError:
                 fail(f"grid.{key}", f"neither a parameter of {problem.model_path.name} nor a sweepable problem "
                      f"field ({', '.join(SWEEPABLE)})")
+            if key.endswith(".gear_ratio") and min(values) <= 0:
+                fail(f"grid.{key}", f"a gear ratio is positive, got {min(values)!r}")
             if key in problem.design:
                 fail(f"grid.{key}", "is a design variable of the problem; it cannot also be swept")
         sweep.grid[key] = values

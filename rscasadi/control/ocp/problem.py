@@ -29,7 +29,8 @@
     [design]                             # parameters the optimiser chooses, constant over time
     "elbow_pitch.sea.k1" = [300.0, 3000.0]
 
-Names in [design] are the model's parameter names (docs/model.md, "Parameters").
+Names in [design] are the model's parameter names (docs/model.md, "Parameters") or gear ratios
+("elbow_pitch.gear_ratio", bounds > 0).
 """
 from __future__ import annotations
 
@@ -173,6 +174,13 @@ def check_against_model(problem: Problem, model):
         check_names(model, problem.parameters, f"{problem.path}: parameters")
     except ValueError as exc:
         raise ModelFileError(str(exc)) from None
+    for name, (lo, _) in problem.design.items():
+        if name.endswith(".gear_ratio") and lo <= 0:
+            raise ModelFileError(f"{problem.path}: field 'design.{name}': a gear ratio stays positive "
+                                 f"(lower bound {lo:g})")
+    for name, v in problem.parameters.items():
+        if name.endswith(".gear_ratio") and v <= 0:
+            raise ModelFileError(f"{problem.path}: parameter '{name}' = {v:g}: a gear ratio is positive")
     both = set(problem.design) & set(problem.parameters)
     if both:
         raise ModelFileError(f"{problem.path}: field 'design': {sorted(both)} cannot be both designed and swept")
