@@ -38,22 +38,21 @@ def make_solver(problem: Problem, tr: Transcription, nlp: dict, log=print, print
     objective = ca.Function("f", [nlp["x"], nlp["p"]], [nlp["f"]])
     if not problem.compiled:
         return ca.nlpsol("ocp", problem.solver, nlp, opts), objective
-    return ca.nlpsol("ocp", problem.solver, compiled_nlp(problem.solver, nlp, opts, log, pieces=tr.pieces), opts), objective
+    return ca.nlpsol("ocp", problem.solver, compiled_nlp(problem.solver, nlp, opts, tr.pieces, log), opts), objective
 
 
-def compiled_nlp(solver: str, nlp: dict, opts: dict, log=print, opt: str | None = None, pieces=None) -> str:
+def compiled_nlp(solver: str, nlp: dict, opts: dict, pieces: list, log=print, opt: str | None = None) -> str:
     """The shared library of the NLP's functions for `solver`, compiled once and cached; at -O1
-    by default (RSCASADI_NLP_OPT, e.g. -O2, for the fastest solves at a longer compile).  With
-    the NLP's pieces, its first and second derivatives are assembled from theirs (assembly.py)."""
+    by default (RSCASADI_NLP_OPT, e.g. -O2, for the fastest solves at a longer compile).  Its
+    first and second derivatives are assembled from the NLP's pieces' own (assembly.py)."""
     opt = opt or os.environ.get("RSCASADI_NLP_OPT", "-O1")
     directory = cache_dir() / "nlp"
     directory.mkdir(parents=True, exist_ok=True)
     # generating the C just to hash it takes seconds: an index keyed by the serialised NLP finds
     # a library built before (sweep tasks, repeated solves) without generating anything
     graph = ca.Function("nlp", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]]).serialize()
-    how = ASSEMBLY_VERSION if pieces is not None else "casadi-ad"
     index = directory / ("index_" + hashlib.sha256((graph + solver + opt + repr(sorted(opts.items())) + " ".join(_compiler())
-                                                     + ca.__version__ + how).encode()).hexdigest()[:24])
+                                                     + ca.__version__ + ASSEMBLY_VERSION).encode()).hexdigest()[:24])
     if index.exists() and Path(index.read_text()).exists():
         log(f"compiled NLP: cache hit {index.read_text()}")
         return index.read_text()
@@ -64,13 +63,10 @@ def compiled_nlp(solver: str, nlp: dict, opts: dict, log=print, opt: str | None 
     src = directory / f"rscasadi_nlp_{os.getpid()}.c"
     with open(directory / "generate.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        if pieces is None:
-            plain.generate_dependencies("rscasadi_nlp.c", {"with_header": False})
-        else:
-            cg = ca.CodeGenerator("rscasadi_nlp.c", {"with_header": False})
-            for f in solver_functions(plain, nlp, pieces):
-                cg.add(f)
-            cg.generate()
+        cg = ca.CodeGenerator("rscasadi_nlp.c", {"with_header": False})
+        for f in solver_functions(plain, nlp, pieces):
+            cg.add(f)
+        cg.generate()
         Path("rscasadi_nlp.c").replace(src)
     cc = _compiler()
     key = hashlib.sha256((src.read_text() + " ".join(cc) + opt + ca.__version__).encode()).hexdigest()[:24]

@@ -105,7 +105,7 @@ class Transcription:
 
     def _geared_speeds(self, dphi, pf):
         """Rows of the geared joints' speed limits: their mu dphi / mu_nominal (none if none)."""
-        return (self._speed_scale(pf) * dphi)[self.geared] if self.geared else ca.SX(0, 1)
+        return (self._speed_scale(pf) * dphi)[self.geared] if self.geared else ca.SX(0, 1)   # x[[]] of 1x1 is 1x1
 
     def _acceleration_scale(self):
         """The accelerations are variables a = s * a_scaled, s per coordinate about the largest
@@ -142,7 +142,7 @@ class Transcription:
         x_end = ca.vertcat(q + h * v + h ** 2 * sum((b @ A)[l] * acc[l] for l in range(m)),
                            v + h * sum(b[l] * acc[l] for l in range(m)))
         speed = self._speed_scale(pf)                      # dphi -> mu dphi / mu_nominal
-        limits = [q[n:] - q[:n], self._geared_speeds(v[n:], pf)]               # psi (dphi) at x_k
+        limits = [q[n:] - q[:n], self._geared_speeds(v[n:], pf)]               # psi (geared dphi) at x_k
         for j in self.interior:                                                 # theta, psi, dphi inside
             limits += [Q[j][:n], Q[j][n:] - Q[j][:n], speed * V[j][n:]]
         return ca.Function("stage", [x, u, w, dur, pfix],
