@@ -164,8 +164,7 @@ class Physics:
         gravity are free, the inertias stay numbers and the rotors stay in the joint frame, so
         the expressions are as compact as the constant version's."""
         all_names, values = names(model), nominal(model)
-        gears = {k: _gear_joint(model, name) for k, name in enumerate(free) if _gear_joint(model, name) is not None}
-        idx = {k: all_names.index(name) for k, name in enumerate(free) if k not in gears}
+        idx = {k: all_names.index(name) for k, name in enumerate(free) if _gear_joint(model, name) is None}
         S = ca.MX if isinstance(p, ca.MX) else ca.SX
         cheap = all(i >= model.n * PER_JOINT or i % PER_JOINT >= len(BODIES) * len(INERTIAL) for i in idx.values())
         if not cheap:
@@ -175,23 +174,20 @@ class Physics:
             phys = Physics.of(model, ca.vertcat(*entries))
         else:
             phys = Physics.constant(model)
-        if gears:
-            phys.columns["gear_ratio"] = gear_ratios(model, free, p)
-        if not cheap:
-            return phys
-        for k, i in idx.items():
-            if i >= model.n * PER_JOINT:
-                g = [S(float(v)) for v in np.array(phys.gravity).ravel()] if not isinstance(
-                    phys.gravity, (ca.SX, ca.MX)) else ca.vertsplit(phys.gravity)
-                g[i - model.n * PER_JOINT] = p[k]
-                phys.gravity = ca.vertcat(*g)
-            else:
-                j, a = divmod(i, PER_JOINT)
-                attr = ACTUATOR_ATTR[a - len(BODIES) * len(INERTIAL)]
-                col = [S(float(v)) for v in np.array(phys.columns[attr]).ravel()] if isinstance(
-                    phys.columns[attr], ca.DM) else ca.vertsplit(phys.columns[attr])
-                col[j] = p[k]
-                phys.columns[attr] = ca.vertcat(*col)
+            for k, i in idx.items():
+                if i >= model.n * PER_JOINT:
+                    g = [S(float(v)) for v in np.array(phys.gravity).ravel()] if not isinstance(
+                        phys.gravity, (ca.SX, ca.MX)) else ca.vertsplit(phys.gravity)
+                    g[i - model.n * PER_JOINT] = p[k]
+                    phys.gravity = ca.vertcat(*g)
+                else:
+                    j, a = divmod(i, PER_JOINT)
+                    attr = ACTUATOR_ATTR[a - len(BODIES) * len(INERTIAL)]
+                    col = [S(float(v)) for v in np.array(phys.columns[attr]).ravel()] if isinstance(
+                        phys.columns[attr], ca.DM) else ca.vertsplit(phys.columns[attr])
+                    col[j] = p[k]
+                    phys.columns[attr] = ca.vertcat(*col)
+        phys.columns["gear_ratio"] = gear_ratios(model, free, p)     # the file's, or free ones
         return phys
 
 
