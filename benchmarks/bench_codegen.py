@@ -38,11 +38,11 @@ def main():
     os.environ["RSCASADI_CACHE"] = str(work / "cache")       # measure real compiles, not cache hits
     harness = work / "harness"
     subprocess.run(["cc", "-O2", "-std=c99", str(HERE / "harness.c"), "-ldl", "-o", str(harness)], check=True)
-    rows, compile_s = [], {}
+    rows, compile_s, mx_ns = [], {}, {}
     for n in SIZES:
         arm, out = chain_arm(n), work / f"arm{n}"
         t0 = time.perf_counter()
-        manifest = generate(arm, out, log=lambda m: None)
+        manifest = generate(arm, out, log=lambda m: None, native=True)
         compile_s[n] = time.perf_counter() - t0
         print(f"n={n:2d}: generated and compiled {len(manifest['functions'])} functions in {compile_s[n]:.1f} s",
               flush=True)
@@ -68,10 +68,21 @@ def main():
                   + (f"   numeric core {num_ns / 1e3:8.1f} us" if ref else "")
                   + (f"   Pinocchio route {pin_ns / 1e3:6.1f} us" if pin_ns == pin_ns else ""), flush=True)
 
+        if "step_jacobian" in manifest.get("kernels", {}):
+            mx_ns[n] = mx_route_ns(arm, work, harness)
+            print(f"  step_jacobian by CasADi's MX route (before the kernel), same flags: {mx_ns[n]:.1f} ns", flush=True)
+
     panda = panda_row(work, harness)
     checks = [f"reference arm {name}: {c:.0f} ns (target <= {TARGETS[name]} ns): "
               + ("met" if c <= TARGETS[name] else "MISSED")
               for n, name, _, c, *_ in rows if n == 3 and name in TARGETS]
+    sj = {n: c for n, name, _, c, *_ in rows if name == "step_jacobian"}
+    for n, target in ((3, 2000), (12, 40000)):
+        checks.append(f"step_jacobian n = {n}: {sj[n]:.0f} ns (target <= {target} ns): "
+                      + ("met" if sj[n] <= target else "MISSED"))
+    for n, before in mx_ns.items():
+        checks.append(f"step_jacobian n = {n}: the C kernel {sj[n]:.0f} ns against CasADi's MX route "
+                      f"{before:.0f} ns in the same run ({before / sj[n]:.1f}x)")
     checks.append(f"reference arm generate+compile: {compile_s[3]:.1f} s (target < 30 s): "
                   + ("met" if compile_s[3] < 30 else "MISSED"))
     checks.append(f"n = 12 generate+compile: {compile_s[12]:.1f} s (target < 60 s): "
@@ -97,10 +108,11 @@ def main():
     csv = header + "".join(f"{n},{name},{ni},{c:.1f},{e:.0f},{nu:.0f},{p:.0f}\n" for n, name, ni, c, e, nu, p in rows)
     md = ["# Generated C: time per call", "",
           "Measured by `python benchmarks/bench_codegen.py` on this machine (2 cores): C harness",
-          "`benchmarks/harness.c`, median of 15 batches, library at -O3. casadi.external, the numerical",
-          "core and the Pinocchio route are called from Python (their overhead included).",
-          "n_instructions: SX instructions; for the MX compositions (step, step_jacobian and, at larger n,",
-          "forward_dynamics_jacobian) it counts MX calls, not arithmetic.", "",
+          "`benchmarks/harness.c`, median of 15 batches, library at -O3 with `--native` (-march=native",
+          "-ffp-contract=fast). casadi.external, the numerical core and the Pinocchio route are called",
+          "from Python (their overhead included). n_instructions: SX instructions; for the MX compositions",
+          "(step and, at larger n, forward_dynamics_jacobian) it counts MX calls, not arithmetic; for",
+          "step_jacobian at n >= 6 (the structured C kernel) the SX of its stage point, evaluated 4 times.", "",
           "| n | function | n_instructions | C (ns) | casadi.external (us) | numeric core (us) | Pinocchio route (us) |",
           "|---|---|---|---|---|---|---|"]
     fmt = lambda v: "" if v != v else f"{v / 1e3:.1f}"
@@ -123,13 +135,30 @@ def main():
     write_results("bench_codegen", fig, csv, "\n".join(md) + "\n")
 
 
+def mx_route_ns(arm, work: Path, harness: Path) -> float:
+    """ns per call of the step Jacobian as CasADi generates it from step_functions' MX chain rule
+    (its sparse products and LDL solve): the route the C kernel replaced, same flags, same run."""
+    import casadi as ca
+    from rscasadi.codegen.generate import native_flags, step_functions
+    d = work / f"mx{arm.n}"
+    d.mkdir()
+    gen = ca.CodeGenerator("mx_step_jacobian.c")
+    gen.add(step_functions(arm, "mx_")[1])
+    gen.generate(str(d) + os.sep)
+    subprocess.run(["cc", "-O3", "-std=c99", *native_flags(), "-fPIC", "-shared", "mx_step_jacobian.c", "-o",
+                    "libmx.so", "-lm"], cwd=d, check=True)
+    run = subprocess.run([str(harness), str(d / "libmx.so"), "mx_step_jacobian"], capture_output=True, text=True,
+                         check=True)
+    return float(run.stdout.split()[1])
+
+
 def panda_row(work: Path, harness: Path) -> dict:
     """The 7-joint Panda from its URDF: C time per call of the main functions, generate + compile
     time, and Pinocchio's own crba + rnea on the same 21-body tree (parsed from the same URDF)."""
     arm = rscasadi.load(ROOT / "problems" / "panda_sea.toml")
     out = work / "panda"
     t0 = time.perf_counter()
-    manifest = generate(arm, out, log=lambda m: None)
+    manifest = generate(arm, out, log=lambda m: None, native=True)
     row = {"compile_s": time.perf_counter() - t0}
     names = ["forward_dynamics", "inverse_dynamics", "forward_dynamics_jacobian", "step"]
     run = subprocess.run([str(harness), str(out / manifest["library"])] + names, capture_output=True, text=True,

@@ -132,7 +132,7 @@ def cmd_codegen(args):
     from .codegen import generate
     t0 = time.perf_counter()
     manifest = generate(args.model, args.out, prefix=args.prefix, opt=args.opt,
-                        log=lambda msg: print(msg, flush=True), parametric=args.parametric)
+                        log=lambda msg: print(msg, flush=True), parametric=args.parametric, native=args.native)
     for name, info in manifest["functions"].items():
         print(f"  {info['symbol']:40s} n_instructions {info['n_instructions']}")
     for name, why in manifest["omitted"].items():
@@ -166,6 +166,9 @@ def main(argv=None):
     p.add_argument("--parametric", action="store_true",
                    help="every function takes the parameter vector p last (names in manifest.json): one library "
                         "for every arm with these joints, no recompilation when a number changes")
+    p.add_argument("--native", action="store_true",
+                   help="compile for this machine's processor (-march=native, fused multiply-adds): the step "
+                        "Jacobian's kernel ~20 %% faster; the sources stay portable C99")
     p.set_defaults(func=cmd_codegen)
     p = sub.add_parser("paper", help="reproduce the paper's simulation (Figs. 5-11), the cascade study and sweeps")
     p.add_argument("--trajectory", default=str(TRAJECTORY), help="expected-trajectory file (names its model)")

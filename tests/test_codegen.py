@@ -102,8 +102,9 @@ def test_prefix_and_unbalanced_arm(tmp_path):
     assert "int my_arm_forward_dynamics(" in header
 
 
-def test_no_malloc_and_no_mutable_globals(built):
-    out, manifest = built
+@pytest.mark.parametrize("which", ["reference arm", "kernel"])
+def test_no_malloc_and_no_mutable_globals(built, kernel_built, which):
+    out, manifest = built if which == "reference arm" else kernel_built[1:]
     for name in manifest["sources"] + [manifest["header"]]:
         text = (out / name).read_text()
         assert not re.search(r"\b(malloc|calloc|realloc|free)\s*\(", text), name
@@ -112,14 +113,68 @@ def test_no_malloc_and_no_mutable_globals(built):
                 assert "(" in line, f"{name}: mutable global: {line}"
 
 
+@pytest.fixture(scope="module")
+def kernel_built(tmp_path_factory, private_cache):
+    """A random 5-joint arm (unbalanced rotors), past the straight-line SX step Jacobian: its
+    library carries the structured C kernel.  (arm, directory, manifest)"""
+    d = tmp_path_factory.mktemp("kernel")
+    arm = rscasadi.load(write_arm(d, random_arm_doc(np.random.default_rng(20261123), 5), "arm5.toml"))
+    return arm, d / "gen", generate(arm, d / "gen", opt="-O1", log=lambda m: None)
+
+
 @pytest.mark.skipif(cc() is None, reason="no C compiler")
-def test_two_threads_at_once(built, tmp_path):
-    out = built[0]
+@pytest.mark.parametrize("which", ["reference arm", "kernel"])
+def test_two_threads_at_once(built, kernel_built, tmp_path, which):
+    out, n = (built[0], 3) if which == "reference arm" else (kernel_built[1], kernel_built[0].n)
     exe = tmp_path / "threads"
-    subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-pthread", f"-I{out}", str(HERE / "c" / "threads.c"),
-                    f"-L{out}", "-lrscasadi_arm", f"-Wl,-rpath,{out}", "-lm", "-o", str(exe)], check=True)
+    subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-pthread", f"-DN={n}", f"-I{out}",
+                    str(HERE / "c" / "threads.c"), f"-L{out}", "-lrscasadi_arm", f"-Wl,-rpath,{out}", "-lm",
+                    "-o", str(exe)], check=True)
     run = subprocess.run([str(exe)], capture_output=True, text=True)
     assert run.returncode == 0 and "identical" in run.stdout, run.stdout + run.stderr
+
+
+def _ad_of_step(step, n, p=()):
+    """The step Jacobian by CasADi's AD of the step itself: a route sharing no chain rule."""
+    xs, us = ca.MX.sym("x", 4 * n), ca.MX.sym("u", n)
+    hs = ca.MX.sym("h")
+    return ca.Function("ad", [xs, us, hs], [ca.jacobian(step(xs, us, hs, *p), ca.vertcat(xs, us))])
+
+
+def test_step_jacobian_kernel_equals_ad_of_the_step(kernel_built):
+    arm, out, manifest = kernel_built
+    n = arm.n
+    assert "step_jacobian" in manifest["kernels"]
+    assert "int step_jacobian(" in (out / manifest["header"]).read_text()
+    lib = rscasadi.load_compiled(out)
+    ad = _ad_of_step(functions(arm)[0]["step"], n)
+    rng = np.random.default_rng(7)
+    for h in (1e-3, 4e-3):
+        x, tau = rng.normal(size=4 * n) * 0.3, rng.normal(size=n) * 0.2
+        ref = np.array(ad(x, tau, h))
+        got = np.hstack([np.array(v) for v in lib["step_jacobian"](x, tau, h)])
+        assert got.shape == ref.shape and rel(got, ref) < 1e-12
+        assert rel(lib["step"](x, tau, h), functions(arm)[0]["step"](x, tau, h)) < 1e-12
+
+
+def test_parametric_step_jacobian_kernel_takes_the_parameters(tmp_path):
+    """The parametric kernel at parameters 10 % off the file's equals AD of the symbolic step
+    at the same parameters, and differs from it at the file's."""
+    arm = rscasadi.load(write_arm(tmp_path, random_arm_doc(np.random.default_rng(11), 4, balanced=True)))
+    manifest = generate(arm, tmp_path / "gen", opt="-O1", log=lambda m: None, parametric=True)
+    assert "step_jacobian" in manifest["kernels"]
+    lib = rscasadi.load_compiled(tmp_path / "gen")
+    n, (_, nominal) = arm.n, arm.parameters()
+    ps = ca.MX.sym("p", arm.n_p)
+    step = functions(arm, parametric=True)[0]["step"]
+    xs, us, hs = ca.MX.sym("x", 4 * n), ca.MX.sym("u", n), ca.MX.sym("h")
+    ad = ca.Function("ad", [xs, us, hs, ps], [ca.jacobian(step(xs, us, hs, ps), ca.vertcat(xs, us))])
+    rng = np.random.default_rng(3)
+    x, tau = rng.normal(size=4 * n) * 0.3, rng.normal(size=n) * 0.2
+    p = nominal * (1 + 0.1 * rng.uniform(-1, 1, nominal.size))
+    got = np.hstack([np.array(v) for v in lib["step_jacobian"](x, tau, 2e-3, p)])
+    assert rel(got, np.array(ad(x, tau, 2e-3, p))) < 1e-12
+    assert rel(got, np.array(ad(x, tau, 2e-3, nominal))) > 1e-6
 
 
 def test_hostile_names_never_reach_c(tmp_path):

@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import platform
 import re
 import shlex
 import shutil
@@ -21,6 +22,7 @@ import casadi as ca
 from ..control.feedforward import feedforward_functions
 from ..dynamics.arm import Arm, load
 from ..files import OutputError, fresh_directory
+from .step_kernel import kernel_source
 
 IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,62}\Z")
 LIBRARY = "librscasadi_arm.so"
@@ -145,6 +147,13 @@ def functions(arm: Arm, prefix: str = "", parametric: bool = False) -> tuple[dic
     return fns, omitted
 
 
+def _declare(header: Path, declarations: list):
+    """Add the kernels' declarations to CasADi's header, inside its extern "C" block."""
+    text = header.read_text()
+    end = text.rindex("#ifdef __cplusplus")
+    header.write_text(text[:end] + "".join(declarations) + text[end:])
+
+
 def _io(f: ca.Function, out: bool):
     n = f.n_out() if out else f.n_in()
     sp = f.sparsity_out if out else f.sparsity_in
@@ -157,6 +166,14 @@ def _compiler():
     if shutil.which(cc[0]) is None:
         raise CodegenError(f"C compiler {cc[0]!r} not found (set $CC to a C compiler)")
     return cc
+
+
+def native_flags() -> list:
+    """This processor's instructions, fused multiply-adds, and on x86 full-width vectors (gcc
+    tunes Zen 1 to 128-bit ones): the step-Jacobian kernel 20-25 % faster at n = 12, the rest
+    unchanged."""
+    wide = ["-mprefer-vector-width=256"] if platform.machine().lower() in ("x86_64", "amd64") else []
+    return ["-march=native", "-ffp-contract=fast"] + wide
 
 
 def cache_dir() -> Path:
@@ -180,10 +197,12 @@ def _compile(cc, flags, sources, lib: Path, workdir: Path):
         (workdir / (s.stem + ".o")).unlink()
 
 
-def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print, parametric: bool = False) -> dict:
+def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print, parametric: bool = False,
+             native: bool = False) -> dict:
     """Write C sources, one header, one shared library and manifest.json into `out`.
     parametric: every function takes the parameter vector p (manifest "parameters") last, so
-    one library serves every arm with the same joints, axes, gear ratios and eps."""
+    one library serves every arm with the same joints, axes, gear ratios and eps.
+    native: compile for this machine's processor (native_flags()); the sources stay portable C99."""
     prefix = prefix or ""
     if prefix and not IDENTIFIER.match(prefix):
         raise CodegenError(f"prefix {prefix!r} is not a C identifier ([A-Za-z_][A-Za-z0-9_]*, at most 63)")
@@ -192,19 +211,29 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
     arm = model if isinstance(model, Arm) else load(model)
     out = Path(out).resolve()
     cc = _compiler()
-    flags = [opt, "-std=c99"]
+    flags = [opt, "-std=c99"] + (native_flags() if native else [])
     with fresh_directory(out, "manifest.json") as tmp:
         fns, omitted = functions(arm, prefix, parametric)
         header_gen = ca.CodeGenerator(HEADER.removesuffix(".h"), {"with_header": True})
         sources = []
+        kernels = {}                                # name -> (point Function, C body, declarations)
         for name, f in fns.items():
             gen = ca.CodeGenerator(f"{f.name()}.c", {"with_header": False})
-            gen.add(f)
+            if name == "step_jacobian" and not f.is_a("SXFunction"):   # past straight-line SX: the C kernel
+                kernels[name] = kernel_source(arm, f.name(), parametric)
+                gen.add(kernels[name][0])
+            else:
+                gen.add(f)
+                header_gen.add(f)
             gen.generate(str(tmp) + os.sep)
             sources.append(tmp / f"{f.name()}.c")
-            header_gen.add(f)
+            if name in kernels:
+                with open(sources[-1], "a") as fh:
+                    fh.write(kernels[name][1])
         header_gen.generate(str(tmp) + os.sep)
         (tmp / f"{HEADER.removesuffix('.h')}.c").unlink()        # only its header is used
+        if kernels:
+            _declare(tmp / HEADER, [k[2] for k in kernels.values()])
         digest = hashlib.sha256()
         for part in [*cc, *flags, ca.__version__] + [s.read_text() for s in sources]:
             digest.update(part.encode())
@@ -229,7 +258,10 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
             "sources": [s.name for s in sources],
             "library": LIBRARY,
             "functions": {name: {"symbol": f.name(), "inputs": _io(f, False), "outputs": _io(f, True),
-                                 "n_instructions": f.n_instructions()} for name, f in fns.items()},
+                                 "n_instructions": (kernels[name][0] if name in kernels else f).n_instructions()}
+                          for name, f in fns.items()},
+            "kernels": {name: f"structured C kernel (step_kernel.py); n_instructions: its SX stage point, "
+                              f"evaluated 4 times" for name in kernels},
             "omitted": omitted,
             "parametric": parametric,
             "parameters": ({"names": arm.parameters()[0], "nominal": arm.parameters()[1].tolist()}

@@ -5,7 +5,9 @@
 #include <string.h>
 #include "rscasadi_arm.h"
 
-#define N 3
+#ifndef N
+#define N 3   /* joints; -DN=... for another library */
+#endif
 #define REPEAT 20000
 
 typedef struct { double x[4 * N], tau[N], h, out[4 * N * 5 * N], ref[4 * N * 5 * N]; int bad; } job_t;
