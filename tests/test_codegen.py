@@ -2,6 +2,7 @@
 and robust to hostile input."""
 import json
 import re
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -131,6 +132,18 @@ def test_two_threads_at_once(built, kernel_built, tmp_path, which):
                     str(HERE / "c" / "threads.c"), f"-L{out}", "-lrscasadi_arm", f"-Wl,-rpath,{out}", "-lm",
                     "-o", str(exe)], check=True)
     run = subprocess.run([str(exe)], capture_output=True, text=True)
+    assert run.returncode == 0 and "identical" in run.stdout, run.stdout + run.stderr
+
+
+@pytest.mark.skipif(cc() is None or shutil.which("valgrind") is None, reason="no C compiler or valgrind")
+def test_step_jacobian_kernel_is_valgrind_clean(kernel_built, tmp_path):
+    """The kernel reads only what it wrote (padding columns included) and stays in its work vector."""
+    arm, out, _ = kernel_built
+    exe = tmp_path / "threads"
+    subprocess.run([cc(), "-std=c99", "-O1", "-g", "-pthread", f"-DN={arm.n}", "-DREPEAT=2", f"-I{out}",
+                    str(HERE / "c" / "threads.c"), f"-L{out}", "-lrscasadi_arm", f"-Wl,-rpath,{out}", "-lm",
+                    "-o", str(exe)], check=True)
+    run = subprocess.run(["valgrind", "--error-exitcode=3", "--quiet", str(exe)], capture_output=True, text=True)
     assert run.returncode == 0 and "identical" in run.stdout, run.stdout + run.stderr
 
 

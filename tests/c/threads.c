@@ -8,7 +8,9 @@
 #ifndef N
 #define N 3   /* joints; -DN=... for another library */
 #endif
+#ifndef REPEAT
 #define REPEAT 20000
+#endif
 
 typedef struct { double x[4 * N], tau[N], h, out[4 * N * 5 * N], ref[4 * N * 5 * N]; int bad; } job_t;
 
