@@ -67,10 +67,11 @@ def kernel_source(arm, name: str, parametric: bool) -> tuple[ca.Function, str, s
     nq = [int(np.searchsorted(JrT.row()[JrT.colind()[r]:JrT.colind()[r + 1]], 2 * n)) + JrT.colind()[r]
           for r in range(2 * n)]                                     # where a row's speed columns start
     n_in = 4 if parametric else 3
+    stride = -(-5 * n // BLOCK) * BLOCK                              # 5n columns padded to whole blocks
     sizes = {"SZ_ARG": n_in + point.sz_arg(), "SZ_RES": 2 + point.sz_res(), "SZ_IW": point.sz_iw()}
     consts = "".join([
         f"#define RSK_N {n}\n#define RSK_NV {2 * n}\n#define RSK_NX {4 * n}\n#define RSK_NC {5 * n}\n",
-        f"#define RSK_BK {BLOCK}\n#define RSK_NP {-(-5 * n // BLOCK) * BLOCK}\n",
+        f"#define RSK_BK {BLOCK}\n#define RSK_NP {stride}\n",
         f"#define RSK_NJR {max(JrT.nnz(), 1)}\n#define RSK_NLT {max(LT.nnz(), 1)}\n#define RSK_NIN {n_in}\n",
         f"#define RSK_PT_ARG {point.sz_arg()}\n#define RSK_PT_RES {point.sz_res()}\n",
         f"#define RSK_PT_IW {point.sz_iw()}\n#define RSK_PT_W {point.sz_w()}\n",
@@ -80,7 +81,7 @@ def kernel_source(arm, name: str, parametric: bool) -> tuple[ca.Function, str, s
         _ints("rsk_lr_ptr", L.colind()), _ints("rsk_lr_col", L.row()), _ints("rsk_perm", perm)])
     body = _TEMPLATE.replace("@NAME@", name).replace("@CONSTS@", consts)
     sizes["SZ_W"] = (point.sz_w() + 2 * 4 * n + 2 * 2 * n + max(JrT.nnz(), 1) + 2 * max(LT.nnz(), 1) + n
-                     + 6 * 2 * n * (-(-5 * n // BLOCK) * BLOCK))        # as @NAME@_work below
+                     + 6 * 2 * n * stride)                               # as @NAME@_work below
     header = _HEADER.replace("@NAME@", name) + "".join(f"#define {name}_{k} {v}\n" for k, v in sizes.items())
     return point, body, header
 
