@@ -163,7 +163,7 @@ int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_re
   casadi_real *xi = w + RSK_PT_W, *kp = xi + RSK_NX, *a = kp + RSK_NX, *d = a + RSK_NV, *jr = d + RSK_NV;
   casadi_real *lt = jr + RSK_NJR, *l = lt + RSK_NLT, *mu = l + RSK_NLT, *Bs = mu + RSK_N;
   casadi_real *Z = Bs + 4 * RSK_NV * RSK_NP;
-  int i, r, cc;
+  int i, r, cc, k;
   (void)mem;
   for (i = 0; i < 4; ++i) {
     casadi_real *Bi = Bs + i * RSK_NV * RSK_NP;
@@ -176,17 +176,24 @@ int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_re
     rsk_stage(jr, d, lt, l, mu, i ? Bi - RSK_NV * RSK_NP : 0, i > 1 ? Bi - 2 * RSK_NV * RSK_NP : 0,
               c[i] * h, i ? c[i - 1] * h : 0.0, Z, Bi);
   }
-  for (r = 0; r < RSK_NV; ++r)
-    for (cc = 0; cc < RSK_NC; ++cc) {
-      const int k = r * RSK_NP + cc, m = RSK_NV * RSK_NP;
-      const casadi_real top = h * h / 6 * (Bs[k] + Bs[m + k] + Bs[2 * m + k]) + (cc == RSK_NV + r ? h : 0.0);
-      const casadi_real bot = h / 6 * (Bs[k] + 2 * Bs[m + k] + 2 * Bs[2 * m + k] + Bs[3 * m + k]);
-      if (cc < RSK_NX) {
-        if (res[0]) { res[0][cc * RSK_NX + r] = top + (cc == r); res[0][cc * RSK_NX + RSK_NV + r] = bot + (cc == RSK_NV + r); }
-      } else if (res[1]) {
-        res[1][(cc - RSK_NX) * RSK_NX + r] = top; res[1][(cc - RSK_NX) * RSK_NX + RSK_NV + r] = bot;
-      }
+  {                                         /* the sums, in place of B_1 (speed rows) and B_4 */
+    casadi_real *B1 = Bs, *B4 = Bs + 3 * RSK_NV * RSK_NP;
+    const casadi_real *B2 = Bs + RSK_NV * RSK_NP, *B3 = Bs + 2 * RSK_NV * RSK_NP, h2 = h * h / 6, h6 = h / 6;
+    for (k = 0; k < RSK_NV * RSK_NP; ++k) {
+      const casadi_real b1 = B1[k], b23 = B2[k] + B3[k];
+      B1[k] = h2 * (b1 + b23);
+      B4[k] = h6 * (b1 + 2 * b23 + B4[k]);
     }
+    for (cc = 0; cc < RSK_NC; ++cc) {       /* by columns, as CasADi stores A and B */
+      casadi_real *col = cc < RSK_NX ? (res[0] ? res[0] + cc * RSK_NX : 0) : (res[1] ? res[1] + (cc - RSK_NX) * RSK_NX : 0);
+      if (!col) continue;
+      for (r = 0; r < RSK_NV; ++r) { col[r] = B1[r * RSK_NP + cc]; col[RSK_NV + r] = B4[r * RSK_NP + cc]; }
+    }
+    if (res[0])
+      for (r = 0; r < RSK_NV; ++r) {        /* [1 0] + h [0 1; 0 0] */
+        res[0][r * RSK_NX + r] += 1; res[0][(RSK_NV + r) * RSK_NX + r] += h; res[0][(RSK_NV + r) * RSK_NX + RSK_NV + r] += 1;
+      }
+  }
   return 0;
 }
 
