@@ -32,7 +32,8 @@ import numpy as np
 
 from ..model.parameters import gear_ratios
 
-BLOCK = 32          # columns accumulated at once (8 AVX2 registers): 16 and 20 ran 3 % slower, 64 spilled
+BLOCK = 32          # columns accumulated at once (8 AVX2 registers; the last block narrower, to a multiple of 4):
+                    # 16 and 20 ran 3 % slower, 64 spilled
 
 
 def point_function(arm, name: str, parametric: bool):
@@ -65,7 +66,7 @@ def kernel_source(arm, name: str, parametric: bool) -> tuple[ca.Function, str, s
     nq = [int(np.searchsorted(JrT.row()[JrT.colind()[r]:JrT.colind()[r + 1]], 2 * n)) + JrT.colind()[r]
           for r in range(2 * n)]                                     # where a row's speed columns start
     n_in = 4 if parametric else 3
-    stride = -(-5 * n // BLOCK) * BLOCK                              # 5n columns padded to whole blocks
+    stride = -(-5 * n // 4) * 4                                      # 5n columns padded to whole vectors
     sizes = {"SZ_ARG": n_in + point.sz_arg(), "SZ_RES": 2 + point.sz_res(), "SZ_IW": point.sz_iw()}
     consts = "".join([
         f"#define RSK_N {n}\n#define RSK_NV {2 * n}\n#define RSK_NX {4 * n}\n#define RSK_NC {5 * n}\n",
@@ -91,29 +92,30 @@ def _unrolled(JrT, nq, LT, L, perm, stride):
     jp, jc, lp, lc, rp, rc = JrT.colind(), JrT.row(), LT.colind(), LT.row(), L.colind(), L.row()
     out = []
     for cb in range(0, stride, BLOCK):
+        w = min(BLOCK, stride - cb)
         def at(col, value):                    # a scalar entry of this block, if it is in it
-            return [f"t[{col - cb}] += {value};"] if cb <= col < cb + BLOCK else []
-        out.append(f"  /* columns {cb} .. {cb + BLOCK - 1} */")
+            return [f"t[{col - cb}] += {value};"] if cb <= col < cb + w else []
+        out.append(f"  /* columns {cb} .. {cb + w - 1} */")
         for r in range(n2):
             y = perm[r]
-            lines = ["  for (c = 0; c < RSK_BK; ++c) t[c] = 0;"]
+            lines = [f"  for (c = 0; c < {w}; ++c) t[c] = 0;"]
             lines += [f"  {e}" for k in range(jp[y], jp[y + 1]) for e in at(jc[k], f"-jr[{k}]")]    # -dr/dx
             if y >= n:
                 lines += [f"  {e}" for e in at(nx + y - n, f"-mu[{y - n}]")]                      # dQ/dtau
             b1 = [e for k in range(jp[y], nq[y]) for e in at(n2 + jc[k], f"ms * jr[{k}]")]        # dr/dq [0 1 0]
-            b1 += [f"RSK_AX(t, ms * jr[{k}], B1 + {(jc[k] - n2) * stride + cb})" for k in range(nq[y], jp[y + 1])]
-            b2 = [f"RSK_AX(t, mss * jr[{k}], B2 + {jc[k] * stride + cb})" for k in range(jp[y], nq[y])]
+            b1 += [f"RSK_AX(t, ms * jr[{k}], B1 + {(jc[k] - n2) * stride + cb}, {w})" for k in range(nq[y], jp[y + 1])]
+            b2 = [f"RSK_AX(t, mss * jr[{k}], B2 + {jc[k] * stride + cb}, {w})" for k in range(jp[y], nq[y])]
             if b1:
                 lines.append("  if (B1) {\n    " + "\n    ".join(b1) + "\n  }")
             if b2:
                 lines.append("  if (B2) {\n    " + "\n    ".join(b2) + "\n  }")
-            lines += [f"  RSK_AX(t, -lt[{k}], Z + {lc[k] * stride + cb})" for k in range(lp[r], lp[r + 1])]
-            lines.append(f"  memcpy(Z + {r * stride + cb}, t, sizeof t);")
+            lines += [f"  RSK_AX(t, -lt[{k}], Z + {lc[k] * stride + cb}, {w})" for k in range(lp[r], lp[r + 1])]
+            lines.append(f"  RSK_ST(Z + {r * stride + cb}, t, {w})")
             out.append("\n".join(lines))
         for r in reversed(range(n2)):
-            lines = [f"  for (c = 0; c < RSK_BK; ++c) t[c] = inv[{r}] * Z[{r * stride + cb} + c];"]
-            lines += [f"  RSK_AX(t, -l[{k}], B + {perm[rc[k]] * stride + cb})" for k in range(rp[r], rp[r + 1])]
-            lines.append(f"  memcpy(B + {perm[r] * stride + cb}, t, sizeof t);")
+            lines = [f"  for (c = 0; c < {w}; ++c) t[c] = inv[{r}] * Z[{r * stride + cb} + c];"]
+            lines += [f"  RSK_AX(t, -l[{k}], B + {perm[rc[k]] * stride + cb}, {w})" for k in range(rp[r], rp[r + 1])]
+            lines.append(f"  RSK_ST(B + {perm[r] * stride + cb}, t, {w})")
             out.append("\n".join(lines))
     return "\n".join(out)
 
@@ -136,14 +138,19 @@ int @NAME@_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw,
 
 _TEMPLATE = r"""
 /* ---- rscasadi: @NAME@, the structured step Jacobian (rscasadi/codegen/step_kernel.py) ---- */
-#include <string.h>
 @CONSTS@
-/* t += v X[0 .. RSK_BK) */
-#define RSK_AX(t, v, X) { const casadi_real v_ = (v), *x_ = (X); int c_; for (c_ = 0; c_ < RSK_BK; ++c_) t[c_] += v_ * x_[c_]; }
+/* gcc turns the block loops below into memset and memcpy calls, which keep t out of the registers */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC optimize ("no-tree-loop-distribute-patterns")
+#endif
+/* X[0 .. W) = t */
+#define RSK_ST(X, t, W) { casadi_real *x_ = (X); int c_; for (c_ = 0; c_ < (W); ++c_) x_[c_] = t[c_]; }
+/* t += v X[0 .. W) */
+#define RSK_AX(t, v, X, W) { const casadi_real v_ = (v), *x_ = (X); int c_; for (c_ = 0; c_ < (W); ++c_) t[c_] += v_ * x_[c_]; }
 
 /* B = M^-1 ([-dr/dx | dQ/dtau] - s dr/dx [S; B1]), S = [0 1 0] + s2 B2 (B1, B2 NULL at the
    first stage, B2 NULL at the second), all stored by rows RSK_NP apart; Z scratch.  Blocks of
-   RSK_BK columns are independent: each goes through dr/dx's product, L and L' (their sparsity
+   up to RSK_BK columns are independent: each goes through dr/dx's product, L and L' (their sparsity
    unrolled below, one block after the other) while it sits in the first-level cache. */
 static void rsk_stage(const casadi_real *jr, const casadi_real *d, const casadi_real *lt, const casadi_real *l,
                       const casadi_real *mu, const casadi_real *B1, const casadi_real *B2, casadi_real s,
