@@ -15,9 +15,8 @@ columns is stored by rows, so each nonzero of dr/dx and of the LDL factor moves 
 a fixed-length inner loop the compiler turns into vector instructions, accumulated in blocks
 of RSK_BK columns that stay in registers.  The sparsity patterns and column blocks are known
 here, so the stage is generated unrolled, with constant offsets: no index arrays, no loop
-over nonzeros, no matrix to clear (1.4x faster than loops over index arrays at n = 12).  S_i
-is never stored (dr/dq S_{i-1} = dr/dq [0 1 0] +
-c_{i-1} h dr/dq B_{i-2}).
+over nonzeros, no matrix to clear (1.4x faster than loops over index arrays at n = 12).
+S_i is never stored (dr/dq S_{i-1} = dr/dq [0 1 0] + c_{i-1} h dr/dq B_{i-2}).
 
 Per stage point CasADi generates, as straight-line SX, `point`: the forward dynamics (for the
 next stage point), dr/dx (by rows), M's sparse LDL^T factors (CasADi's symbolic ldl with its
