@@ -1,6 +1,7 @@
-"""The NLP's derivatives assembled stage by stage (assembly.py) against CasADi's AD of the whole
-NLP graph: every objective, design variables carried as states, fixed model parameters, random
-points and multipliers; and the functions a compiled solver loads are those assembled ones."""
+"""The NLP's derivatives assembled stage by stage (assembly.py; the stage's by the chain rule
+through its model calls) against CasADi's AD of the whole NLP graph: every objective, explicit and
+implicit dynamics, design variables carried as states, fixed model parameters, random points and
+multipliers; and the functions a compiled solver loads are those assembled ones."""
 import dataclasses
 
 import casadi as ca
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 
 from rscasadi.control.ocp import load_problem, solve_once
-from rscasadi.control.ocp.assembly import assembled, solver_functions
+from rscasadi.control.ocp.assembly import Piece, assembled, derivative_functions, solver_functions
 from rscasadi.control.ocp.solvers import options
 from rscasadi.control.ocp.transcription import Transcription
 from rscasadi.dynamics.arm import Arm
@@ -85,3 +86,17 @@ def test_compiled_limited_memory_ipopt_needs_no_hessian(pitch_arm):
         sols[hessian] = solve_once(load_problem(path), print_level=0, log=lambda m: None)
         assert sols[hessian]["success"], sols[hessian]["status"]
     assert abs(sols["exact"]["objective"] - sols["limited-memory"]["objective"]) < 1e-5 * sols["exact"]["objective"]
+
+
+@pytest.mark.parametrize("dynamics", ["explicit", "implicit"])
+def test_stage_derivatives_go_through_the_model_calls(dynamics):
+    """The stage's own Jacobian and Hessian (chain rule through its forward- or inverse-dynamics
+    calls) are less than half the code of AD through the inlined stage, which is why they exist."""
+    tr, *_ = transcription("ocp_min_time", dynamics=dynamics)
+    stage = tr.pieces[0]
+    assert stage.derivatives is not None
+    by_ad = derivative_functions(Piece(stage.fn, stage.cols, stage.rows, stage.args))
+    for own, ad in zip(stage.derivatives, by_ad):
+        assert own.sparsity_out(1) == ad.sparsity_out(1)
+    for k in (0, 2):                                   # (rows, J) and (grad L, H)
+        assert stage.derivatives[k].n_instructions() < 0.5 * by_ad[k].n_instructions()

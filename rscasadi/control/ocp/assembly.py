@@ -9,7 +9,9 @@ piece weighted by its own rows' multipliers):
 
 Each J_i, H_i is an SX Jacobian/Hessian with numeric seeds (CasADi colours the piece and folds
 the seeds into straight-line code); the placement is a gather of nonzeros (a sum where Hessian
-blocks overlap).  Why: CasADi differentiates a *mapped* stage by directional derivatives with
+blocks overlap).  A piece whose model calls were recorded (Calls) is differentiated by the chain
+rule through them instead: AD of the piece around the calls, and each call's own Jacobian and
+Hessian at its arguments (chain_rule_derivatives).  Why: CasADi differentiates a *mapped* stage by directional derivatives with
 symbolic seeds (fwd25_stage, fwd15_adj1_stage), which cannot simplify: at N = 100 (minimum
 effort, Radau 3, same machine and day) nlp_jac_g took 4.1 ms and nlp_hess_l 5.6 ms per call that
 way, 0.8 and 2.0 ms assembled, and they had been half of a fatrop solve.
@@ -34,6 +36,7 @@ class Piece:
     cols: np.ndarray          # (count, nz)
     rows: np.ndarray          # (count, nr)
     args: list
+    derivatives: tuple | None = None     # its own (first, objective, second); by AD of fn if None
 
     @property
     def count(self):
@@ -46,18 +49,85 @@ class Piece:
         return f(z, *self.args, *extra)
 
 
+def symbols(fn: ca.Function):
+    """Symbols for fn's inputs: the piece's variables z and its parameters."""
+    return ca.SX.sym("z", fn.size1_in(0)), [ca.SX.sym(fn.name_in(i), fn.sparsity_in(i)) for i in range(1, fn.n_in())]
+
+
 def derivative_functions(piece: Piece):
-    """The piece's (rows, f, J, grad f) and (grad L, H) Functions, L = lam' rows + lam_f f."""
+    """The piece's (rows, J), (f, grad f) and (grad L, H) Functions, L = lam' rows + lam_f f: its
+    own, or by AD of fn.  The objective apart, so that nlp_f and nlp_grad_f evaluate no dynamics."""
+    if piece.derivatives is not None:
+        return piece.derivatives
     fn = piece.fn
-    z = ca.SX.sym("z", fn.size1_in(0))
-    args = [ca.SX.sym(fn.name_in(i), fn.sparsity_in(i)) for i in range(1, fn.n_in())]
+    z, args = symbols(fn)
     rows, f = fn(z, *args)
     lam, lam_f = ca.SX.sym("lam", rows.numel()), ca.SX.sym("lam_f")
+    H, grad = ca.hessian(ca.dot(lam, rows) + lam_f * f, z)
+    return (ca.Function(fn.name() + "_d1", [z, *args], [rows, ca.jacobian(rows, z)]),
+            ca.Function(fn.name() + "_f1", [z, *args], [f, ca.gradient(f, z)]),
+            ca.Function(fn.name() + "_d2", [z, *args, lam, lam_f], [grad, H]))
+
+
+class Calls:
+    """Records a piece's model calls as opaque nodes while it is built: each call's outputs
+    become symbols F_j and its arguments y_j (expressions of the piece's inputs) are kept."""
+    def __init__(self):
+        self.items = []                 # (fn, sizes of its arguments, y_j, F_j)
+
+    def __call__(self, fn: ca.Function, args: list) -> list:
+        outs = [ca.SX.sym(f"F{len(self.items)}_{i}", fn.sparsity_out(i)) for i in range(fn.n_out())]
+        sizes = tuple(int(ca.DM(a).numel()) if not isinstance(a, ca.SX) else a.numel() for a in args)
+        self.items.append((fn, sizes, ca.vertcat(*[ca.vec(ca.SX(a)) for a in args]), ca.vertcat(*outs)))
+        return outs
+
+
+def _call_derivatives(fn: ca.Function, sizes: tuple):
+    """y -> (F, dF/dy) and (y, mu) -> d2(mu' F)/dy2 of one model Function on its stacked arguments."""
+    y = ca.SX.sym("y", sum(sizes))
+    F = ca.vertcat(*fn.call(ca.vertsplit(y, np.cumsum((0,) + sizes).tolist())))
+    mu = ca.SX.sym("mu", F.numel())
+    H, _ = ca.hessian(ca.dot(mu, F), y)
+    return (ca.Function(fn.name() + "_value", [y], [F, ca.jacobian(F, y)], {"cse": True}),
+            ca.Function(fn.name() + "_curvature", [y, mu], [H], {"cse": True}))
+
+
+def chain_rule_derivatives(fn: ca.Function, z, args, rows, f, calls: Calls):
+    """fn's (rows, J), (f, grad f) and (grad L, H) by the chain rule through its recorded calls
+    F_j = fn_j(y_j(z)): with D_j = dF_j/dy T_j, T_j = dy_j/dz, W = [1; D], mu_j = dL/dF_j,
+
+        J = dr/dz + sum_j dr/dF_j D_j,
+        H = W' d2L/d(z, F)2 W + sum_j T_j' d2(mu_j' F_j)/dy2 T_j + d2(sum_j g_j' y_j)/dz2 |g_j = D_j' mu_j / T_j
+
+    (the last term is zero where y_j is linear in z).  Why: a Radau stage's Hessian by AD of the
+    whole stage took 33 506 SX instructions (n = 3), through the three forward-dynamics Hessians
+    (51 nonzeros each) 13 503."""
+    lam, lam_f = ca.SX.sym("lam", rows.numel()), ca.SX.sym("lam_f")
     L = ca.dot(lam, rows) + lam_f * f
-    H, grad = ca.hessian(L, z)
-    first = ca.Function(fn.name() + "_d1", [z, *args], [rows, f, ca.jacobian(rows, z), ca.gradient(f, z)])
-    second = ca.Function(fn.name() + "_d2", [z, *args, lam, lam_f], [grad, H])
-    return first, second
+    F = ca.vertcat(*[item[3] for item in calls.items])
+    values, D, curvature, g_sym, g_val = [], [], 0, [], []
+    for fn_j, sizes, y, Fj in calls.items:
+        value, curv = _call_derivatives(fn_j, sizes)
+        Fv, Fy = value(y)
+        T = ca.jacobian(y, z)
+        values.append(Fv)
+        D.append(ca.mtimes(Fy, T))
+        mu = ca.gradient(L, Fj)
+        curvature += ca.mtimes([T.T, curv(y, mu), T])
+        g_sym.append(ca.SX.sym("g", y.numel()))
+        g_val.append(ca.densify(ca.mtimes(Fy.T, mu)))
+    D, Fv = ca.vertcat(*D), ca.vertcat(*values)
+    W = ca.vertcat(ca.SX.eye(z.numel()), D)
+    H0, _ = ca.hessian(L, ca.vertcat(z, F))
+    Hy, _ = ca.hessian(sum(ca.dot(gs, item[2]) for gs, item in zip(g_sym, calls.items)), z)
+    H = ca.mtimes([W.T, H0, W]) + curvature + ca.substitute(Hy, ca.vertcat(*g_sym), ca.vertcat(*g_val))
+    J = ca.jacobian(rows, z) + ca.mtimes(ca.jacobian(rows, F), D)
+    grad = ca.gradient(L, z) + ca.mtimes(D.T, ca.gradient(L, F))
+    grad_f = ca.gradient(f, z) + ca.mtimes(D.T, ca.gradient(f, F))
+    out = ca.substitute([rows, J, f, grad_f, grad, H], [F], [Fv])
+    name, opts = fn.name(), {"cse": True}
+    return (ca.Function(name + "_d1", [z, *args], out[:2], opts), ca.Function(name + "_f1", [z, *args], out[2:4], opts),
+            ca.Function(name + "_d2", [z, *args, lam, lam_f], out[4:], opts))
 
 
 def _placement(sp: ca.Sparsity, rows: np.ndarray, cols: np.ndarray):
@@ -96,10 +166,12 @@ def constraints_and_objective(pieces: list, w: ca.MX, n_g: int):
     """g (in its global row order) and f of the NLP made of the pieces."""
     rows, places, f = [], [], 0
     for piece in pieces:
-        r, fi = piece.call(piece.fn, w)
-        rows.append(ca.vec(r))
+        z, args = symbols(piece.fn)
+        r, fi = piece.fn(z, *args)
+        name = piece.fn.name()               # rows and objective apart: f evaluates no dynamics
+        rows.append(ca.vec(piece.call(ca.Function(name + "_rows", [z, *args], [r]), w)))
         places.append(_in_column(piece.rows))
-        f += ca.sum2(fi)
+        f += ca.sum2(piece.call(ca.Function(name + "_f", [z, *args], [fi]), w))
     return ca.densify(_scatter(rows, places, (n_g, 1))), f
 
 
@@ -109,12 +181,13 @@ def assembled(pieces: list, w: ca.MX, lam_f: ca.MX, lam_g: ca.MX, n_g: int) -> d
     n_w = w.numel()
     J, Jp, gf, gl, gp, H, Hp, U, Up = ([] for _ in range(9))
     for piece in pieces:
-        first, second = derivative_functions(piece)
-        _, _, Ji, gfi = piece.call(first, w)
+        first, objective, second = derivative_functions(piece)
+        _, Ji = piece.call(first, w)
+        _, gfi = piece.call(objective, w)
         lam = ca.reshape(lam_g[piece.rows.ravel().tolist()], piece.rows.shape[1], piece.count)
         gli, Hi = piece.call(second, w, lam, lam_f)
         J.append(_nz(Ji))
-        Jp.append(_placement(first.sparsity_out(2), piece.rows, piece.cols))
+        Jp.append(_placement(first.sparsity_out(1), piece.rows, piece.cols))
         gf.append(ca.vec(gfi))
         gl.append(ca.vec(gli))
         gp.append(_in_column(piece.cols))
@@ -129,7 +202,7 @@ def assembled(pieces: list, w: ca.MX, lam_f: ca.MX, lam_g: ca.MX, n_g: int) -> d
             "hess": _scatter(H, Hp, (n_w, n_w)), "triu_hess": _scatter(U, Up, (n_w, n_w))}
 
 
-ASSEMBLY_VERSION = "assembled-1"        # part of the compiled-NLP cache key
+ASSEMBLY_VERSION = "assembled-2"        # part of the compiled-NLP cache key
 NAMES = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l", "nlp_grad")
 
 
