@@ -77,8 +77,8 @@ class Calls:
 
     def __call__(self, fn: ca.Function, args: list) -> list:
         outs = [ca.SX.sym(f"F{len(self.items)}_{i}", fn.sparsity_out(i)) for i in range(fn.n_out())]
-        sizes = tuple(int(ca.DM(a).numel()) if not isinstance(a, ca.SX) else a.numel() for a in args)
-        self.items.append((fn, sizes, ca.vertcat(*[ca.vec(ca.SX(a)) for a in args]), ca.vertcat(*outs)))
+        args = [ca.vec(ca.SX(a)) for a in args]                    # SX or numbers (e.g. zero speeds)
+        self.items.append((fn, tuple(a.numel() for a in args), ca.vertcat(*args), ca.vertcat(*outs)))
         return outs
 
 
@@ -97,17 +97,21 @@ def chain_rule_derivatives(fn: ca.Function, z, args, rows, f, calls: Calls):
     F_j = fn_j(y_j(z)): with D_j = dF_j/dy T_j, T_j = dy_j/dz, W = [1; D], mu_j = dL/dF_j,
 
         J = dr/dz + sum_j dr/dF_j D_j,
-        H = W' d2L/d(z, F)2 W + sum_j T_j' d2(mu_j' F_j)/dy2 T_j + d2(sum_j g_j' y_j)/dz2 |g_j = D_j' mu_j / T_j
+        H = W' d2L/d(z, F)2 W + sum_j T_j' d2(mu_j' F_j)/dy2 T_j + d2(sum_j g_j' y_j)/dz2,
 
-    (the last term is zero where y_j is linear in z).  Why: a Radau stage's Hessian by AD of the
-    whole stage took 33 506 SX instructions (n = 3), through the three forward-dynamics Hessians
-    (51 nonzeros each) 13 503."""
+    g_j = (dF_j/dy)' mu_j held constant in the last term (zero where y_j is linear in z, i.e. at a
+    fixed step).  Why: a Radau stage's Hessian by AD of the inlined stage took 34 792 SX
+    instructions (n = 3, minimum effort), through the three forward-dynamics Hessians (51
+    nonzeros each on 15 arguments) 14 701."""
     lam, lam_f = ca.SX.sym("lam", rows.numel()), ca.SX.sym("lam_f")
     L = ca.dot(lam, rows) + lam_f * f
     F = ca.vertcat(*[item[3] for item in calls.items])
-    values, D, curvature, g_sym, g_val = [], [], 0, [], []
+    values, D, curvature, g_sym, g_val, cache = [], [], 0, [], [], {}
     for fn_j, sizes, y, Fj in calls.items:
-        value, curv = _call_derivatives(fn_j, sizes)
+        key = (fn_j.name(), sizes)
+        if key not in cache:                            # one per model Function of this piece, not per call
+            cache[key] = _call_derivatives(fn_j, sizes)
+        value, curv = cache[key]
         Fv, Fy = value(y)
         T = ca.jacobian(y, z)
         values.append(Fv)
