@@ -39,6 +39,7 @@ def whole_graph_ad(nlp):
     ("ocp_tracking", {"design": {"elbow_pitch.gear_ratio": (40.0, 160.0)}}),
     ("ocp_min_effort", {"parameters": {"elbow_pitch.sea.k1": 700.0, "shoulder_pitch.link.mass": 2.0}}),
     ("ocp_min_effort", {"parameters": {"elbow_pitch.gear_ratio": 90.0}}),
+    ("ocp_min_time", {"method": "hermite-simpson"}), ("ocp_min_effort", {"method": "legendre", "dynamics": "implicit"}),
 ])
 def test_assembled_derivatives_equal_ad_of_the_whole_nlp(name, over):
     tr, nlp, lbg, ubg = transcription(name, **over)
