@@ -168,7 +168,7 @@ class Transcription:
     def _stage_piece(self):
         """Stage k's constraint rows (gap closing, then path) and objective share, of its
         variables z = (x_k, u_k, x_{k+1}), and their derivatives by the chain rule through the
-        stage's model calls (assembly.chain_rule_derivatives: its Hessian 2.5x cheaper)."""
+        stage's model calls (assembly.chain_rule_derivatives: 2.4x fewer instructions than AD)."""
         n, nx, nu = self.n, self.nx, self.nu
         z = ca.SX.sym("z", 2 * nx + nu)
         x, u, x1 = z[:nx], z[nx:nx + nu], z[nx + nu:]
