@@ -19,7 +19,8 @@ from conftest import REFERENCE, problem
 
 
 def transcription(name, N=5, **over):
-    p = dataclasses.replace(load_problem(REFERENCE.parent / f"{name}.toml"), intervals=N, **over)
+    """The lifted NLP (condense = false): its every function is CasADi's, so AD can check it."""
+    p = dataclasses.replace(load_problem(REFERENCE.parent / f"{name}.toml"), intervals=N, **{"condense": False, **over})
     tr = Transcription(p, Arm(read(p.model_path)), N=N)
     return tr, *tr.nlp()
 

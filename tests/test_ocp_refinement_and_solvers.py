@@ -70,7 +70,7 @@ def test_rest_to_rest_default_tolerances_are_tight():
 
 def test_min_effort_reference_problem_passes_after_refinement():
     """Problem (b) at 100 intervals ended with 6e-3 rad/s of SEA ringing; refined, it is at rest."""
-    p = dataclasses.replace(load_problem(REFERENCE.parent / "ocp_min_effort.toml"), compiled=False)
+    p = dataclasses.replace(load_problem(REFERENCE.parent / "ocp_min_effort.toml"), compiled=False, condense=False)
     sol = solve(p, **QUIET)
     assert sol["success"], sol["rounds"]
     assert sol["rounds"][0]["final_speed_error"] > 1e-3 and len(sol["rounds"]) >= 2
@@ -79,12 +79,12 @@ def test_min_effort_reference_problem_passes_after_refinement():
 
 @pytest.mark.parametrize("name", ["min_time", "tracking"])
 def test_other_reference_problems_pass_the_tight_verification(name):
-    sol = solve(dataclasses.replace(load_problem(REFERENCE.parent / f"ocp_{name}.toml"), compiled=False), **QUIET)
+    sol = solve(dataclasses.replace(load_problem(REFERENCE.parent / f"ocp_{name}.toml"), compiled=False, condense=False), **QUIET)
     assert sol["success"] and sol["verification"]["passed"], sol["rounds"]
 
 
 def test_implicit_form_converges_like_the_explicit_one():
-    base = dataclasses.replace(load_problem(REFERENCE.parent / "ocp_min_effort.toml"), compiled=False)
+    base = dataclasses.replace(load_problem(REFERENCE.parent / "ocp_min_effort.toml"), compiled=False, condense=False)
     it = {dyn: solve_once(dataclasses.replace(base, dynamics=dyn), **QUIET) for dyn in ("explicit", "implicit")}
     assert it["implicit"]["success"] and it["explicit"]["success"]
     assert it["implicit"]["iterations"] <= 1.5 * it["explicit"]["iterations"]

@@ -39,6 +39,7 @@ class Piece:
     rows: np.ndarray          # (count, nr)
     args: list
     derivatives: tuple | None = None     # its own (first, objective, second); by AD of fn if None
+    library: str | None = None           # the shared library of fn's C kernel (condensing.py), if any
 
     @property
     def count(self):
@@ -52,8 +53,9 @@ class Piece:
 
 
 def symbols(fn: ca.Function):
-    """Symbols for fn's inputs: the piece's variables z and its parameters."""
-    return ca.SX.sym("z", fn.size1_in(0)), [ca.SX.sym(fn.name_in(i), fn.sparsity_in(i)) for i in range(1, fn.n_in())]
+    """Symbols for fn's inputs: the piece's variables z and its parameters (MX for an external)."""
+    S = ca.SX if fn.is_a("SXFunction") else ca.MX
+    return S.sym("z", fn.size1_in(0)), [S.sym(fn.name_in(i), fn.sparsity_in(i)) for i in range(1, fn.n_in())]
 
 
 def derivative_functions(piece: Piece):

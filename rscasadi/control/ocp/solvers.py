@@ -13,7 +13,7 @@ from pathlib import Path
 import casadi as ca
 
 from ...codegen import _compiler, cache_dir
-from .assembly import ASSEMBLY_VERSION, solver_functions
+from .assembly import ASSEMBLY_VERSION, assembled, solver_functions
 from .problem import Problem
 from .transcription import Transcription
 
@@ -36,7 +36,10 @@ def make_solver(problem: Problem, tr: Transcription, nlp: dict, log=print, print
     """(solver, objective(x, p) Function) for this problem's NLP."""
     opts = options(problem, tr, print_level, extra)
     objective = ca.Function("f", [nlp["x"], nlp["p"]], [nlp["f"]])
-    if not problem.compiled:
+    if tr.condensed:
+        # the kernel's functions have no AD: the parameters' multipliers (by AD) are not asked for
+        opts["calc_lam_p"] = False
+    if not problem.compiled and not tr.condensed:      # condensed: its kernel is C anyway
         return ca.nlpsol("ocp", problem.solver, nlp, opts), objective
     return ca.nlpsol("ocp", problem.solver, compiled_nlp(problem.solver, nlp, opts, tr.pieces, log), opts), objective
 
@@ -56,7 +59,9 @@ def compiled_nlp(solver: str, nlp: dict, opts: dict, pieces: list, log=print, op
     if index.exists() and Path(index.read_text()).exists():
         log(f"compiled NLP: cache hit {index.read_text()}")
         return index.read_text()
-    plain = ca.nlpsol("ocp", solver, nlp, opts)
+    libraries = sorted({piece.library for piece in pieces if piece.library})
+    # the solver's own functions give the signatures; with kernels (no AD) from a stand-in NLP
+    plain = ca.nlpsol("ocp", solver, nlp if not libraries else _stand_in(nlp, pieces), opts)
     # CasADi writes into the working directory and prefixes internal symbols with the file name,
     # so the name must be fixed (or the source, and its hash, change every run); a lock keeps
     # two processes from writing it at once.
@@ -69,7 +74,7 @@ def compiled_nlp(solver: str, nlp: dict, opts: dict, pieces: list, log=print, op
         cg.generate()
         Path("rscasadi_nlp.c").replace(src)
     cc = _compiler()
-    key = hashlib.sha256((src.read_text() + " ".join(cc) + opt + ca.__version__).encode()).hexdigest()[:24]
+    key = hashlib.sha256((src.read_text() + " ".join(cc) + opt + ca.__version__ + " ".join(libraries)).encode()).hexdigest()[:24]
     lib = directory / f"nlp_{key}.so"
     if lib.exists():
         log(f"compiled NLP: cache hit {lib}")
@@ -78,7 +83,8 @@ def compiled_nlp(solver: str, nlp: dict, opts: dict, pieces: list, log=print, op
         return str(lib)
     t0 = time.perf_counter()
     part = lib.with_suffix(f".{os.getpid()}.part")
-    run = subprocess.run([*cc, opt, "-fPIC", "-shared", str(src), "-o", str(part), "-lm"],
+    link = [a for lib_ in libraries for a in (lib_, f"-Wl,-rpath,{Path(lib_).parent}")]
+    run = subprocess.run([*cc, opt, "-fPIC", "-shared", str(src), "-o", str(part), *link, "-lm"],
                          capture_output=True, text=True)
     src.unlink()
     if run.returncode != 0:
@@ -87,3 +93,11 @@ def compiled_nlp(solver: str, nlp: dict, opts: dict, pieces: list, log=print, op
     index.write_text(str(lib))
     log(f"compiled NLP in {time.perf_counter() - t0:.1f} s: {lib}")
     return str(lib)
+
+
+def _stand_in(nlp: dict, pieces: list) -> dict:
+    """An NLP with the same variables, parameters, sizes and Jacobian pattern (fatrop checks its
+    stage structure), and nothing to differentiate."""
+    x, P, n_g = nlp["x"], nlp["p"], nlp["g"].numel()
+    pattern = assembled(pieces, x, ca.MX.sym("lam_f"), ca.MX.sym("lam_g", n_g), n_g)["jac_g"].sparsity()
+    return {"x": x, "p": P, "f": ca.sumsqr(x) + ca.sum1(P), "g": ca.mtimes(ca.DM(pattern, 1.0), x)}

@@ -100,6 +100,8 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
     t0 = time.perf_counter()
     solver, objective = make_solver(problem, tr, nlp, log, print_level, options)
     setup = time.perf_counter() - t0
+    if tr.kernel is not None:
+        tr.kernel.reset()                          # no state from earlier solves in this process
     # the objective is scaled to about 1 at the guess: an effort of 1e-2 otherwise leaves the
     # solver crawling with a tiny dual infeasibility (seen: 1000+ iterations instead of 20)
     f0 = float(objective(w0, P))

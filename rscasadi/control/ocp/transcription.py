@@ -40,6 +40,7 @@ import numpy as np
 from ...dynamics.arm import Arm
 from ...model.parameters import gear_ratios
 from .assembly import Calls, Piece, chain_rule_derivatives, constraints_and_objective
+from .condensing import condense
 from .problem import Problem
 
 
@@ -62,10 +63,18 @@ class Transcription:
         self.nT = 1 if problem.objective == "min_time" else 0
         self.nz = self.nT + len(self.design)                                 # carried constants
         self.nx = 4 * n + self.nz
-        self.nu = n + 2 * n * self.m
+        self.nu_lifted = n + 2 * n * self.m
+        # condensed: the accelerations are solved for inside the NLP's functions (condensing.py)
+        self.condensed = problem.condense
+        self.nu = n if self.condensed else self.nu_lifted
+        # condensed, the collocation equations are solved exactly, so both forms give the same
+        # NLP; the inverse dynamics' derivatives are the cheaper (Hessian 17 807 SX instructions
+        # with the projections, 26 332 through the forward dynamics; n = 3)
+        self.dynamics = "implicit" if self.condensed else problem.dynamics
         self.tracking = problem.objective == "tracking"
         self.acc_scale = self._acceleration_scale()
         self.calls = None                    # a Calls recorder while the stage's derivatives are built
+        self.kernel = None                   # the condensing kernel (condensing.Condensed), if condensed
         self.stage = self._stage_function()
 
     # -- the pieces of one stage ------------------------------------------------------------
@@ -123,7 +132,7 @@ class Transcription:
 
     def _stage_function(self) -> ca.Function:
         """(x_k, u_k, w_k, P) -> (x_{k+1} target, path constraints, effort): SX, mapped over N."""
-        x, u, w = ca.SX.sym("x", self.nx), ca.SX.sym("u", self.nu), ca.SX.sym("w")
+        x, u, w = ca.SX.sym("x", self.nx), ca.SX.sym("u", self.nu_lifted), ca.SX.sym("w")
         dur, pfix = ca.SX.sym("duration"), ca.SX.sym("p_fixed", len(self.fixed))
         return ca.Function("stage", [x, u, w, dur, pfix], self._stage(x, u, w, dur, pfix),
                            ["x", "u", "w", "duration", "p_fixed"], ["x_next", "path", "effort"])
@@ -142,7 +151,7 @@ class Transcription:
         dynamics = []
         for j in range(m):
             xj = ca.vertcat(Q[j], V[j])
-            if self.p.dynamics == "implicit":
+            if self.dynamics == "implicit":
                 dynamics.append(self._residual(xj, acc[j], tau, pf))
             else:
                 dynamics.append((acc[j] - self._f(xj, tau, pf)[2 * n:]) / s)
@@ -169,7 +178,7 @@ class Transcription:
         """Stage k's constraint rows (gap closing, then path) and objective share, of its
         variables z = (x_k, u_k, x_{k+1}), and their derivatives by the chain rule through the
         stage's model calls (assembly.chain_rule_derivatives: 2.4x fewer instructions than AD)."""
-        n, nx, nu = self.n, self.nx, self.nu
+        n, nx, nu = self.n, self.nx, self.nu_lifted
         z = ca.SX.sym("z", 2 * nx + nu)
         x, u, x1 = z[:nx], z[nx:nx + nu], z[nx + nu:]
         w, dur, pfix = ca.SX.sym("w"), ca.SX.sym("duration"), ca.SX.sym("p_fixed", len(self.fixed))
@@ -213,7 +222,19 @@ class Transcription:
         return ca.Function("end_piece" if end else "start_piece", [x, theta, pfix, scale], [ca.vertcat(*rows), f],
                            ["z", "theta", "p_fixed", "scale"], ["rows", "f"])
 
-    def nlp(self):
+    def _n_path(self):
+        """A stage's path rows (without the dynamics rows when condensed)."""
+        return self.stage.size1_out(1) - (2 * self.n * self.m if self.condensed else 0)
+
+    def _condensed(self, derivatives, log):
+        """The stage piece with its accelerations eliminated (condensing.py): kept z = (x_k, tau_k,
+        x_{k+1}), solved rows = the dynamics at the points (the first path rows)."""
+        n, nx, nul, na = self.n, self.nx, self.nu_lifted, 2 * self.n * self.m
+        keep = np.r_[np.arange(nx + n), nx + nul + np.arange(nx)]
+        self.kernel = condense(*derivatives, keep, nx + n + np.arange(na), nx + np.arange(na), log=log)
+        return self.kernel.fn, self.kernel.derivatives, self.kernel.library
+
+    def nlp(self, log=print):
         """The NLP dict and its constant bounds on g; variables and constraints in stage order.
         self.pieces: the same NLP as a sum of stage, start and end pieces (assembly.py)."""
         n, N, nx = self.n, self.N, self.nx
@@ -222,7 +243,7 @@ class Transcription:
         par = {k: P[s] for k, s in layout.items()}
         stride = nx + self.nu
         w = ca.MX.sym("w", N * stride + nx)                                 # stage by stage
-        r = nx + self.stage.size1_out(1)                                    # a stage's rows
+        r = nx + self._n_path()                                             # a stage's rows
         n_end = (0 if self.tracking else 4 * n) + n + len(self.geared)
         stage_rows = np.vstack([np.arange(r)] + [r + 4 * n + (k - 1) * r + np.arange(r) for k in range(1, N)])
         n_g = r + 4 * n + (N - 1) * r + n_end
@@ -230,8 +251,13 @@ class Transcription:
         if self.tracking:
             stage_args.append(ca.reshape(par["theta_ref"], n, N))
         stage, derivatives = self._stage_piece()
+        library = None
+        if self.condensed:
+            stage, derivatives, library = self._condensed(derivatives, log)
+            stage_args.append(ca.DM(np.arange(N)).T)                        # the interval, for the kernel's cache
         self.pieces = [
-            Piece(stage, np.arange(N)[:, None] * stride + np.arange(stride + nx), stage_rows, stage_args, derivatives),
+            Piece(stage, np.arange(N)[:, None] * stride + np.arange(stride + nx), stage_rows, stage_args, derivatives,
+                  library),
             Piece(self._boundary_piece(False), np.arange(nx)[None, :], r + np.arange(4 * n)[None, :],
                   [par["theta_start"], par["p_fixed"], par["scale"]]),
             Piece(self._boundary_piece(True), N * stride + np.arange(nx)[None, :], n_g - n_end + np.arange(n_end)[None, :],
@@ -253,14 +279,15 @@ class Transcription:
         lo_th = np.array([jt.limits.get("theta", (-inf, inf))[0] for jt in self.model.joints])
         hi_th = np.array([jt.limits.get("theta", (-inf, inf))[1] for jt in self.model.joints])
         psi, dphi = self._limit("psi"), self._limit("dphi")
-        lo = [np.zeros(self.nx + 2 * n * self.m), -psi, -dphi[self.geared]] + [np.r_[lo_th, -psi, -dphi]] * len(self.interior)
-        hi = [np.zeros(self.nx + 2 * n * self.m), psi, dphi[self.geared]] + [np.r_[hi_th, psi, dphi]] * len(self.interior)
+        eq = np.zeros(self.nx + (0 if self.condensed else 2 * n * self.m))
+        lo = [eq, -psi, -dphi[self.geared]] + [np.r_[lo_th, -psi, -dphi]] * len(self.interior)
+        hi = [eq, psi, dphi[self.geared]] + [np.r_[hi_th, psi, dphi]] * len(self.interior)
         return np.concatenate(lo), np.concatenate(hi)
 
     def structure(self) -> dict:
         """fatrop's manual structure: per stage nx, nu and the number of non-gap constraints."""
         n, N = self.n, self.N
-        n_path = self.stage.size1_out(1)
+        n_path = self._n_path()
         ng = [n_path + 4 * n] + [n_path] * (N - 1)
         ng.append((0 if self.tracking else 4 * n) + n + len(self.geared))
         return {"structure_detection": "manual", "N": N, "nx": [self.nx] * (N + 1),
@@ -278,8 +305,8 @@ class Transcription:
         lo_z = ([1e-3] if self.nT else []) + [b[0] for b in self.p.design.values()]
         hi_z = ([max_duration] if self.nT else []) + [b[1] for b in self.p.design.values()]
         tau_max = np.array([jt.limits.get("tau", np.inf) for jt in jts])
-        lo_u = np.concatenate([-tau_max, np.full(2 * n * self.m, -np.inf)])
-        hi_u = np.concatenate([tau_max, np.full(2 * n * self.m, np.inf)])
+        lo_u = np.concatenate([-tau_max, np.full(self.nu - n, -np.inf)])
+        hi_u = np.concatenate([tau_max, np.full(self.nu - n, np.inf)])
         lo_x, hi_x = np.concatenate([lo_q, lo_z]), np.concatenate([hi_q, hi_z])
         lb = np.concatenate([np.tile(np.concatenate([lo_x, lo_u]), N), lo_x])
         ub = np.concatenate([np.tile(np.concatenate([hi_x, hi_u]), N), hi_x])
@@ -302,7 +329,8 @@ class Transcription:
         z = np.concatenate([[T] if self.nT else [], design])
         X = np.vstack([Xs, np.repeat(np.reshape(z, (-1, 1)), N + 1, axis=1)])
         scaled = (np.asarray(acc) / self.acc_scale[:, None, None]).reshape(2 * n * self.m, N, order="F")
-        return np.concatenate([np.vstack([X[:, :N], U, scaled]).ravel("F"), X[:, N]])
+        body = [X[:, :N], U] + ([] if self.condensed else [scaled])      # condensed: solved for inside
+        return np.concatenate([np.vstack(body).ravel("F"), X[:, N]])
 
     def unpack(self, w) -> dict:
         n, N = self.n, self.N
@@ -310,7 +338,7 @@ class Transcription:
         body = w[:N * (self.nx + self.nu)].reshape(self.nx + self.nu, N, order="F")
         X = np.hstack([body[:self.nx], w[N * (self.nx + self.nu):, None]])
         z = X[4 * n:, 0]
-        acc = body[self.nx + n:].reshape(2 * n, self.m, N, order="F") * self.acc_scale[:, None, None]
+        acc = None if self.condensed else body[self.nx + n:].reshape(2 * n, self.m, N, order="F") * self.acc_scale[:, None, None]
         return {"Xs": X[:4 * n], "U": body[self.nx:self.nx + n], "acc": acc,
                 "T": float(z[0]) if self.nT else None, "design": z[self.nT:]}
 

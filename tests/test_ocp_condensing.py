@@ -1,0 +1,136 @@
+"""The condensed NLP (condensing.py): each interval's accelerations solved inside the NLP's
+functions by a C kernel.  Checked against a second derivation that shares no code with the
+kernel: CasADi's own Newton rootfinder on the *explicit* lifted stage (the kernel solves the
+inverse-dynamics form) and CasADi's AD through that rootfinder for the Jacobians and Hessians;
+and whole solves against the lifted NLP with the other solver."""
+import dataclasses
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from rscasadi.control.ocp import load_problem, solve_once
+from rscasadi.control.ocp.solving import guess
+from rscasadi.control.ocp.transcription import Transcription
+from rscasadi.dynamics.arm import Arm
+from rscasadi.model.modelfile import ModelFileError, read
+
+from conftest import REFERENCE, problem
+
+QUIET = {"print_level": 0, "log": lambda m: None}
+
+
+def _pair(name, N=4, **over):
+    """The lifted (explicit) and the condensed transcription of one problem, built."""
+    base = dataclasses.replace(load_problem(REFERENCE.parent / f"{name}.toml"), intervals=N, **over)
+    arm = Arm(read(base.model_path))
+    lifted = Transcription(dataclasses.replace(base, condense=False, dynamics="explicit"), arm, N=N)
+    condensed = Transcription(dataclasses.replace(base, condense=True), arm, N=N)
+    return base, arm, lifted, lifted.nlp(), condensed, condensed.nlp(log=lambda m: None)
+
+
+def _reference(lifted, keep, elim, grows, rk):
+    """Condensed stage by CasADi: rootfinder on the lifted stage's dynamics rows, AD through it."""
+    fn = lifted.pieces[0].fn
+    nz = fn.size1_in(0)
+    w, y = ca.MX.sym("w", len(keep)), ca.MX.sym("y", len(elim))
+    args = [ca.MX.sym(fn.name_in(i), fn.sparsity_in(i)) for i in range(1, fn.n_in())]
+    place = lambda idx, v: ca.mtimes(ca.DM(ca.Sparsity.triplet(nz, len(idx), list(idx), list(range(len(idx)))), 1.0), v)
+    rows, _ = fn(place(keep, w) + place(elim, y), *args)
+    rf = ca.rootfinder("rf", "newton", ca.Function("G", [y, w, *args], [rows[grows]]), {"abstol": 1e-14})
+    y0 = ca.MX.sym("y0", len(elim))
+    ys = rf(y0, w, *args)
+    rows, f = fn(place(keep, w) + place(elim, ys), *args)
+    lam, lam_f = ca.MX.sym("lam", len(rk)), ca.MX.sym("lam_f")
+    H, gL = ca.hessian(ca.dot(lam, rows[rk]) + lam_f * f, w)
+    return ca.Function("ref", [w, y0, *args, lam, lam_f],
+                       [ys, rows[rk], f, ca.jacobian(rows[rk], w), ca.gradient(f, w), gL, H])
+
+
+def _instance_args(piece, P, P_sym, k):
+    """The piece's arguments at instance k for the NLP parameters P."""
+    values = ca.Function("a", [P_sym], [ca.MX(a) for a in piece.args])(P)
+    values = values if isinstance(values, (list, tuple)) else [values]
+    return [v[:, k] if v.size2() == piece.count and piece.count > 1 else v for v in values]
+
+
+@pytest.mark.parametrize("name,over", [
+    ("ocp_min_effort", {}), ("ocp_min_time", {}), ("ocp_tracking", {}), ("ocp_min_time_codesign", {}),
+    ("ocp_min_effort", {"parameters": {"elbow_pitch.sea.k1": 700.0, "elbow_pitch.gear_ratio": 90.0}}),
+    ("ocp_min_time", {"method": "legendre"}),
+])
+def test_kernel_equals_casadi_rootfinder_and_its_ad(name, over):
+    base, arm, lifted, (nlp_l, *_), cond, (nlp_c, *_) = _pair(name, **over)
+    n, nx, nul, na = lifted.n, lifted.nx, lifted.nu_lifted, 2 * lifted.n * lifted.m
+    keep = list(np.r_[np.arange(nx + n), nx + nul + np.arange(nx)])
+    elim, grows = list(nx + n + np.arange(na)), list(nx + np.arange(na))
+    rk = [i for i in range(lifted.pieces[0].rows.shape[1]) if i not in grows]
+    ref = _reference(lifted, keep, elim, grows, rk)
+    kernel, piece = cond.kernel, cond.pieces[0]
+    first, objective, second = piece.derivatives
+    N = lifted.N
+    t = base.duration * np.linspace(0, 1, N + 1)
+    w0 = guess(lifted, base, arm, t, None)
+    P = lifted.parameters(base.theta_start, base.theta_end, base.duration, base.effort_weight, np.full(N, 1 / N),
+                          None if not lifted.tracking else np.zeros((n, N)), list(base.parameters.values()))
+    if lifted.tracking:
+        from rscasadi.control.ocp.solving import _reference as reference_of
+        P = lifted.parameters(reference_of(base, t[:1])[:, 0], None, base.duration, base.effort_weight,
+                              np.full(N, 1 / N), reference_of(base, t)[:, 1:], list(base.parameters.values()))
+    rng = np.random.default_rng(11)
+    for k in (0, N - 1):
+        z = w0[lifted.pieces[0].cols[k]]
+        w = z[keep] + 0.01 * rng.standard_normal(len(keep)) * (1 + np.abs(z[keep]))
+        args = _instance_args(piece, P, nlp_c["p"], k)
+        lam, lam_f = rng.standard_normal(len(rk)), 0.7
+        y_ref, R, f, J, gf, gL, H = ref(w, z[elim], *args[:-1], lam, lam_f)
+        scale = lambda a: max(1.0, float(ca.norm_inf(a)))
+        y = kernel.newton(w, *args)
+        assert float(ca.norm_inf(y - y_ref)) <= 1e-10 * scale(y_ref)
+        R_k, f_k = piece.fn(w, *args)
+        assert float(ca.norm_inf(R_k - R)) <= 1e-10 * scale(R) and abs(float(f_k - f)) <= 1e-12 * scale(f)
+        assert float(ca.norm_inf(ca.densify(first(w, *args)[1]) - J)) <= 1e-9 * scale(J)
+        assert float(ca.norm_inf(objective(w, *args)[1] - gf)) <= 1e-10 * scale(gf)
+        gL_k, H_k = second(w, *args, lam, lam_f)
+        assert float(ca.norm_inf(gL_k - gL)) <= 1e-9 * scale(gL)
+        assert float(ca.norm_inf(ca.densify(H_k) - ca.densify(H))) <= 1e-8 * scale(H)
+        assert np.allclose(np.array(ca.densify(H_k)), np.array(ca.densify(H_k)).T, rtol=0, atol=1e-12 * scale(H))
+
+
+def test_kernel_reports_a_failed_solve_instead_of_returning_garbage():
+    *_, cond, (nlp_c, *_) = _pair("ocp_min_effort")
+    piece = cond.pieces[0]
+    args = [ca.DM.ones(piece.fn.sparsity_in(i)) * 0.5 for i in range(1, piece.fn.n_in() - 1)] + [ca.DM(0)]
+    w = np.full(piece.fn.size1_in(0), np.nan)
+    with pytest.raises(RuntimeError):
+        piece.fn(w, *args)
+
+
+@pytest.mark.parametrize("objective", ["min_effort", "min_time"])
+def test_condensed_solution_equals_the_lifted_one(objective):
+    """Same optimum (N = 20): condensed and lifted with IPOPT agree to 1e-9 in the objective;
+    fatrop (which stops at a looser point: 1e-7 apart even on one NLP) to 1e-6."""
+    base = dataclasses.replace(load_problem(REFERENCE.parent / f"ocp_{objective}.toml"), intervals=20)
+    lifted = solve_once(dataclasses.replace(base, condense=False, solver="ipopt"), **QUIET)
+    for solver, tol in (("ipopt", 1e-9), ("fatrop", 1e-6)):
+        cond = solve_once(dataclasses.replace(base, condense=True, solver=solver), **QUIET)
+        assert cond["success"] and lifted["success"], (cond["status"], lifted["status"])
+        assert abs(cond["objective"] - lifted["objective"]) <= tol * abs(lifted["objective"]), solver
+        if solver == "ipopt":
+            for key, rel in (("theta", 1e-4), ("tau", 1e-3)):
+                a, b = np.asarray(cond[key]), np.asarray(lifted[key])
+                assert np.max(np.abs(a - b)) <= rel * max(1.0, np.max(np.abs(b))), key
+
+
+def test_condensed_solves_are_reproducible_in_one_process():
+    """The kernel's cache is reset before each solve: the same problem twice gives the same bits."""
+    base = dataclasses.replace(load_problem(REFERENCE.parent / "ocp_min_effort.toml"), intervals=20)
+    a, b = (solve_once(base, **QUIET) for _ in range(2))
+    assert a["iterations"] == b["iterations"] and a["tau"] == b["tau"] and a["theta"] == b["theta"]
+
+
+def test_condense_needs_compiled(pitch_arm):
+    path = problem(pitch_arm, "bad.toml", transcription={"compiled": False, "condense": True})
+    with pytest.raises(ModelFileError, match="transcription.condense"):
+        load_problem(path)
+    assert load_problem(problem(pitch_arm, "ok.toml", transcription={"compiled": False})).condense is False
