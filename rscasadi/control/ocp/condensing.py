@@ -159,8 +159,9 @@ _KERNEL = r"""
 /* Per thread: the SX functions' work arrays and, per interval, the last solution.  Nothing in
    the result depends on the cache beyond Newton's tolerance: it only chooses the starting point
    and skips the solve when the inputs are bitwise those of the last call. */
-typedef struct { int seen, valid, factored, derived; casadi_real key[NKEY]; casadi_real y[NY];
+typedef struct { long generation; int seen, valid, factored, derived; casadi_real key[NKEY]; casadi_real y[NY];
                  casadi_real lu[NY * NY]; int piv[NY]; casadi_real S[NY * NS]; } entry_t;
+static long generation = 1;            /* reset() starts a new one: every thread's entries go stale */
 static __thread entry_t* cache = 0;
 static __thread long cache_size = 0;
 static __thread const casadi_real* w_arg[SZ_ARG];
@@ -312,6 +313,10 @@ static entry_t* solved(const casadi_real* w, const casadi_real** args, long k) {
   int i, j, cold;
   entry_t* e = entry(k);
   if (!e) return 0;
+  if (e->generation != __atomic_load_n(&generation, __ATOMIC_RELAXED)) {
+    e->generation = __atomic_load_n(&generation, __ATOMIC_RELAXED);
+    e->seen = e->valid = e->factored = e->derived = 0;
+  }
   make_key(key, w, args);
   if (e->valid && !memcmp(key, e->key, sizeof key)) return e;
   cold = !e->seen;
@@ -342,12 +347,9 @@ static entry_t* derived(const casadi_real* w, const casadi_real** args, long k) 
   return e;
 }
 
-/* forget this thread's solutions: the next solve starts from scratch, its results independent
+/* forget every thread's solutions: the next solve starts from scratch, its results independent
    of earlier solves in the process */
-CASADI_SYMBOL_EXPORT void P(reset)(void) {
-  long k;
-  for (k = 0; k < cache_size; ++k) cache[k].seen = cache[k].valid = cache[k].factored = cache[k].derived = 0;
-}
+CASADI_SYMBOL_EXPORT void P(reset)(void) { __atomic_add_fetch(&generation, 1, __ATOMIC_RELAXED); }
 
 #define EXTERNAL(name) CASADI_SYMBOL_EXPORT int P(name)(const casadi_real** arg, casadi_real** res, \
                                                              casadi_int* iw, casadi_real* w, int mem)
