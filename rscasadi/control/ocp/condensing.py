@@ -252,7 +252,7 @@ static int call(int (*f)(const casadi_real**, casadi_real**, casadi_int*, casadi
   w_arg[0] = zf;
   for (i = 0; i < NA; ++i) w_arg[1 + i] = args[i];
   for (i = 0; i < n_extra; ++i) w_arg[1 + NA + i] = extra[i];
-  for (i = 0; i < n_res; ++i) w_res[i] = res[i];
+  for (i = 0; i < SZ_RES; ++i) w_res[i] = i < n_res ? res[i] : 0;          /* outputs not asked for: none */
   return f(w_arg, w_res, w_iw, w_w, 0);
 }
 
