@@ -369,23 +369,20 @@ EXTERNAL(ext_rows) {
   return call(P(rows), arg + 1, 0, 0, res, 2);
 }
 
-EXTERNAL(ext_first) {
+/* an SX function of (z, args, S) at the solved and derived entry of this call */
+static int with_sensitivities(int (*f)(const casadi_real**, casadi_real**, casadi_int*, casadi_real*, int),
+                              const casadi_real** arg, casadi_real** res) {
   const casadi_real* extra[1];
   entry_t* e = derived(arg[0], arg + 1, index_of(arg));
   if (!e) return 1;
   full_z(arg[0], e->y);
   extra[0] = e->S;
-  return call(P(first), arg + 1, extra, 1, res, 2);
+  return call(f, arg + 1, extra, 1, res, 2);
 }
 
-EXTERNAL(ext_objective) {
-  const casadi_real* extra[1];
-  entry_t* e = derived(arg[0], arg + 1, index_of(arg));
-  if (!e) return 1;
-  full_z(arg[0], e->y);
-  extra[0] = e->S;
-  return call(P(objective), arg + 1, extra, 1, res, 2);
-}
+EXTERNAL(ext_first) { return with_sensitivities(P(first), arg, res); }
+
+EXTERNAL(ext_objective) { return with_sensitivities(P(objective), arg, res); }
 
 /* the Hessian of lam' R + lam_f f: nu from the adjoint equation, then Z' H(lam, nu) Z */
 EXTERNAL(ext_second) {
