@@ -162,8 +162,13 @@ def _scatter(values: list, places: list, shape) -> ca.MX:
         order = np.empty(len(key), dtype=np.int64)
         order[inv] = np.arange(len(key))
         return ca.MX(sp, src[order.tolist()])
-    S = ca.DM(ca.Sparsity.triplet(len(uniq), len(key), inv.tolist(), list(range(len(key)))), 1.0)
-    return ca.MX(sp, ca.mtimes(S, src))              # overlapping blocks: a sum
+    # overlapping blocks: each place's first source gathered, the few others added (a sparse
+    # product over every source had cost 2 % of a condensed fatrop solve)
+    first = np.full(len(uniq), -1, dtype=np.int64)
+    first[inv[::-1]] = np.arange(len(key))[::-1]       # the lowest source index of each place
+    extra = np.setdiff1d(np.arange(len(key)), first)
+    S = ca.DM(ca.Sparsity.triplet(len(uniq), len(extra), inv[extra].tolist(), list(range(len(extra)))), 1.0)
+    return ca.MX(sp, src[first.tolist()] + ca.mtimes(S, src[extra.tolist()]))
 
 
 def _nz(m: ca.MX) -> ca.MX:
