@@ -84,7 +84,7 @@ def _sx_functions(prefix: str, d1: ca.Function, f1: ca.Function, d2: ca.Function
     for s, i in enumerate(scols):
         Z[elim, i] = S[:, s]
     lam, lam_f, lam_r = ca.SX.sym("lam", nrows), ca.SX.sym("lam_f"), ca.SX.sym("lam_r", len(rk))
-    gL, H = d2(z, *args, lam, lam_f)
+    _, H = d2(z, *args, lam, lam_f)
     Hu = ca.triu(ca.mtimes([Z.T, H, Z]))                 # upper side computed, mirrored
     Hc = Hu + ca.triu(Hu, False).T
     J_r = J[rk, :]
@@ -96,9 +96,12 @@ def _sx_functions(prefix: str, d1: ca.Function, f1: ca.Function, d2: ca.Function
         "rows": ca.Function(prefix + "rows", [z, *args], [rows[rk], f], opts),
         "first": ca.Function(prefix + "first", [z, *args, S], [rows[rk], ca.mtimes(J_r, Z)], opts),
         "objective": ca.Function(prefix + "objective", [z, *args, S], [f, ca.mtimes(Z.T, gf)], opts),
+        # the gradient of lam' R + lam_f f on all of z: its y part is the adjoint equation's
+        # right-hand side, its kept part (plus G_w' nu, in C) the condensed Lagrangian's gradient
         "adjoint": ca.Function(prefix + "adjoint", [z, *args, lam_r, lam_f],
-                               [ca.densify(ca.mtimes(J_r[:, elim].T, lam_r) + lam_f * gf[elim])], opts),
-        "second": ca.Function(prefix + "second", [z, *args, lam, lam_f, S], [ca.mtimes(Z.T, gL), Hc], opts),
+                               [ca.densify(ca.mtimes(J_r.T, lam_r) + lam_f * gf)], opts),
+        # the Hessian alone: its gradient through the model calls had been 17 % of it
+        "second": ca.Function(prefix + "second", [z, *args, lam, lam_f, S], [Hc], opts),
     }
     return fns, rk, scols, args
 
@@ -114,6 +117,7 @@ def _int_array(name: str, values) -> str:
 def _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols) -> str:
     """The C kernel: cache, Newton, LU, and the four external functions (module docstring)."""
     nk, ny, ns, nr, nrows = len(keep), len(elim), fns["lin"].size2_out(2), len(rk), fns["second"].size1_in(len(args) + 1)
+    assert fns["adjoint"].size1_out(0) == fns["lin"].size1_in(0)
     na = len(args)
     arg_nnz = [a.nnz() for a in args]
     sz = {k: max(getattr(f, "sz_" + k)() for f in fns.values()) for k in ("arg", "res", "iw", "w")}
@@ -133,7 +137,7 @@ def _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols) -> str:
     outs = {"ext_rows": [fns["rows"].sparsity_out(0), fns["rows"].sparsity_out(1)],
             "ext_first": [fns["first"].sparsity_out(0), fns["first"].sparsity_out(1)],
             "ext_objective": [fns["objective"].sparsity_out(0), fns["objective"].sparsity_out(1)],
-            "ext_second": [fns["second"].sparsity_out(0), fns["second"].sparsity_out(1)],
+            "ext_second": [ca.Sparsity.dense(nk, 1), fns["second"].sparsity_out(0)],
             "ext_newton": [ca.Sparsity.dense(ny, 1)]}
     extra = {"ext_second": [ca.Sparsity.dense(nr, 1), ca.Sparsity.dense(1, 1)]}
     for name, out in outs.items():
@@ -160,7 +164,7 @@ _KERNEL = r"""
    the result depends on the cache beyond Newton's tolerance: it only chooses the starting point
    and skips the solve when the inputs are bitwise those of the last call. */
 typedef struct { long generation; int seen, valid, factored, derived; casadi_real key[NKEY]; casadi_real y[NY];
-                 casadi_real lu[NY * NY]; int piv[NY]; casadi_real S[NY * NS]; } entry_t;
+                 casadi_real lu[NY * NY]; int piv[NY]; casadi_real S[NY * NS], Gs[NY * NS]; } entry_t;
 static long generation = 1;            /* reset() starts a new one: every thread's entries go stale */
 static __thread entry_t* cache = 0;
 static __thread long cache_size = 0;
@@ -338,11 +342,11 @@ static entry_t* solved(const casadi_real* w, const casadi_real** args, long k) {
 
 /* ... and with G_y factored and S = -G_y^{-1} G_w at that y (for the derivatives) */
 static entry_t* derived(const casadi_real* w, const casadi_real** args, long k) {
-  casadi_real G[NY], Gs[NY * NS];
+  casadi_real G[NY];
   entry_t* e = solved(w, args, k);
   if (!e || e->derived) return e;
-  if (linearise(e, w, args, G, Gs)) return 0;
-  sensitivities(e->lu, e->piv, Gs, e->S);
+  if (linearise(e, w, args, G, e->Gs)) return 0;
+  sensitivities(e->lu, e->piv, e->Gs, e->S);
   e->derived = 1;
   return e;
 }
@@ -386,23 +390,29 @@ EXTERNAL(ext_objective) { return with_sensitivities(P(objective), arg, res); }
 
 /* the Hessian of lam' R + lam_f f: nu from the adjoint equation, then Z' H(lam, nu) Z */
 EXTERNAL(ext_second) {
-  casadi_real nu[NY], lam[NROWS], zero = 0;
+  casadi_real g[NZ], nu[NY], lam[NROWS], zero = 0;
   const casadi_real* extra[3];
   casadi_real* out[1];
-  int i;
+  int i, j;
   entry_t* e = derived(arg[0], arg + 1, index_of(arg));
   if (!e) return 1;
   full_z(arg[0], e->y);
   extra[0] = arg[2 + NA];
   extra[1] = arg[3 + NA] ? arg[3 + NA] : &zero;
-  out[0] = nu;
+  out[0] = g;
   if (call(P(adjoint), arg + 1, extra, 2, out, 1)) return 1;
-  lu_solve(e->lu, e->piv, NY, nu, 1);
+  for (i = 0; i < NY; ++i) nu[i] = -g[ELIM[i]];
+  lu_solve(e->lu, e->piv, NY, nu, 1);                        /* nu = -G_y^-T (R_y' lam + lam_f f_y) */
+  if (res[0]) {                                              /* grad_w L = its kept part + G_w' nu */
+    for (i = 0; i < NK; ++i) res[0][i] = g[KEEP[i]];
+    for (j = 0; j < NS; ++j) for (i = 0; i < NY; ++i) res[0][SCOLS[j]] += e->Gs[i + j * NY] * nu[i];
+  }
+  if (!res[1]) return 0;
   for (i = 0; i < NR; ++i) lam[RKEEP[i]] = arg[2 + NA] ? arg[2 + NA][i] : 0;
-  for (i = 0; i < NY; ++i) lam[GROWS[i]] = -nu[i];
+  for (i = 0; i < NY; ++i) lam[GROWS[i]] = nu[i];
   extra[0] = lam;
   extra[2] = e->S;
-  return call(P(second), arg + 1, extra, 3, res, 2);
+  return call(P(second), arg + 1, extra, 3, res + 1, 1);
 }
 """
 
