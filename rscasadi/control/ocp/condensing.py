@@ -454,6 +454,7 @@ def _compiled(prefix: str, fns: dict, kernel: str, log, opt: str | None) -> str:
     lib = directory / f"kernel_{key}.so"
     if lib.exists():
         return str(lib)
+    log(f"compiling the condensing kernel ({len(source) // 1000} kB of C, {' '.join(flags)}; once per problem shape) ...")
     t0 = time.perf_counter()
     part_src = directory / f"kernel_{key}.{os.getpid()}.c"
     part_src.write_text(source)

@@ -278,7 +278,9 @@ def run(problem_file, out, warm_file=None, log=print, print_level: int = 5, solv
     warm = json.loads(Path(warm_file).read_text()) if warm_file else None
     log(f"{problem.path}: {problem.objective}, {problem.method}"
         + (f" degree {problem.degree}" if problem.method != "hermite-simpson" else "")
-        + f", {problem.intervals} intervals, {problem.dynamics} dynamics, {'compiled' if problem.compiled else 'not compiled'}"
+        + f", {problem.intervals} intervals, "
+        + ("condensed (each interval's collocation solved in C)" if problem.condense
+           else f"lifted, {problem.dynamics} dynamics, {'compiled' if problem.compiled else 'not compiled'}")
         + (f", designing {', '.join(problem.design)}" if problem.design else ""))
     log(f"solving with {problem.solver}" + (" (log quieted)" if print_level == 0 else "") + " ...")
     sol = solve(problem, warm, log=log, print_level=print_level)
