@@ -32,7 +32,6 @@ import os
 import subprocess
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
