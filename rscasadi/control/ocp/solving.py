@@ -94,10 +94,10 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
     theta_start = _reference(problem, t_guess[:1])[:, 0] if tr.tracking else problem.theta_start
     P = tr.parameters(theta_start, problem.theta_end, problem.duration, problem.effort_weight, w, ref,
                       list(problem.parameters.values()))
-    nlp, lbg, ubg = tr.nlp()
+    t0 = time.perf_counter()                       # setup: the NLP, its kernel and library (cached)
+    nlp, lbg, ubg = tr.nlp(log)
     lbx, ubx = tr.bounds(problem.max_duration)
     w0 = guess(tr, problem, arm, t_guess, warm)
-    t0 = time.perf_counter()
     solver, objective = make_solver(problem, tr, nlp, log, print_level, options)
     setup = time.perf_counter() - t0
     if tr.kernel is not None:

@@ -40,7 +40,7 @@ import numpy as np
 from ...dynamics.arm import Arm
 from ...model.parameters import gear_ratios
 from .assembly import Calls, Piece, chain_rule_derivatives, constraints_and_objective
-from .condensing import condense
+from .condensing import Condensed, condense
 from .problem import Problem
 
 
@@ -226,13 +226,12 @@ class Transcription:
         """A stage's path rows (without the dynamics rows when condensed)."""
         return self.stage.size1_out(1) - (2 * self.n * self.m if self.condensed else 0)
 
-    def _condensed(self, derivatives, log):
+    def _condensed(self, derivatives, log) -> Condensed:
         """The stage piece with its accelerations eliminated (condensing.py): kept z = (x_k, tau_k,
         x_{k+1}), solved rows = the dynamics at the points (the first path rows)."""
         n, nx, nul, na = self.n, self.nx, self.nu_lifted, 2 * self.n * self.m
         keep = np.r_[np.arange(nx + n), nx + nul + np.arange(nx)]
-        self.kernel = condense(*derivatives, keep, nx + n + np.arange(na), nx + np.arange(na), log=log)
-        return self.kernel.fn, self.kernel.derivatives, self.kernel.library
+        return condense(*derivatives, keep, nx + n + np.arange(na), nx + np.arange(na), log=log)
 
     def nlp(self, log=print):
         """The NLP dict and its constant bounds on g; variables and constraints in stage order.
@@ -251,13 +250,13 @@ class Transcription:
         if self.tracking:
             stage_args.append(ca.reshape(par["theta_ref"], n, N))
         stage, derivatives = self._stage_piece()
-        library = None
         if self.condensed:
-            stage, derivatives, library = self._condensed(derivatives, log)
+            self.kernel = self._condensed(derivatives, log)
+            stage, derivatives = self.kernel.fn, self.kernel.derivatives
             stage_args.append(ca.DM(np.arange(N)).T)                        # the interval, for the kernel's cache
         self.pieces = [
             Piece(stage, np.arange(N)[:, None] * stride + np.arange(stride + nx), stage_rows, stage_args, derivatives,
-                  library),
+                  self.kernel.library if self.kernel else None),
             Piece(self._boundary_piece(False), np.arange(nx)[None, :], r + np.arange(4 * n)[None, :],
                   [par["theta_start"], par["p_fixed"], par["scale"]]),
             Piece(self._boundary_piece(True), N * stride + np.arange(nx)[None, :], n_g - n_end + np.arange(n_end)[None, :],
