@@ -77,7 +77,7 @@ def kernel_source(arm, name: str, parametric: bool) -> tuple[ca.Function, str, s
     body = (_TEMPLATE.replace("@NAME@", name).replace("@CONSTS@", consts)
             .replace("@BLOCKS@", _unrolled(JrT, nq, LT, L, perm, stride)))
     sizes["SZ_W"] = (point.sz_w() + 2 * 4 * n + 2 * 2 * n + max(JrT.nnz(), 1) + 2 * max(LT.nnz(), 1) + n
-                     + 8 + 5 * 2 * n * stride)                           # as @NAME@_work below
+                     + 8 + 4 * 2 * n * stride)                           # as @NAME@_work below
     header = _HEADER.replace("@NAME@", name) + "".join(f"#define {name}_{k} {v}\n" for k, v in sizes.items())
     return point, body, header
 
@@ -108,11 +108,11 @@ def _unrolled(JrT, nq, LT, L, perm, stride):
                 lines.append("  if (B1) {\n    " + "\n    ".join(b1) + "\n  }")
             if b2:
                 lines.append("  if (B2) {\n    " + "\n    ".join(b2) + "\n  }")
-            lines += [f"  RSK_AX(t, -lt[{k}], Z + {lc[k] * stride + cb}, {w})" for k in range(lp[r], lp[r + 1])]
-            lines.append(f"  RSK_ST(Z + {r * stride + cb}, t, {w})")
+            lines += [f"  RSK_AX(t, -lt[{k}], B + {perm[lc[k]] * stride + cb}, {w})" for k in range(lp[r], lp[r + 1])]
+            lines.append(f"  RSK_ST(B + {perm[r] * stride + cb}, t, {w})")
             out.append("\n".join(lines))
         for r in reversed(range(n2)):
-            lines = [f"  for (c = 0; c < {w}; ++c) t[c] = inv[{r}] * Z[{r * stride + cb} + c];"]
+            lines = [f"  for (c = 0; c < {w}; ++c) t[c] = inv[{r}] * B[{perm[r] * stride + cb} + c];"]
             lines += [f"  RSK_AX(t, -l[{k}], B + {perm[rc[k]] * stride + cb}, {w})" for k in range(rp[r], rp[r + 1])]
             lines.append(f"  RSK_ST(B + {perm[r] * stride + cb}, t, {w})")
             out.append("\n".join(lines))
@@ -149,12 +149,13 @@ _TEMPLATE = r"""
 #define RSK_AX(t, v, X, W) { const casadi_real v_ = (v), *x_ = (X); int c_; for (c_ = 0; c_ < (W); ++c_) t[c_] += v_ * x_[c_]; }
 
 /* B = M^-1 ([-dr/dx | dQ/dtau] - s dr/dx [S; B1]), S = [0 1 0] + s2 B2 (B1, B2 NULL at the
-   first stage, B2 NULL at the second), all stored by rows RSK_NP apart; Z scratch.  Blocks of
+   first stage, B2 NULL at the second), all stored by rows RSK_NP apart; L z = y is solved in place (z's row r in B's row perm[r],
+   overwritten by L' x = z / d from the last row up: no scratch matrix).  Blocks of
    up to RSK_BK columns are independent: each goes through dr/dx's product, L and L' (their sparsity
    unrolled below, one block after the other) while it sits in the first-level cache. */
 static void rsk_stage(const casadi_real *jr, const casadi_real *d, const casadi_real *lt, const casadi_real *l,
                       const casadi_real *mu, const casadi_real *B1, const casadi_real *B2, casadi_real s,
-                      casadi_real s2, casadi_real *Z, casadi_real *B) {
+                      casadi_real s2, casadi_real *B) {
   const casadi_real ms = -s, mss = -s * s2;
   casadi_real t[RSK_BK], inv[RSK_NV];
   int r, c;
@@ -172,7 +173,6 @@ int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_re
   /* the row-stored matrices on a cache line: their rows (RSK_NP apart) then start on whole vectors
      (n = 12: the offset the point's work size left ran 6 % slower, interleaved A/B) */
   casadi_real *Bs = (casadi_real *)(((uintptr_t)(mu + RSK_N) + 63) & ~(uintptr_t)63);
-  casadi_real *Z = Bs + 4 * RSK_NV * RSK_NP;
   int i, r, cc, k;
   (void)mem;
   for (i = 0; i < 4; ++i) {
@@ -184,7 +184,7 @@ int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_re
     if (RSK_POINT(parg, pres, iw, w, 0)) return 1;
     for (r = 0; r < RSK_NV; ++r) { kp[r] = xi[RSK_NV + r]; kp[RSK_NV + r] = a[r]; }
     rsk_stage(jr, d, lt, l, mu, i ? Bi - RSK_NV * RSK_NP : 0, i > 1 ? Bi - 2 * RSK_NV * RSK_NP : 0,
-              c[i] * h, i ? c[i - 1] * h : 0.0, Z, Bi);
+              c[i] * h, i ? c[i - 1] * h : 0.0, Bi);
   }
   {                                         /* the sums, in place of B_1 (speed rows) and B_4 */
     casadi_real *B1 = Bs, *B4 = Bs + 3 * RSK_NV * RSK_NP;
@@ -229,7 +229,7 @@ int @NAME@_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casad
   if (sz_arg) *sz_arg = RSK_NIN + RSK_PT_ARG;
   if (sz_res) *sz_res = 2 + RSK_PT_RES;
   if (sz_iw) *sz_iw = RSK_PT_IW;
-  if (sz_w) *sz_w = RSK_PT_W + 2 * RSK_NX + 2 * RSK_NV + RSK_NJR + 2 * RSK_NLT + RSK_N + 8 + 5 * RSK_NV * RSK_NP;
+  if (sz_w) *sz_w = RSK_PT_W + 2 * RSK_NX + 2 * RSK_NV + RSK_NJR + 2 * RSK_NLT + RSK_N + 8 + 4 * RSK_NV * RSK_NP;
   return 0;
 }
 int @NAME@_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
