@@ -173,7 +173,7 @@ int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_re
   /* the row-stored matrices on a cache line: their rows (RSK_NP apart) then start on whole vectors
      (n = 12: the offset the point's work size left ran 6 % slower, interleaved A/B) */
   casadi_real *Bs = (casadi_real *)(((uintptr_t)(mu + RSK_N) + 63) & ~(uintptr_t)63);
-  int i, r, cc, k;
+  int i, r, cc;
   (void)mem;
   for (i = 0; i < 4; ++i) {
     casadi_real *Bi = Bs + i * RSK_NV * RSK_NP;
@@ -186,18 +186,24 @@ int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_re
     rsk_stage(jr, d, lt, l, mu, i ? Bi - RSK_NV * RSK_NP : 0, i > 1 ? Bi - 2 * RSK_NV * RSK_NP : 0,
               c[i] * h, i ? c[i - 1] * h : 0.0, Bi);
   }
-  {                                         /* the sums, in place of B_1 (speed rows) and B_4 */
-    casadi_real *B1 = Bs, *B4 = Bs + 3 * RSK_NV * RSK_NP;
-    const casadi_real *B2 = Bs + RSK_NV * RSK_NP, *B3 = Bs + 2 * RSK_NV * RSK_NP, h2 = h * h / 6, h6 = h / 6;
-    for (k = 0; k < RSK_NV * RSK_NP; ++k) {
-      const casadi_real b1 = B1[k], b23 = B2[k] + B3[k];
-      B1[k] = h2 * (b1 + b23);
-      B4[k] = h6 * (b1 + 2 * b23 + B4[k]);
-    }
-    for (cc = 0; cc < RSK_NC; ++cc) {       /* by columns, as CasADi stores A and B */
-      casadi_real *col = cc < RSK_NX ? (res[0] ? res[0] + cc * RSK_NX : 0) : (res[1] ? res[1] + (cc - RSK_NX) * RSK_NX : 0);
-      if (!col) continue;
-      for (r = 0; r < RSK_NV; ++r) { col[r] = B1[r * RSK_NP + cc]; col[RSK_NV + r] = B4[r * RSK_NP + cc]; }
+  {                              /* the sums, stored by columns as CasADi stores A and B: read once
+                                    by rows, no intermediate matrix (2 % faster at n = 12) */
+    const casadi_real *B1 = Bs, *B2 = Bs + RSK_NV * RSK_NP, *B3 = Bs + 2 * RSK_NV * RSK_NP, *B4 = Bs + 3 * RSK_NV * RSK_NP;
+    const casadi_real h2 = h * h / 6, h6 = h / 6;
+    for (r = 0; r < RSK_NV; ++r) {
+      const casadi_real *b1 = B1 + r * RSK_NP, *b2 = B2 + r * RSK_NP, *b3 = B3 + r * RSK_NP, *b4 = B4 + r * RSK_NP;
+      if (res[0])
+        for (cc = 0; cc < RSK_NX; ++cc) {
+          const casadi_real b23 = b2[cc] + b3[cc];
+          res[0][cc * RSK_NX + r] = h2 * (b1[cc] + b23);
+          res[0][cc * RSK_NX + RSK_NV + r] = h6 * (b1[cc] + 2 * b23 + b4[cc]);
+        }
+      if (res[1])
+        for (cc = RSK_NX; cc < RSK_NC; ++cc) {
+          const casadi_real b23 = b2[cc] + b3[cc];
+          res[1][(cc - RSK_NX) * RSK_NX + r] = h2 * (b1[cc] + b23);
+          res[1][(cc - RSK_NX) * RSK_NX + RSK_NV + r] = h6 * (b1[cc] + 2 * b23 + b4[cc]);
+        }
     }
     if (res[0])
       for (r = 0; r < RSK_NV; ++r) {        /* [1 0] + h [0 1; 0 0] */
