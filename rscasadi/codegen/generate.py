@@ -221,7 +221,8 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
             gen = ca.CodeGenerator(f"{f.name()}.c", {"with_header": False})
             if name == "step_jacobian" and not f.is_a("SXFunction"):   # past straight-line SX: the C kernel
                 kernels[name] = kernel_source(arm, f.name(), parametric)
-                gen.add(kernels[name][0])
+                for g in kernels[name].functions:
+                    gen.add(g)
             else:
                 gen.add(f)
                 header_gen.add(f)
@@ -229,11 +230,11 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
             sources.append(tmp / f"{f.name()}.c")
             if name in kernels:
                 with open(sources[-1], "a") as fh:
-                    fh.write(kernels[name][1])
+                    fh.write(kernels[name].body)
         header_gen.generate(str(tmp) + os.sep)
         (tmp / f"{HEADER.removesuffix('.h')}.c").unlink()        # only its header is used
         if kernels:
-            _declare(tmp / HEADER, [k[2] for k in kernels.values()])
+            _declare(tmp / HEADER, [k.header for k in kernels.values()])
         digest = hashlib.sha256()
         for part in [*cc, *flags, ca.__version__] + [s.read_text() for s in sources]:
             digest.update(part.encode())
@@ -258,7 +259,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
             "sources": [s.name for s in sources],
             "library": LIBRARY,
             "functions": {name: {"symbol": f.name(), "inputs": _io(f, False), "outputs": _io(f, True),
-                                 "n_instructions": (kernels[name][0] if name in kernels else f).n_instructions()}
+                                 "n_instructions": kernels[name].n_instructions if name in kernels else f.n_instructions()}
                           for name, f in fns.items()},
             "kernels": {name: f"structured C kernel (step_kernel.py); n_instructions: its SX stage point, "
                               f"evaluated 4 times" for name in kernels},
