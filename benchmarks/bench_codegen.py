@@ -1,5 +1,5 @@
-"""Benchmark of the generated C (issue 3): ns per call from a C harness (median of 15
-batches, -O3), the same calls through casadi.external and the numerical core, the
+"""Benchmark of the generated C (issue 3): ns per call from a C harness (the median of 3
+harness processes, each the median of 15 batches, -O3), the same calls through casadi.external and the numerical core, the
 Pinocchio route (if `pin` is installed), n_instructions, and generate-and-compile time,
 for the reference arm and n = 6, 12.
 
@@ -36,23 +36,39 @@ TARGETS = {"forward_dynamics": 250, "inverse_dynamics": 150, "forward_dynamics_j
 NORMAL_DAY_FD12_NS = 976           # results/bench_codegen.md of commit 131eeec (the README's tables)
 
 
+HARNESS_ROUNDS = 3
+
+
+def harness_times(harness, built) -> dict:
+    """ns per call {n: {function: ns}}: the median of HARNESS_ROUNDS harness processes (each the
+    median of 15 batches), rounds interleaved over the sizes and run after all the compiles, so
+    that neither one process's luck on this shared machine nor a compile burst sets a figure."""
+    runs = {n: [] for n in built}
+    for _ in range(HARNESS_ROUNDS):
+        for n, (_, out, manifest) in built.items():
+            run = subprocess.run([str(harness), str(out / manifest["library"])] + list(manifest["functions"]),
+                                 capture_output=True, text=True, check=True)
+            runs[n].append({line.split()[0]: float(line.split()[1]) for line in run.stdout.splitlines()})
+    return {n: {name: float(np.median([r[name] for r in rs])) for name in rs[0]} for n, rs in runs.items()}
+
+
 def main():
     work = Path(tempfile.mkdtemp(prefix="rscasadi-bench-"))
     os.environ["RSCASADI_CACHE"] = str(work / "cache")       # measure real compiles, not cache hits
     harness = work / "harness"
     subprocess.run(["cc", "-O2", "-std=c99", str(HERE / "harness.c"), "-ldl", "-o", str(harness)], check=True)
-    rows, compile_s, mx_ns = [], {}, {}
+    rows, compile_s, mx_ns, built = [], {}, {}, {}
     for n in SIZES:
         arm, out = chain_arm(n), work / f"arm{n}"
         t0 = time.perf_counter()
-        manifest = generate(arm, out, log=lambda m: None, native=True)
+        built[n] = arm, out, generate(arm, out, log=lambda m: None, native=True)
         compile_s[n] = time.perf_counter() - t0
-        print(f"n={n:2d}: generated and compiled {len(manifest['functions'])} functions in {compile_s[n]:.1f} s",
+        print(f"n={n:2d}: generated and compiled {len(built[n][2]['functions'])} functions in {compile_s[n]:.1f} s",
               flush=True)
+    c_ns = harness_times(harness, built)
+    for n in SIZES:
+        arm, out, manifest = built[n]
         names = list(manifest["functions"])
-        run = subprocess.run([str(harness), str(out / manifest["library"])] + names,
-                             capture_output=True, text=True, check=True)
-        c_ns = {line.split()[0]: float(line.split()[1]) for line in run.stdout.splitlines()}
         compiled, rng = rscasadi.load_compiled(out), np.random.default_rng(n)
         num = Numeric(arm.model)
         pin_route = PinocchioRoute(arm.model) if PinocchioRoute else None
@@ -66,8 +82,8 @@ def main():
             num_ns = per_call(ref, repeat=3, min_time=0.1) * 1e9 if ref else float("nan")
             pin_ns = (per_call(pin_route.forward_dynamics, *x, tau, repeat=3, min_time=0.1) * 1e9
                       if pin_route and name == "forward_dynamics" else float("nan"))
-            rows.append((n, name, manifest["functions"][name]["n_instructions"], c_ns[name], ext, num_ns, pin_ns))
-            print(f"  {name:28s} C {c_ns[name]:10.1f} ns   casadi.external {ext / 1e3:8.1f} us"
+            rows.append((n, name, manifest["functions"][name]["n_instructions"], c_ns[n][name], ext, num_ns, pin_ns))
+            print(f"  {name:28s} C {c_ns[n][name]:10.1f} ns   casadi.external {ext / 1e3:8.1f} us"
                   + (f"   numeric core {num_ns / 1e3:8.1f} us" if ref else "")
                   + (f"   Pinocchio route {pin_ns / 1e3:6.1f} us" if pin_ns == pin_ns else ""), flush=True)
 
@@ -117,11 +133,13 @@ def main():
     csv = header + "".join(f"{n},{name},{ni},{c:.1f},{e:.0f},{nu:.0f},{p:.0f}\n" for n, name, ni, c, e, nu, p in rows)
     md = ["# Generated C: time per call", "",
           "Measured by `python benchmarks/bench_codegen.py` on this machine (2 cores): C harness",
-          "`benchmarks/harness.c`, median of 15 batches, library at -O3 with `--native` (-march=native",
+          "`benchmarks/harness.c`, the median of 3 processes run after all compiles, each the median of 15",
+          "batches; library at -O3 with `--native` (-march=native",
           "-ffp-contract=fast). casadi.external, the numerical core and the Pinocchio route are called",
           "from Python (their overhead included). n_instructions: SX instructions; for the MX compositions",
           "(step and, at larger n, forward_dynamics_jacobian) it counts MX calls, not arithmetic; for",
-          "step_jacobian at n >= 6 (the structured C kernel) the SX of its stage point, evaluated 4 times.", "",
+          "step_jacobian at n >= 6 (the structured C kernel) the SX of one stage point (forward dynamics",
+          "and M's factors, then dr/dx, which the kernel evaluates at the four points at once).", "",
           "| n | function | n_instructions | C (ns) | casadi.external (us) | numeric core (us) | Pinocchio route (us) |",
           "|---|---|---|---|---|---|---|"]
     fmt = lambda v: "" if v != v else f"{v / 1e3:.1f}"
