@@ -261,8 +261,9 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
             "functions": {name: {"symbol": f.name(), "inputs": _io(f, False), "outputs": _io(f, True),
                                  "n_instructions": kernels[name].n_instructions if name in kernels else f.n_instructions()}
                           for name, f in fns.items()},
-            "kernels": {name: f"structured C kernel (step_kernel.py); n_instructions: its SX stage point, "
-                              f"evaluated 4 times" for name in kernels},
+            "kernels": {name: "structured C kernel (step_kernel.py); n_instructions: the SX of one stage "
+                              "point (forward dynamics and M's factors, then dr/dx, which it evaluates at "
+                              "the four points at once)" for name in kernels},
             "omitted": omitted,
             "parametric": parametric,
             "parameters": ({"names": arm.parameters()[0], "nominal": arm.parameters()[1].tolist()}

@@ -86,7 +86,7 @@ def kernel_source(arm, name: str, parametric: bool) -> Kernel:
     stride = -(-5 * n // 4) * 4                                      # 5n columns padded to whole vectors
     njr, nlt = max(JrT.nnz(), 1), max(LT.nnz(), 1)
     sizes = {"SZ_ARG": n_in + fd.sz_arg(), "SZ_RES": 2 + fd.sz_res(), "SZ_IW": fd.sz_iw(),
-             "SZ_W": (fd.sz_w() + 9 * 4 * n + 12 * 2 * n + 8 * nlt + n + LANES * njr + 8
+             "SZ_W": (fd.sz_w() + 6 * 4 * n + 9 * 2 * n + 8 * nlt + n + LANES * njr + 8
                       + 4 * 2 * n * stride)}                         # as @NAME@_work below
     consts = "".join([
         f"#define RSK_N {n}\n#define RSK_NV {2 * n}\n#define RSK_NX {4 * n}\n#define RSK_NC {5 * n}\n",
@@ -189,10 +189,10 @@ int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_re
   const casadi_real *x = arg[0], *tau = arg[1], h = arg[2] ? arg[2][0] : 0.0;
   const casadi_real **parg = arg + RSK_NIN, *jarg[3];
   casadi_real **pres = res + 2, *jres[1];
-  /* per stage point i: xi (by points), X4 and A4 (interleaved for the lanes: [4 r + i]), the
-     factors D, LT, L; JR4 dr/dx' at the four points, interleaved */
-  casadi_real *xi = w + RSK_PT_W, *X4 = xi + 4 * RSK_NX, *A4 = X4 + 4 * RSK_NX, *kp = A4 + 4 * RSK_NV;
-  casadi_real *a = kp + RSK_NX, *D = a + 4 * RSK_NV, *LT = D + 4 * RSK_NV, *L = LT + 4 * RSK_NLT;
+  /* stage point i: xi and a (the current one), X4 and A4 (all four, interleaved for the lanes:
+     [4 r + i]), the factors D, LT, L (all four); JR4 dr/dx' at the four points, interleaved */
+  casadi_real *xi = w + RSK_PT_W, *X4 = xi + RSK_NX, *A4 = X4 + 4 * RSK_NX, *kp = A4 + 4 * RSK_NV;
+  casadi_real *a = kp + RSK_NX, *D = a + RSK_NV, *LT = D + 4 * RSK_NV, *L = LT + 4 * RSK_NLT;
   casadi_real *mu = L + 4 * RSK_NLT, *JR4 = mu + RSK_N;
   /* the row-stored matrices on a cache line: their rows (RSK_NP apart) then start on whole vectors
      (n = 12: the offset the point's work size left ran 6 % slower, interleaved A/B) */
@@ -200,15 +200,14 @@ int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_re
   int i, r, cc;
   (void)mem;
   for (i = 0; i < 4; ++i) {                 /* the stage points: forward dynamics and M's factors */
-    casadi_real *xp = xi + i * RSK_NX, *ap = a + i * RSK_NV;
-    for (r = 0; r < RSK_NX; ++r) xp[r] = (x ? x[r] : 0.0) + (i ? c[i] * h * kp[r] : 0.0);
-    parg[0] = xp; parg[1] = tau;
+    for (r = 0; r < RSK_NX; ++r) xi[r] = (x ? x[r] : 0.0) + (i ? c[i] * h * kp[r] : 0.0);
+    parg[0] = xi; parg[1] = tau;
     if (RSK_NPAR) parg[2] = arg[3];
-    pres[0] = ap; pres[1] = D + i * RSK_NV; pres[2] = LT + i * RSK_NLT; pres[3] = L + i * RSK_NLT; pres[4] = mu;
+    pres[0] = a; pres[1] = D + i * RSK_NV; pres[2] = LT + i * RSK_NLT; pres[3] = L + i * RSK_NLT; pres[4] = mu;
     if (RSK_FD(parg, pres, iw, w, 0)) return 1;
-    for (r = 0; r < RSK_NV; ++r) { kp[r] = xp[RSK_NV + r]; kp[RSK_NV + r] = ap[r]; }
-    for (r = 0; r < RSK_NX; ++r) X4[4 * r + i] = xp[r];
-    for (r = 0; r < RSK_NV; ++r) A4[4 * r + i] = ap[r];
+    for (r = 0; r < RSK_NV; ++r) { kp[r] = xi[RSK_NV + r]; kp[RSK_NV + r] = a[r]; }
+    for (r = 0; r < RSK_NX; ++r) X4[4 * r + i] = xi[r];
+    for (r = 0; r < RSK_NV; ++r) A4[4 * r + i] = a[r];
   }
   jarg[0] = X4; jarg[1] = A4; jarg[2] = RSK_NPAR ? arg[3] : 0; jres[0] = JR4;
   rsk_jr4(jarg, jres);                      /* dr/dx' at the four points at once */
@@ -266,7 +265,7 @@ int @NAME@_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casad
   if (sz_arg) *sz_arg = RSK_NIN + RSK_PT_ARG;
   if (sz_res) *sz_res = 2 + RSK_PT_RES;
   if (sz_iw) *sz_iw = RSK_PT_IW;
-  if (sz_w) *sz_w = RSK_PT_W + 9 * RSK_NX + 12 * RSK_NV + 8 * RSK_NLT + RSK_N + 4 * RSK_NJR + 8
+  if (sz_w) *sz_w = RSK_PT_W + 6 * RSK_NX + 9 * RSK_NV + 8 * RSK_NLT + RSK_N + 4 * RSK_NJR + 8
                    + 4 * RSK_NV * RSK_NP;
   return 0;
 }
