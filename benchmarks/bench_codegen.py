@@ -1,6 +1,6 @@
 """Benchmark of the generated C (issue 3): ns per call from a C harness (the median of 3
-harness processes, each the median of 15 batches, -O3), the same calls through casadi.external and the numerical core, the
-Pinocchio route (if `pin` is installed), n_instructions, and generate-and-compile time,
+harness processes, each the median of 15 batches, -O3), the same calls through casadi.external
+and the numerical core, the Pinocchio route (if `pin` is installed), n_instructions, and generate-and-compile time,
 for the reference arm and n = 6, 12.
 
     python benchmarks/bench_codegen.py     # writes results/bench_codegen.{md,csv,png}
