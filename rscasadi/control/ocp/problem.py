@@ -29,6 +29,8 @@
                                          # faster than ipopt on every benchmark problem) | ipopt
     hessian = "exact"                    # exact | limited-memory (ipopt only: no second
                                          # derivatives to generate, for large arms)
+    interface = "direct"                 # fatrop: direct (its C interface, stage by stage, on the
+                                         # compiled NLP; needs compiled) | casadi (casadi.nlpsol)
     [design]                             # parameters the optimiser chooses, constant over time
     "elbow_pitch.sea.k1" = [300.0, 3000.0]
 
@@ -47,13 +49,14 @@ from ...model.modelfile import ModelFileError, field_checker, read_toml
 OBJECTIVES = ("min_time", "min_effort", "tracking")
 METHODS = ("radau", "legendre", "hermite-simpson")
 SOLVERS = ("fatrop", "ipopt")
+INTERFACES = ("direct", "casadi")
 HESSIANS = ("exact", "limited-memory")
 TOP = {"model", "objective", "theta_start", "theta_end", "duration", "max_duration", "trajectory",
        "effort_weight", "transcription", "verification", "solver", "refinement", "design"}
 TABLES = {"transcription": {"method", "degree", "intervals", "dynamics", "compiled", "condense"},
           "verification": {"final_angle_tol", "final_speed_tol", "tracking_tol", "limit_tol"},
           "refinement": {"rounds"},
-          "solver": {"name", "hessian"}}
+          "solver": {"name", "hessian", "interface"}}
 # problem fields a sweep may vary without rebuilding the NLP (they are its parameters or bounds)
 SWEEPABLE = ("theta_start", "theta_end", "duration", "max_duration", "effort_weight")
 
@@ -77,6 +80,7 @@ class Problem:
     condense: bool = True
     solver: str = "fatrop"
     hessian: str = "exact"
+    interface: str = "direct"
     final_angle_tol: float = 1e-4
     final_speed_tol: float = 1e-3
     tracking_tol: float = 1e-3
@@ -152,6 +156,9 @@ def load_problem(path) -> Problem:
         fail("solver.name", f"must be one of {', '.join(SOLVERS)}, got {p.solver!r}")
     if p.hessian not in HESSIANS:
         fail("solver.hessian", f"must be one of {', '.join(HESSIANS)}, got {p.hessian!r}")
+    p.interface = solver.get("interface", p.interface)
+    if p.interface not in INTERFACES:
+        fail("solver.interface", f"must be one of {', '.join(INTERFACES)}, got {p.interface!r}")
     if p.hessian != "exact" and p.solver == "fatrop":
         fail("solver.hessian", "fatrop needs the exact Hessian; use name = \"ipopt\" for limited-memory")
     p.compiled = tr.get("compiled", True)
@@ -160,6 +167,8 @@ def load_problem(path) -> Problem:
     p.condense = tr.get("condense", p.compiled)
     if not isinstance(p.condense, bool):
         fail("transcription.condense", f"must be true or false, got {p.condense!r}")
+    if solver.get("interface") == "direct" and not p.compiled:
+        fail("solver.interface", "the direct fatrop interface calls the compiled NLP: needs compiled = true")
     if p.condense and not p.compiled:
         fail("transcription.condense", "the condensing kernel is C: needs compiled = true (or condense = false)")
     for name, bounds in table("design").items():

@@ -13,6 +13,7 @@ from pathlib import Path
 import casadi as ca
 
 from ...codegen import _compiler, cache_dir
+from .fatrop_direct import DirectFatrop
 from .assembly import ASSEMBLY_VERSION, assembled, solver_functions
 from .problem import Problem
 from .transcription import Transcription
@@ -43,7 +44,15 @@ def make_solver(problem: Problem, tr: Transcription, nlp: dict, log=print, print
         opts["calc_lam_p"] = False
     if not problem.compiled and not tr.condensed:      # condensed: its kernel is C anyway
         return ca.nlpsol("ocp", problem.solver, nlp, opts), objective
-    return ca.nlpsol("ocp", problem.solver, compiled_nlp(problem.solver, nlp, opts, tr.pieces, log), opts), objective
+    library = compiled_nlp(problem.solver, nlp, opts, tr.pieces, log)
+    if direct(problem):
+        return DirectFatrop(library, tr.structure(), opts["fatrop"], log), objective
+    return ca.nlpsol("ocp", problem.solver, library, opts), objective
+
+
+def direct(problem: Problem) -> bool:
+    """fatrop through its own C interface (fatrop_direct.py): on the compiled NLP, unless asked otherwise."""
+    return problem.solver == "fatrop" and problem.interface == "direct" and problem.compiled
 
 
 def compiled_nlp(solver: str, nlp: dict, opts: dict, pieces: list, log=print, opt: str | None = None) -> str:

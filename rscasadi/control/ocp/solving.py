@@ -23,7 +23,7 @@ from ...model.parameters import value, with_values
 from ..simulation import held_interval, simulate_held, spring_deflection
 from ..trajectory import load_trajectory
 from .problem import Problem, check_against_model, load_problem
-from .solvers import make_solver
+from .solvers import direct, make_solver
 from .transcription import Transcription
 
 
@@ -119,7 +119,9 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
     target = None
     if not tr.tracking:
         target = rest_state(Arm(with_values(base, {**problem.parameters, **design})), problem.theta_end).tolist()
-    return {"model": str(problem.model_path), "solver": problem.solver, "status": _status(stats),
+    return {"model": str(problem.model_path), "solver": problem.solver,
+            "interface": ("direct" if direct(problem) else "casadi") if problem.solver == "fatrop" else None,
+            "status": _status(stats),
             "success": bool(stats["success"]), "solve_time_s": solve_time, "setup_time_s": setup,
             "iterations": int(stats["iter_count"]), "objective": float(objective(res["x"], P)),
             "intervals": len(w), "mesh": (np.asarray(w) / np.sum(w)).tolist(), "t": t.tolist(),

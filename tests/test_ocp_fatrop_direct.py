@@ -1,0 +1,102 @@
+"""fatrop called directly (its C interface, stage by stage) against fatrop through CasADi's
+plugin: the same algorithm on the same compiled NLP functions, so the two must iterate alike;
+what differs is only the mapping of the NLP to fatrop's stage blocks (CasADi's C++ runtime
+against ours), which is what this checks."""
+import dataclasses
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from rscasadi.control.ocp import load_problem, solve_once, solvers
+from rscasadi.control.ocp.fatrop_direct import _Layout
+from rscasadi.model.modelfile import ModelFileError
+
+from conftest import problem
+
+QUIET = {"print_level": 0, "log": lambda m: None}
+
+
+def _raw_solve(monkeypatch, p):
+    """solve_once, keeping the solver's raw result (x, lam_g, lam_x)."""
+    raw, make = {}, solvers.make_solver
+
+    def spy(*a, **k):
+        s, f = make(*a, **k)
+
+        class Kept:
+            def __call__(self, **kw):
+                res = s(**kw)
+                raw.update({key: np.array(v, float).ravel() for key, v in res.items()})
+                return res
+
+            def stats(self):
+                return s.stats()
+        return Kept(), f
+    monkeypatch.setattr("rscasadi.control.ocp.solving.make_solver", spy)
+    sol = solve_once(p, **QUIET)
+    return sol, raw
+
+
+@pytest.mark.parametrize("case,over", [
+    ("min_effort", {}),
+    ("min_time", {"objective": "min_time", "max_duration": 5.0}),
+    ("lifted", {"transcription": {"condense": False}}),               # collocation rows as path equalities
+    ("codesign", {"objective": "min_time", "max_duration": 5.0,     # a design parameter carried as a state
+                  "design": {"shoulder_pitch.sea.k1": [300.0, 3000.0]}}),
+])
+def test_direct_fatrop_iterates_as_casadis_plugin(pitch_arm, monkeypatch, case, over):
+    tr = {"intervals": 16, "compiled": True, **over.get("transcription", {})}
+    path = problem(pitch_arm, f"direct_{case}.toml", **{**over, "transcription": tr})
+    out = {}
+    for interface in ("casadi", "direct"):
+        p = dataclasses.replace(load_problem(path), solver="fatrop", interface=interface)
+        out[interface] = _raw_solve(monkeypatch, p)
+        assert out[interface][0]["success"], out[interface][0]["status"]
+    (a, ra), (b, rb) = out["casadi"], out["direct"]
+    assert a["iterations"] == b["iterations"]
+    for key in ("x", "lam_g", "lam_x"):                 # multipliers: signs and places of every row
+        scale = max(1.0, np.max(np.abs(ra[key])))
+        assert np.max(np.abs(ra[key] - rb[key])) <= 1e-9 * scale, key
+    assert np.any(ra["lam_g"] != 0) and np.any(ra["lam_x"] != 0) or case == "lifted"
+
+
+def test_direct_is_the_default_and_reports_fatrops_stats(pitch_arm):
+    p = load_problem(problem(pitch_arm, "direct_default.toml", transcription={"intervals": 12, "compiled": True},
+                             solver={"name": "fatrop"}))
+    assert p.interface == "direct" and solvers.direct(p)
+    sol = solve_once(p, **QUIET)
+    assert sol["status"] == "Solve_Succeeded" and sol["interface"] == "direct" and sol["iterations"] > 0
+
+
+def test_bad_interface_is_named(pitch_arm):
+    with pytest.raises(ModelFileError, match=r"field 'solver\.interface'.*direct, casadi"):
+        load_problem(problem(pitch_arm, "bad_iface.toml", solver={"name": "fatrop", "interface": "acados"}))
+
+
+def test_direct_interface_needs_the_compiled_nlp(pitch_arm):
+    with pytest.raises(ModelFileError, match=r"field 'solver\.interface'.*compiled"):
+        load_problem(problem(pitch_arm, "direct_vm.toml", transcription={"condense": False},
+                             solver={"name": "fatrop", "interface": "direct"}))
+    # by default, an uncompiled problem goes through CasADi's plugin
+    p = load_problem(problem(pitch_arm, "vm.toml", transcription={"condense": False}, solver={"name": "fatrop"}))
+    assert not solvers.direct(p)
+
+
+def _triplets(sp: ca.Sparsity):
+    return sp.shape, np.array(sp.row()), np.repeat(np.arange(sp.size2()), np.diff(sp.colind()))
+
+
+def test_layout_refuses_what_is_not_stage_wise():
+    # two stages of nx = 1, nu = 1 and a last state: variables x0 u0 x1 u1 x2; rows: gap 0, gap 1
+    nx, nu, ng = [1, 1, 1], [1, 1, 0], [0, 0, 0]
+    no = np.zeros(2, bool), np.zeros(2, bool), np.zeros(5, bool), np.zeros(5, bool)
+    good = ca.sparsify(ca.DM([[1, 1, 1, 0, 0], [0, 0, 1, 1, 1]])).sparsity()
+    hess = ca.Sparsity.diag(5)
+    _Layout(nx, nu, ng, _triplets(good), _triplets(hess), *no)
+    coupled = ca.sparsify(ca.DM([[1, 1, 1, 0, 1], [0, 0, 1, 1, 1]])).sparsity()      # gap 0 depends on x2
+    with pytest.raises(ValueError, match="row 0 .*variable 4"):
+        _Layout(nx, nu, ng, _triplets(coupled), _triplets(hess), *no)
+    hess_coupled = ca.sparsify(ca.DM([[1, 0, 1, 0, 0], [0, 1, 0, 0, 0], [1, 0, 1, 0, 0], [0, 0, 0, 1, 0], [0, 0, 0, 0, 1]])).sparsity()
+    with pytest.raises(ValueError, match="couples stages: variables 2 and 0|couples stages: variables 0 and 2"):
+        _Layout(nx, nu, ng, _triplets(good), _triplets(hess_coupled), *no)
