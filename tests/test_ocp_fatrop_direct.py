@@ -100,3 +100,18 @@ def test_layout_refuses_what_is_not_stage_wise():
     hess_coupled = ca.sparsify(ca.DM([[1, 0, 1, 0, 0], [0, 1, 0, 0, 0], [1, 0, 1, 0, 0], [0, 0, 0, 1, 0], [0, 0, 0, 0, 1]])).sparsity()
     with pytest.raises(ValueError, match="couples stages: variables 2 and 0|couples stages: variables 0 and 2"):
         _Layout(nx, nu, ng, _triplets(good), _triplets(hess_coupled), *no)
+
+
+def test_unknown_fatrop_option_is_named(pitch_arm):
+    p = load_problem(problem(pitch_arm, "direct_opt.toml", transcription={"intervals": 12, "compiled": True}))
+    with pytest.raises(ValueError, match="no_such_option"):
+        solve_once(p, options={"no_such_option": 1.0}, **QUIET)
+
+
+def test_a_quiet_solve_does_not_silence_the_next_one(pitch_arm, capfd):
+    # fatrop keeps the last writer for the whole process
+    p = load_problem(problem(pitch_arm, "direct_log.toml", transcription={"intervals": 12, "compiled": True}))
+    solve_once(p, **QUIET)
+    assert "inf_pr" not in capfd.readouterr().out
+    solve_once(p, print_level=5, log=lambda m: None)
+    assert "inf_pr" in capfd.readouterr().out

@@ -7,12 +7,14 @@
    per stage data (u first, then x; its dynamics x_{k+1} = F_k):
      BAbt_k = [B' ; A' ; b'] with b = F_k - x_{k+1},  Ggt_k = [G' ; g'] for equalities (g - lb),
      Ggt_ineq_k = [G' ; g'] for inequalities,  RSQrqt_k = [H ; grad L'] (u first).
-   The Jacobian's and Hessian's nonzeros go to these blocks by index maps made once in Python.
+   The Jacobian's and Hessian's nonzeros go to these blocks by index maps made once in Python;
+   the blocks' other entries are zero from the start and every call writes the same places.
    The full_eval callbacks return 1: done, no per-stage callbacks, and (unlike 2) fatrop still
    subtracts the slacks from the inequality rows of the constraint violation. */
 #include <stdlib.h>
 #include <string.h>
 #include <math.h>
+#include <stdio.h>
 #include <blasfeo.h>
 #include <fatrop/ocp/OCPCInterface.h>
 
@@ -111,7 +113,6 @@ static fatrop_int constr_jac(const double* primal, const double* sp, const doubl
   int e, k, i, c;
   read_primal(d, primal, s);
   call(d, P->jac_g, in, 2, out, 2, P->ng);
-  memset(d->jbuf, 0, sizeof(double) * P->n_jbuf);
   for (e = 0; e < P->nnz_j; ++e) if (P->jt[e] >= 0) d->jbuf[P->jt[e]] = P->js[e] * d->a[e];
   for (k = 0; k < P->K; ++k) {
     int ld = P->nx[k] + P->nu[k] + 1;
@@ -218,7 +219,6 @@ static fatrop_int lag_hess(double scale, const double* primal, const double* lam
     c = P->a_eq_idx[k + 1] - P->a_eq_idx[k];
     for (i = P->x_eq_idx[k]; i < P->x_eq_idx[k + 1]; ++i) d->grad[P->x_eq[i]] += lam_data[s->g_offs[k] + c++];
   }
-  memset(d->hbuf, 0, sizeof(double) * P->n_hbuf);
   for (e = 0; e < P->nnz_h; ++e) d->hbuf[P->ht[e]] = d->h[e];
   for (k = 0; k < P->K; ++k) {
     int n = P->nx[k] + P->nu[k];
@@ -229,10 +229,14 @@ static fatrop_int lag_hess(double scale, const double* primal, const double* lam
   return 1;
 }
 
+/* fatrop keeps the last writer for the process (a global stream): always pass one */
 static void quiet(const char* msg, int n) { (void)msg; (void)n; }
+static void out(const char* msg, int n) { fwrite(msg, 1, (size_t)n, stdout); }
+static void flush_out(void) { fflush(stdout); }
 
 /* Options: names[i] with values[i] (double, int or bool by fatrop's type) or strings[i].
-   Returns fatrop's return flag; stats[16]: FatropOcpCStats in order, then `failed`;
+   Returns 0 on success, 1 otherwise, -1 on an exception inside fatrop; stats[17]: FatropOcpCStats
+   in order, then whether an evaluation failed;
    -1000 - i: option i unknown or refused. */
 int rsf_solve(const rsf_problem* P, const double* x0, const double* p, const double* lbx, const double* ubx,
               const double* lbg, const double* ubg, int n_opt, const char** names, const double* values,
@@ -259,7 +263,7 @@ int rsf_solve(const rsf_problem* P, const double* x0, const double* p, const dou
   ocp.full_eval_constr_jac = constr_jac; ocp.full_eval_contr_viol = constr_viol;
   ocp.full_eval_obj_grad = obj_grad; ocp.full_eval_obj = obj; ocp.full_eval_lag_hess = lag_hess;
   ocp.user_data = &d;
-  solver = fatrop_ocp_c_create(&ocp, verbose ? 0 : quiet, 0);
+  solver = fatrop_ocp_c_create(&ocp, verbose ? out : quiet, verbose ? flush_out : 0);
   for (i = 0; i < n_opt && !ret; ++i) {
     int type = fatrop_ocp_c_option_type(names[i]), bad = 1;
     if (type == 0) bad = fatrop_ocp_c_set_option_double(solver, names[i], values[i]);

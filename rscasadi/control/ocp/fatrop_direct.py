@@ -214,8 +214,8 @@ class DirectFatrop:
         if ret <= -1000:
             raise ValueError(f"fatrop refused option {names[-1000 - ret]!r}={self.options[names[-1000 - ret]]!r}")
         fat = {k: (int(v) if k.endswith(("count", "flag")) else float(v)) for k, v in zip(_STATS, stats)}
-        self._stats = {"success": ret == 0, "return_status": "Solve_Succeeded" if ret == 0 else f"fatrop return flag {ret}",
-                       "unified_return_status": "SOLVER_RET_SUCCESS" if ret == 0 else "SOLVER_RET_UNKNOWN",
+        self._stats = {"success": ret == 0, "return_status": fat["return_flag"],
+                       "unified_return_status": {0: "SOLVER_RET_SUCCESS", -1: "SOLVER_RET_EXCEPTION"}.get(ret, "SOLVER_RET_UNKNOWN"),
                        "iter_count": fat["iterations_count"], "fatrop": fat, "evaluation_failed": bool(stats[16]),
                        "interface": "direct"}
         return {"x": x, "lam_g": lam_g, "lam_x": lam_x}

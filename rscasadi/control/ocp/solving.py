@@ -138,7 +138,8 @@ def _status(stats: dict) -> str:
         return stats["return_status"]
     if stats["success"]:
         return "Solve_Succeeded"
-    return f"fatrop return flag {stats['fatrop']['return_flag']} ({stats.get('unified_return_status', '?')})"
+    failed = ", an NLP evaluation failed" if stats.get("evaluation_failed") else ""
+    return f"fatrop return flag {stats['fatrop']['return_flag']} ({stats.get('unified_return_status', '?')}{failed})"
 
 
 def solution_arm(solution: dict) -> Arm:
