@@ -86,9 +86,9 @@ def main():
           f"({os.environ['RSCASADI_NLP_OPT']}), exact",
           "Hessians, the same tolerance (1e-8) for both solvers; solve = wall time of the solver call, median",
           "of 5 at N = 100.  condensed: each interval's accelerations solved inside the NLP's functions (a C",
-          "kernel; docs/ocp.md), the solver sees (x_k, tau_k); lifted: they are NLP variables.  fatrop's split:",
+          "kernel; README, 'Optimal control'), the solver sees (x_k, tau_k); lifted: they are NLP variables.  fatrop's split:",
           "its search-direction time (its Riccati linear algebra) and its function evaluations.  fatrop: through",
-          "its own C interface, stage by stage (docs/ocp.md); fatrop (CasADi plugin): casadi.nlpsol on the same",
+          "its own C interface, stage by stage (README, same section); fatrop (CasADi plugin): casadi.nlpsol on the same",
           "compiled NLP (same iterates).", "",
           "| problem | N | transcription | solver | status | iterations | solve (s) | fatrop search direction (s) | fatrop evaluations (s) |",
           "|---|---|---|---|---|---|---|---|---|"]
