@@ -115,3 +115,57 @@ def test_a_quiet_solve_does_not_silence_the_next_one(pitch_arm, capfd):
     assert "inf_pr" not in capfd.readouterr().out
     solve_once(p, print_level=5, log=lambda m: None)
     assert "inf_pr" in capfd.readouterr().out
+
+
+def _tiny_ocp(tmp_path, sign=1.0):
+    """min sum u_k^2 + c x_3^2 s.t. x_{k+1} = x_k + u_k, x_0 = 1, |u_k| <= 10, x_k + u_k <= 100:
+    u_k = -c / (1 + 3c) for every k.  The NLP's functions under the fatrop plugin's signatures,
+    written here by hand (no transcription), gap rows sign * (x_{k+1} - x_k - u_k)."""
+    from rscasadi.codegen import _compiler
+    import subprocess
+    x = ca.SX.sym("x", 7)                                   # x0 u0 x1 u1 x2 u2 x3
+    c = ca.SX.sym("p")
+    xs, us = x[[0, 2, 4, 6]], x[[1, 3, 5]]
+    g = []
+    for k in range(3):
+        g += [sign * (xs[k + 1] - xs[k] - us[k]), xs[k] + us[k]]        # gap row, then a path row
+    g = ca.vertcat(*g)
+    f = ca.sumsqr(us) + c * xs[3] ** 2
+    lam_f, lam_g = ca.SX.sym("lam_f"), ca.SX.sym("lam_g", g.numel())
+    lag = lam_f * f + ca.dot(lam_g, g)
+    H, grad = ca.hessian(lag, x)
+    fns = [ca.Function("nlp_f", [x, c], [f]), ca.Function("nlp_g", [x, c], [g]),
+           ca.Function("nlp_grad_f", [x, c], [ca.gradient(f, x)]),
+           ca.Function("nlp_jac_g", [x, c], [g, ca.jacobian(g, x)]),
+           ca.Function("nlp_hess_l", [x, c, lam_f, lam_g], [grad, H])]
+    cg = ca.CodeGenerator("tiny_ocp.c", {"with_header": False})
+    for fn in fns:
+        cg.add(fn)
+    cg.generate(str(tmp_path) + "/")
+    lib = tmp_path / "tiny_ocp.so"
+    subprocess.run([*_compiler(), "-O1", "-fPIC", "-shared", str(tmp_path / "tiny_ocp.c"), "-o", str(lib), "-lm"], check=True)
+    return str(lib), {"N": 3, "nx": [1, 1, 1, 1], "nu": [1, 1, 1, 0], "ng": [1, 1, 1, 0]}
+
+
+def test_direct_fatrop_solves_a_small_ocp_to_its_closed_form(tmp_path):
+    from rscasadi.control.ocp.fatrop_direct import DirectFatrop
+    lib, structure = _tiny_ocp(tmp_path)
+    inf = np.inf
+    lbx = [1.0, -10, -inf, -10, -inf, -10, -inf]
+    ubx = [1.0, 10, inf, 10, inf, 10, inf]
+    solver = DirectFatrop(lib, structure, {"tol": 1e-10, "print_level": 0})
+    res = solver(x0=np.zeros(7), lbx=lbx, ubx=ubx, lbg=[0, -inf] * 3, ubg=[0, 100] * 3, p=10.0)
+    assert solver.stats()["success"]
+    u = -10.0 / 31.0
+    assert np.allclose(res["x"], [1, u, 1 + u, u, 1 + 2 * u, u, 1 + 3 * u], atol=1e-8)
+    # KKT: stationarity in u_0 with the gap multipliers (CasADi's sign convention: + lam_g' g)
+    assert abs(2 * u - res["lam_g"][0]) < 1e-7
+
+
+def test_a_gap_row_of_the_wrong_sign_is_refused(tmp_path):
+    from rscasadi.control.ocp.fatrop_direct import DirectFatrop
+    lib, structure = _tiny_ocp(tmp_path, sign=-1.0)
+    solver = DirectFatrop(lib, structure, {"print_level": 0})
+    with pytest.raises(ValueError, match=r"x_\{k\+1\} - F_k"):
+        solver(x0=np.zeros(7), lbx=[1.0] + [-np.inf] * 6, ubx=[1.0] + [np.inf] * 6, lbg=[0, -np.inf] * 3,
+               ubg=[0, 100] * 3, p=10.0)

@@ -27,7 +27,8 @@ typedef struct {
   const int *a_eq, *a_eq_idx, *a_in, *a_in_idx;    /* path rows: equalities, inequalities */
   const int *x_eq, *x_eq_idx, *x_in, *x_in_idx;    /* bounded variables, likewise */
   int nnz_j, nnz_h, n_jbuf, n_hbuf;
-  const int *jt, *ht;                      /* block index of each Jacobian / Hessian nonzero */
+  const int *jt, *ht;                      /* block index of each Jacobian / Hessian nonzero
+                                              (-1: none, -2: x_{k+1} in a gap row, must be 1) */
   const double* js;                        /* its sign (-1: A, B of the gap rows) */
   const int *bab_off, *geq_off, *gin_off, *rsq_off;
   fn_t f, g, grad_f, jac_g, hess_l;
@@ -42,7 +43,7 @@ typedef struct {
   double** res;
   casadi_int* iw;
   double* w;
-  int failed;
+  int failed, bad_gap;
 } rsf_data;
 
 #define D ((rsf_data*)user_data)
@@ -113,7 +114,10 @@ static fatrop_int constr_jac(const double* primal, const double* sp, const doubl
   int e, k, i, c;
   read_primal(d, primal, s);
   call(d, P->jac_g, in, 2, out, 2, P->ng);
-  for (e = 0; e < P->nnz_j; ++e) if (P->jt[e] >= 0) d->jbuf[P->jt[e]] = P->js[e] * d->a[e];
+  for (e = 0; e < P->nnz_j; ++e) {
+    if (P->jt[e] >= 0) d->jbuf[P->jt[e]] = P->js[e] * d->a[e];
+    else if (P->jt[e] == -2 && d->a[e] != 1) d->bad_gap = 1;        /* x_{k+1}'s coefficient */
+  }
   for (k = 0; k < P->K; ++k) {
     int ld = P->nx[k] + P->nu[k] + 1;
     double *B = d->jbuf + P->bab_off[k], *G = d->jbuf + P->geq_off[k], *I = d->jbuf + P->gin_off[k];
@@ -235,8 +239,8 @@ static void out(const char* msg, int n) { fwrite(msg, 1, (size_t)n, stdout); }
 static void flush_out(void) { fflush(stdout); }
 
 /* Options: names[i] with values[i] (double, int or bool by fatrop's type) or strings[i].
-   Returns 0 on success, 1 otherwise, -1 on an exception inside fatrop; stats[17]: FatropOcpCStats
-   in order, then whether an evaluation failed;
+   Returns 0 on success, 1 otherwise, -1 on an exception inside fatrop; stats[18]: FatropOcpCStats
+   in order, whether an evaluation failed, whether a gap row's x_{k+1} coefficient was not 1;
    -1000 - i: option i unknown or refused. */
 int rsf_solve(const rsf_problem* P, const double* x0, const double* p, const double* lbx, const double* ubx,
               const double* lbg, const double* ubg, int n_opt, const char** names, const double* values,
@@ -297,7 +301,7 @@ int rsf_solve(const rsf_problem* P, const double* x0, const double* p, const dou
     stats[6] = st->eval_obj_time; stats[7] = st->initialization_time; stats[8] = st->time_total;
     stats[9] = st->eval_hess_count; stats[10] = st->eval_jac_count; stats[11] = st->eval_cv_count;
     stats[12] = st->eval_grad_count; stats[13] = st->eval_obj_count; stats[14] = st->iterations_count;
-    stats[15] = st->return_flag; stats[16] = d.failed;
+    stats[15] = st->return_flag; stats[16] = d.failed; stats[17] = d.bad_gap;
   }
   fatrop_ocp_c_destroy(solver);
   free(d.x); free(d.gv); free(d.a); free(d.h); free(d.lam); free(d.grad); free(d.jbuf); free(d.hbuf);

@@ -88,64 +88,76 @@ class _Layout:
     classification of rows and variables into equalities, inequalities and free ones."""
 
     def __init__(self, nx, nu, ng, jac: tuple, hess: tuple, eq_g, in_g, eq_x, in_x):
-        K = len(nx)
+        self.K = K = len(nx)
         nx, nu, ng = (np.asarray(v, int) for v in (nx, nu, ng))
         xoff = np.concatenate([[0], np.cumsum(nx + nu)[:-1]])
-        gaps = np.append(nx[1:], 0)
+        gaps = np.append(nx[1:], 0)                              # stage k's gap rows close x_{k+1}
         roff = np.concatenate([[0], np.cumsum(gaps + ng)[:-1]])
-        nv, nrow = int(np.sum(nx + nu)), int(np.sum(gaps + ng))
-        (jac_shape, r, c), (hess_shape, hr, hc) = jac, hess
-        if jac_shape != (nrow, nv) or hess_shape != (nv, nv):
-            raise ValueError(f"NLP of {jac_shape[0]} rows and {nv} variables does not match the stage "
-                             f"structure ({nrow} rows, {int(np.sum(nx + nu))} variables)")
-        v_stage = np.repeat(np.arange(K), nx + nu)
-        v_pos = np.arange(nv) - xoff[v_stage]
-        v_pos = np.where(v_pos < nx[v_stage], nu[v_stage] + v_pos, v_pos - nx[v_stage])    # u first, then x
-        r_stage = np.repeat(np.arange(K), gaps + ng)
-        r_gap = np.arange(nrow) - roff[r_stage]                 # < gaps[k]: gap row index
-        is_gap = r_gap < gaps[r_stage]
-        ld = nx + nu + 1
-        lists, masks = {}, {"a_eq": eq_g & ~is_gap, "a_in": in_g & ~is_gap}
-        for name, mask, stage in (("a_eq", masks["a_eq"], r_stage), ("a_in", masks["a_in"], r_stage),
-                                  ("x_eq", eq_x, v_stage), ("x_in", in_x, v_stage)):
-            idx = np.flatnonzero(mask)
-            lists[name] = idx
-            lists[name + "_idx"] = np.concatenate([[0], np.cumsum(np.bincount(stage[idx], minlength=K))])
+        self.nv, self.ng = int(np.sum(nx + nu)), int(np.sum(gaps + ng))
+        if jac[0] != (self.ng, self.nv) or hess[0] != (self.nv, self.nv):
+            raise ValueError(f"NLP of {jac[0][0]} rows and {jac[0][1]} variables does not match the stage "
+                             f"structure ({self.ng} rows, {self.nv} variables)")
+        self.v_stage = np.repeat(np.arange(K), nx + nu)
+        pos = np.arange(self.nv) - xoff[self.v_stage]
+        self.v_pos = np.where(pos < nx[self.v_stage], nu[self.v_stage] + pos, pos - nx[self.v_stage])  # u, then x
+        self.r_stage = np.repeat(np.arange(K), gaps + ng)
+        self.r_gap = np.arange(self.ng) - roff[self.r_stage]     # < gaps[k]: the gap row's index
+        self.is_gap = self.r_gap < gaps[self.r_stage]
+        self.ld = nx + nu + 1                                     # rows of every stage block
+        self.masks = {"a_eq": eq_g & ~self.is_gap, "a_in": in_g & ~self.is_gap, "x_eq": eq_x, "x_in": in_x}
+        lists = self._lists()
         n_eq = np.diff(lists["a_eq_idx"]) + np.diff(lists["x_eq_idx"])
         n_in = np.diff(lists["a_in_idx"]) + np.diff(lists["x_in_idx"])
-        sizes = np.stack([ld * gaps, ld * n_eq, ld * n_in], axis=1).reshape(-1)
-        offs = np.concatenate([[0], np.cumsum(sizes)[:-1]]).reshape(K, 3)
-        # the column of each path row in its stage's Ggt (equalities) or Ggt_ineq block
-        col = np.full(nrow, -1)
+        sizes = np.stack([self.ld * gaps, self.ld * n_eq, self.ld * n_in], axis=1).reshape(-1)
+        self.offs = np.concatenate([[0], np.cumsum(sizes)[:-1]]).reshape(K, 3)     # BAbt, Ggt, Ggt_ineq
+        rsq = np.concatenate([[0], np.cumsum(self.ld * (nx + nu))[:-1]])
+        jt, self.js = self._jacobian_places(*jac[1:], lists, nu)
+        ht = self._hessian_places(*hess[1:], rsq)
+        self.arrays = {key: _ints(v) for key, v in {
+            "nx": nx, "nu": nu, "xoff": xoff, "roff": roff, **lists, "jt": jt, "ht": ht,
+            "bab_off": self.offs[:, 0], "geq_off": self.offs[:, 1], "gin_off": self.offs[:, 2], "rsq_off": rsq}.items()}
+        self.n_jbuf, self.n_hbuf = int(np.sum(sizes)), int(np.sum(self.ld * (nx + nu)))
+
+    def _lists(self) -> dict:
+        """Per stage, its equality and inequality rows and bounded variables (CSR-like)."""
+        lists = {}
+        for name, mask in self.masks.items():
+            idx = np.flatnonzero(mask)
+            stage = (self.r_stage if name.startswith("a") else self.v_stage)[idx]
+            lists[name], lists[name + "_idx"] = idx, np.concatenate([[0], np.cumsum(np.bincount(stage, minlength=self.K))])
+        return lists
+
+    def _jacobian_places(self, r, c, lists, nu):
+        """Each Jacobian nonzero's place in jbuf and sign: a gap row's (x_k, u_k) entries go to BAbt
+        negated (fatrop's x_{k+1} = F), its x_{k+1} entry must be 1 (-2: checked in C), path rows to
+        Ggt or Ggt_ineq, free rows nowhere (-1)."""
+        col = np.full(self.ng, -1)                                # a path row's column in its block
         for name in ("a_eq", "a_in"):
             idx, start = lists[name], lists[name + "_idx"]
-            col[idx] = np.arange(len(idx)) - start[r_stage[idx]]
-        k, kc = r_stage[r], v_stage[c]
-        jt = np.full(len(r), -1)
-        js = np.ones(len(r))
-        gap, own = is_gap[r], kc == k
-        jt[gap & own] = offs[k, 0][gap & own] + v_pos[c][gap & own] + r_gap[r][gap & own] * ld[k][gap & own]
-        js[gap & own] = -1.0
-        nxt = gap & (kc == k + 1) & (v_pos[c] >= nu[np.minimum(kc, K - 1)])
+            col[idx] = np.arange(len(idx)) - start[self.r_stage[idx]]
+        k, ld, pos = self.r_stage[r], self.ld[self.r_stage[r]], self.v_pos[c]
+        own, gap = self.v_stage[c] == k, self.is_gap[r]
+        nxt = gap & (self.v_stage[c] == k + 1) & (pos >= nu[np.minimum(self.v_stage[c], self.K - 1)])
+        jt, js = np.full(len(r), -1), np.ones(len(r))
+        m = gap & own
+        jt[m], js[m] = self.offs[k, 0][m] + pos[m] + self.r_gap[r][m] * ld[m], -1.0
+        jt[nxt] = -2
         for name, block in (("a_eq", 1), ("a_in", 2)):
-            m = own & masks[name][r]
-            jt[m] = offs[k, block][m] + v_pos[c][m] + col[r][m] * ld[k][m]
-        stray = ~((gap & own) | nxt | (~gap & own))
+            m = own & self.masks[name][r]
+            jt[m] = self.offs[k, block][m] + pos[m] + col[r][m] * ld[m]
+        stray = ~(own | nxt)
         if np.any(stray):
             i = int(np.flatnonzero(stray)[0])
             raise ValueError(f"the NLP's Jacobian is not stage-wise: row {r[i]} (stage {k[i]}) depends on variable {c[i]}")
-        hk = v_stage[hr]
-        if np.any(v_stage[hc] != hk):
-            i = int(np.flatnonzero(v_stage[hc] != hk)[0])
+        return jt, np.ascontiguousarray(js)
+
+    def _hessian_places(self, hr, hc, rsq):
+        """Each Hessian nonzero's place in its stage's RSQ block (u first)."""
+        hk = self.v_stage[hr]
+        if np.any(self.v_stage[hc] != hk):
+            i = int(np.flatnonzero(self.v_stage[hc] != hk)[0])
             raise ValueError(f"the NLP's Hessian couples stages: variables {hr[i]} and {hc[i]}")
-        rsq = np.concatenate([[0], np.cumsum(ld * (nx + nu))[:-1]])
-        ht = rsq[hk] + v_pos[hr] + v_pos[hc] * ld[hk]
-        self.arrays = {"nx": nx, "nu": nu, "xoff": xoff, "roff": roff, **lists, "jt": jt, "ht": ht,
-                       "bab_off": offs[:, 0], "geq_off": offs[:, 1], "gin_off": offs[:, 2], "rsq_off": rsq}
-        self.arrays = {key: _ints(v) for key, v in self.arrays.items()}
-        self.js = np.ascontiguousarray(js)
-        self.K, self.nv, self.ng = K, nv, nrow
-        self.n_jbuf, self.n_hbuf = int(np.sum(sizes)), int(np.sum(ld * (nx + nu)))
+        return rsq[hk] + self.v_pos[hr] + self.v_pos[hc] * self.ld[hk]
 
 
 class DirectFatrop:
@@ -206,11 +218,14 @@ class DirectFatrop:
         c_strings = (ctypes.c_char_p * max(len(names), 1))(*[str(self.options[k]).encode() for k in names])
         values = np.array([0.0 if isinstance(self.options[k], str) else float(self.options[k]) for k in names] or [0.0])
         verbose = int(bool(self.options.get("print_level", 0)))
-        x, lam_g, lam_x, stats = np.zeros(self.n_x), np.zeros(self.n_g), np.zeros(self.n_x), np.zeros(17)
+        x, lam_g, lam_x, stats = np.zeros(self.n_x), np.zeros(self.n_g), np.zeros(self.n_x), np.zeros(18)
         ptr = lambda a: a.ctypes.data_as(_Dp)  # noqa: E731
         ret = self.driver.rsf_solve(ctypes.byref(P), ptr(x0), ptr(p), ptr(lbx), ptr(ubx), ptr(lbg), ptr(ubg),
                                     len(names), c_names, ptr(values), c_strings, verbose,
                                     ptr(x), ptr(lam_g), ptr(lam_x), ptr(stats))
+        if stats[17]:
+            raise ValueError("the NLP's gap-closing rows must read x_{k+1} - F_k(x_k, u_k): a coefficient of "
+                             "x_{k+1} is not 1")
         if ret <= -1000:
             raise ValueError(f"fatrop refused option {names[-1000 - ret]!r}={self.options[names[-1000 - ret]]!r}")
         fat = {k: (int(v) if k.endswith(("count", "flag")) else float(v)) for k, v in zip(_STATS, stats)}
