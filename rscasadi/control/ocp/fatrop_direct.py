@@ -175,9 +175,7 @@ class DirectFatrop:
         self.jac_sp, self.hess_sp = ext["nlp_jac_g"].sparsity_out(1), ext["nlp_hess_l"].sparsity_out(1)
         self.n_x, self.n_p = ext["nlp_g"].size1_in(0), ext["nlp_g"].size1_in(1)
         self.n_g = ext["nlp_g"].size1_out(0)
-        work = [ext[n].sz_arg() for n in _NAMES], [ext[n].sz_res() for n in _NAMES], \
-               [ext[n].sz_iw() for n in _NAMES], [ext[n].sz_w() for n in _NAMES]
-        self.work = [max(w) for w in work]
+        self.work = [max(getattr(ext[n], "sz_" + k)() for n in _NAMES) for k in ("arg", "res", "iw", "w")]
         self.pointers = {}
         for name in _NAMES:
             getattr(self.nlp, name + "_incref", lambda: None)()
@@ -190,8 +188,7 @@ class DirectFatrop:
         eq_g, eq_x = lbg == ubg, lbx == ubx
         in_g = ~eq_g & ~(np.isneginf(lbg) & np.isposinf(ubg))
         in_x = ~eq_x & ~(np.isneginf(lbx) & np.isposinf(ubx))
-        key = np.packbits(np.concatenate([eq_g, in_g, eq_x, in_x])).tobytes()
-        key = (self.library, key)
+        key = (self.library, np.packbits(np.concatenate([eq_g, in_g, eq_x, in_x])).tobytes())
         if key not in _LAYOUTS:                      # kept for the process: repeated solves, refinements, sweeps
             s = self.structure
             _LAYOUTS[key] = _Layout(s["nx"], s["nu"], s["ng"], *self._triplets, eq_g, in_g, eq_x, in_x)
