@@ -169,3 +169,22 @@ def test_a_gap_row_of_the_wrong_sign_is_refused(tmp_path):
     with pytest.raises(ValueError, match=r"x_\{k\+1\} - F_k"):
         solver(x0=np.zeros(7), lbx=[1.0] + [-np.inf] * 6, ubx=[1.0] + [np.inf] * 6, lbg=[0, -np.inf] * 3,
                ubg=[0, 100] * 3, p=10.0)
+
+
+def test_direct_fatrop_solves_from_two_threads(tmp_path):
+    # the driver's state is per call (and fatrop's process-wide writer behind a lock): solves from
+    # threads of one process each find their own closed form
+    from concurrent.futures import ThreadPoolExecutor
+    from rscasadi.control.ocp.fatrop_direct import DirectFatrop
+    lib, structure = _tiny_ocp(tmp_path)
+    inf = np.inf
+
+    def one(c):
+        solver = DirectFatrop(lib, structure, {"tol": 1e-10, "print_level": 0})
+        res = solver(x0=np.zeros(7), lbx=[1.0] + [-inf] * 6, ubx=[1.0] + [inf] * 6, lbg=[0, -inf] * 3,
+                     ubg=[0, 100] * 3, p=c)
+        return solver.stats()["success"], res["x"][1]
+    with ThreadPoolExecutor(4) as pool:
+        out = list(pool.map(one, [1.0, 10.0, 100.0, 1000.0] * 3))
+    for (ok, u), c in zip(out, [1.0, 10.0, 100.0, 1000.0] * 3):
+        assert ok and abs(u + c / (1 + 3 * c)) < 1e-8

@@ -18,6 +18,7 @@ import fcntl
 import hashlib
 import os
 import subprocess
+import threading
 import time
 from pathlib import Path
 
@@ -33,6 +34,9 @@ _STATS = ("compute_sd_time", "duinf_time", "eval_hess_time", "eval_jac_time", "e
           "eval_cv_count", "eval_grad_count", "eval_obj_count", "iterations_count", "return_flag")
 _I = ctypes.POINTER(ctypes.c_int)
 _LAYOUTS: dict = {}
+# fatrop keeps one output writer per process, replaced by every solver it creates: one solve at a
+# time per process (threads could race on it; processes, as the sweeps use, run in parallel)
+_ONE_AT_A_TIME = threading.Lock()
 _Dp = ctypes.POINTER(ctypes.c_double)
 
 
@@ -217,9 +221,10 @@ class DirectFatrop:
         verbose = int(bool(self.options.get("print_level", 0)))
         x, lam_g, lam_x, stats = np.zeros(self.n_x), np.zeros(self.n_g), np.zeros(self.n_x), np.zeros(18)
         ptr = lambda a: a.ctypes.data_as(_Dp)  # noqa: E731
-        ret = self.driver.rsf_solve(ctypes.byref(P), ptr(x0), ptr(p), ptr(lbx), ptr(ubx), ptr(lbg), ptr(ubg),
-                                    len(names), c_names, ptr(values), c_strings, verbose,
-                                    ptr(x), ptr(lam_g), ptr(lam_x), ptr(stats))
+        with _ONE_AT_A_TIME:
+            ret = self.driver.rsf_solve(ctypes.byref(P), ptr(x0), ptr(p), ptr(lbx), ptr(ubx), ptr(lbg), ptr(ubg),
+                                        len(names), c_names, ptr(values), c_strings, verbose,
+                                        ptr(x), ptr(lam_g), ptr(lam_x), ptr(stats))
         if stats[17]:
             raise ValueError("the NLP's gap-closing rows must read x_{k+1} - F_k(x_k, u_k): a coefficient of "
                              "x_{k+1} is not 1")
