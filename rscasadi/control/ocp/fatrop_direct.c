@@ -62,14 +62,15 @@ static void read_primal(rsf_data* d, const double* primal, const struct FatropOc
   }
 }
 
-/* one NLP function; an error (e.g. the kernel's Newton failing) leaves NaN for fatrop to reject */
-static void call(rsf_data* d, fn_t f, const double** in, int n_in, double** out, int n_out, int n_nan) {
-  int i;
+/* one NLP function with outputs of sizes n[]; an error (e.g. the kernel's Newton failing) leaves
+   NaN in every output for fatrop to reject */
+static void call(rsf_data* d, fn_t f, const double** in, int n_in, double** out, const int* n, int n_out) {
+  int i, j;
   for (i = 0; i < n_in; ++i) d->arg[i] = in[i];
   for (i = 0; i < n_out; ++i) d->res[i] = out[i];
   if (f(d->arg, d->res, d->iw, d->w, 0)) {
     d->failed = 1;
-    for (i = 0; i < n_nan; ++i) out[0][i] = NAN;
+    for (i = 0; i < n_out; ++i) for (j = 0; j < n[i]; ++j) out[i][j] = NAN;
   }
 }
 
@@ -101,7 +102,7 @@ static fatrop_int initial_uk(double* uk, fatrop_int k, void* user_data) {
   return 0;
 }
 
-/* the last row of a stage block, column c, and the constant unit entry of a bounded variable */
+/* the last row of stage k's block, column c */
 #define LAST(buf, k, c) (buf)[(P->nx[k] + P->nu[k]) + (c) * (P->nx[k] + P->nu[k] + 1)]
 
 static fatrop_int constr_jac(const double* primal, const double* sp, const double* gp, struct blasfeo_dmat* BAbt,
@@ -111,9 +112,10 @@ static fatrop_int constr_jac(const double* primal, const double* sp, const doubl
   const rsf_problem* P = d->P;
   const double* in[2] = {d->x, d->p};
   double* out[2] = {d->gv, d->a};
+  const int n[2] = {P->ng, P->nnz_j};
   int e, k, i, c;
   read_primal(d, primal, s);
-  call(d, P->jac_g, in, 2, out, 2, P->ng);
+  call(d, P->jac_g, in, 2, out, n, 2);
   for (e = 0; e < P->nnz_j; ++e) {
     if (P->jt[e] >= 0) d->jbuf[P->jt[e]] = P->js[e] * d->a[e];
     else if (P->jt[e] == -2 && d->a[e] != 1) d->bad_gap = 1;        /* x_{k+1}'s coefficient */
@@ -151,7 +153,7 @@ static fatrop_int constr_viol(const double* primal, const double* sp, const doub
   double* out[1] = {d->gv};
   int k, i, c;
   read_primal(d, primal, s);
-  call(d, P->g, in, 2, out, 1, P->ng);
+  call(d, P->g, in, 2, out, &P->ng, 1);
   for (k = 0; k < P->K; ++k) {
     c = 0;
     for (i = P->a_in_idx[k]; i < P->a_in_idx[k + 1]; ++i) res[s->g_ineq_offs[k] + c++] = d->gv[P->a_in[i]];
@@ -173,7 +175,7 @@ static fatrop_int obj_grad(double scale, const double* primal, const double* sp,
   double* out[1] = {d->grad};
   int k, i;
   read_primal(d, primal, s);
-  call(d, P->grad_f, in, 2, out, 1, P->nv);
+  call(d, P->grad_f, in, 2, out, &P->nv, 1);
   for (k = 0; k < P->K; ++k) {
     for (i = 0; i < P->nu[k]; ++i) res[s->ux_offs[k] + i] = scale * d->grad[P->xoff[k] + P->nx[k] + i];
     for (i = 0; i < P->nx[k]; ++i) res[s->ux_offs[k] + P->nu[k] + i] = scale * d->grad[P->xoff[k] + i];
@@ -186,8 +188,9 @@ static fatrop_int obj(double scale, const double* primal, const double* sp, cons
   rsf_data* d = D;
   const double* in[2] = {d->x, d->p};
   double* out[1] = {res};
+  const int one = 1;
   read_primal(d, primal, s);
-  call(d, d->P->f, in, 2, out, 1, 1);
+  call(d, d->P->f, in, 2, out, &one, 1);
   *res *= scale;
   return 1;
 }
@@ -203,6 +206,7 @@ static fatrop_int lag_hess(double scale, const double* primal, const double* lam
   const rsf_problem* P = d->P;
   const double* in[4] = {d->x, d->p, &scale, d->lam};
   double* out[2] = {d->grad, d->h};
+  const int n[2] = {P->nv, P->nnz_h};
   int e, k, i, c;
   read_primal(d, primal, s);
   memset(d->lam, 0, sizeof(double) * P->ng);
@@ -214,7 +218,7 @@ static fatrop_int lag_hess(double scale, const double* primal, const double* lam
     if (k < P->K - 1)
       for (i = 0; i < P->nx[k + 1]; ++i) d->lam[P->roff[k] + i] = -lam_data[s->dyn_eq_offs[k] + i];
   }
-  call(d, P->hess_l, in, 4, out, 2, P->nv);
+  call(d, P->hess_l, in, 4, out, n, 2);
   for (k = 0; k < P->K; ++k) {
     if (k < P->K - 1)
       for (i = 0; i < P->nx[k + 1]; ++i) d->grad[P->xoff[k + 1] + i] += lam_data[s->dyn_eq_offs[k] + i];
@@ -235,7 +239,7 @@ static fatrop_int lag_hess(double scale, const double* primal, const double* lam
 
 /* fatrop keeps the last writer for the process (a global stream): always pass one */
 static void quiet(const char* msg, int n) { (void)msg; (void)n; }
-static void out(const char* msg, int n) { fwrite(msg, 1, (size_t)n, stdout); }
+static void to_stdout(const char* msg, int n) { fwrite(msg, 1, (size_t)n, stdout); }
 static void flush_out(void) { fflush(stdout); }
 
 /* Options: names[i] with values[i] (double, int or bool by fatrop's type) or strings[i].
@@ -267,7 +271,7 @@ int rsf_solve(const rsf_problem* P, const double* x0, const double* p, const dou
   ocp.full_eval_constr_jac = constr_jac; ocp.full_eval_contr_viol = constr_viol;
   ocp.full_eval_obj_grad = obj_grad; ocp.full_eval_obj = obj; ocp.full_eval_lag_hess = lag_hess;
   ocp.user_data = &d;
-  solver = fatrop_ocp_c_create(&ocp, verbose ? out : quiet, verbose ? flush_out : 0);
+  solver = fatrop_ocp_c_create(&ocp, verbose ? to_stdout : quiet, verbose ? flush_out : 0);
   for (i = 0; i < n_opt && !ret; ++i) {
     int type = fatrop_ocp_c_option_type(names[i]), bad = 1;
     if (type == 0) bad = fatrop_ocp_c_set_option_double(solver, names[i], values[i]);
