@@ -24,6 +24,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from common import ROOT, write_results  # noqa: E402
+from rscasadi.codegen.parallel import available_cores  # noqa: E402
 import rscasadi.control.ocp.solving as solving  # noqa: E402
 from rscasadi.control.ocp import load_problem, solve, solve_once  # noqa: E402
 
@@ -51,6 +52,11 @@ def timed(p, repeats):
 TRANSCRIPTIONS = (("condensed", "explicit"), ("lifted", "explicit"), ("lifted", "implicit"))
 # fatrop: through its own C interface (the default), and through CasADi's plugin on the same NLP
 SOLVERS = ("ipopt", "fatrop", "fatrop (CasADi plugin)")
+CORES = available_cores()
+# (solver, threads of the NLP's loops over the intervals): the condensed form on one thread and on
+# every core, for both solvers (their NLP functions are the same library); the rest on every core
+RUNS = {"condensed": [("ipopt", 1), ("ipopt", CORES), ("fatrop", 1), ("fatrop", CORES), (SOLVERS[2], CORES)],
+        "lifted": [("ipopt", CORES), ("fatrop", CORES)]}
 
 
 def solver_rows():
@@ -59,9 +65,9 @@ def solver_rows():
         base = load_problem(path)
         for N in (100, 200):
             for transcription, dynamics in TRANSCRIPTIONS:
-                for solver in SOLVERS[:3 if transcription == "condensed" else 2]:
+                for solver, threads in RUNS[transcription]:
                     p = dataclasses.replace(base, intervals=N, dynamics=dynamics, solver=solver.split()[0], compiled=True,
-                                            condense=transcription == "condensed",
+                                            condense=transcription == "condensed", threads=threads,
                                             interface="casadi" if "plugin" in solver else "direct")
                     solve_once(p, **QUIET)                                   # compile (cached) first
                     t, sol, stats = timed(p, 5 if N == 100 else 1)
@@ -71,9 +77,9 @@ def solver_rows():
                                                           "eval_grad_time", "eval_obj_time")) if fat else float("nan")
                     label = "condensed" if transcription == "condensed" else f"lifted, {dynamics}"
                     rows.append(dict(problem=name, N=N, transcription=label, dynamics=dynamics, solver=solver,
-                                     status=sol["status"], iterations=sol["iterations"], solve_s=t,
+                                     threads=sol["threads"], status=sol["status"], iterations=sol["iterations"], solve_s=t,
                                      objective=sol["objective"], linear_algebra_s=la, evaluations_s=evals))
-                    print(f"{name:10s} N={N:3d} {label:17s} {solver:22s} {sol['status']:16s} it {sol['iterations']:4d} "
+                    print(f"{name:10s} N={N:3d} {label:17s} {solver:22s} {sol['threads']} thr {sol['status']:16s} it {sol['iterations']:4d} "
                           f"solve {t:6.3f} s" + (f"  (fatrop: search direction {la:.3f} s, evaluations {evals:.3f} s)"
                                                   if fat else ""), flush=True)
     return rows
@@ -89,20 +95,23 @@ def main():
           "kernel; README, 'Optimal control'), the solver sees (x_k, tau_k); lifted: they are NLP variables.  fatrop's split:",
           "its search-direction time (its Riccati linear algebra) and its function evaluations.  fatrop: through",
           "its own C interface, stage by stage (README, same section); fatrop (CasADi plugin): casadi.nlpsol on the same",
-          "compiled NLP (same iterates).", "",
-          "| problem | N | transcription | solver | status | iterations | solve (s) | fatrop search direction (s) | fatrop evaluations (s) |",
-          "|---|---|---|---|---|---|---|---|---|"]
-    md += [f"| {r['problem']} | {r['N']} | {r['transcription']} | {r['solver']} | {r['status']} | {r['iterations']} | "
+          "compiled NLP (same iterates).  threads: the NLP's loops over the intervals (OpenMP; the same",
+          "library and iterates for both solvers on any number of threads).", "",
+          "| problem | N | transcription | solver | threads | status | iterations | solve (s) | fatrop search direction (s) | fatrop evaluations (s) |",
+          "|---|---|---|---|---|---|---|---|---|---|"]
+    md += [f"| {r['problem']} | {r['N']} | {r['transcription']} | {r['solver']} | {r['threads']} | {r['status']} | {r['iterations']} | "
            f"{r['solve_s']:.3f} | {r['linear_algebra_s']:.3f} | {r['evaluations_s']:.3f} |" for r in rows]
     md += ["", "## Targets (N = 100)", ""]
     for name, limit in TARGET.items():
-        at = {(r["transcription"], r["solver"]): r["solve_s"] for r in rows if r["problem"] == name and r["N"] == 100}
-        fat, ip, plug = at[("condensed", "fatrop")], at[("condensed", "ipopt")], at[("condensed", SOLVERS[2])]
-        ip_best = min(v for (tr, solver), v in at.items() if solver == "ipopt")
-        md.append(f"- {name}: fatrop (condensed) {fat:.3f} s: target < {limit:g} s "
+        at = {(r["transcription"], r["solver"], r["threads"]): r["solve_s"] for r in rows if r["problem"] == name and r["N"] == 100}
+        fat, fat1, plug = at[("condensed", "fatrop", CORES)], at[("condensed", "fatrop", 1)], at[("condensed", SOLVERS[2], CORES)]
+        ip, ip1 = at[("condensed", "ipopt", CORES)], at[("condensed", "ipopt", 1)]
+        ip_best = min(v for (tr, solver, _), v in at.items() if solver == "ipopt")
+        md.append(f"- {name}: fatrop (condensed, {CORES} threads) {fat:.3f} s: target < {limit:g} s "
                   + ("met" if fat < limit else "MISSED")
-                  + f"; IPOPT on the same condensed NLP {ip:.3f} s ({ip / fat:.2f}x), IPOPT's fastest "
+                  + f"; IPOPT on the same condensed NLP and threads {ip:.3f} s ({ip / fat:.2f}x), IPOPT's fastest "
                   f"{ip_best:.3f} s ({ip_best / fat:.2f}x); target 5x: " + ("met" if ip_best >= 5 * fat else "MISSED")
+                  + f"; on one thread each: fatrop {fat1:.3f} s, IPOPT {ip1:.3f} s ({ip1 / fat1:.2f}x)"
                   + f"; fatrop through CasADi's plugin {plug:.3f} s ({ip / plug:.2f}x IPOPT)")
     md += ["", "## Implicit against explicit iterations", ""]
     for name in PROBLEMS:
@@ -131,15 +140,15 @@ def main():
            "| co-designed | " + " | ".join(f"{v:.0f}" for v in cod["design"].values()) + f" | {cod['t'][-1]:.4f} | {cod['success']} |"]
     print(f"co-design: T {nom['duration']:.4f} -> {cod['t'][-1]:.4f} s with {cod['design']}", flush=True)
 
-    csv = "problem,N,transcription,solver,status,iterations,solve_s,objective,fatrop_search_direction_s,fatrop_evaluations_s\n" + "".join(
-        f"{r['problem']},{r['N']},{r['transcription'].replace(', ', ' ')},{r['solver']},{r['status']},{r['iterations']},{r['solve_s']:.4f},"
+    csv = "problem,N,transcription,solver,threads,status,iterations,solve_s,objective,fatrop_search_direction_s,fatrop_evaluations_s\n" + "".join(
+        f"{r['problem']},{r['N']},{r['transcription'].replace(', ', ' ')},{r['solver']},{r['threads']},{r['status']},{r['iterations']},{r['solve_s']:.4f},"
         f"{r['objective']:.8g},{r['linear_algebra_s']:.4f},{r['evaluations_s']:.4f}\n" for r in rows)
     fig, ax = plt.subplots(figsize=(7, 4))
     for name in PROBLEMS:
         for solver in SOLVERS[:2]:
             for transcription, style in (("condensed", "o-"), ("lifted, explicit", "s--")):
                 pts = [(r["N"], r["solve_s"]) for r in rows if r["problem"] == name and r["solver"] == solver
-                       and r["transcription"] == transcription]
+                       and r["transcription"] == transcription and r["threads"] == CORES]
                 ax.loglog(*zip(*pts), style, label=f"{name}, {solver}, {transcription}")
     ax.set(xlabel="intervals N", ylabel="solve time (s)", title="Radau 3, compiled")
     ax.legend(fontsize=8)

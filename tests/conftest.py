@@ -135,6 +135,28 @@ def problem(directory, name="p.toml", **over):
     return path
 
 
+def raw_solve(monkeypatch, p, **kw):
+    """solve_once, keeping the solver's raw result too (x, lam_g, lam_x as flat arrays)."""
+    from rscasadi.control.ocp import solve_once, solvers
+    raw, make = {}, solvers.make_solver
+
+    def spy(*a, **k):
+        s, f = make(*a, **k)
+
+        class Kept:
+            def __call__(self, **kw):
+                res = s(**kw)
+                raw.update({key: np.array(v, float).ravel() for key, v in res.items()})
+                return res
+
+            def stats(self):
+                return s.stats()
+        return Kept(), f
+    monkeypatch.setattr("rscasadi.control.ocp.solving.make_solver", spy)
+    sol = solve_once(p, **{"print_level": 0, "log": lambda m: None, **kw})
+    return sol, raw
+
+
 # ----------------------------------------------------------------------------- identification workflow
 # (session-wide: the identification tests and the MPC's identified-model study share them)
 

@@ -12,30 +12,9 @@ from rscasadi.control.ocp import load_problem, solve_once, solvers
 from rscasadi.control.ocp.fatrop_direct import _Layout
 from rscasadi.model.modelfile import ModelFileError
 
-from conftest import problem
+from conftest import problem, raw_solve
 
 QUIET = {"print_level": 0, "log": lambda m: None}
-
-
-def _raw_solve(monkeypatch, p):
-    """solve_once, keeping the solver's raw result (x, lam_g, lam_x)."""
-    raw, make = {}, solvers.make_solver
-
-    def spy(*a, **k):
-        s, f = make(*a, **k)
-
-        class Kept:
-            def __call__(self, **kw):
-                res = s(**kw)
-                raw.update({key: np.array(v, float).ravel() for key, v in res.items()})
-                return res
-
-            def stats(self):
-                return s.stats()
-        return Kept(), f
-    monkeypatch.setattr("rscasadi.control.ocp.solving.make_solver", spy)
-    sol = solve_once(p, **QUIET)
-    return sol, raw
 
 
 @pytest.mark.parametrize("case,over", [
@@ -51,7 +30,7 @@ def test_direct_fatrop_iterates_as_casadis_plugin(pitch_arm, monkeypatch, case, 
     out = {}
     for interface in ("casadi", "direct"):
         p = dataclasses.replace(load_problem(path), solver="fatrop", interface=interface)
-        out[interface] = _raw_solve(monkeypatch, p)
+        out[interface] = raw_solve(monkeypatch, p)
         assert out[interface][0]["success"], out[interface][0]["status"]
     (a, ra), (b, rb) = out["casadi"], out["direct"]
     assert a["iterations"] == b["iterations"]

@@ -96,7 +96,8 @@ def point_problem(problem, point: dict):
     """The problem at one grid point: parameters as NLP inputs, fields replaced."""
     params = {k: float(v) for k, v in point.items() if k not in SWEEPABLE}
     fields = {k: (np.asarray(v, float) if isinstance(v, list) else float(v)) for k, v in point.items() if k in SWEEPABLE}
-    return dataclasses.replace(problem, parameters=params, rounds=0, **fields)
+    # one thread per point unless the problem file asks: the workers (one per core) are the parallelism
+    return dataclasses.replace(problem, parameters=params, rounds=0, threads=problem.threads or 1, **fields)
 
 
 def solve_point(problem_path: str, names: list, point: dict, index: int) -> dict:

@@ -23,6 +23,9 @@ nlp_hess_l, nlp_grad_f ...), with CasADi's own signatures.
 """
 from __future__ import annotations
 
+import contextlib
+import io
+import sys
 from dataclasses import dataclass
 
 import casadi as ca
@@ -45,11 +48,24 @@ class Piece:
     def count(self):
         return self.cols.shape[0]
 
-    def call(self, fn: ca.Function, w: ca.MX, *extra):
-        """fn (mapped over the instances) at the piece's variables of w and its parameters."""
+    def call(self, fn: ca.Function, w: ca.MX, *extra, parallel: str = "serial"):
+        """fn (mapped over the instances: "serial", or "openmp" for generated C) at the piece's
+        variables of w and its parameters."""
         z = ca.reshape(w[self.cols.ravel().tolist()], self.cols.shape[1], self.count)
-        f = fn if self.count == 1 else fn.map(self.count, "serial")
+        f = fn if self.count == 1 else _mapped(fn, self.count, parallel)
         return f(z, *self.args, *extra)
+
+
+def _mapped(fn: ca.Function, count: int, parallel: str) -> ca.Function:
+    """fn.map(count, parallel), without the warning an "openmp" map gives in a CasADi built
+    without OpenMP (its own evaluation is serial; the generated C has the parallel loop)."""
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
+        f = fn.map(count, parallel)
+    other = [line for line in out.getvalue().splitlines() if "WITH_OPENMP" not in line]
+    if other:
+        print("\n".join(other), file=sys.stderr)
+    return f
 
 
 def symbols(fn: ca.Function):
@@ -175,30 +191,30 @@ def _nz(m: ca.MX) -> ca.MX:
     return m.nz[:] if m.nnz() else ca.MX(0, 1)
 
 
-def constraints_and_objective(pieces: list, w: ca.MX, n_g: int):
+def constraints_and_objective(pieces: list, w: ca.MX, n_g: int, parallel: str = "serial"):
     """g (in its global row order) and f of the NLP made of the pieces."""
     rows, places, f = [], [], 0
     for piece in pieces:
         z, args = symbols(piece.fn)
         r, fi = piece.fn(z, *args)
         name = piece.fn.name()               # rows and objective apart: f evaluates no dynamics
-        rows.append(ca.vec(piece.call(ca.Function(name + "_rows", [z, *args], [r]), w)))
+        rows.append(ca.vec(piece.call(ca.Function(name + "_rows", [z, *args], [r]), w, parallel=parallel)))
         places.append(_in_column(piece.rows))
-        f += ca.sum2(piece.call(ca.Function(name + "_f", [z, *args], [fi]), w))
+        f += ca.sum2(piece.call(ca.Function(name + "_f", [z, *args], [fi]), w, parallel=parallel))
     return ca.densify(_scatter(rows, places, (n_g, 1))), f
 
 
-def assembled(pieces: list, w: ca.MX, lam_f: ca.MX, lam_g: ca.MX, n_g: int) -> dict:
+def assembled(pieces: list, w: ca.MX, lam_f: ca.MX, lam_g: ca.MX, n_g: int, parallel: str = "serial") -> dict:
     """grad f, J, grad L, H and triu(H) of the NLP made of the pieces, as MX of w (and of the
     parameters the pieces take)."""
     n_w = w.numel()
     J, Jp, gf, gl, gp, H, Hp, U, Up = ([] for _ in range(9))
     for piece in pieces:
         first, objective, second = derivative_functions(piece)
-        _, Ji = piece.call(first, w)
-        _, gfi = piece.call(objective, w)
+        _, Ji = piece.call(first, w, parallel=parallel)
+        _, gfi = piece.call(objective, w, parallel=parallel)
         lam = ca.reshape(lam_g[piece.rows.ravel().tolist()], piece.rows.shape[1], piece.count)
-        gli, Hi = piece.call(second, w, lam, lam_f)
+        gli, Hi = piece.call(second, w, lam, lam_f, parallel=parallel)
         J.append(_nz(Ji))
         Jp.append(_placement(first.sparsity_out(1), piece.rows, piece.cols))
         gf.append(ca.vec(gfi))
@@ -215,21 +231,22 @@ def assembled(pieces: list, w: ca.MX, lam_f: ca.MX, lam_g: ca.MX, n_g: int) -> d
             "hess": _scatter(H, Hp, (n_w, n_w)), "triu_hess": _scatter(U, Up, (n_w, n_w))}
 
 
-ASSEMBLY_VERSION = "assembled-2"        # part of the compiled-NLP cache key
+ASSEMBLY_VERSION = "assembled-3"        # part of the compiled-NLP cache key
 NAMES = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l", "nlp_grad")
 
 
-def solver_functions(plain: ca.Function, nlp: dict, pieces: list) -> list:
-    """The functions the compiled solver `plain` loads by name, with its signatures; the first
-    and second derivatives assembled from the pieces (nlp_grad, called once for the parameter
-    multipliers, as CasADi makes it)."""
+def solver_functions(plain: ca.Function, nlp: dict, pieces: list, parallel: str = "serial") -> list:
+    """The functions the compiled solver `plain` loads by name, with its signatures; g, f and
+    the first and second derivatives assembled from the pieces, their maps over the intervals
+    `parallel` (nlp_grad, called once for the parameter multipliers, as CasADi makes it)."""
     w, P, n_g = nlp["x"], nlp["p"], nlp["g"].numel()
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", n_g)
-    a = assembled(pieces, w, lam_f, lam_g, n_g)
-    expr = {"f": nlp["f"], "g": nlp["g"], "grad_f_x": a["grad_f"], "jac_g_x": a["jac_g"],
+    a = assembled(pieces, w, lam_f, lam_g, n_g, parallel)
+    g, f = constraints_and_objective(pieces, w, n_g, parallel)
+    expr = {"f": f, "g": g, "grad_f_x": a["grad_f"], "jac_g_x": a["jac_g"],
             "grad_gamma_x": a["grad_l"], "hess_gamma_x_x": a["hess"], "triu_hess_gamma_x_x": a["triu_hess"]}
     sym = {"x": w, "p": P, "lam_f": lam_f, "lam_g": lam_g}
-    out = [ca.Function("nlp", [w, P], [nlp["f"], nlp["g"]], ["x", "p"], ["f", "g"])]
+    out = [ca.Function("nlp", [w, P], [f, g], ["x", "p"], ["f", "g"])]
     for name in NAMES:
         try:
             ref = plain.get_function(name)

@@ -31,6 +31,8 @@
                                          # derivatives to generate, for large arms)
     interface = "direct"                 # fatrop: direct (its C interface, stage by stage, on the
                                          # compiled NLP; needs compiled) | casadi (casadi.nlpsol)
+    threads = 0                          # the compiled NLP's loops over the intervals on this many
+                                         # threads (OpenMP); 0: one per core this process may use
     [design]                             # parameters the optimiser chooses, constant over time
     "elbow_pitch.sea.k1" = [300.0, 3000.0]
 
@@ -56,7 +58,7 @@ TOP = {"model", "objective", "theta_start", "theta_end", "duration", "max_durati
 TABLES = {"transcription": {"method", "degree", "intervals", "dynamics", "compiled", "condense"},
           "verification": {"final_angle_tol", "final_speed_tol", "tracking_tol", "limit_tol"},
           "refinement": {"rounds"},
-          "solver": {"name", "hessian", "interface"}}
+          "solver": {"name", "hessian", "interface", "threads"}}
 # problem fields a sweep may vary without rebuilding the NLP (they are its parameters or bounds)
 SWEEPABLE = ("theta_start", "theta_end", "duration", "max_duration", "effort_weight")
 
@@ -81,6 +83,7 @@ class Problem:
     solver: str = "fatrop"
     hessian: str = "exact"
     interface: str = "direct"
+    threads: int = 0                                 # 0: one per available core
     final_angle_tol: float = 1e-4
     final_speed_tol: float = 1e-3
     tracking_tol: float = 1e-3
@@ -141,7 +144,8 @@ def load_problem(path) -> Problem:
         fail("transcription.method", f"must be one of {', '.join(METHODS)}, got {p.method!r}")
     for fld, lo, value in (("transcription.degree", 1, tr.get("degree", p.degree)),
                            ("transcription.intervals", 2, tr.get("intervals", p.intervals)),
-                           ("refinement.rounds", 0, table("refinement").get("rounds", p.rounds))):
+                           ("refinement.rounds", 0, table("refinement").get("rounds", p.rounds)),
+                           ("solver.threads", 0, table("solver").get("threads", p.threads))):
         if isinstance(value, bool) or not isinstance(value, int) or value < lo:
             fail(fld, f"must be an integer >= {lo}, got {value!r}")
         setattr(p, fld.split(".")[1], value)

@@ -13,6 +13,7 @@ from pathlib import Path
 import casadi as ca
 
 from ...codegen import _compiler, cache_dir
+from ...codegen.parallel import openmp_flags
 from .fatrop_direct import DirectFatrop
 from .assembly import ASSEMBLY_VERSION, assembled, solver_functions
 from .problem import Problem
@@ -58,14 +59,17 @@ def direct(problem: Problem) -> bool:
 def compiled_nlp(solver: str, nlp: dict, opts: dict, pieces: list, log=print, opt: str | None = None) -> str:
     """The shared library of the NLP's functions for `solver`, compiled once and cached; at -O1
     by default (RSCASADI_NLP_OPT, e.g. -O2, for the fastest solves at a longer compile).  Its
-    first and second derivatives are assembled from the NLP's pieces' own (assembly.py)."""
+    first and second derivatives are assembled from the NLP's pieces' own (assembly.py), its
+    loops over the intervals OpenMP-parallel when the compiler has OpenMP (threads: set_threads)."""
     opt = opt or os.environ.get("RSCASADI_NLP_OPT", "-O1")
+    cc = _compiler()
+    omp = list(openmp_flags(tuple(cc)))
     directory = cache_dir() / "nlp"
     directory.mkdir(parents=True, exist_ok=True)
     # generating the C just to hash it takes seconds: an index keyed by the serialised NLP finds
     # a library built before (sweep tasks, repeated solves) without generating anything
     graph = ca.Function("nlp", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]]).serialize()
-    index = directory / ("index_" + hashlib.sha256((graph + solver + opt + repr(sorted(opts.items())) + " ".join(_compiler())
+    index = directory / ("index_" + hashlib.sha256((graph + solver + opt + repr(sorted(opts.items())) + " ".join(cc + omp)
                                                      + ca.__version__ + ASSEMBLY_VERSION).encode()).hexdigest()[:24])
     if index.exists() and Path(index.read_text()).exists():
         log(f"compiled NLP: cache hit {index.read_text()}")
@@ -80,12 +84,11 @@ def compiled_nlp(solver: str, nlp: dict, opts: dict, pieces: list, log=print, op
     with open(directory / "generate.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         cg = ca.CodeGenerator("rscasadi_nlp.c", {"with_header": False})
-        for f in solver_functions(plain, nlp, pieces):
+        for f in solver_functions(plain, nlp, pieces, "openmp" if omp else "serial"):
             cg.add(f)
         cg.generate()
         Path("rscasadi_nlp.c").replace(src)
-    cc = _compiler()
-    key = hashlib.sha256((src.read_text() + " ".join(cc) + opt + ca.__version__ + " ".join(libraries)).encode()).hexdigest()[:24]
+    key = hashlib.sha256((src.read_text() + " ".join(cc + omp) + opt + ca.__version__ + " ".join(libraries)).encode()).hexdigest()[:24]
     lib = directory / f"nlp_{key}.so"
     if lib.exists():
         log(f"compiled NLP: cache hit {lib}")
@@ -95,7 +98,7 @@ def compiled_nlp(solver: str, nlp: dict, opts: dict, pieces: list, log=print, op
     t0 = time.perf_counter()
     part = lib.with_suffix(f".{os.getpid()}.part")
     link = [a for lib_ in libraries for a in (lib_, f"-Wl,-rpath,{Path(lib_).parent}")]
-    run = subprocess.run([*cc, opt, "-fPIC", "-shared", str(src), "-o", str(part), *link, "-lm"],
+    run = subprocess.run([*cc, opt, *omp, "-fPIC", "-shared", str(src), "-o", str(part), *link, "-lm"],
                          capture_output=True, text=True)
     src.unlink()
     if run.returncode != 0:

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...codegen.parallel import available_cores, set_threads
 from ...dynamics.arm import Arm
 from ...model.modelfile import read
 from ...model.parameters import value, with_values
@@ -100,13 +101,16 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
     w0 = guess(tr, problem, arm, t_guess, warm)
     solver, objective = make_solver(problem, tr, nlp, log, print_level, options)
     setup = time.perf_counter() - t0
-    if tr.kernel is not None:
-        tr.kernel.reset()                          # no state from earlier solves in this process
     # the objective is scaled to about 1 at the guess: an effort of 1e-2 otherwise leaves the
     # solver crawling with a tiny dual infeasibility (seen: 1000+ iterations instead of 20)
     f0 = float(objective(w0, P))
     scaled = P.copy()
     scaled[tr.parameter_layout()[0]["scale"]] = np.clip(1.0 / max(abs(f0), 1e-12), 1e-2, 1e4)
+    if tr.kernel is not None:
+        # no state from earlier solves, nor from f0 (in this thread only): the solve starts
+        # alike on any number of threads
+        tr.kernel.reset()
+    threads = set_threads(problem.threads or available_cores()) if problem.compiled else 1
     t0 = time.perf_counter()
     res = solver(x0=w0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, p=scaled)
     solve_time = time.perf_counter() - t0
@@ -121,7 +125,7 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
         target = rest_state(Arm(with_values(base, {**problem.parameters, **design})), problem.theta_end).tolist()
     return {"model": str(problem.model_path), "solver": problem.solver,
             "interface": ("direct" if direct(problem) else "casadi") if problem.solver == "fatrop" else None,
-            "status": _status(stats),
+            "threads": threads, "status": _status(stats),
             "success": bool(stats["success"]), "solve_time_s": solve_time, "setup_time_s": setup,
             "iterations": int(stats["iter_count"]), "objective": float(objective(res["x"], P)),
             "intervals": len(w), "mesh": (np.asarray(w) / np.sum(w)).tolist(), "t": t.tolist(),

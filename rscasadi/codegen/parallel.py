@@ -1,0 +1,59 @@
+"""Threads for generated C: OpenMP, when the C compiler has it.
+
+The NLP's per-interval functions are mapped over the intervals with CasADi's "openmp" map (a
+`#pragma omp parallel for`, static schedule: interval k runs on the same thread at every call,
+so a per-thread cache keyed by k stays warm); `openmp_flags` says how to compile it, `set_threads`
+how many threads the calling thread's next parallel loops use.  Without OpenMP the pragma is
+ignored and the loops run serially: same results, one core.
+"""
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import functools
+import os
+import subprocess
+import tempfile
+from pathlib import Path
+
+_PROBE = "#include <omp.h>\nint rsc_probe(void) { int n = 0;\n#pragma omp parallel\n n = omp_get_num_threads(); return n; }\n"
+
+
+@functools.lru_cache(maxsize=None)
+def openmp_flags(cc: tuple) -> tuple:
+    """("-fopenmp",) if compiler `cc` builds and links an OpenMP shared library, else ()."""
+    with tempfile.TemporaryDirectory() as d:
+        src = Path(d) / "probe.c"
+        src.write_text(_PROBE)
+        run = subprocess.run([*cc, "-fopenmp", "-fPIC", "-shared", str(src), "-o", str(Path(d) / "probe.so")],
+                             capture_output=True, text=True)
+    return ("-fopenmp",) if run.returncode == 0 else ()
+
+
+def available_cores() -> int:
+    """The cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:                              # not Linux
+        return os.cpu_count() or 1
+
+
+@functools.lru_cache(maxsize=None)
+def _runtime():
+    name = ctypes.util.find_library("gomp")
+    for candidate in ([name] if name else []) + ["libgomp.so.1"]:
+        try:
+            return ctypes.CDLL(candidate)
+        except OSError:
+            continue
+    return None
+
+
+def set_threads(n: int) -> int:
+    """The threads (n >= 1) the calling thread's OpenMP loops use from now on; returns what the
+    runtime will use (1 without an OpenMP runtime)."""
+    omp = _runtime()
+    if omp is None:
+        return 1
+    omp.omp_set_num_threads(ctypes.c_int(int(n)))
+    return int(omp.omp_get_max_threads())

@@ -1,0 +1,71 @@
+"""The compiled NLP's loops over the intervals run on OpenMP threads ([solver] threads).  Each
+interval's work is independent, the condensing kernel's cache is per thread and interval, and
+the static schedule runs interval k on the same thread at every call: the iterates must not
+depend on the number of threads.  A race (shared work arrays, a cache entry written by two
+threads) would show as different iterates; a library that is not parallel at all would make
+that comparison empty, so that is checked too."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from rscasadi.codegen import _compiler
+from rscasadi.codegen.parallel import openmp_flags, set_threads
+from rscasadi.control.ocp import load_problem, solve_once
+from rscasadi.control.sweep import point_problem
+from rscasadi.model.modelfile import ModelFileError
+
+from conftest import problem, raw_solve
+
+
+@pytest.mark.parametrize("case,over", [
+    ("condensed_fatrop", {}),
+    ("lifted_fatrop", {"transcription": {"condense": False}}),          # SX stage functions mapped
+    ("condensed_ipopt", {"solver": {"name": "ipopt"}}),
+    ("min_time_fatrop", {"objective": "min_time", "max_duration": 5.0}),
+])
+def test_the_number_of_threads_changes_no_iterate(pitch_arm, monkeypatch, case, over):
+    tr = {"intervals": 17, "compiled": True, **over.get("transcription", {})}      # 17: uneven splits
+    path = problem(pitch_arm, f"threads_{case}.toml", **{**over, "transcription": tr})
+    out = {}
+    for threads in (1, 2, 3):
+        p = dataclasses.replace(load_problem(path), threads=threads)
+        sol, raw = raw_solve(monkeypatch, p)
+        assert sol["success"], sol["status"]
+        assert sol["threads"] == threads
+        out[threads] = sol, raw
+    (a, ra) = out[1]
+    for threads in (2, 3):
+        b, rb = out[threads]
+        assert a["iterations"] == b["iterations"]
+        for key in ("x", "lam_g", "lam_x"):
+            scale = max(1.0, np.max(np.abs(ra[key])))
+            assert np.max(np.abs(ra[key] - rb[key])) <= 1e-12 * scale, (threads, key)
+
+
+def test_the_compiled_nlp_really_runs_on_threads(pitch_arm):
+    # the machines we support have gcc with OpenMP: without it the comparison above is empty
+    assert openmp_flags(tuple(_compiler())) == ("-fopenmp",)
+    assert set_threads(2) == 2
+    logs = []
+    path = problem(pitch_arm, "threads_lib.toml", transcription={"intervals": 17, "compiled": True})
+    sol = solve_once(dataclasses.replace(load_problem(path), threads=2), print_level=0, log=logs.append)
+    assert sol["success"]
+    libraries = [m.split()[-1] for m in logs if "compiled NLP" in m]          # "...: PATH", "... hit PATH"
+    assert libraries, logs
+    with open(libraries[-1], "rb") as fh:
+        assert b"GOMP_parallel" in fh.read()                # the intervals' loop is an OpenMP one
+
+
+@pytest.mark.parametrize("value", [-1, 1.5, "four", True])
+def test_bad_threads_are_named(pitch_arm, value):
+    path = problem(pitch_arm, "threads_bad.toml", solver={"threads": value})
+    with pytest.raises(ModelFileError, match=r"threads_bad.toml.*solver\.threads.*integer >= 0"):
+        load_problem(path)
+
+
+def test_threads_default_to_every_core_and_sweep_points_to_one(pitch_arm):
+    p = load_problem(problem(pitch_arm, "threads_default.toml"))
+    assert p.threads == 0                                   # 0: one per core this process may use
+    assert point_problem(p, {"duration": 1.2}).threads == 1         # the workers are the parallelism
+    assert point_problem(dataclasses.replace(p, threads=2), {"duration": 1.2}).threads == 2
