@@ -105,6 +105,33 @@ static fatrop_int initial_uk(double* uk, fatrop_int k, void* user_data) {
 /* the last row of stage k's block, column c */
 #define LAST(buf, k, c) (buf)[(P->nx[k] + P->nu[k]) + (c) * (P->nx[k] + P->nu[k] + 1)]
 
+/* stage k's blocks of the Jacobian: the gap rows' constants, the identity rows of bounded
+   variables, packed for fatrop (each stage its own blocks: the stages run on threads) */
+static void jac_stage(rsf_data* d, int k, struct blasfeo_dmat* BAbt, struct blasfeo_dmat* Ggt,
+                      struct blasfeo_dmat* Ggt_ineq) {
+  const rsf_problem* P = d->P;
+  int i, c, ld = P->nx[k] + P->nu[k] + 1;
+  double *B = d->jbuf + P->bab_off[k], *G = d->jbuf + P->geq_off[k], *I = d->jbuf + P->gin_off[k];
+  if (k < P->K - 1) {
+    for (i = 0; i < P->nx[k + 1]; ++i) LAST(B, k, i) = d->lbg[P->roff[k] + i] - d->gv[P->roff[k] + i];
+    blasfeo_pack_dmat(ld, P->nx[k + 1], B, ld, BAbt + k, 0, 0);
+  }
+  c = 0;
+  for (i = P->a_eq_idx[k]; i < P->a_eq_idx[k + 1]; ++i, ++c) LAST(G, k, c) = d->gv[P->a_eq[i]] - d->lbg[P->a_eq[i]];
+  for (i = P->x_eq_idx[k]; i < P->x_eq_idx[k + 1]; ++i, ++c) {
+    G[pos(P, k, P->x_eq[i]) + c * ld] = 1;
+    LAST(G, k, c) = d->x[P->x_eq[i]] - d->lbx[P->x_eq[i]];
+  }
+  if (c) blasfeo_pack_dmat(ld, c, G, ld, Ggt + k, 0, 0);
+  c = 0;
+  for (i = P->a_in_idx[k]; i < P->a_in_idx[k + 1]; ++i, ++c) LAST(I, k, c) = d->gv[P->a_in[i]];
+  for (i = P->x_in_idx[k]; i < P->x_in_idx[k + 1]; ++i, ++c) {
+    I[pos(P, k, P->x_in[i]) + c * ld] = 1;
+    LAST(I, k, c) = d->x[P->x_in[i]];
+  }
+  if (c) blasfeo_pack_dmat(ld, c, I, ld, Ggt_ineq + k, 0, 0);
+}
+
 static fatrop_int constr_jac(const double* primal, const double* sp, const double* gp, struct blasfeo_dmat* BAbt,
                              struct blasfeo_dmat* Ggt, struct blasfeo_dmat* Ggt_ineq,
                              const struct FatropOcpCDims* s, void* user_data) {
@@ -113,35 +140,17 @@ static fatrop_int constr_jac(const double* primal, const double* sp, const doubl
   const double* in[2] = {d->x, d->p};
   double* out[2] = {d->gv, d->a};
   const int n[2] = {P->ng, P->nnz_j};
-  int e, k, i, c;
+  int e, k, bad = 0;
   read_primal(d, primal, s);
   call(d, P->jac_g, in, 2, out, n, 2);
+  #pragma omp parallel for schedule(static) reduction(|:bad)
   for (e = 0; e < P->nnz_j; ++e) {
     if (P->jt[e] >= 0) d->jbuf[P->jt[e]] = P->js[e] * d->a[e];
-    else if (P->jt[e] == -2 && d->a[e] != 1) d->bad_gap = 1;        /* x_{k+1}'s coefficient */
+    else if (P->jt[e] == -2 && d->a[e] != 1) bad = 1;               /* x_{k+1}'s coefficient */
   }
-  for (k = 0; k < P->K; ++k) {
-    int ld = P->nx[k] + P->nu[k] + 1;
-    double *B = d->jbuf + P->bab_off[k], *G = d->jbuf + P->geq_off[k], *I = d->jbuf + P->gin_off[k];
-    if (k < P->K - 1) {
-      for (i = 0; i < P->nx[k + 1]; ++i) LAST(B, k, i) = d->lbg[P->roff[k] + i] - d->gv[P->roff[k] + i];
-      blasfeo_pack_dmat(ld, P->nx[k + 1], B, ld, BAbt + k, 0, 0);
-    }
-    c = 0;
-    for (i = P->a_eq_idx[k]; i < P->a_eq_idx[k + 1]; ++i, ++c) LAST(G, k, c) = d->gv[P->a_eq[i]] - d->lbg[P->a_eq[i]];
-    for (i = P->x_eq_idx[k]; i < P->x_eq_idx[k + 1]; ++i, ++c) {
-      G[pos(P, k, P->x_eq[i]) + c * ld] = 1;
-      LAST(G, k, c) = d->x[P->x_eq[i]] - d->lbx[P->x_eq[i]];
-    }
-    if (c) blasfeo_pack_dmat(ld, c, G, ld, Ggt + k, 0, 0);
-    c = 0;
-    for (i = P->a_in_idx[k]; i < P->a_in_idx[k + 1]; ++i, ++c) LAST(I, k, c) = d->gv[P->a_in[i]];
-    for (i = P->x_in_idx[k]; i < P->x_in_idx[k + 1]; ++i, ++c) {
-      I[pos(P, k, P->x_in[i]) + c * ld] = 1;
-      LAST(I, k, c) = d->x[P->x_in[i]];
-    }
-    if (c) blasfeo_pack_dmat(ld, c, I, ld, Ggt_ineq + k, 0, 0);
-  }
+  if (bad) d->bad_gap = 1;
+  #pragma omp parallel for schedule(static)
+  for (k = 0; k < P->K; ++k) jac_stage(d, k, BAbt, Ggt, Ggt_ineq);
   return 1;
 }
 
@@ -227,7 +236,9 @@ static fatrop_int lag_hess(double scale, const double* primal, const double* lam
     c = P->a_eq_idx[k + 1] - P->a_eq_idx[k];
     for (i = P->x_eq_idx[k]; i < P->x_eq_idx[k + 1]; ++i) d->grad[P->x_eq[i]] += lam_data[s->g_offs[k] + c++];
   }
+  #pragma omp parallel for schedule(static)
   for (e = 0; e < P->nnz_h; ++e) d->hbuf[P->ht[e]] = d->h[e];
+  #pragma omp parallel for schedule(static) private(i)
   for (k = 0; k < P->K; ++k) {
     int n = P->nx[k] + P->nu[k];
     double* R = d->hbuf + P->rsq_off[k];

@@ -26,6 +26,7 @@ import casadi as ca
 import numpy as np
 
 from ...codegen import _compiler, cache_dir
+from ...codegen.parallel import openmp_flags
 
 _SOURCE = Path(__file__).with_name("fatrop_direct.c")
 _NAMES = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l")
@@ -61,7 +62,9 @@ def driver_library(log=print) -> str:
     for need in (inc / "fatrop" / "ocp" / "OCPCInterface.h", inc / "blasfeo.h"):
         if not need.exists():
             raise RuntimeError(f"fatrop's C interface is missing from this CasADi ({ca.__version__}): {need}")
-    flags = ["-O2", "-fPIC", "-shared", f"-I{inc}", f"-L{lib_dir}", "-lfatrop", "-lblasfeo", f"-Wl,-rpath,{lib_dir}", "-lm"]
+    # its per-stage scatter and packing on the NLP's threads (OpenMP, when the compiler has it)
+    flags = ["-O2", *openmp_flags(tuple(cc)), "-fPIC", "-shared", f"-I{inc}", f"-L{lib_dir}", "-lfatrop", "-lblasfeo",
+             f"-Wl,-rpath,{lib_dir}", "-lm"]
     source = _SOURCE.read_text()
     key = hashlib.sha256((source + " ".join(cc + flags) + ca.__version__).encode()).hexdigest()[:24]
     directory = cache_dir() / "nlp"
@@ -117,6 +120,8 @@ class _Layout:
         rsq = np.concatenate([[0], np.cumsum(self.ld * (nx + nu))[:-1]])
         jt, self.js = self._jacobian_places(*jac[1:], lists, nu)
         ht = self._hessian_places(*hess[1:], rsq)
+        for t in (jt[jt >= 0], ht):                               # one nonzero per place: the C scatters in parallel
+            assert len(np.unique(t)) == len(t), "two nonzeros share a block entry"
         self.arrays = {key: _ints(v) for key, v in {
             "nx": nx, "nu": nu, "xoff": xoff, "roff": roff, **lists, "jt": jt, "ht": ht,
             "bab_off": self.offs[:, 0], "geq_off": self.offs[:, 1], "gin_off": self.offs[:, 2], "rsq_off": rsq}.items()}
