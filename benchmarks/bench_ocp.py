@@ -33,9 +33,11 @@ TARGET = {"min_effort": 0.1, "min_time": 0.25}
 QUIET = {"print_level": 0, "log": lambda m: None}
 
 
-def timed(p, repeats):
-    """Median solve time over `repeats` solves, the first solve's record, and the solver's stats."""
-    holder = {}
+def timed(ps, repeats):
+    """For each problem of `ps`: the median solve time over `repeats` solves, its first solve's
+    record and its solver's stats.  Round-robin (one solve of each per round): this VM's speed
+    drifts within minutes, and the rows are compared with each other."""
+    holder, out = {}, [dict(times=[]) for _ in ps]
     original = solving.make_solver
 
     def spy(*args, **kw):
@@ -43,10 +45,15 @@ def timed(p, repeats):
         return holder["solver"], f
     solving.make_solver = spy
     try:
-        sols = [solve_once(p, **QUIET) for _ in range(repeats)]
+        for _ in range(repeats):
+            for p, o in zip(ps, out):
+                sol = solve_once(p, **QUIET)
+                o["times"].append(sol["solve_time_s"])
+                o.setdefault("sol", sol)
+                o.setdefault("stats", holder["solver"].stats())
     finally:
         solving.make_solver = original
-    return float(np.median([s["solve_time_s"] for s in sols])), sols[0], holder["solver"].stats()
+    return [(float(np.median(o["times"])), o["sol"], o["stats"]) for o in out]
 
 
 TRANSCRIPTIONS = (("condensed", "explicit"), ("lifted", "explicit"), ("lifted", "implicit"))
@@ -65,12 +72,13 @@ def solver_rows():
         base = load_problem(path)
         for N in (100, 200):
             for transcription, dynamics in TRANSCRIPTIONS:
-                for solver, threads in RUNS[transcription]:
-                    p = dataclasses.replace(base, intervals=N, dynamics=dynamics, solver=solver.split()[0], compiled=True,
-                                            condense=transcription == "condensed", threads=threads,
-                                            interface="casadi" if "plugin" in solver else "direct")
+                runs = RUNS[transcription]
+                ps = [dataclasses.replace(base, intervals=N, dynamics=dynamics, solver=solver.split()[0], compiled=True,
+                                          condense=transcription == "condensed", threads=threads,
+                                          interface="casadi" if "plugin" in solver else "direct") for solver, threads in runs]
+                for p in ps:
                     solve_once(p, **QUIET)                                   # compile (cached) first
-                    t, sol, stats = timed(p, 5 if N == 100 else 1)
+                for (solver, _), (t, sol, stats) in zip(runs, timed(ps, 5 if N == 100 else 1)):
                     fat = stats.get("fatrop", {})
                     la = fat.get("compute_sd_time", float("nan"))
                     evals = sum(fat.get(k, 0.0) for k in ("eval_hess_time", "eval_jac_time", "eval_cv_time",
