@@ -126,7 +126,7 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
     return {"model": str(problem.model_path), "solver": problem.solver,
             "interface": ("direct" if direct(problem) else "casadi") if problem.solver == "fatrop" else None,
             "threads": threads, "status": _status(stats),
-            "success": bool(stats["success"]), "solve_time_s": solve_time, "setup_time_s": setup,
+            "success": _success(stats), "solve_time_s": solve_time, "setup_time_s": setup,
             "iterations": int(stats["iter_count"]), "objective": float(objective(res["x"], P)),
             "intervals": len(w), "mesh": (np.asarray(w) / np.sum(w)).tolist(), "t": t.tolist(),
             **{k: Xs[i * n:(i + 1) * n].tolist() for i, k in enumerate(("theta", "phi", "dtheta", "dphi"))},
@@ -136,14 +136,28 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
             "theta_reference": None if ref is None else _reference(problem, t).tolist()}
 
 
+# fatrop 1.1.8's return flags (IpSolverReturnFlag, include/fatrop/ip_algorithm/ip_algorithm.hpp in
+# the CasADi wheel) in IPOPT's words where they mean the same
+FATROP_STATUS = {0: "Solve_Succeeded", 1: "Maximum_Iterations_Exceeded", 2: "Solved_To_Acceptable_Level",
+                 3: "Infeasible_Problem_Detected", 4: "Line_Search_Failed", 5: "Error_In_Step_Computation",
+                 6: "Unknown"}
+
+
 def _status(stats: dict) -> str:
-    """IPOPT's return status, or fatrop's in the same words where they mean the same."""
+    """IPOPT's return status, or fatrop's (named as IPOPT's where they mean the same)."""
     if "fatrop" not in stats:
         return stats["return_status"]
-    if stats["success"]:
-        return "Solve_Succeeded"
+    flag = stats["fatrop"]["return_flag"]
     failed = ", an NLP evaluation failed" if stats.get("evaluation_failed") else ""
-    return f"fatrop return flag {stats['fatrop']['return_flag']} ({stats.get('unified_return_status', '?')}{failed})"
+    if flag == 0 and stats["success"]:
+        return "Solve_Succeeded"
+    return f"{FATROP_STATUS.get(flag, 'Unknown')} (fatrop return flag {flag}{failed})"
+
+
+def _success(stats: dict) -> bool:
+    """The solver's success: fatrop's acceptable point counts as IPOPT's does (CasADi calls IPOPT's
+    Solved_To_Acceptable_Level a success, fatrop's through its plugin not); the replay decides."""
+    return bool(stats["success"]) or ("fatrop" in stats and stats["fatrop"]["return_flag"] == 2)
 
 
 def solution_arm(solution: dict) -> Arm:
@@ -234,23 +248,25 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
     # on the nominal's refined mesh: a coarse mesh lets the design exploit the discretisation
     # (seen: a stiffer design 'faster' on 100 intervals whose replay broke a limit)
     w, rounds = (np.asarray(nominal["mesh"]) if nominal is not None and warm else None), []
+    fallback = None
     for r in range(problem.rounds + 1):
         # a refinement round starts next to the answer: a small barrier keeps the solver there
         # (seen: a co-design round wandered from T = 0.2472 s to another local minimum, 0.2506 s)
         extra = {**(WARM.get(problem.solver, {}) if r else {}), **(options or {})}
         sol = solve_once(problem, w, warm, log, print_level, extra)
         if not sol["success"] and problem.solver == "fatrop":
-            # fatrop stalls on some ill-conditioned problems (seen: tracking with an effort weight
-            # of 1e-8, return flag 2 after 20 iterations); IPOPT's restoration phase copes
+            # fatrop fails where IPOPT may not (it has no restoration phase in its C layer's
+            # flags: max iterations, a failed line search, ...): the same start with IPOPT
             log(f"fatrop: {sol['status']}; solving again with IPOPT from the same start")
             problem = dataclasses.replace(problem, solver="ipopt")
-            failed_fatrop = {"solver": "fatrop", "status": sol["status"], "iterations": sol["iterations"]}
+            fallback = {"solver": "fatrop", "round": r, "status": sol["status"], "iterations": sol["iterations"]}
             options = None                                     # fatrop's own options mean nothing to IPOPT
             sol = solve_once(problem, w, warm, log, print_level, WARM["ipopt"] if r else None)
-            sol["fallback_from"] = failed_fatrop
+        if fallback:
+            sol["fallback_from"] = fallback                    # kept through the later rounds (IPOPT's)
         report = verify(sol)
         failed = checks(problem, report)
-        rounds.append({"round": r, "intervals": sol["intervals"], "status": sol["status"],
+        rounds.append({"round": r, "intervals": sol["intervals"], "solver": sol["solver"], "status": sol["status"],
                        "iterations": sol["iterations"], "solve_time_s": sol["solve_time_s"],
                        "setup_time_s": sol["setup_time_s"], "objective": sol["objective"],
                        **{k: v for k, v in report.items() if isinstance(v, float)}, "passed": not failed})
