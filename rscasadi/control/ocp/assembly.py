@@ -59,7 +59,9 @@ class Piece:
 def _mapped(fn: ca.Function, count: int, parallel: str) -> ca.Function:
     """fn.map(count, parallel), without the warning an "openmp" map gives in a CasADi built
     without OpenMP (its own evaluation is serial; the generated C has the parallel loop)."""
-    out = io.StringIO()
+    if parallel == "serial":
+        return fn.map(count, parallel)
+    out = io.StringIO()                          # sys.stdout swapped: only while compiling (a lock)
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
         f = fn.map(count, parallel)
     other = [line for line in out.getvalue().splitlines() if "WITH_OPENMP" not in line]

@@ -255,8 +255,8 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
         extra = {**(WARM.get(problem.solver, {}) if r else {}), **(options or {})}
         sol = solve_once(problem, w, warm, log, print_level, extra)
         if not sol["success"] and problem.solver == "fatrop":
-            # fatrop fails where IPOPT may not (it has no restoration phase in its C layer's
-            # flags: max iterations, a failed line search, ...): the same start with IPOPT
+            # fatrop fails on some problems where IPOPT does not (maximum iterations, a failed
+            # line search): the same start with IPOPT
             log(f"fatrop: {sol['status']}; solving again with IPOPT from the same start")
             problem = dataclasses.replace(problem, solver="ipopt")
             fallback = {"solver": "fatrop", "round": r, "status": sol["status"], "iterations": sol["iterations"]}
