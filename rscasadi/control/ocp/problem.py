@@ -31,8 +31,10 @@
                                          # derivatives to generate, for large arms)
     interface = "direct"                 # fatrop: direct (its C interface, stage by stage, on the
                                          # compiled NLP; needs compiled) | casadi (casadi.nlpsol)
-    threads = 0                          # the compiled NLP's loops over the intervals on this many
-                                         # threads (OpenMP); 0: one per core this process may use
+    threads = 1                          # the compiled NLP's loops over the intervals on this many
+                                         # threads (OpenMP); 0: one per core this process may use.
+                                         # Above 1, a process forked after the solve hangs in
+                                         # OpenMP (libgomp): use spawned processes then
     [design]                             # parameters the optimiser chooses, constant over time
     "elbow_pitch.sea.k1" = [300.0, 3000.0]
 
@@ -83,7 +85,7 @@ class Problem:
     solver: str = "fatrop"
     hessian: str = "exact"
     interface: str = "direct"
-    threads: int = 0                                 # 0: one per available core
+    threads: int = 1                                 # 0: one per available core
     final_angle_tol: float = 1e-4
     final_speed_tol: float = 1e-3
     tracking_tol: float = 1e-3
