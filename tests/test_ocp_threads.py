@@ -77,9 +77,11 @@ def _solve_in_child(path):
     return sol["status"], sol["threads"]
 
 
-def test_a_default_solve_leaves_the_process_safe_to_fork(pitch_arm):
+def test_a_forked_child_solves_on_the_default_threads(pitch_arm):
     # GNU OpenMP's thread pool does not survive fork(): a child forked after a solve on 2 threads
-    # hangs in its next parallel loop (measured). The default, one thread, must not start a pool.
+    # hangs in its own next solve on 2 threads (measured). On one thread (the default) no pool is
+    # needed, so a child solves whatever this process ran before (here: the 2- and 3-thread
+    # solves above); with a default of 2 this times out.
     path = problem(pitch_arm, "threads_fork.toml", transcription={"intervals": 17, "compiled": True})
     assert solve_once(load_problem(path), print_level=0, log=lambda m: None)["success"]
     with multiprocessing.get_context("fork").Pool(1) as pool:

@@ -33,8 +33,8 @@
                                          # compiled NLP; needs compiled) | casadi (casadi.nlpsol)
     threads = 1                          # the compiled NLP's loops over the intervals on this many
                                          # threads (OpenMP); 0: one per core this process may use.
-                                         # Above 1, a process forked after the solve hangs in
-                                         # OpenMP (libgomp): use spawned processes then
+                                         # Above 1, a process forked after the solve hangs if
+                                         # it solves on more than 1 too (libgomp): spawn them
     [design]                             # parameters the optimiser chooses, constant over time
     "elbow_pitch.sea.k1" = [300.0, 3000.0]
 

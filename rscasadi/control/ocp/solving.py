@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ...codegen.parallel import available_cores, set_threads
+from ...codegen import _compiler
+from ...codegen.parallel import available_cores, openmp_flags, set_threads
 from ...dynamics.arm import Arm
 from ...model.modelfile import read
 from ...model.parameters import value, with_values
@@ -110,7 +111,8 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
         # no state from earlier solves, nor from f0 (in this thread only): the solve starts
         # alike on any number of threads
         tr.kernel.reset()
-    threads = set_threads(problem.threads or available_cores()) if problem.compiled else 1
+    # the loops are parallel only in a library compiled with OpenMP (solvers.compiled_nlp)
+    threads = set_threads(problem.threads or available_cores()) if problem.compiled and openmp_flags(tuple(_compiler())) else 1
     t0 = time.perf_counter()
     res = solver(x0=w0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, p=scaled)
     solve_time = time.perf_counter() - t0
