@@ -3,7 +3,8 @@
 1. fatrop against IPOPT: problems (a) minimum time and (b) minimum effort, Radau degree 3,
    N = 100 and 200, condensed and lifted (explicit and implicit dynamics), compiled NLP; solve time (median of 5 at
    N = 100), iterations, and fatrop's own profile (time in its search direction = its linear
-   algebra, against function evaluations);
+   algebra, against function evaluations), and IPOPT with fatrop's monotone barrier rule (where
+   fatrop's extra iterations come from);
 2. the mesh-refinement history of problem (b) under the tightened rest tolerances;
 3. co-design: problem (a) with the three SEA stiffnesses free, against the nominal arm;
 (sweeps: benchmarks/bench_sweep.py)
@@ -33,9 +34,9 @@ TARGET = {"min_effort": 0.1, "min_time": 0.25}
 QUIET = {"print_level": 0, "log": lambda m: None}
 
 
-def timed(ps, repeats):
-    """For each problem of `ps`: the median solve time over `repeats` solves, its first solve's
-    record and its solver's stats.  Round-robin (one solve of each per round): this VM's speed
+def timed(ps, repeats, options=None):
+    """For each problem of `ps` (with its solver options, `options[i]`): the median solve time over
+    `repeats` solves, its first solve's record and its solver's stats.  Round-robin (one solve of each per round): this VM's speed
     drifts within minutes, and the rows are compared with each other."""
     holder, out = {}, [dict(times=[]) for _ in ps]
     original = solving.make_solver
@@ -44,10 +45,11 @@ def timed(ps, repeats):
         holder["solver"], f = original(*args, **kw)
         return holder["solver"], f
     solving.make_solver = spy
+    options = options or [None] * len(ps)
     try:
         for _ in range(repeats):
-            for p, o in zip(ps, out):
-                sol = solve_once(p, **QUIET)
+            for p, o, opts in zip(ps, out, options):
+                sol = solve_once(p, options=opts, **QUIET)
                 o["times"].append(sol["solve_time_s"])
                 o.setdefault("sol", sol)
                 o.setdefault("stats", holder["solver"].stats())
@@ -58,11 +60,15 @@ def timed(ps, repeats):
 
 TRANSCRIPTIONS = (("condensed", "explicit"), ("lifted", "explicit"), ("lifted", "implicit"))
 # fatrop: through its own C interface (the default), and through CasADi's plugin on the same NLP
-SOLVERS = ("ipopt", "fatrop", "fatrop (CasADi plugin)")
+SOLVERS = ("ipopt", "fatrop", "fatrop (CasADi plugin)", "ipopt (monotone barrier)")
 CORES = available_cores()
+# IPOPT with fatrop's barrier rule (Fiacco-McCormick, from fatrop's first mu): the evidence of where
+# fatrop's extra iterations come from (fatrop 1.1.8 has no adaptive barrier)
+MONOTONE = {"mu_strategy": "monotone", "mu_init": 1e-2}
 # (solver, threads of the NLP's loops over the intervals): the condensed form on one thread and on
 # every core, for both solvers (their NLP functions are the same library); the rest on every core
-RUNS = {"condensed": [("ipopt", 1), ("ipopt", CORES), ("fatrop", 1), ("fatrop", CORES), (SOLVERS[2], CORES)],
+RUNS = {"condensed": [("ipopt", 1), ("ipopt", CORES), ("fatrop", 1), ("fatrop", CORES), (SOLVERS[2], CORES),
+                      (SOLVERS[3], 1)],
         "lifted": [("ipopt", CORES), ("fatrop", CORES)]}
 
 
@@ -76,9 +82,10 @@ def solver_rows():
                 ps = [dataclasses.replace(base, intervals=N, dynamics=dynamics, solver=solver.split()[0], compiled=True,
                                           condense=transcription == "condensed", threads=threads,
                                           interface="casadi" if "plugin" in solver else "direct") for solver, threads in runs]
+                options = [MONOTONE if "monotone" in solver else None for solver, _ in runs]
                 for p in ps:
                     solve_once(p, **QUIET)                                   # compile (cached) first
-                for (solver, _), (t, sol, stats) in zip(runs, timed(ps, 5 if N == 100 else 1)):
+                for (solver, _), (t, sol, stats) in zip(runs, timed(ps, 5 if N == 100 else 1, options)):
                     fat = stats.get("fatrop", {})
                     la = fat.get("compute_sd_time", float("nan"))
                     evals = sum(fat.get(k, 0.0) for k in ("eval_hess_time", "eval_jac_time", "eval_cv_time",
@@ -114,13 +121,26 @@ def main():
         at = {(r["transcription"], r["solver"], r["threads"]): r["solve_s"] for r in rows if r["problem"] == name and r["N"] == 100}
         fat, fat1, plug = at[("condensed", "fatrop", CORES)], at[("condensed", "fatrop", 1)], at[("condensed", SOLVERS[2], CORES)]
         ip, ip1 = at[("condensed", "ipopt", CORES)], at[("condensed", "ipopt", 1)]
-        ip_best = min(v for (tr, solver, _), v in at.items() if solver == "ipopt")
+        ip_best = min(v for (tr, solver, _), v in at.items() if solver.startswith("ipopt"))
         md.append(f"- {name}: fatrop (condensed, {CORES} threads) {fat:.3f} s: target < {limit:g} s "
                   + ("met" if fat < limit else "MISSED")
                   + f"; IPOPT on the same condensed NLP and threads {ip:.3f} s ({ip / fat:.2f}x), IPOPT's fastest "
                   f"{ip_best:.3f} s ({ip_best / fat:.2f}x); target 5x: " + ("met" if ip_best >= 5 * fat else "MISSED")
                   + f"; on one thread each: fatrop {fat1:.3f} s, IPOPT {ip1:.3f} s ({ip1 / fat1:.2f}x)"
                   + f"; fatrop through CasADi's plugin {plug:.3f} s ({ip / plug:.2f}x IPOPT)")
+    md += ["", "## Why not 5x: iterations and time per iteration (N = 100, condensed, one thread)", "",
+           "IPOPT's adaptive barrier (Mehrotra's probing) needs fewer iterations than fatrop's monotone one;",
+           "IPOPT given fatrop's rule (monotone, mu_init 1e-2) takes fatrop's iteration count.  5x overall",
+           "then needs 5 x (fatrop's iterations / IPOPT's) per iteration.", ""]
+    for name in PROBLEMS:
+        one = {r["solver"]: r for r in rows if r["problem"] == name and r["N"] == 100
+               and r["transcription"] == "condensed" and r["threads"] == 1}
+        f, a, m = one["fatrop"], one["ipopt"], one[SOLVERS[3]]
+        per = lambda r: r["solve_s"] / max(r["iterations"], 1)  # noqa: E731
+        md.append(f"- {name}: fatrop {f['iterations']} iterations, {1e3 * per(f):.2f} ms each; IPOPT (adaptive) "
+                  f"{a['iterations']}, {1e3 * per(a):.2f} ms each; IPOPT (monotone, as fatrop) {m['iterations']}, "
+                  f"{1e3 * per(m):.2f} ms each.  Per iteration fatrop is {per(a) / per(f):.2f}x IPOPT; 5x overall "
+                  f"would need {5 * f['iterations'] / a['iterations']:.2f}x")
     md += ["", "## Implicit against explicit iterations", ""]
     for name in PROBLEMS:
         for N in (100, 200):
