@@ -36,8 +36,8 @@ QUIET = {"print_level": 0, "log": lambda m: None}
 
 def timed(ps, repeats, options=None):
     """For each problem of `ps` (with its solver options, `options[i]`): the median solve time over
-    `repeats` solves, its first solve's record and its solver's stats.  Round-robin (one solve of each per round): this VM's speed
-    drifts within minutes, and the rows are compared with each other."""
+    `repeats` solves, its first solve's record and its solver's stats.  Round-robin (one solve of
+    each per round): this VM's speed drifts within minutes, and the rows are compared with each other."""
     holder, out = {}, [dict(times=[]) for _ in ps]
     original = solving.make_solver
 
@@ -129,9 +129,9 @@ def main():
                   + f"; on one thread each: fatrop {fat1:.3f} s, IPOPT {ip1:.3f} s ({ip1 / fat1:.2f}x)"
                   + f"; fatrop through CasADi's plugin {plug:.3f} s ({ip / plug:.2f}x IPOPT)")
     md += ["", "## Why not 5x: iterations and time per iteration (N = 100, condensed, one thread)", "",
-           "IPOPT's adaptive barrier (Mehrotra's probing) needs fewer iterations than fatrop's monotone one;",
-           "IPOPT given fatrop's rule (monotone, mu_init 1e-2) takes fatrop's iteration count.  5x overall",
-           "then needs 5 x (fatrop's iterations / IPOPT's) per iteration.", ""]
+           "fatrop's barrier rule is monotone (Fiacco-McCormick), IPOPT's adaptive (Mehrotra's probing); IPOPT",
+           "is also run with fatrop's rule (monotone, mu_init 1e-2) to see whether the rule alone explains the",
+           "iteration counts.  5x overall needs 5 x (fatrop's iterations / IPOPT's) per iteration.", ""]
     for name in PROBLEMS:
         one = {r["solver"]: r for r in rows if r["problem"] == name and r["N"] == 100
                and r["transcription"] == "condensed" and r["threads"] == 1}
@@ -139,7 +139,8 @@ def main():
         per = lambda r: r["solve_s"] / max(r["iterations"], 1)  # noqa: E731
         md.append(f"- {name}: fatrop {f['iterations']} iterations, {1e3 * per(f):.2f} ms each; IPOPT (adaptive) "
                   f"{a['iterations']}, {1e3 * per(a):.2f} ms each; IPOPT (monotone, as fatrop) {m['iterations']}, "
-                  f"{1e3 * per(m):.2f} ms each.  Per iteration fatrop is {per(a) / per(f):.2f}x IPOPT; 5x overall "
+                  f"{1e3 * per(m):.2f} ms each (iterations {'equal to' if m['iterations'] == f['iterations'] else 'unlike'} "
+                  f"fatrop's).  Per iteration fatrop is {per(a) / per(f):.2f}x IPOPT; 5x overall "
                   f"would need {5 * f['iterations'] / a['iterations']:.2f}x")
     md += ["", "## Implicit against explicit iterations", ""]
     for name in PROBLEMS:
