@@ -72,17 +72,16 @@ def test_threads_default_to_one_and_sweep_points_to_one(pitch_arm):
     assert point_problem(dataclasses.replace(p, threads=2), {"duration": 1.2}).threads == 2
 
 
-def _solve_in_child(path):
-    sol = solve_once(load_problem(path), print_level=0, log=lambda m: None)
+def _solve_in_child(path, threads):
+    sol = solve_once(dataclasses.replace(load_problem(path), threads=threads), print_level=0, log=lambda m: None)
     return sol["status"], sol["threads"]
 
 
-def test_a_forked_child_solves_on_the_default_threads(pitch_arm):
+def test_a_child_forked_after_a_threaded_solve_solves_on_one_thread(pitch_arm):
     # GNU OpenMP's thread pool does not survive fork(): a child forked after a solve on 2 threads
-    # hangs in its own next solve on 2 threads (measured). On one thread (the default) no pool is
-    # needed, so a child solves whatever this process ran before (here: the 2- and 3-thread
-    # solves above); with a default of 2 this times out.
+    # hangs in its own next solve on 2 (measured: without the guard in parallel.set_threads this
+    # times out). The child asks for 2 and runs on one; on one, no pool is needed.
     path = problem(pitch_arm, "threads_fork.toml", transcription={"intervals": 17, "compiled": True})
-    assert solve_once(load_problem(path), print_level=0, log=lambda m: None)["success"]
+    assert solve_once(dataclasses.replace(load_problem(path), threads=2), print_level=0, log=lambda m: None)["threads"] == 2
     with multiprocessing.get_context("fork").Pool(1) as pool:
-        assert pool.apply_async(_solve_in_child, (path,)).get(timeout=60) == ("Solve_Succeeded", 1)
+        assert pool.apply_async(_solve_in_child, (path, 2)).get(timeout=60) == ("Solve_Succeeded", 1)

@@ -5,6 +5,10 @@ The NLP's per-interval functions are mapped over the intervals with CasADi's "op
 so a per-thread cache keyed by k stays warm); `openmp_flags` says how to compile it, `set_threads`
 how many threads the calling thread's next parallel loops use.  Without OpenMP the pragma is
 ignored and the loops run serially: same results, one core.
+
+GNU OpenMP's thread pool does not survive fork(): a child forked after a loop on more than one
+thread hangs in its own next loop on more than one (measured; on one thread it runs).  So such a
+child runs its loops on one thread, whatever it asks for (with a warning).
 """
 from __future__ import annotations
 
@@ -14,6 +18,7 @@ import functools
 import os
 import subprocess
 import tempfile
+import warnings
 from pathlib import Path
 
 _PROBE = "#include <omp.h>\nint rsc_probe(void) { int n = 0;\n#pragma omp parallel\n n = omp_get_num_threads(); return n; }\n"
@@ -49,11 +54,27 @@ def _runtime():
     return None
 
 
+_state = {"pool": False, "forked": False}     # this process asked for > 1 thread; forked after that
+
+
+def _after_fork_in_child():
+    _state["forked"] = _state["forked"] or _state["pool"]
+
+
+os.register_at_fork(after_in_child=_after_fork_in_child)
+
+
 def set_threads(n: int) -> int:
     """The threads (n >= 1) the calling thread's OpenMP loops use from now on; returns what the
-    runtime will use (1 without an OpenMP runtime)."""
+    runtime will use (1 without an OpenMP runtime, or in a child forked after a threaded loop)."""
     omp = _runtime()
     if omp is None:
         return 1
+    if _state["forked"] and n > 1:
+        warnings.warn(f"this process was forked after a solve on more than one thread: GNU OpenMP cannot start "
+                      f"threads in it, so it solves on one (asked for {n}); spawn processes to use threads there")
+        n = 1
     omp.omp_set_num_threads(ctypes.c_int(int(n)))
-    return int(omp.omp_get_max_threads())
+    got = int(omp.omp_get_max_threads())
+    _state["pool"] = _state["pool"] or got > 1
+    return got
