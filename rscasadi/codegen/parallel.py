@@ -61,7 +61,8 @@ def _after_fork_in_child():
     _state["forked"] = _state["forked"] or _state["pool"]
 
 
-os.register_at_fork(after_in_child=_after_fork_in_child)
+if hasattr(os, "register_at_fork"):                # POSIX
+    os.register_at_fork(after_in_child=_after_fork_in_child)
 
 
 def set_threads(n: int) -> int:
