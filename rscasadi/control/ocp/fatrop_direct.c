@@ -248,6 +248,9 @@ static fatrop_int lag_hess(double scale, const double* primal, const double* lam
   return 1;
 }
 
+/* where this driver's BLASFEO calls go (libfatrop's bind alike): blasfeo.py names the library */
+void* rsf_blasfeo_function(void) { return (void*)&blasfeo_pack_dmat; }
+
 /* fatrop keeps the last writer for the process (a global stream): always pass one */
 static void quiet(const char* msg, int n) { (void)msg; (void)n; }
 static void to_stdout(const char* msg, int n) { fwrite(msg, 1, (size_t)n, stdout); }

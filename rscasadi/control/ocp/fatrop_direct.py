@@ -27,6 +27,7 @@ import numpy as np
 
 from ...codegen import _compiler, cache_dir
 from ...codegen.parallel import openmp_flags
+from . import blasfeo
 
 _SOURCE = Path(__file__).with_name("fatrop_direct.c")
 _NAMES = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l")
@@ -175,8 +176,12 @@ class DirectFatrop:
     fatrop's own (tol, max_iter, mu_init, print_level, ...)."""
 
     def __init__(self, library: str, structure: dict, options: dict | None = None, log=print):
-        self.driver = ctypes.CDLL(driver_library(log))
+        driver = driver_library(log)
+        blasfeo.load(str(casadi_dir() / "libfatrop.so"), driver)        # the user's BLASFEO, if asked for
+        self.driver = ctypes.CDLL(driver)
         self.driver.rsf_solve.restype = ctypes.c_int
+        self.driver.rsf_blasfeo_function.restype = ctypes.c_void_p
+        self.blasfeo = blasfeo.in_use(self.driver.rsf_blasfeo_function())
         self.library, self.nlp = library, ctypes.CDLL(library)
         self.structure = structure
         self.options = dict(options or {})
@@ -239,7 +244,7 @@ class DirectFatrop:
         self._stats = {"success": ret == 0, "return_status": fat["return_flag"],
                        "unified_return_status": {0: "SOLVER_RET_SUCCESS", -1: "SOLVER_RET_EXCEPTION"}.get(ret, "SOLVER_RET_UNKNOWN"),
                        "iter_count": fat["iterations_count"], "fatrop": fat, "evaluation_failed": bool(stats[16]),
-                       "interface": "direct"}
+                       "interface": "direct", "blasfeo": dict(self.blasfeo)}
         return {"x": x, "lam_g": lam_g, "lam_x": lam_x}
 
     def stats(self) -> dict:

@@ -127,6 +127,7 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
         target = rest_state(Arm(with_values(base, {**problem.parameters, **design})), problem.theta_end).tolist()
     return {"model": str(problem.model_path), "solver": problem.solver,
             "interface": ("direct" if direct(problem) else "casadi") if problem.solver == "fatrop" else None,
+            "blasfeo": stats.get("blasfeo"),          # fatrop's linear algebra library (direct interface)
             "threads": threads, "status": _status(stats),
             "success": _success(stats), "solve_time_s": solve_time, "setup_time_s": setup,
             "iterations": int(stats["iter_count"]), "objective": float(objective(res["x"], P)),
