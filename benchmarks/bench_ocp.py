@@ -10,9 +10,16 @@
 (sweeps: benchmarks/bench_sweep.py)
 
     python benchmarks/bench_ocp.py       # writes results/bench_ocp.{md,csv,png}
+
+With RSCASADI_BLASFEO=/path/to/libblasfeo.so (an optimised BLASFEO, docs/model.md) the rows above
+still run on the CasADi wheel's BLASFEO, and a child process adds IPOPT and fatrop on the given one
+(condensed, N = 100), round-robin within the child.
 """
 import dataclasses
+import json
 import os
+import subprocess
+import sys
 import time
 
 # the fastest solves (the compile is cached); tests build at -O1
@@ -26,6 +33,7 @@ import numpy as np  # noqa: E402
 
 from common import ROOT, write_results  # noqa: E402
 from rscasadi.codegen.parallel import available_cores  # noqa: E402
+from rscasadi.control.ocp.blasfeo import ENV as BLASFEO_ENV  # noqa: E402
 import rscasadi.control.ocp.solving as solving  # noqa: E402
 from rscasadi.control.ocp import load_problem, solve, solve_once  # noqa: E402
 
@@ -72,6 +80,50 @@ RUNS = {"condensed": [("ipopt", 1), ("ipopt", CORES), ("fatrop", 1), ("fatrop", 
         "lifted": [("ipopt", CORES), ("fatrop", CORES)]}
 
 
+def blasfeo_rows():
+    """(In the child, on RSCASADI_BLASFEO's library) condensed N = 100: IPOPT and fatrop, 1 and all cores."""
+    runs = [("ipopt", 1), ("ipopt", CORES), ("fatrop", 1), ("fatrop", CORES)]
+    rows = []
+    for name, path in PROBLEMS.items():
+        ps = [dataclasses.replace(load_problem(path), intervals=100, solver=solver, compiled=True, condense=True,
+                                  threads=threads, interface="direct") for solver, threads in runs]
+        for p in ps:
+            solve_once(p, **QUIET)
+        for (solver, _), (t, sol, _) in zip(runs, timed(ps, 5)):
+            rows.append(dict(problem=name, solver=solver, threads=sol["threads"], status=sol["status"],
+                             iterations=sol["iterations"], solve_s=t, objective=sol["objective"], blasfeo=sol["blasfeo"]))
+    return rows
+
+
+def blasfeo_section(path) -> list:
+    """The child's rows as a markdown section (or how to get them)."""
+    head = ["", "## fatrop on an optimised BLASFEO (RSCASADI_BLASFEO; N = 100, condensed)", ""]
+    if not path:
+        return head + ["Not run: set RSCASADI_BLASFEO to a BLASFEO built for this CPU (docs/model.md, "
+                       "'fatrop's linear algebra'); the rows above run on the CasADi wheel's (GENERIC target)."]
+    print(f"IPOPT and fatrop on {BLASFEO_ENV}={path} (a child process, ~1 min) ...", flush=True)
+    run = subprocess.run([sys.executable, __file__, "--blasfeo-rows"], env={**os.environ, BLASFEO_ENV: path},
+                         capture_output=True, text=True)
+    if run.returncode != 0:
+        raise RuntimeError(f"the BLASFEO rows failed ({BLASFEO_ENV}={path}):\n{run.stderr[-2000:]}")
+    rows = json.loads(run.stdout.strip().splitlines()[-1])
+    lib = next(r["blasfeo"] for r in rows if r["solver"] == "fatrop")
+    md = head + [f"{BLASFEO_ENV}={path}: fatrop's calls reached {lib['library']} (built for '{lib['features']}'); "
+                 "IPOPT and fatrop round-robin in one child process.", "",
+                 "| problem | solver | threads | status | iterations | solve (s) | objective |", "|---|---|---|---|---|---|---|"]
+    md += [f"| {r['problem']} | {r['solver']} | {r['threads']} | {r['status']} | {r['iterations']} | {r['solve_s']:.3f} | "
+           f"{r['objective']:.8g} |" for r in rows]
+    md.append("")
+    for name in PROBLEMS:
+        at = {(r["solver"], r["threads"]): r["solve_s"] for r in rows if r["problem"] == name}
+        fat, ip = at[("fatrop", CORES)], at[("ipopt", CORES)]
+        md.append(f"- {name}: fatrop {fat:.3f} s on {CORES} threads, IPOPT {ip:.3f} s ({ip / fat:.2f}x; 5x: "
+                  + ("met" if ip >= 5 * fat else "MISSED") + f"); on one thread {at[('fatrop', 1)]:.3f} s against "
+                  f"{at[('ipopt', 1)]:.3f} s ({at[('ipopt', 1)] / at[('fatrop', 1)]:.2f}x)")
+        print(md[-1], flush=True)
+    return md
+
+
 def solver_rows():
     rows = []
     for name, path in PROBLEMS.items():
@@ -101,6 +153,7 @@ def solver_rows():
 
 
 def main():
+    user_blasfeo = os.environ.pop(BLASFEO_ENV, None)         # the main rows: the wheel's BLASFEO
     rows = solver_rows()
     md = ["# Optimal control: fatrop against IPOPT, refinement, co-design", "",
           f"`python benchmarks/bench_ocp.py` on this 2-core machine; Radau degree 3, compiled NLP and kernel "
@@ -111,7 +164,8 @@ def main():
           "its search-direction time (its Riccati linear algebra) and its function evaluations.  fatrop: through",
           "its own C interface, stage by stage (README, same section); fatrop (CasADi plugin): casadi.nlpsol on the same",
           "compiled NLP (same iterates).  threads: the NLP's loops over the intervals (OpenMP; the same",
-          "library and iterates for both solvers on any number of threads).", "",
+          "library and iterates for both solvers on any number of threads).  fatrop's BLASFEO: the CasADi wheel's",
+          "(its GENERIC target; an optimised one in its own section below).", "",
           "| problem | N | transcription | solver | threads | status | iterations | solve (s) | fatrop search direction (s) | fatrop evaluations (s) |",
           "|---|---|---|---|---|---|---|---|---|---|"]
     md += [f"| {r['problem']} | {r['N']} | {r['transcription']} | {r['solver']} | {r['threads']} | {r['status']} | {r['iterations']} | "
@@ -142,6 +196,7 @@ def main():
                   f"{1e3 * per(m):.2f} ms each (iterations {'equal to' if m['iterations'] == f['iterations'] else 'unlike'} "
                   f"fatrop's).  Per iteration fatrop is {per(a) / per(f):.2f}x IPOPT; 5x overall "
                   f"would need {5 * f['iterations'] / a['iterations']:.2f}x")
+    md += blasfeo_section(user_blasfeo)
     md += ["", "## Implicit against explicit iterations", ""]
     for name in PROBLEMS:
         for N in (100, 200):
@@ -186,6 +241,9 @@ def main():
 
 
 if __name__ == "__main__":
+    if "--blasfeo-rows" in sys.argv:
+        print(json.dumps(blasfeo_rows()))
+        sys.exit(0)
     t0 = time.perf_counter()
     main()
     print(f"bench_ocp: {time.perf_counter() - t0:.0f} s")
