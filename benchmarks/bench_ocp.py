@@ -82,14 +82,15 @@ RUNS = {"condensed": [("ipopt", 1), ("ipopt", CORES), ("fatrop", 1), ("fatrop", 
 
 def blasfeo_rows():
     """(In the child, on RSCASADI_BLASFEO's library) condensed N = 100: IPOPT and fatrop, 1 and all cores."""
-    runs = [("ipopt", 1), ("ipopt", CORES), ("fatrop", 1), ("fatrop", CORES)]
+    runs = [("ipopt", 1), ("ipopt", CORES), ("fatrop", 1), ("fatrop", CORES), (SOLVERS[3], 1)]
+    options = [MONOTONE if "monotone" in solver else None for solver, _ in runs]
     rows = []
     for name, path in PROBLEMS.items():
-        ps = [dataclasses.replace(load_problem(path), intervals=100, solver=solver, compiled=True, condense=True,
-                                  threads=threads, interface="direct") for solver, threads in runs]
+        ps = [dataclasses.replace(load_problem(path), intervals=100, solver=solver.split()[0], compiled=True,
+                                  condense=True, threads=threads, interface="direct") for solver, threads in runs]
         for p in ps:
             solve_once(p, **QUIET)
-        for (solver, _), (t, sol, _) in zip(runs, timed(ps, 5)):
+        for (solver, _), (t, sol, _) in zip(runs, timed(ps, 5, options)):
             rows.append(dict(problem=name, solver=solver, threads=sol["threads"], status=sol["status"],
                              iterations=sol["iterations"], solve_s=t, objective=sol["objective"], blasfeo=sol["blasfeo"]))
     return rows
@@ -117,9 +118,11 @@ def blasfeo_section(path) -> list:
     for name in PROBLEMS:
         at = {(r["solver"], r["threads"]): r["solve_s"] for r in rows if r["problem"] == name}
         fat, ip = at[("fatrop", CORES)], at[("ipopt", CORES)]
-        md.append(f"- {name}: fatrop {fat:.3f} s on {CORES} threads, IPOPT {ip:.3f} s ({ip / fat:.2f}x; 5x: "
-                  + ("met" if ip >= 5 * fat else "MISSED") + f"); on one thread {at[('fatrop', 1)]:.3f} s against "
-                  f"{at[('ipopt', 1)]:.3f} s ({at[('ipopt', 1)] / at[('fatrop', 1)]:.2f}x)")
+        best = min(v for (solver, _), v in at.items() if solver.startswith("ipopt"))
+        md.append(f"- {name}: fatrop {fat:.3f} s on {CORES} threads; IPOPT on the same threads {ip:.3f} s ({ip / fat:.2f}x), "
+                  f"IPOPT's fastest {best:.3f} s ({best / fat:.2f}x); target 5x: " + ("met" if best >= 5 * fat else "MISSED")
+                  + f"; on one thread each {at[('fatrop', 1)]:.3f} s against {at[('ipopt', 1)]:.3f} s "
+                  f"({at[('ipopt', 1)] / at[('fatrop', 1)]:.2f}x)")
         print(md[-1], flush=True)
     return md
 
