@@ -10,7 +10,7 @@ bind to it (the dynamic linker looks there before a library's own dependencies).
 It must be interchangeable with the wheel's, which libfatrop was compiled against: instructions this
 CPU has, every BLASFEO symbol libfatrop and the driver import, the same struct blasfeo_dmat and the
 same panel-major layout (a matrix packed by it must be bitwise the wheel's).  Anything else is
-refused before it is loaded, with a message naming the variable and the file.
+refused before fatrop can reach it, with a message naming the variable and the file.
 """
 from __future__ import annotations
 
@@ -97,7 +97,7 @@ def check(path, fatrop: str, driver: str) -> ctypes.CDLL:
 
 
 def load(fatrop: str, driver: str):
-    """Before the driver is loaded: the user's BLASFEO ({ENV}) into the global scope, if set."""
+    """Before the driver is loaded: the user's BLASFEO (RSCASADI_BLASFEO) into the global scope, if set."""
     path = os.environ.get(ENV)
     if not path or _loaded.get("path") == path:
         return
@@ -122,7 +122,7 @@ class _DlInfo(ctypes.Structure):
 
 def in_use(address: int) -> dict:
     """The BLASFEO that a function address (blasfeo_pack_dmat as the driver bound it) lies in, and
-    what it was built for; an error if {ENV} asked for another one."""
+    what it was built for; an error if RSCASADI_BLASFEO asked for another one."""
     libc = ctypes.CDLL(None)
     dladdr = getattr(libc, "dladdr", None) or ctypes.CDLL("libdl.so.2").dladdr
     info = _DlInfo()
