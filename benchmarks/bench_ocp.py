@@ -80,16 +80,22 @@ RUNS = {"condensed": [("ipopt", 1), ("ipopt", CORES), ("fatrop", 1), ("fatrop", 
         "lifted": [("ipopt", CORES), ("fatrop", CORES)]}
 
 
+def configured(base, N, transcription, dynamics, runs):
+    """The problems of `runs` ((solver, threads) rows) and their solver options, compiled (cached) first."""
+    ps = [dataclasses.replace(base, intervals=N, dynamics=dynamics, solver=solver.split()[0], compiled=True,
+                              condense=transcription == "condensed", threads=threads,
+                              interface="casadi" if "plugin" in solver else "direct") for solver, threads in runs]
+    for p in ps:
+        solve_once(p, **QUIET)
+    return ps, [MONOTONE if "monotone" in solver else None for solver, _ in runs]
+
+
 def blasfeo_rows():
     """(In the child, on RSCASADI_BLASFEO's library) condensed N = 100: IPOPT and fatrop, 1 and all cores."""
-    runs = [("ipopt", 1), ("ipopt", CORES), ("fatrop", 1), ("fatrop", CORES), (SOLVERS[3], 1)]
-    options = [MONOTONE if "monotone" in solver else None for solver, _ in runs]
+    runs = [run for run in RUNS["condensed"] if "plugin" not in run[0]]
     rows = []
     for name, path in PROBLEMS.items():
-        ps = [dataclasses.replace(load_problem(path), intervals=100, solver=solver.split()[0], compiled=True,
-                                  condense=True, threads=threads, interface="direct") for solver, threads in runs]
-        for p in ps:
-            solve_once(p, **QUIET)
+        ps, options = configured(load_problem(path), 100, "condensed", "explicit", runs)
         for (solver, _), (t, sol, _) in zip(runs, timed(ps, 5, options)):
             rows.append(dict(problem=name, solver=solver, threads=sol["threads"], status=sol["status"],
                              iterations=sol["iterations"], solve_s=t, objective=sol["objective"], blasfeo=sol["blasfeo"]))
@@ -134,12 +140,7 @@ def solver_rows():
         for N in (100, 200):
             for transcription, dynamics in TRANSCRIPTIONS:
                 runs = RUNS[transcription]
-                ps = [dataclasses.replace(base, intervals=N, dynamics=dynamics, solver=solver.split()[0], compiled=True,
-                                          condense=transcription == "condensed", threads=threads,
-                                          interface="casadi" if "plugin" in solver else "direct") for solver, threads in runs]
-                options = [MONOTONE if "monotone" in solver else None for solver, _ in runs]
-                for p in ps:
-                    solve_once(p, **QUIET)                                   # compile (cached) first
+                ps, options = configured(base, N, transcription, dynamics, runs)
                 for (solver, _), (t, sol, stats) in zip(runs, timed(ps, 5 if N == 100 else 1, options)):
                     fat = stats.get("fatrop", {})
                     la = fat.get("compute_sd_time", float("nan"))
