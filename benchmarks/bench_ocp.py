@@ -68,15 +68,20 @@ def timed(ps, repeats, options=None):
 
 TRANSCRIPTIONS = (("condensed", "explicit"), ("lifted", "explicit"), ("lifted", "implicit"))
 # fatrop: through its own C interface (the default), and through CasADi's plugin on the same NLP
-SOLVERS = ("ipopt", "fatrop", "fatrop (CasADi plugin)", "ipopt (monotone barrier)")
+SOLVERS = ("ipopt", "fatrop", "fatrop (CasADi plugin)", "ipopt (monotone barrier)", "ipopt (probing oracle)",
+           "ipopt (LOQO oracle)")
 CORES = available_cores()
 # IPOPT with fatrop's barrier rule (Fiacco-McCormick, from fatrop's first mu): the evidence of where
 # fatrop's extra iterations come from (fatrop 1.1.8 has no adaptive barrier)
 MONOTONE = {"mu_strategy": "monotone", "mu_init": 1e-2}
+# IPOPT's adaptive rule with its other two oracles (its default, "ipopt", asks the quality function,
+# which needs an affine and a centring direction per iteration): which adaptive rule would save
+# fatrop iterations, were one plugged into it
+IPOPT_OPTIONS = {SOLVERS[3]: MONOTONE, SOLVERS[4]: {"mu_oracle": "probing"}, SOLVERS[5]: {"mu_oracle": "loqo"}}
 # (solver, threads of the NLP's loops over the intervals): the condensed form on one thread and on
 # every core, for both solvers (their NLP functions are the same library); the rest on every core
 RUNS = {"condensed": [("ipopt", 1), ("ipopt", CORES), ("fatrop", 1), ("fatrop", CORES), (SOLVERS[2], CORES),
-                      (SOLVERS[3], 1)],
+                      *((solver, 1) for solver in IPOPT_OPTIONS)],
         "lifted": [("ipopt", CORES), ("fatrop", CORES)]}
 
 
@@ -87,7 +92,7 @@ def configured(base, N, transcription, dynamics, runs):
                               interface="casadi" if "plugin" in solver else "direct") for solver, threads in runs]
     for p in ps:
         solve_once(p, **QUIET)
-    return ps, [MONOTONE if "monotone" in solver else None for solver, _ in runs]
+    return ps, [IPOPT_OPTIONS.get(solver) for solver, _ in runs]
 
 
 def blasfeo_rows():
@@ -108,7 +113,7 @@ def blasfeo_section(path) -> list:
     if not path:
         return head + ["Not run: set RSCASADI_BLASFEO to a BLASFEO built for this CPU (docs/model.md, "
                        "'fatrop's linear algebra'); the rows above run on the CasADi wheel's (GENERIC target)."]
-    print(f"IPOPT and fatrop on {BLASFEO_ENV}={path} (a child process, ~1 min) ...", flush=True)
+    print(f"IPOPT and fatrop on {BLASFEO_ENV}={path} (a child process, ~2 min) ...", flush=True)
     run = subprocess.run([sys.executable, __file__, "--blasfeo-rows"], env={**os.environ, BLASFEO_ENV: path},
                          capture_output=True, text=True)
     if run.returncode != 0:
@@ -187,18 +192,21 @@ def main():
                   + f"; on one thread each: fatrop {fat1:.3f} s, IPOPT {ip1:.3f} s ({ip1 / fat1:.2f}x)"
                   + f"; fatrop through CasADi's plugin {plug:.3f} s ({ip / plug:.2f}x IPOPT)")
     md += ["", "## Why not 5x: iterations and time per iteration (N = 100, condensed, one thread)", "",
-           "fatrop's barrier rule is monotone (Fiacco-McCormick), IPOPT's adaptive (Mehrotra's probing); IPOPT",
-           "is also run with fatrop's rule (monotone, mu_init 1e-2) to see whether the rule alone explains the",
-           "iteration counts.  5x overall needs 5 x (fatrop's iterations / IPOPT's) per iteration.", ""]
+           "fatrop's barrier rule is monotone (Fiacco-McCormick); IPOPT's here is adaptive, its mu chosen each",
+           "iteration by an oracle: by default the quality function (an affine and a centring direction, mu",
+           "minimising a model of the KKT error), also run with Mehrotra's probing and LOQO's rule.  IPOPT with",
+           "fatrop's rule (monotone, mu_init 1e-2) shows whether the rule alone explains the iteration counts.",
+           "5x overall needs 5 x (fatrop's iterations / IPOPT's) per iteration.", ""]
     for name in PROBLEMS:
         one = {r["solver"]: r for r in rows if r["problem"] == name and r["N"] == 100
                and r["transcription"] == "condensed" and r["threads"] == 1}
         f, a, m = one["fatrop"], one["ipopt"], one[SOLVERS[3]]
         per = lambda r: r["solve_s"] / max(r["iterations"], 1)  # noqa: E731
-        md.append(f"- {name}: fatrop {f['iterations']} iterations, {1e3 * per(f):.2f} ms each; IPOPT (adaptive) "
-                  f"{a['iterations']}, {1e3 * per(a):.2f} ms each; IPOPT (monotone, as fatrop) {m['iterations']}, "
+        md.append(f"- {name}: fatrop {f['iterations']} iterations, {1e3 * per(f):.2f} ms each; IPOPT (adaptive, quality "
+                  f"function) {a['iterations']}, {1e3 * per(a):.2f} ms each; IPOPT (monotone, as fatrop) {m['iterations']}, "
                   f"{1e3 * per(m):.2f} ms each (iterations {'equal to' if m['iterations'] == f['iterations'] else 'unlike'} "
-                  f"fatrop's).  Per iteration fatrop is {per(a) / per(f):.2f}x IPOPT; 5x overall "
+                  f"fatrop's); IPOPT adaptive with probing {one[SOLVERS[4]]['iterations']}, with LOQO "
+                  f"{one[SOLVERS[5]]['iterations']}.  Per iteration fatrop is {per(a) / per(f):.2f}x IPOPT; 5x overall "
                   f"would need {5 * f['iterations'] / a['iterations']:.2f}x")
     md += blasfeo_section(user_blasfeo)
     md += ["", "## Implicit against explicit iterations", ""]
