@@ -4,7 +4,7 @@
    N = 100 and 200, condensed and lifted (explicit and implicit dynamics), compiled NLP; solve time (median of 5 at
    N = 100), iterations, and fatrop's own profile (time in its search direction = its linear
    algebra, against function evaluations), and IPOPT with fatrop's monotone barrier rule (where
-   fatrop's extra iterations come from);
+   fatrop's extra iterations come from) and with its adaptive rule's other oracles (probing, LOQO);
 2. the mesh-refinement history of problem (b) under the tightened rest tolerances;
 3. co-design: problem (a) with the three SEA stiffnesses free, against the nominal arm;
 (sweeps: benchmarks/bench_sweep.py)
