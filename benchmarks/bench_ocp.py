@@ -11,9 +11,11 @@
 
     python benchmarks/bench_ocp.py       # writes results/bench_ocp.{md,csv,png}
 
-With RSCASADI_BLASFEO=/path/to/libblasfeo.so (an optimised BLASFEO, docs/model.md) the rows above
-still run on the CasADi wheel's BLASFEO, and a child process adds IPOPT and fatrop on the given one
-(condensed, N = 100), round-robin within the child.
+fatrop's BLASFEO in the rows above: the CasADi wheel's with its 4x4 dgemm kernel compiled for this
+processor (the default; rscasadi/control/ocp/blasfeo.py).  A child process runs IPOPT and fatrop
+(condensed, N = 100, round-robin within the child) on the wheel's kernels as shipped
+(RSCASADI_BLASFEO=wheel); with RSCASADI_BLASFEO=/path/to/libblasfeo.so (an optimised BLASFEO,
+docs/model.md) a second child runs them on that one.
 """
 import dataclasses
 import json
@@ -33,7 +35,7 @@ import numpy as np  # noqa: E402
 
 from common import ROOT, write_results  # noqa: E402
 from rscasadi.codegen.parallel import available_cores  # noqa: E402
-from rscasadi.control.ocp.blasfeo import ENV as BLASFEO_ENV  # noqa: E402
+from rscasadi.control.ocp.blasfeo import ENV as BLASFEO_ENV, WHEEL  # noqa: E402
 import rscasadi.control.ocp.solving as solving  # noqa: E402
 from rscasadi.control.ocp import load_problem, solve, solve_once  # noqa: E402
 
@@ -108,11 +110,13 @@ def blasfeo_rows():
 
 
 def blasfeo_section(path) -> list:
-    """The child's rows as a markdown section (or how to get them)."""
-    head = ["", "## fatrop on an optimised BLASFEO (RSCASADI_BLASFEO; N = 100, condensed)", ""]
+    """The child's rows on RSCASADI_BLASFEO=`path` as a markdown section (or how to get them)."""
+    title = ("the CasADi wheel's BLASFEO as shipped (RSCASADI_BLASFEO=wheel: its GENERIC kernels, none tuned)"
+             if path == WHEEL else "an optimised BLASFEO (RSCASADI_BLASFEO)")
+    head = ["", f"## fatrop on {title}; N = 100, condensed", ""]
     if not path:
         return head + ["Not run: set RSCASADI_BLASFEO to a BLASFEO built for this CPU (docs/model.md, "
-                       "'fatrop's linear algebra'); the rows above run on the CasADi wheel's (GENERIC target)."]
+                       "'fatrop's linear algebra')."]
     print(f"IPOPT and fatrop on {BLASFEO_ENV}={path} (a child process, ~2 min) ...", flush=True)
     run = subprocess.run([sys.executable, __file__, "--blasfeo-rows"], env={**os.environ, BLASFEO_ENV: path},
                          capture_output=True, text=True)
@@ -120,8 +124,8 @@ def blasfeo_section(path) -> list:
         raise RuntimeError(f"the BLASFEO rows failed ({BLASFEO_ENV}={path}):\n{run.stderr[-2000:]}")
     rows = json.loads(run.stdout.strip().splitlines()[-1])
     lib = next(r["blasfeo"] for r in rows if r["solver"] == "fatrop")
-    md = head + [f"{BLASFEO_ENV}={path}: fatrop's calls reached {lib['library']} (built for '{lib['features']}'); "
-                 "IPOPT and fatrop round-robin in one child process.", "",
+    md = head + [f"{BLASFEO_ENV}={path}: fatrop's calls reached {lib['library']} (built for '{lib['features']}'; "
+                 f"tuned kernels: {lib['tuned_kernels']}); IPOPT and fatrop round-robin in one child process.", "",
                  "| problem | solver | threads | status | iterations | solve (s) | objective |", "|---|---|---|---|---|---|---|"]
     md += [f"| {r['problem']} | {r['solver']} | {r['threads']} | {r['status']} | {r['iterations']} | {r['solve_s']:.3f} | "
            f"{r['objective']:.8g} |" for r in rows]
@@ -162,7 +166,10 @@ def solver_rows():
 
 
 def main():
-    user_blasfeo = os.environ.pop(BLASFEO_ENV, None)         # the main rows: the wheel's BLASFEO
+    user_blasfeo = os.environ.pop(BLASFEO_ENV, None)         # the main rows: the default (tuned kernel)
+    if user_blasfeo == WHEEL:
+        raise SystemExit(f"{BLASFEO_ENV}={WHEEL}: the benchmark runs the wheel's kernels in a child anyway; "
+                         f"unset it, or give an optimised BLASFEO")
     rows = solver_rows()
     md = ["# Optimal control: fatrop against IPOPT, refinement, co-design", "",
           f"`python benchmarks/bench_ocp.py` on this 2-core machine; Radau degree 3, compiled NLP and kernel "
@@ -174,7 +181,8 @@ def main():
           "its own C interface, stage by stage (README, same section); fatrop (CasADi plugin): casadi.nlpsol on the same",
           "compiled NLP (same iterates).  threads: the NLP's loops over the intervals (OpenMP; the same",
           "library and iterates for both solvers on any number of threads).  fatrop's BLASFEO: the CasADi wheel's",
-          "(its GENERIC target; an optimised one in its own section below).", "",
+          "(its GENERIC target) with its 4x4 dgemm kernel compiled for this processor (the default); the wheel's",
+          "kernels as shipped, and an optimised BLASFEO if given, in their own sections below.", "",
           "| problem | N | transcription | solver | threads | status | iterations | solve (s) | fatrop search direction (s) | fatrop evaluations (s) |",
           "|---|---|---|---|---|---|---|---|---|---|"]
     md += [f"| {r['problem']} | {r['N']} | {r['transcription']} | {r['solver']} | {r['threads']} | {r['status']} | {r['iterations']} | "
@@ -208,7 +216,7 @@ def main():
                   f"fatrop's); IPOPT adaptive with probing {one[SOLVERS[4]]['iterations']}, with LOQO "
                   f"{one[SOLVERS[5]]['iterations']}.  Per iteration fatrop is {per(a) / per(f):.2f}x IPOPT; 5x overall "
                   f"would need {5 * f['iterations'] / a['iterations']:.2f}x")
-    md += blasfeo_section(user_blasfeo)
+    md += blasfeo_section(WHEEL) + blasfeo_section(user_blasfeo)
     md += ["", "## Implicit against explicit iterations", ""]
     for name in PROBLEMS:
         for N in (100, 200):

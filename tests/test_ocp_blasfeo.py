@@ -1,9 +1,13 @@
-"""fatrop on the user's BLASFEO (RSCASADI_BLASFEO): loaded before the driver, it must be the library
-fatrop's calls reach (not only a file that was opened), iterate as the wheel's does, and a library
-that does not fit fatrop - no BLASFEO, other symbols, another matrix layout, a larger struct - must be
-refused before it is used, naming the variable and the file.  No optimised BLASFEO is installed here:
-the stand-in is a copy of the wheel's under another name, which is enough to see which one is called
-(the speed is the benchmark's: benchmarks/bench_ocp.py)."""
+"""fatrop's BLASFEO.  By default the wheel's, with its 4x4 dgemm kernel compiled for this processor:
+that kernel must compute what BLASFEO's own does (numpy as the reference for both), a wrong one must
+be refused, and fatrop's solves must reach it and iterate as on the wheel's kernels
+(RSCASADI_BLASFEO=wheel).  The user's BLASFEO (RSCASADI_BLASFEO=path): loaded before the driver, it
+must be the library fatrop's calls reach (not only a file that was opened), iterate as the wheel's
+does, and a library that does not fit fatrop - no BLASFEO, other symbols, another matrix layout, a
+larger struct - must be refused before it is used, naming the variable and the file.  No optimised
+BLASFEO is installed here: the stand-in is a copy of the wheel's under another name, which is enough
+to see which one is called (the speed is the benchmark's: benchmarks/bench_ocp.py)."""
+import ctypes
 import dataclasses
 import json
 import os
@@ -15,7 +19,7 @@ import numpy as np
 import pytest
 
 from rscasadi.control.ocp import blasfeo, load_problem, solve_once
-from rscasadi.control.ocp.fatrop_direct import casadi_dir, driver_library
+from rscasadi.control.ocp.fatrop_direct import casadi_dir, driver_library, tuned_kernels_library
 
 from conftest import cc, problem
 
@@ -111,3 +115,82 @@ def test_the_wheels_blasfeo_passes_the_checks(tmp_path):
     # the other side of the refusals above: the library fatrop was built with fits it
     lib = blasfeo.check(blasfeo.wheel_library(), str(casadi_dir() / "libfatrop.so"), driver_library(lambda m: None))
     assert blasfeo.features(lib) == ""                                    # the wheel's: GENERIC target
+
+
+# ------------------------------------------------------------- the tuned kernel (the default)
+
+_P = ctypes.POINTER(ctypes.c_double)
+
+
+def _dgemm_nt_4x4(f, kmax, alpha, A, B, beta, C):
+    D = np.full(16, np.nan)
+    f(kmax, *(np.ascontiguousarray(v, dtype=float).ctypes.data_as(_P) for v in ([alpha], A, B, [beta], C, D)))
+    return D.reshape(4, 4, order="F")
+
+
+def test_the_tuned_kernel_computes_blasfeos_4x4_product():
+    ours = ctypes.CDLL(tuned_kernels_library(lambda m: None)).kernel_dgemm_nt_4x4_lib4
+    theirs = ctypes.CDLL(str(blasfeo.wheel_library())).kernel_dgemm_nt_4x4_lib4
+    rng = np.random.default_rng(3)
+    for kmax in (0, 1, 3, 4, 6, 15, 16, 40):
+        for alpha, beta in ((1.0, 1.0), (-1.0, 0.0), (2.5, -0.5)):
+            A, B, C = rng.standard_normal((kmax, 4)), rng.standard_normal((kmax, 4)), rng.standard_normal((4, 4))
+            # panel-major: column k of a 4-row panel at 4 k, so the (kmax, 4) arrays are the panels
+            want = beta * C + alpha * A.T @ B
+            for f in (ours, theirs):
+                got = _dgemm_nt_4x4(f, kmax, alpha, A.ravel(), B.ravel(), beta, C.ravel(order="F"))
+                np.testing.assert_allclose(got, want, rtol=1e-13, atol=1e-13 * (1 + kmax))
+    # BLASFEO's generic kernel forms beta C even for beta = 0 (NaN in C stays): so does ours
+    A, B, C = rng.standard_normal(8), rng.standard_normal(8), np.full(16, np.nan)
+    for f in (ours, theirs):
+        assert np.isnan(_dgemm_nt_4x4(f, 2, 1.0, A, B, 0.0, C)).all()
+
+
+def test_a_tuned_kernel_that_differs_from_the_wheels_is_refused(tmp_path):
+    src = tmp_path / "wrong.c"
+    src.write_text("void kernel_dgemm_nt_4x4_lib4(int kmax, double *alpha, double *A, double *B, double *beta, "
+                   "double *C, double *D) { int i; for (i = 0; i < 16; ++i) D[i] = beta[0] * C[i] + "
+                   "(kmax ? alpha[0] * A[i % 4] * B[i / 4] : 0); }\n")       # right for kmax <= 1 only
+    lib = tmp_path / "libwrong.so"
+    subprocess.run([cc(), "-shared", "-fPIC", str(src), "-o", str(lib)], check=True)
+    wheel = ctypes.CDLL(str(blasfeo.wheel_library()))
+    with pytest.raises(RuntimeError, match=rf"kernel_dgemm_nt_4x4_lib4 compiled for this processor \({re.escape(str(lib))}\) "
+                                           r"differs from the CasADi wheel's \(kmax 2.*RSCASADI_BLASFEO=wheel"):
+        blasfeo._same_kernel(ctypes.CDLL(str(lib)).kernel_dgemm_nt_4x4_lib4, wheel.kernel_dgemm_nt_4x4_lib4,
+                             "kernel_dgemm_nt_4x4_lib4", lib)
+
+
+TUNED_CHILD = """
+import ctypes, dataclasses, json, sys
+from rscasadi.control.ocp import load_problem, solve_once
+p = dataclasses.replace(load_problem(sys.argv[1]), solver="fatrop")
+solve_once(p, print_level=0, log=lambda m: None)
+tuned = None
+import rscasadi.control.ocp.blasfeo as b
+if b._loaded.get("tuned"):
+    tuned = ctypes.c_int.in_dll(ctypes.CDLL(b._loaded["tuned"]["library"]), "rsc_tuned_reached")
+    tuned.value = 0                                  # the next solve must set it again
+sol = solve_once(p, print_level=0, log=lambda m: None)
+out = {k: sol[k] for k in ("status", "iterations", "theta", "tau", "blasfeo")}
+out["reached_in_solve"] = None if tuned is None else tuned.value
+print(json.dumps(out))
+"""
+
+
+def test_fatrop_reaches_the_tuned_kernel_and_iterates_as_on_the_wheels(pitch_arm):
+    # in fresh processes: the kernel binds once per process, before the wheel's BLASFEO is first used
+    path = _fatrop_problem(pitch_arm)
+    runs = {}
+    for mode in ("", blasfeo.WHEEL):
+        env = {k: v for k, v in os.environ.items() if k != blasfeo.ENV} | ({blasfeo.ENV: mode} if mode else {})
+        run = subprocess.run([sys.executable, "-c", TUNED_CHILD, str(path)], capture_output=True, text=True, env=env,
+                             timeout=600)
+        assert run.returncode == 0, run.stderr[-2000:]
+        runs[mode] = json.loads(run.stdout.strip().splitlines()[-1])
+    tuned, wheel = runs[""], runs[blasfeo.WHEEL]
+    assert tuned["blasfeo"]["library"] == wheel["blasfeo"]["library"] == os.path.realpath(blasfeo.wheel_library())
+    assert tuned["blasfeo"]["tuned_kernels"]["reached"] and tuned["reached_in_solve"] == 1
+    assert wheel["blasfeo"]["tuned_kernels"] is None and wheel["reached_in_solve"] is None
+    assert tuned["status"] == wheel["status"] == "Solve_Succeeded" and tuned["iterations"] == wheel["iterations"]
+    for key in ("theta", "tau"):               # the same iterates up to the kernels' rounding
+        np.testing.assert_allclose(tuned[key], wheel[key], rtol=0, atol=1e-9)

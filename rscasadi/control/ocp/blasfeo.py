@@ -1,12 +1,19 @@
-"""Which BLASFEO fatrop's linear algebra runs on: the CasADi wheel's, or the user's (RSCASADI_BLASFEO).
+"""Which BLASFEO fatrop's linear algebra runs on: the CasADi wheel's with its hottest kernel compiled
+for this processor (the default), the wheel's as shipped (RSCASADI_BLASFEO=wheel), or the user's
+(RSCASADI_BLASFEO=/path/to/libblasfeo.so).
 
 The CasADi wheel ships BLASFEO built for its GENERIC target (plain C, no AVX); fatrop spends about
-a third of a solve in it (its Riccati factorisation, 4x4 C kernels).  A BLASFEO built for the CPU
-(e.g. acados' or BLASFEO's own build for X64_INTEL_HASWELL) can stand in: set
-RSCASADI_BLASFEO=/path/to/libblasfeo.so before the first fatrop solve of the process.  It is loaded
-into the process's global symbol scope before the fatrop driver, so that libfatrop's BLASFEO calls
-bind to it (the dynamic linker looks there before a library's own dependencies).
+a third of a solve in it (its Riccati factorisation, 4x4 C kernels), and one kernel, the 4x4
+product D = beta C + alpha A B', was 14 % of a solve of problem (b).  By default that kernel is
+compiled for this processor (blasfeo_tuned.c, GCC vector extensions, -march=native), checked
+against the wheel's own on random panels, and loaded into the process's global scope before the
+driver: the wheel's library calls its kernels through its procedure linkage table, so its calls
+bind to it (checked: a call into the wheel's library must reach it).
 
+A BLASFEO built for the CPU (e.g. acados' or BLASFEO's own build for X64_INTEL_HASWELL) can stand
+in for the whole library: set RSCASADI_BLASFEO=/path/to/libblasfeo.so before the first fatrop solve
+of the process.  It is loaded into the global scope before the fatrop driver, so that libfatrop's
+BLASFEO calls bind to it (the dynamic linker looks there before a library's own dependencies).
 It must be interchangeable with the wheel's, which libfatrop was compiled against: instructions this
 CPU has, every BLASFEO symbol libfatrop and the driver import, the same struct blasfeo_dmat and the
 same panel-major layout (a matrix packed by it must be bitwise the wheel's).  Anything else is
@@ -24,6 +31,8 @@ import casadi as ca
 import numpy as np
 
 ENV = "RSCASADI_BLASFEO"
+WHEEL = "wheel"                             # RSCASADI_BLASFEO=wheel: the wheel's BLASFEO as shipped
+TUNED = ("kernel_dgemm_nt_4x4_lib4",)       # the kernels blasfeo_tuned.c replaces
 _SIZES = ((5, 3), (13, 16), (17, 9))        # odd sizes: a panel height or column padding would show
 _loaded: dict = {}                          # the user's library, once per process
 
@@ -96,16 +105,73 @@ def check(path, fatrop: str, driver: str) -> ctypes.CDLL:
     return lib
 
 
-def load(fatrop: str, driver: str):
-    """Before the driver is loaded: the user's BLASFEO (RSCASADI_BLASFEO) into the global scope, if set."""
-    path = os.environ.get(ENV)
-    if not path or _loaded.get("path") == path:
-        return
+def load(fatrop: str, driver: str, tuned):
+    """Before the driver is loaded: the user's BLASFEO (RSCASADI_BLASFEO) into the global scope, or,
+    unless RSCASADI_BLASFEO=wheel, the tuned kernel (`tuned()`: its library) if the wheel's BLASFEO
+    is the GENERIC build.  Once per process."""
+    path = os.environ.get(ENV, "")
     if _loaded:
-        raise RuntimeError(f"{ENV} changed to {path} after {_loaded['path']} was loaded: one BLASFEO per process")
-    check(path, fatrop, driver)
-    _loaded["lib"] = ctypes.CDLL(str(path), mode=os.RTLD_GLOBAL) # promotes the checked handle
+        if _loaded["path"] != path:
+            raise RuntimeError(f"{ENV} changed to {path!r} after {_loaded['path'] or 'the default'!r} was loaded: "
+                               "one BLASFEO per process")
+        return
+    if path and path != WHEEL:
+        check(path, fatrop, driver)
+        _loaded["lib"] = ctypes.CDLL(str(path), mode=os.RTLD_GLOBAL) # promotes the checked handle
+    elif not path:
+        wheel = _lazily(wheel_library())
+        if not features(wheel):
+            _loaded["tuned"] = _load_tuned(tuned(), wheel)
     _loaded["path"] = path
+
+
+def _libc(name: str):
+    libc = ctypes.CDLL(None)
+    return getattr(libc, name, None) or getattr(ctypes.CDLL("libdl.so.2"), name)
+
+
+def _lazily(path):
+    """`path` loaded with lazy binding (ctypes binds every call at load): its calls into other
+    libraries bind at their first use, so that they can still reach what is loaded after it."""
+    dlopen = _libc("dlopen")
+    dlopen.restype, dlopen.argtypes = ctypes.c_void_p, [ctypes.c_char_p, ctypes.c_int]
+    handle = dlopen(str(path).encode(), os.RTLD_LAZY | os.RTLD_LOCAL)
+    if not handle:
+        raise RuntimeError(f"cannot load the CasADi wheel's BLASFEO {path}")
+    return ctypes.CDLL(str(path), handle=handle)
+
+
+def _same_kernel(ours, theirs, name: str, path) -> None:
+    """`ours` computes what the wheel's kernel `theirs` computes, up to rounding, on random panels."""
+    rng = np.random.default_rng(7)
+    P = ctypes.POINTER(ctypes.c_double)
+    for kmax in (0, 1, 2, 3, 4, 5, 7, 8, 13, 16, 33):
+        for alpha, beta in ((1.0, 1.0), (-1.0, 0.0), (0.7, -1.3)):
+            A, B, C = rng.standard_normal(4 * kmax + 1), rng.standard_normal(4 * kmax + 1), rng.standard_normal(16)
+            al, be, D = np.array([alpha]), np.array([beta]), [np.full(16, np.nan) for _ in range(2)]
+            for f, out in zip((ours, theirs), D):
+                f(kmax, *(v.ctypes.data_as(P) for v in (al, A, B, be, C, out)))
+            scale = abs(alpha) * (np.abs(A[:4 * kmax]).reshape(-1, 4).T @ np.abs(B[:4 * kmax]).reshape(-1, 4)).ravel("F") \
+                + abs(beta) * np.abs(C)
+            if not np.all(np.abs(D[0] - D[1]) <= 1e-14 * (1 + scale)):
+                raise RuntimeError(f"BLASFEO's {name} compiled for this processor ({path}) differs from the CasADi "
+                                   f"wheel's (kmax {kmax}, alpha {alpha}, beta {beta}: largest difference "
+                                   f"{np.nanmax(np.abs(D[0] - D[1])):.3g}); set {ENV}={WHEEL} to run on the wheel's kernels")
+
+
+def _load_tuned(path: str, wheel) -> dict:
+    """The tuned kernels, checked against the wheel's, into the global scope; whether the wheel's
+    calls reach them (its 4x4 edge kernel calls the full one through its linkage table)."""
+    lib = ctypes.CDLL(path)
+    for name in TUNED:
+        _same_kernel(getattr(lib, name), getattr(wheel, name), name, path)
+    ctypes.CDLL(path, mode=os.RTLD_GLOBAL)                           # promotes the checked handle
+    flag = ctypes.c_int.in_dll(lib, "rsc_tuned_reached")
+    flag.value = 0
+    P = ctypes.POINTER(ctypes.c_double)
+    one, A, D = np.ones(1), np.ones(8), np.zeros(16)
+    wheel.kernel_dgemm_nt_4x4_vs_lib4(2, *(v.ctypes.data_as(P) for v in (one, A, A, one, D, D)), 4, 4)
+    return {"library": path, "kernels": list(TUNED), "reached": bool(flag.value)}
 
 
 def features(lib) -> str:
@@ -122,13 +188,14 @@ class _DlInfo(ctypes.Structure):
 
 def in_use(address: int) -> dict:
     """The BLASFEO that a function address (blasfeo_pack_dmat as the driver bound it) lies in, and
-    what it was built for; an error if RSCASADI_BLASFEO asked for another one."""
-    libc = ctypes.CDLL(None)
-    dladdr = getattr(libc, "dladdr", None) or ctypes.CDLL("libdl.so.2").dladdr
+    what it was built for, and the tuned kernels in front of it (None: none); an error if
+    RSCASADI_BLASFEO asked for another one."""
+    dladdr = _libc("dladdr")
     info = _DlInfo()
     dladdr(ctypes.c_void_p(address), ctypes.byref(info))
     path = os.path.realpath(info.dli_fname.decode()) if info.dli_fname else "?"
-    if _loaded and path != os.path.realpath(_loaded["path"]):
+    if _loaded.get("lib") and path != os.path.realpath(_loaded["path"]):
         raise RuntimeError(f"{ENV}={_loaded['path']} was loaded, but fatrop's driver calls the BLASFEO in {path} "
                            f"(was fatrop loaded into this process before?)")
-    return {"library": path, "features": features(ctypes.CDLL(path)) if path != "?" else "?"}
+    return {"library": path, "features": features(ctypes.CDLL(path)) if path != "?" else "?",
+            "tuned_kernels": dict(_loaded["tuned"]) if _loaded.get("tuned") else None}

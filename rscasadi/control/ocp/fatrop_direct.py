@@ -26,10 +26,12 @@ import casadi as ca
 import numpy as np
 
 from ...codegen import _compiler, cache_dir
+from ...codegen.generate import native_flags
 from ...codegen.parallel import openmp_flags
 from . import blasfeo
 
 _SOURCE = Path(__file__).with_name("fatrop_direct.c")
+_TUNED = Path(__file__).with_name("blasfeo_tuned.c")
 _NAMES = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l")
 _STATS = ("compute_sd_time", "duinf_time", "eval_hess_time", "eval_jac_time", "eval_cv_time", "eval_grad_time",
           "eval_obj_time", "initialization_time", "time_total", "eval_hess_count", "eval_jac_count",
@@ -57,6 +59,30 @@ def casadi_dir() -> Path:
     return Path(ca.__file__).parent
 
 
+def _cached_library(source: Path, cc: list, flags: list, what: str, log) -> str:
+    """`source` compiled to a shared library with `flags`, once per machine and CasADi version
+    (cached by the hash of the source, compiler and flags; written whole, then renamed)."""
+    text = source.read_text()
+    key = hashlib.sha256((text + " ".join(cc + flags) + ca.__version__).encode()).hexdigest()[:24]
+    directory = cache_dir() / "nlp"
+    directory.mkdir(parents=True, exist_ok=True)
+    lib = directory / f"{source.stem}_{key}.so"
+    if lib.exists():
+        return str(lib)
+    with open(directory / "generate.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if lib.exists():
+            return str(lib)
+        t0 = time.perf_counter()
+        part = lib.with_suffix(f".{os.getpid()}.part")
+        run = subprocess.run([*cc, str(source), "-o", str(part), *flags], capture_output=True, text=True)
+        if run.returncode != 0:
+            raise RuntimeError(f"compiling {what} failed:\n{run.stderr[-2000:]}")
+        part.replace(lib)
+        log(f"compiled {what} in {time.perf_counter() - t0:.1f} s: {lib}")
+    return str(lib)
+
+
 def driver_library(log=print) -> str:
     """The compiled driver (once per machine and CasADi version; cached by the hash of its source)."""
     cc, inc, lib_dir = _compiler(), casadi_dir() / "include", casadi_dir()
@@ -66,25 +92,13 @@ def driver_library(log=print) -> str:
     # its per-stage scatter and packing on the NLP's threads (OpenMP, when the compiler has it)
     flags = ["-O2", *openmp_flags(tuple(cc)), "-fPIC", "-shared", f"-I{inc}", f"-L{lib_dir}", "-lfatrop", "-lblasfeo",
              f"-Wl,-rpath,{lib_dir}", "-lm"]
-    source = _SOURCE.read_text()
-    key = hashlib.sha256((source + " ".join(cc + flags) + ca.__version__).encode()).hexdigest()[:24]
-    directory = cache_dir() / "nlp"
-    directory.mkdir(parents=True, exist_ok=True)
-    lib = directory / f"fatrop_direct_{key}.so"
-    if lib.exists():
-        return str(lib)
-    with open(directory / "generate.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if lib.exists():
-            return str(lib)
-        t0 = time.perf_counter()
-        part = lib.with_suffix(f".{os.getpid()}.part")
-        run = subprocess.run([*cc, str(_SOURCE), "-o", str(part), *flags], capture_output=True, text=True)
-        if run.returncode != 0:
-            raise RuntimeError(f"compiling the direct fatrop driver failed:\n{run.stderr[-2000:]}")
-        part.replace(lib)
-        log(f"compiled the direct fatrop driver in {time.perf_counter() - t0:.1f} s: {lib}")
-    return str(lib)
+    return _cached_library(_SOURCE, cc, flags, "the direct fatrop driver", log)
+
+
+def tuned_kernels_library(log=print) -> str:
+    """BLASFEO's hottest kernel for this processor (blasfeo_tuned.c; blasfeo.py loads it)."""
+    return _cached_library(_TUNED, _compiler(), ["-O3", *native_flags(), "-fPIC", "-shared"],
+                           "BLASFEO's dgemm kernel for this processor", log)
 
 
 def _ints(v) -> np.ndarray:
@@ -177,7 +191,7 @@ class DirectFatrop:
 
     def __init__(self, library: str, structure: dict, options: dict | None = None, log=print):
         driver = driver_library(log)
-        blasfeo.load(str(casadi_dir() / "libfatrop.so"), driver)        # the user's BLASFEO, if asked for
+        blasfeo.load(str(casadi_dir() / "libfatrop.so"), driver, lambda: tuned_kernels_library(log))
         self.driver = ctypes.CDLL(driver)
         self.driver.rsf_solve.restype = ctypes.c_int
         self.driver.rsf_blasfeo_function.restype = ctypes.c_void_p
