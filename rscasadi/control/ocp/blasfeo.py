@@ -34,7 +34,7 @@ ENV = "RSCASADI_BLASFEO"
 WHEEL = "wheel"                             # RSCASADI_BLASFEO=wheel: the wheel's BLASFEO as shipped
 TUNED = ("kernel_dgemm_nt_4x4_lib4",)       # the kernels blasfeo_tuned.c replaces
 _SIZES = ((5, 3), (13, 16), (17, 9))        # odd sizes: a panel height or column padding would show
-_loaded: dict = {}                          # the user's library, once per process
+_loaded: dict = {}                          # once per process: RSCASADI_BLASFEO (path), the user's lib or the tuned kernels
 
 
 class _DMat(ctypes.Structure):              # struct blasfeo_dmat (blasfeo_common.h, panel-major)
