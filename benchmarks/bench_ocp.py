@@ -74,7 +74,8 @@ SOLVERS = ("ipopt", "fatrop", "fatrop (CasADi plugin)", "ipopt (monotone barrier
            "ipopt (LOQO oracle)")
 CORES = available_cores()
 # IPOPT with fatrop's barrier rule (Fiacco-McCormick, from fatrop's first mu): the evidence of where
-# fatrop's extra iterations come from (fatrop 1.1.8 has no adaptive barrier)
+# fatrop's extra iterations come from (fatrop 1.1.8 ships no adaptive barrier; ours, [solver] barrier =
+# "adaptive", takes more iterations here, README "Why not 5x")
 MONOTONE = {"mu_strategy": "monotone", "mu_init": 1e-2}
 # IPOPT's adaptive rule with its other two oracles (its default, "ipopt", asks the quality function,
 # which needs an affine and a centring direction per iteration): which adaptive rule would save

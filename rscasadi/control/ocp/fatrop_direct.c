@@ -256,20 +256,56 @@ static void quiet(const char* msg, int n) { (void)msg; (void)n; }
 static void to_stdout(const char* msg, int n) { fwrite(msg, 1, (size_t)n, stdout); }
 static void flush_out(void) { fflush(stdout); }
 
+/* The solver's entry points: fatrop's C interface, or the same functions with another barrier
+   rule (fatrop_adaptive.cpp's rsq_*, passed in by fatrop_direct.py); counts: the oracle's and
+   the fixed-mode iterations and the first RSF_MU iterations' mu (NULL for fatrop's own rule). */
+#define RSF_MU 100
+typedef struct {
+  void* (*create)(struct FatropOcpCInterface*, FatropOcpCWrite, FatropOcpCFlush);
+  int (*set_double)(void*, const char*, double);
+  int (*set_int)(void*, const char*, int);
+  int (*set_bool)(void*, const char*, int);
+  int (*set_string)(void*, const char*, const char*);
+  int (*solve)(void*);
+  const struct blasfeo_dvec* (*primal)(void*);
+  const struct blasfeo_dvec* (*dual)(void*);
+  const struct FatropOcpCDims* (*dims)(void*);
+  const struct FatropOcpCStats* (*stats)(void*);
+  void (*destroy)(void*);
+  void (*barrier)(void*, int*, double*, int);
+} rsf_api;
+
+static const rsf_api fatrop_api = {
+  (void* (*)(struct FatropOcpCInterface*, FatropOcpCWrite, FatropOcpCFlush))fatrop_ocp_c_create,
+  (int (*)(void*, const char*, double))fatrop_ocp_c_set_option_double,
+  (int (*)(void*, const char*, int))fatrop_ocp_c_set_option_int,
+  (int (*)(void*, const char*, int))fatrop_ocp_c_set_option_bool,
+  (int (*)(void*, const char*, const char*))fatrop_ocp_c_set_option_string,
+  (int (*)(void*))fatrop_ocp_c_solve,
+  (const struct blasfeo_dvec* (*)(void*))fatrop_ocp_c_get_primal,
+  (const struct blasfeo_dvec* (*)(void*))fatrop_ocp_c_get_dual,
+  (const struct FatropOcpCDims* (*)(void*))fatrop_ocp_c_get_dims,
+  (const struct FatropOcpCStats* (*)(void*))fatrop_ocp_c_get_stats,
+  (void (*)(void*))fatrop_ocp_c_destroy,
+  0};
+
 /* Options: names[i] with values[i] (double, int or bool by fatrop's type) or strings[i].
-   Returns 0 on success, 1 otherwise, -1 on an exception inside fatrop; stats[18]: FatropOcpCStats
-   in order, whether an evaluation failed, whether a gap row's x_{k+1} coefficient was not 1;
+   Returns 0 on success, 1 otherwise, -1 on an exception inside fatrop; stats[20 + RSF_MU]: FatropOcpCStats
+   in order, whether an evaluation failed, whether a gap row's x_{k+1} coefficient was not 1, the
+   barrier rule's counts and mu (above; -1 if none);
    -1000 - i: option i unknown or refused. */
-int rsf_solve(const rsf_problem* P, const double* x0, const double* p, const double* lbx, const double* ubx,
-              const double* lbg, const double* ubg, int n_opt, const char** names, const double* values,
-              const char** strings, int verbose, double* x_out, double* lam_g, double* lam_x, double* stats) {
+int rsf_solve(const rsf_problem* P, const rsf_api* api, const double* x0, const double* p, const double* lbx,
+              const double* ubx, const double* lbg, const double* ubg, int n_opt, const char** names,
+              const double* values, const char** strings, int verbose, double* x_out, double* lam_g, double* lam_x,
+              double* stats) {
   rsf_data d;
   struct FatropOcpCInterface ocp;
-  struct FatropOcpCSolver* solver;
+  void* solver;
   const struct FatropOcpCDims* s;
   const struct FatropOcpCStats* st;
   const double *primal, *dual;
   int i, k, c, ret = 0;
+  if (!api) api = &fatrop_api;
   memset(&d, 0, sizeof d);
   memset(&ocp, 0, sizeof ocp);
   d.P = P; d.p = p; d.lbx = lbx; d.ubx = ubx; d.lbg = lbg; d.ubg = ubg; d.x0 = x0;
@@ -285,21 +321,21 @@ int rsf_solve(const rsf_problem* P, const double* x0, const double* p, const dou
   ocp.full_eval_constr_jac = constr_jac; ocp.full_eval_contr_viol = constr_viol;
   ocp.full_eval_obj_grad = obj_grad; ocp.full_eval_obj = obj; ocp.full_eval_lag_hess = lag_hess;
   ocp.user_data = &d;
-  solver = fatrop_ocp_c_create(&ocp, verbose ? to_stdout : quiet, verbose ? flush_out : 0);
+  solver = api->create(&ocp, verbose ? to_stdout : quiet, verbose ? flush_out : 0);
   for (i = 0; i < n_opt && !ret; ++i) {
     int type = fatrop_ocp_c_option_type(names[i]), bad = 1;
-    if (type == 0) bad = fatrop_ocp_c_set_option_double(solver, names[i], values[i]);
-    else if (type == 1) bad = fatrop_ocp_c_set_option_int(solver, names[i], (int)values[i]);
-    else if (type == 2) bad = fatrop_ocp_c_set_option_bool(solver, names[i], values[i] != 0);
-    else if (type == 3) bad = fatrop_ocp_c_set_option_string(solver, names[i], strings[i]);
+    if (type == 0) bad = api->set_double(solver, names[i], values[i]);
+    else if (type == 1) bad = api->set_int(solver, names[i], (int)values[i]);
+    else if (type == 2) bad = api->set_bool(solver, names[i], values[i] != 0);
+    else if (type == 3) bad = api->set_string(solver, names[i], strings[i]);
     if (bad) ret = -1000 - i;
   }
   if (!ret) {
-    ret = fatrop_ocp_c_solve(solver);
-    primal = fatrop_ocp_c_get_primal(solver)->pa;
-    dual = fatrop_ocp_c_get_dual(solver)->pa;
-    s = fatrop_ocp_c_get_dims(solver);
-    st = fatrop_ocp_c_get_stats(solver);
+    ret = api->solve(solver);
+    primal = api->primal(solver)->pa;
+    dual = api->dual(solver)->pa;
+    s = api->dims(solver);
+    st = api->stats(solver);
     read_primal(&d, primal, s);
     memcpy(x_out, d.x, sizeof(double) * P->nv);
     memset(lam_g, 0, sizeof(double) * P->ng);
@@ -320,8 +356,13 @@ int rsf_solve(const rsf_problem* P, const double* x0, const double* p, const dou
     stats[9] = st->eval_hess_count; stats[10] = st->eval_jac_count; stats[11] = st->eval_cv_count;
     stats[12] = st->eval_grad_count; stats[13] = st->eval_obj_count; stats[14] = st->iterations_count;
     stats[15] = st->return_flag; stats[16] = d.failed; stats[17] = d.bad_gap;
+    if (api->barrier) {
+      int counts[2];
+      api->barrier(solver, counts, stats + 20, RSF_MU);
+      stats[18] = counts[0]; stats[19] = counts[1];
+    }
   }
-  fatrop_ocp_c_destroy(solver);
+  api->destroy(solver);
   free(d.x); free(d.gv); free(d.a); free(d.h); free(d.lam); free(d.grad); free(d.jbuf); free(d.hbuf);
   free(d.arg); free(d.res); free(d.iw); free(d.w);
   return ret;

@@ -17,6 +17,8 @@ import ctypes
 import fcntl
 import hashlib
 import os
+import shlex
+import shutil
 import subprocess
 import threading
 import time
@@ -32,10 +34,13 @@ from . import blasfeo
 
 _SOURCE = Path(__file__).with_name("fatrop_direct.c")
 _TUNED = Path(__file__).with_name("blasfeo_tuned.c")
+_ADAPTIVE = Path(__file__).with_name("fatrop_adaptive.cpp")
+BARRIERS = ("monotone", "adaptive")         # problem.py's [solver] barrier
 _NAMES = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l")
 _STATS = ("compute_sd_time", "duinf_time", "eval_hess_time", "eval_jac_time", "eval_cv_time", "eval_grad_time",
           "eval_obj_time", "initialization_time", "time_total", "eval_hess_count", "eval_jac_count",
           "eval_cv_count", "eval_grad_count", "eval_obj_count", "iterations_count", "return_flag")
+_MU = 100                       # fatrop_direct.c's RSF_MU: iterations whose mu the adaptive rule reports
 _I = ctypes.POINTER(ctypes.c_int)
 _LAYOUTS: dict = {}
 # fatrop keeps one output writer per process, replaced by every solver it creates: one solve at a
@@ -53,6 +58,16 @@ class _Problem(ctypes.Structure):
                 + [(k, _I) for k in ("bab_off", "geq_off", "gin_off", "rsq_off")]
                 + [(k, ctypes.c_void_p) for k in ("f", "g", "grad_f", "jac_g", "hess_l")]
                 + [(k, ctypes.c_int) for k in ("sz_arg", "sz_res", "sz_iw", "sz_w")])
+
+
+class _Api(ctypes.Structure):
+    """fatrop_direct.c's rsf_api: the solver's entry points (fatrop_adaptive.cpp's rsq_*)."""
+    _fields_ = [(k, ctypes.c_void_p) for k in ("create", "set_double", "set_int", "set_bool", "set_string", "solve",
+                                               "primal", "dual", "dims", "stats", "destroy", "barrier")]
+
+
+_RSQ = ("create", "set_option_double", "set_option_int", "set_option_bool", "set_option_string", "solve",
+        "get_primal", "get_dual", "get_dims", "get_stats", "destroy", "barrier")
 
 
 def casadi_dir() -> Path:
@@ -93,6 +108,25 @@ def driver_library(log=print) -> str:
     flags = ["-O2", *openmp_flags(tuple(cc)), "-fPIC", "-shared", f"-I{inc}", f"-L{lib_dir}", "-lfatrop", "-lblasfeo",
              f"-Wl,-rpath,{lib_dir}", "-lm"]
     return _cached_library(_SOURCE, cc, flags, "the direct fatrop driver", log)
+
+
+def _cxx_compiler() -> list:
+    cxx = shlex.split(os.environ.get("CXX", "c++")) or ["c++"]
+    if shutil.which(cxx[0]) is None:
+        raise RuntimeError(f"fatrop's adaptive barrier is C++ and the C++ compiler {cxx[0]!r} was not found (set $CXX, "
+                           "or choose [solver] barrier = \"monotone\")")
+    return cxx
+
+
+def adaptive_library(log=print) -> str:
+    """fatrop with IPOPT's adaptive barrier rule (fatrop_adaptive.cpp), compiled once and cached."""
+    inc, lib_dir = casadi_dir() / "include", casadi_dir()
+    if not (inc / "fatrop" / "ip_algorithm" / "ip_alg_builder.hpp").exists():
+        raise RuntimeError(f"fatrop's C++ headers are missing from this CasADi ({ca.__version__}): the adaptive "
+                           "barrier needs them (choose [solver] barrier = \"monotone\")")
+    flags = ["-std=c++17", "-O2", "-fPIC", "-shared", f"-I{inc}", f"-L{lib_dir}", "-lfatrop", "-lblasfeo",
+             f"-Wl,-rpath,{lib_dir}"]
+    return _cached_library(_ADAPTIVE, _cxx_compiler(), flags, "fatrop's adaptive barrier", log)
 
 
 def tuned_kernels_library(log=print) -> str:
@@ -189,9 +223,17 @@ class DirectFatrop:
     signatures) with CasADi's manual stage structure `structure` (N, nx, nu, ng); `options` are
     fatrop's own (tol, max_iter, mu_init, print_level, ...)."""
 
-    def __init__(self, library: str, structure: dict, options: dict | None = None, log=print):
+    def __init__(self, library: str, structure: dict, options: dict | None = None, log=print,
+                 barrier: str = "monotone"):
+        if barrier not in BARRIERS:
+            raise ValueError(f"barrier {barrier!r}: choose one of {', '.join(BARRIERS)}")
         driver = driver_library(log)
         blasfeo.load(str(casadi_dir() / "libfatrop.so"), driver, lambda: tuned_kernels_library(log))
+        self.barrier, self.api = barrier, None
+        if barrier == "adaptive":
+            rsq = ctypes.CDLL(adaptive_library(log))
+            self._rsq = rsq
+            self.api = _Api(*[ctypes.cast(getattr(rsq, "rsq_" + n), ctypes.c_void_p).value for n in _RSQ])
         self.driver = ctypes.CDLL(driver)
         self.driver.rsf_solve.restype = ctypes.c_int
         self.driver.rsf_blasfeo_function.restype = ctypes.c_void_p
@@ -243,10 +285,11 @@ class DirectFatrop:
         c_strings = (ctypes.c_char_p * max(len(names), 1))(*[str(self.options[k]).encode() for k in names])
         values = np.array([0.0 if isinstance(self.options[k], str) else float(self.options[k]) for k in names] or [0.0])
         verbose = int(bool(self.options.get("print_level", 0)))
-        x, lam_g, lam_x, stats = np.zeros(self.n_x), np.zeros(self.n_g), np.zeros(self.n_x), np.zeros(18)
+        x, lam_g, lam_x, stats = np.zeros(self.n_x), np.zeros(self.n_g), np.zeros(self.n_x), np.zeros(20 + _MU)
         ptr = lambda a: a.ctypes.data_as(_Dp)  # noqa: E731
         with _ONE_AT_A_TIME:
-            ret = self.driver.rsf_solve(ctypes.byref(P), ptr(x0), ptr(p), ptr(lbx), ptr(ubx), ptr(lbg), ptr(ubg),
+            api = ctypes.byref(self.api) if self.api is not None else None
+            ret = self.driver.rsf_solve(ctypes.byref(P), api, ptr(x0), ptr(p), ptr(lbx), ptr(ubx), ptr(lbg), ptr(ubg),
                                         len(names), c_names, ptr(values), c_strings, verbose,
                                         ptr(x), ptr(lam_g), ptr(lam_x), ptr(stats))
         if stats[17]:
@@ -258,7 +301,11 @@ class DirectFatrop:
         self._stats = {"success": ret == 0, "return_status": fat["return_flag"],
                        "unified_return_status": {0: "SOLVER_RET_SUCCESS", -1: "SOLVER_RET_EXCEPTION"}.get(ret, "SOLVER_RET_UNKNOWN"),
                        "iter_count": fat["iterations_count"], "fatrop": fat, "evaluation_failed": bool(stats[16]),
-                       "interface": "direct", "blasfeo": dict(self.blasfeo)}
+                       "interface": "direct", "blasfeo": dict(self.blasfeo), "barrier": self.barrier}
+        if self.api is not None:
+            mu = stats[20:20 + min(_MU, fat["iterations_count"])]
+            self._stats["barrier_adaptive"] = {"oracle_iterations": int(stats[18]), "fixed_iterations": int(stats[19]),
+                                               "mu": [float(v) for v in mu[np.isfinite(mu)]]}
         return {"x": x, "lam_g": lam_g, "lam_x": lam_x}
 
     def stats(self) -> dict:

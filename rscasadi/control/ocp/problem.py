@@ -35,6 +35,9 @@
                                          # threads (OpenMP); 0: one per core this process may use.
                                          # Above 1, a process forked after the solve hangs if
                                          # it solves on more than 1 too (libgomp): spawn them
+    barrier = "monotone"                 # fatrop direct: monotone (fatrop's own rule) | adaptive
+                                         # (IPOPT's quality-function rule; C++, needs a C++
+                                         # compiler; measured slower here, README "Why not 5x")
     [design]                             # parameters the optimiser chooses, constant over time
     "elbow_pitch.sea.k1" = [300.0, 3000.0]
 
@@ -54,13 +57,14 @@ OBJECTIVES = ("min_time", "min_effort", "tracking")
 METHODS = ("radau", "legendre", "hermite-simpson")
 SOLVERS = ("fatrop", "ipopt")
 INTERFACES = ("direct", "casadi")
+BARRIERS = ("monotone", "adaptive")          # fatrop_direct.py's
 HESSIANS = ("exact", "limited-memory")
 TOP = {"model", "objective", "theta_start", "theta_end", "duration", "max_duration", "trajectory",
        "effort_weight", "transcription", "verification", "solver", "refinement", "design"}
 TABLES = {"transcription": {"method", "degree", "intervals", "dynamics", "compiled", "condense"},
           "verification": {"final_angle_tol", "final_speed_tol", "tracking_tol", "limit_tol"},
           "refinement": {"rounds"},
-          "solver": {"name", "hessian", "interface", "threads"}}
+          "solver": {"name", "hessian", "interface", "threads", "barrier"}}
 # problem fields a sweep may vary without rebuilding the NLP (they are its parameters or bounds)
 SWEEPABLE = ("theta_start", "theta_end", "duration", "max_duration", "effort_weight")
 
@@ -86,6 +90,7 @@ class Problem:
     hessian: str = "exact"
     interface: str = "direct"
     threads: int = 1                                 # 0: one per available core
+    barrier: str = "monotone"                        # fatrop direct: monotone | adaptive
     final_angle_tol: float = 1e-4
     final_speed_tol: float = 1e-3
     tracking_tol: float = 1e-3
@@ -173,6 +178,12 @@ def load_problem(path) -> Problem:
     p.condense = tr.get("condense", p.compiled)
     if not isinstance(p.condense, bool):
         fail("transcription.condense", f"must be true or false, got {p.condense!r}")
+    p.barrier = solver.get("barrier", p.barrier)
+    if p.barrier not in BARRIERS:
+        fail("solver.barrier", f"must be one of {', '.join(BARRIERS)}, got {p.barrier!r}")
+    if p.barrier != "monotone" and not (p.solver == "fatrop" and p.interface == "direct"):
+        fail("solver.barrier", "the adaptive barrier is for fatrop through its direct interface (name = \"fatrop\", "
+                               "interface = \"direct\")")
     if solver.get("interface") == "direct" and not p.compiled:
         fail("solver.interface", "the direct fatrop interface calls the compiled NLP: needs compiled = true")
     if p.condense and not p.compiled:

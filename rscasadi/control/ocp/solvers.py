@@ -47,7 +47,7 @@ def make_solver(problem: Problem, tr: Transcription, nlp: dict, log=print, print
         return ca.nlpsol("ocp", problem.solver, nlp, opts), objective
     library = compiled_nlp(problem.solver, nlp, opts, tr.pieces, log)
     if direct(problem):
-        return DirectFatrop(library, tr.structure(), opts["fatrop"], log), objective
+        return DirectFatrop(library, tr.structure(), opts["fatrop"], log, problem.barrier), objective
     return ca.nlpsol("ocp", problem.solver, library, opts), objective
 
 

@@ -128,6 +128,8 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
     return {"model": str(problem.model_path), "solver": problem.solver,
             "interface": ("direct" if direct(problem) else "casadi") if problem.solver == "fatrop" else None,
             "blasfeo": stats.get("blasfeo"),          # fatrop's linear algebra library (direct interface)
+            "barrier": stats.get("barrier"),          # fatrop direct: monotone | adaptive
+            "barrier_adaptive": stats.get("barrier_adaptive"),   # its oracle / fixed-mode iterations, mu
             "threads": threads, "status": _status(stats),
             "success": _success(stats), "solve_time_s": solve_time, "setup_time_s": setup,
             "iterations": int(stats["iter_count"]), "objective": float(objective(res["x"], P)),
