@@ -136,7 +136,7 @@ def problem(directory, name="p.toml", **over):
 
 
 def raw_solve(monkeypatch, p, **kw):
-    """solve_once, keeping the solver's raw result too (x, lam_g, lam_x as flat arrays)."""
+    """solve_once, keeping the solver's raw result too (x, lam_g, lam_x as flat arrays; its stats)."""
     from rscasadi.control.ocp import solve_once, solvers
     raw, make = {}, solvers.make_solver
 
@@ -147,6 +147,7 @@ def raw_solve(monkeypatch, p, **kw):
             def __call__(self, **kw):
                 res = s(**kw)
                 raw.update({key: np.array(v, float).ravel() for key, v in res.items()})
+                raw["stats"] = s.stats()
                 return res
 
             def stats(self):

@@ -6,10 +6,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from rscasadi.control.ocp import load_problem, solve, solve_once, solvers
+from rscasadi.control.ocp import load_problem, solve, solve_once
 from rscasadi.model.modelfile import ModelFileError
 
-from conftest import problem
+from conftest import problem, raw_solve
 
 QUIET = {"print_level": 0, "log": lambda m: None}
 
@@ -24,24 +24,9 @@ def test_oracle_chooses_ipopts_barrier_parameters(effort, monkeypatch):
     # IPOPT's (they part later, as the two line searches and regularisations differ)
     ours = solve_once(dataclasses.replace(load_problem(effort), solver="fatrop", barrier="adaptive"), **QUIET)
     assert ours["success"], ours["status"]
-    kept, make = {}, solvers.make_solver
-
-    def spy(*a, **k):
-        s, f = make(*a, **k)
-
-        class Kept:
-            def __call__(self, **kw):
-                res = s(**kw)
-                kept.update(s.stats())
-                return res
-
-            def stats(self):
-                return s.stats()
-        return Kept(), f
-    monkeypatch.setattr("rscasadi.control.ocp.solving.make_solver", spy)
-    ipopt = solve_once(dataclasses.replace(load_problem(effort), solver="ipopt"), **QUIET)
+    ipopt, raw = raw_solve(monkeypatch, dataclasses.replace(load_problem(effort), solver="ipopt"))
     assert ipopt["success"]
-    mu_ipopt = np.array(kept["iterations"]["mu"])[1:]     # row k: the mu of the step that led to it
+    mu_ipopt = np.array(raw["stats"]["iterations"]["mu"])[1:]     # row k: the mu of the step that led to it
     mu_ours = np.array(ours["barrier_adaptive"]["mu"])
     assert len(mu_ours) == ours["iterations"]
     assert mu_ours[0] == pytest.approx(mu_ipopt[0], rel=1e-6)        # same point: the same choice
