@@ -105,14 +105,21 @@ namespace
         void set_kappa_c(const Scalar &v) { kappa_c_ = v; }
         void set_delta_c_stripe(const Scalar &v) { delta_c_stripe_ = v; }
 
-        /* factorise at the current iterate and solve for mu = 0 (slot 0) and d/dmu (slot 1) */
-        LinsolReturnFlag affine_and_unit()
+        /* a solve the step may use (fatrop's IpSearchDirImpl accepts these) */
+        static bool ok(LinsolReturnFlag f)
+        {
+            return f == LinsolReturnFlag::SUCCESS || f == LinsolReturnFlag::ITREF_MAX_ITER ||
+                   f == LinsolReturnFlag::ITREF_INCREASE;
+        }
+        /* factorise at the current iterate and solve for mu = 0 (slot 0) and d/dmu (slot 1);
+           false: the factorisation failed (compute_search_dir then reports it at the current mu) */
+        bool affine_and_unit()
         {
             Iterate &it = data_->current_iterate();
             flag_ = factorise(it, 0.);
             pending_ = ok(flag_);
             if (!pending_)
-                return flag_;
+                return false;
             *x_[1] = VecRealScalar(x_[1]->m(), 0.);
             *s_[1] = VecRealScalar(s_[1]->m(), 0.);
             *g_[1] = VecRealScalar(g_[1]->m(), 0.);
@@ -124,7 +131,7 @@ namespace
             data_->timing_statistics().compute_search_dir.pause();
             if (!ok(f) || !x_[1]->is_finite())
                 pending_ = false, flag_ = LinsolReturnFlag::NAN_SOLUTION;
-            return flag_;
+            return pending_;
         }
         /* slot i's step for the slacks and bound multipliers (the oracle's inputs) */
         const VecRealAllocated &ds(int i) const { return *s_[i]; }
@@ -157,11 +164,6 @@ namespace
         }
 
     private:
-        static bool ok(LinsolReturnFlag f)
-        {
-            return f == LinsolReturnFlag::SUCCESS || f == LinsolReturnFlag::ITREF_MAX_ITER ||
-                   f == LinsolReturnFlag::ITREF_INCREASE;
-        }
         PdSystem system(Iterate &it, int i)
         {
             return PdSystem(it.info(), it.jacobian(), it.hessian(), it.Dx(), it.De_is_zero(), it.De(),
@@ -332,21 +334,7 @@ namespace
         {
             return (sum(it.complementarity_l()) + sum(it.complementarity_u())) / it.number_of_bounds();
         }
-        static Scalar sum(const VecRealView &v)
-        {
-            Scalar s = 0.;
-            for (Index i = 0; i < v.m(); i++)
-                s += v(i);
-            return s;
-        }
         static const Scalar *raw(const VecRealView &v) { return v.vec().pa + v.ai(); }
-        static Scalar sumsq(const VecRealView &v)
-        {
-            Scalar s = 0.;
-            for (Index i = 0; i < v.m(); i++)
-                s += v(i) * v(i);
-            return s;
-        }
         /* IPOPT's filter of (objective, constraint violation) over the points accepted in free mode */
         bool sufficient_progress(Iterate &it)
         {
@@ -421,8 +409,8 @@ namespace
                     m.dz0.push_back(upper ? dzu[0][i] : dzl[0][i]);
                     m.dz1.push_back(upper ? dzu[1][i] : dzl[1][i]);
                 }
-            m.dual2 = sumsq(it.dual_infeasibility_x()) + sumsq(it.dual_infeasibility_s());
-            m.primal2 = sumsq(it.constr_viol());
+            m.dual2 = sumsqr(it.dual_infeasibility_x()) + sumsqr(it.dual_infeasibility_s());
+            m.primal2 = sumsqr(it.constr_viol());
             m.n_dual = it.dual_infeasibility_x().m() + n;
             m.n_primal = it.constr_viol().m();
             m.n_compl = it.number_of_bounds();
@@ -432,9 +420,7 @@ namespace
         /* QualityFunctionMuOracle::CalculateMu: sigma = mu / average complementarity */
         bool oracle(Iterate &it, Scalar &mu)
         {
-            LinsolReturnFlag f = search_dir_->affine_and_unit();
-            if (!(f == LinsolReturnFlag::SUCCESS || f == LinsolReturnFlag::ITREF_MAX_ITER ||
-                  f == LinsolReturnFlag::ITREF_INCREASE))
+            if (!search_dir_->affine_and_unit())
                 return false;
             const Model m = model(it);
             const Scalar avg = average_complementarity(it);

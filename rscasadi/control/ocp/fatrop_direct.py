@@ -31,11 +31,11 @@ from ...codegen import _compiler, cache_dir
 from ...codegen.generate import native_flags
 from ...codegen.parallel import openmp_flags
 from . import blasfeo
+from .problem import BARRIERS
 
 _SOURCE = Path(__file__).with_name("fatrop_direct.c")
 _TUNED = Path(__file__).with_name("blasfeo_tuned.c")
 _ADAPTIVE = Path(__file__).with_name("fatrop_adaptive.cpp")
-BARRIERS = ("monotone", "adaptive")         # problem.py's [solver] barrier
 _NAMES = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l")
 _STATS = ("compute_sd_time", "duinf_time", "eval_hess_time", "eval_jac_time", "eval_cv_time", "eval_grad_time",
           "eval_obj_time", "initialization_time", "time_total", "eval_hess_count", "eval_jac_count",
@@ -231,9 +231,8 @@ class DirectFatrop:
         blasfeo.load(str(casadi_dir() / "libfatrop.so"), driver, lambda: tuned_kernels_library(log))
         self.barrier, self.api = barrier, None
         if barrier == "adaptive":
-            rsq = ctypes.CDLL(adaptive_library(log))
-            self._rsq = rsq
-            self.api = _Api(*[ctypes.cast(getattr(rsq, "rsq_" + n), ctypes.c_void_p).value for n in _RSQ])
+            self._rsq = ctypes.CDLL(adaptive_library(log))             # kept loaded while the table points into it
+            self.api = _Api(*[ctypes.cast(getattr(self._rsq, "rsq_" + n), ctypes.c_void_p).value for n in _RSQ])
         self.driver = ctypes.CDLL(driver)
         self.driver.rsf_solve.restype = ctypes.c_int
         self.driver.rsf_blasfeo_function.restype = ctypes.c_void_p

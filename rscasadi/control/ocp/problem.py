@@ -57,7 +57,7 @@ OBJECTIVES = ("min_time", "min_effort", "tracking")
 METHODS = ("radau", "legendre", "hermite-simpson")
 SOLVERS = ("fatrop", "ipopt")
 INTERFACES = ("direct", "casadi")
-BARRIERS = ("monotone", "adaptive")          # fatrop_direct.py's
+BARRIERS = ("monotone", "adaptive")          # fatrop (direct)'s barrier rules (fatrop_direct.py)
 HESSIANS = ("exact", "limited-memory")
 TOP = {"model", "objective", "theta_start", "theta_end", "duration", "max_duration", "trajectory",
        "effort_weight", "transcription", "verification", "solver", "refinement", "design"}
