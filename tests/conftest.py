@@ -136,7 +136,8 @@ def problem(directory, name="p.toml", **over):
 
 
 def raw_solve(monkeypatch, p, **kw):
-    """solve_once, keeping the solver's raw result too (x, lam_g, lam_x as flat arrays; its stats)."""
+    """solve_once, keeping the solver's raw result too (x, lam_g, lam_x as flat arrays; its stats;
+    the solver and its arguments as "solver" and "args", to call it again)."""
     from rscasadi.control.ocp import solve_once, solvers
     raw, make = {}, solvers.make_solver
 
@@ -147,7 +148,7 @@ def raw_solve(monkeypatch, p, **kw):
             def __call__(self, **kw):
                 res = s(**kw)
                 raw.update({key: np.array(v, float).ravel() for key, v in res.items()})
-                raw["stats"] = s.stats()
+                raw.update(stats=s.stats(), solver=s, args=kw)
                 return res
 
             def stats(self):

@@ -33,6 +33,7 @@ def test_direct_fatrop_iterates_as_casadis_plugin(pitch_arm, monkeypatch, case, 
         out[interface] = raw_solve(monkeypatch, p)
         assert out[interface][0]["success"], out[interface][0]["status"]
     (a, ra), (b, rb) = out["casadi"], out["direct"]
+    assert rb["stats"]["raw_derivatives"]              # the pieces' derivatives, placed by the driver
     assert a["iterations"] == b["iterations"]
     for key in ("x", "lam_g", "lam_x"):                 # multipliers: signs and places of every row
         scale = max(1.0, np.max(np.abs(ra[key])))
@@ -79,6 +80,19 @@ def test_layout_refuses_what_is_not_stage_wise():
     hess_coupled = ca.sparsify(ca.DM([[1, 0, 1, 0, 0], [0, 1, 0, 0, 0], [1, 0, 1, 0, 0], [0, 0, 0, 1, 0], [0, 0, 0, 0, 1]])).sparsity()
     with pytest.raises(ValueError, match="couples stages: variables 2 and 0|couples stages: variables 0 and 2"):
         _Layout(nx, nu, ng, _triplets(good), _triplets(hess_coupled), *no)
+
+
+def test_layout_adds_the_hessian_nonzeros_that_share_a_place():
+    # pieces overlap in the Hessian (the start piece and stage 0 at x_0): the driver writes each
+    # place's first nonzero and adds the others
+    nx, nu, ng = [1, 1, 1], [1, 1, 0], [0, 0, 0]
+    no = np.zeros(2, bool), np.zeros(2, bool), np.zeros(5, bool), np.zeros(5, bool)
+    jac = ca.sparsify(ca.DM([[1, 1, 1, 0, 0], [0, 0, 1, 1, 1]])).sparsity()
+    hess = ((5, 5), np.array([0, 1, 0, 4, 0]), np.array([0, 1, 0, 4, 1]))      # (0, 0) twice
+    L = _Layout(nx, nu, ng, _triplets(jac), hess, *no)
+    ht = L.arrays["ht"]
+    assert list(L.arrays["hadd"]) == [2] and ht[2] == -1 and L.arrays["hadd_to"][0] == ht[0] >= 0
+    assert len(set(ht[ht >= 0])) == 4
 
 
 def test_unknown_fatrop_option_is_named(pitch_arm):
@@ -167,3 +181,46 @@ def test_direct_fatrop_solves_from_two_threads(tmp_path):
         out = list(pool.map(one, [1.0, 10.0, 100.0, 1000.0] * 3))
     for (ok, u), c in zip(out, [1.0, 10.0, 100.0, 1000.0] * 3):
         assert ok and abs(u + c / (1 + 3 * c)) < 1e-8
+
+
+@pytest.mark.parametrize("barrier", ["monotone", "adaptive"])
+def test_a_reused_solver_iterates_as_a_new_one(pitch_arm, monkeypatch, barrier):
+    # fatrop's solver is built once per layout and reused: every solve must start afresh (iterates,
+    # bounds, barrier parameter, filter), so a solve after others equals a new solver's, bit for bit
+    # (lifted: no condensing kernel, whose warm starts would differ in the last bits)
+    from rscasadi.control.ocp.fatrop_direct import DirectFatrop
+    p = load_problem(problem(pitch_arm, f"reuse_{barrier}.toml", transcription={"intervals": 12, "condense": False, "compiled": True},
+                             solver={"name": "fatrop", "interface": "direct", "barrier": barrier}))
+    _, raw = raw_solve(monkeypatch, p)
+    s, kw = raw["solver"], raw["args"]
+    first = s(**kw)
+    it_first = s.stats()["iter_count"]
+    lbx, ubx = np.array(kw["lbx"], float).ravel(), np.array(kw["ubx"], float).ravel()
+    finite = np.isfinite(lbx) & np.isfinite(ubx) & (lbx < ubx)
+    shrink = 0.01 * np.where(finite, ubx - lbx, 0.0)
+    other = {**kw, "x0": np.array(kw["x0"], float).ravel() * 0.5,                 # another start and bounds
+             "lbx": lbx + shrink, "ubx": ubx - shrink}
+    second = s(**other)
+    assert s.stats()["success"] and len(s._sessions) == 1
+    fresh = DirectFatrop(s.library, s.structure, dict(s.options), barrier=barrier)
+    alone = fresh(**other)
+    assert fresh.stats()["iter_count"] == s.stats()["iter_count"]
+    for key in ("x", "lam_g", "lam_x"):
+        assert np.array_equal(second[key], alone[key]), key
+    again = s(**kw)
+    assert s.stats()["iter_count"] == it_first
+    for key in ("x", "lam_g", "lam_x"):
+        assert np.array_equal(again[key], first[key]), key
+    assert not np.array_equal(second["x"], first["x"])          # the second solve did solve another problem
+
+
+def test_a_quiet_solver_stays_quiet_beside_a_verbose_one(tmp_path, capfd):
+    # one process-wide writer for every (kept) solver: it prints only for a verbose solve
+    from rscasadi.control.ocp.fatrop_direct import DirectFatrop
+    lib, structure = _tiny_ocp(tmp_path)
+    inf = np.inf
+    args = dict(x0=np.zeros(7), lbx=[1.0] + [-inf] * 6, ubx=[1.0] + [inf] * 6, lbg=[0, -inf] * 3, ubg=[0, 100] * 3, p=10.0)
+    loud, quiet = DirectFatrop(lib, structure, {"print_level": 5}), DirectFatrop(lib, structure, {"print_level": 0})
+    for solver, heard in ((loud, True), (quiet, False), (loud, True), (quiet, False)):
+        solver(**args)
+        assert ("inf_pr" in capfd.readouterr().out) == heard

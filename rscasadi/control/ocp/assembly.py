@@ -190,7 +190,8 @@ def _scatter(values: list, places: list, shape) -> ca.MX:
 
 
 def _nz(m: ca.MX) -> ca.MX:
-    return m.nz[:] if m.nnz() else ca.MX(0, 1)
+    """m's nonzeros as a column (a reinterpretation, no copy in the generated C)."""
+    return ca.sparsity_cast(m, ca.Sparsity.dense(m.nnz(), 1)) if m.nnz() else ca.MX(0, 1)
 
 
 def constraints_and_objective(pieces: list, w: ca.MX, n_g: int, parallel: str = "serial"):
@@ -206,41 +207,58 @@ def constraints_and_objective(pieces: list, w: ca.MX, n_g: int, parallel: str = 
     return ca.densify(_scatter(rows, places, (n_g, 1))), f
 
 
+def places(pieces: list) -> tuple:
+    """The global (rows, cols) of each piece's Jacobian and Hessian nonzeros, in the order its
+    mapped derivative functions output them (instance-major)."""
+    jac, hess = [], []
+    for piece in pieces:
+        first, _, second = derivative_functions(piece)
+        jac.append(_placement(first.sparsity_out(1), piece.rows, piece.cols))
+        hess.append(_placement(second.sparsity_out(1), piece.cols, piece.cols))
+    return jac, hess
+
+
 def assembled(pieces: list, w: ca.MX, lam_f: ca.MX, lam_g: ca.MX, n_g: int, parallel: str = "serial") -> dict:
     """grad f, J, grad L, H and triu(H) of the NLP made of the pieces, as MX of w (and of the
-    parameters the pieces take)."""
+    parameters the pieces take); "jac_parts", "hess_parts": each piece's nonzeros as its map
+    outputs them (places(pieces) says where they go)."""
     n_w = w.numel()
-    J, Jp, gf, gl, gp, H, Hp, U, Up = ([] for _ in range(9))
-    for piece in pieces:
+    Jp, Hp = places(pieces)
+    J, gf, gl, gp, H, U, Up = ([] for _ in range(7))
+    for piece, (R, C) in zip(pieces, Hp):
         first, objective, second = derivative_functions(piece)
         _, Ji = piece.call(first, w, parallel=parallel)
         _, gfi = piece.call(objective, w, parallel=parallel)
         lam = ca.reshape(lam_g[piece.rows.ravel().tolist()], piece.rows.shape[1], piece.count)
         gli, Hi = piece.call(second, w, lam, lam_f, parallel=parallel)
         J.append(_nz(Ji))
-        Jp.append(_placement(first.sparsity_out(1), piece.rows, piece.cols))
         gf.append(ca.vec(gfi))
         gl.append(ca.vec(gli))
         gp.append(_in_column(piece.cols))
-        R, C = _placement(second.sparsity_out(1), piece.cols, piece.cols)
         upper = np.flatnonzero(R <= C)                 # each symmetric pair once, on the upper side
         H.append(_nz(Hi))
-        Hp.append((R, C))
         U.append(H[-1][upper.tolist()] if len(upper) else ca.MX(0, 1))
         Up.append((R[upper], C[upper]))
     dense = lambda parts, places: ca.densify(_scatter(parts, places, (n_w, 1)))
     return {"grad_f": dense(gf, gp), "jac_g": _scatter(J, Jp, (n_g, n_w)), "grad_l": dense(gl, gp),
-            "hess": _scatter(H, Hp, (n_w, n_w)), "triu_hess": _scatter(U, Up, (n_w, n_w))}
+            "hess": _scatter(H, Hp, (n_w, n_w)), "triu_hess": _scatter(U, Up, (n_w, n_w)),
+            "jac_parts": J, "hess_parts": H}
 
 
-ASSEMBLY_VERSION = "assembled-3"        # part of the compiled-NLP cache key
+ASSEMBLY_VERSION = "assembled-4"        # part of the compiled-NLP cache key
 NAMES = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l", "nlp_grad")
+# the same derivatives unscattered, for a caller that places them itself (fatrop_direct.c): each
+# piece's nonzeros as its map writes them, one output per piece (their places: places(pieces))
+RAW_NAMES = ("raw_jac_g", "raw_hess_l")
 
 
-def solver_functions(plain: ca.Function, nlp: dict, pieces: list, parallel: str = "serial") -> list:
+def solver_functions(plain: ca.Function, nlp: dict, pieces: list, parallel: str = "serial", raw: bool = False) -> list:
     """The functions the compiled solver `plain` loads by name, with its signatures; g, f and
     the first and second derivatives assembled from the pieces, their maps over the intervals
-    `parallel` (nlp_grad, called once for the parameter multipliers, as CasADi makes it)."""
+    `parallel` (nlp_grad, called once for the parameter multipliers, as CasADi makes it); with
+    `raw`, RAW_NAMES too: (x, p) -> (g, J_1, ..., J_m) and (x, p, lam_f, lam_g) -> (grad L, H_1,
+    ..., H_m) (at N = 100 the scatter had copied the Jacobian's 46 840 nonzeros five times, serially,
+    in every call: 6 of a 63 ms fatrop solve)."""
     w, P, n_g = nlp["x"], nlp["p"], nlp["g"].numel()
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", n_g)
     a = assembled(pieces, w, lam_f, lam_g, n_g, parallel)
@@ -249,6 +267,9 @@ def solver_functions(plain: ca.Function, nlp: dict, pieces: list, parallel: str 
             "grad_gamma_x": a["grad_l"], "hess_gamma_x_x": a["hess"], "triu_hess_gamma_x_x": a["triu_hess"]}
     sym = {"x": w, "p": P, "lam_f": lam_f, "lam_g": lam_g}
     out = [ca.Function("nlp", [w, P], [f, g], ["x", "p"], ["f", "g"])]
+    if raw:
+        out += [ca.Function("raw_jac_g", [w, P], [g, *a["jac_parts"]]),
+                ca.Function("raw_hess_l", [w, P, lam_f, lam_g], [a["grad_l"], *a["hess_parts"]])]
     for name in NAMES:
         try:
             ref = plain.get_function(name)

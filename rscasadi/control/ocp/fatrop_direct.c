@@ -27,9 +27,13 @@ typedef struct {
   const int *a_eq, *a_eq_idx, *a_in, *a_in_idx;    /* path rows: equalities, inequalities */
   const int *x_eq, *x_eq_idx, *x_in, *x_in_idx;    /* bounded variables, likewise */
   int nnz_j, nnz_h, n_jbuf, n_hbuf;
+  int n_jparts, n_hparts, n_hadd;          /* the derivative functions' outputs after the first */
   const int *jt, *ht;                      /* block index of each Jacobian / Hessian nonzero
-                                              (-1: none, -2: x_{k+1} in a gap row, must be 1) */
+                                              (-1: none, -2: x_{k+1} in a gap row, must be 1;
+                                              Hessian -1: added after, by hadd) */
   const double* js;                        /* its sign (-1: A, B of the gap rows) */
+  const int *jpart, *hpart;                /* where each output's nonzeros start in a, h */
+  const int *hadd, *hadd_to;               /* Hessian nonzeros that share their place with another */
   const int *bab_off, *geq_off, *gin_off, *rsq_off;
   fn_t f, g, grad_f, jac_g, hess_l;
   int sz_arg, sz_res, sz_iw, sz_w;
@@ -89,6 +93,10 @@ static fatrop_int get_horizon(void* user_data) { return D->P->K; }
 static fatrop_int get_bounds(double* lo, double* up, fatrop_int k, void* user_data) {
   const rsf_problem* P = D->P;
   int i, c = 0;
+  if (!D->lbg) {                           /* while the solver is built: every solve reads them again */
+    for (i = 0; i < get_ng_ineq(k, user_data); ++i) { lo[i] = -INFINITY; up[i] = INFINITY; }
+    return 0;
+  }
   for (i = P->a_in_idx[k]; i < P->a_in_idx[k + 1]; ++i, ++c) { lo[c] = D->lbg[P->a_in[i]]; up[c] = D->ubg[P->a_in[i]]; }
   for (i = P->x_in_idx[k]; i < P->x_in_idx[k + 1]; ++i, ++c) { lo[c] = D->lbx[P->x_in[i]]; up[c] = D->ubx[P->x_in[i]]; }
   return 0;
@@ -138,11 +146,13 @@ static fatrop_int constr_jac(const double* primal, const double* sp, const doubl
   rsf_data* d = D;
   const rsf_problem* P = d->P;
   const double* in[2] = {d->x, d->p};
-  double* out[2] = {d->gv, d->a};
-  const int n[2] = {P->ng, P->nnz_j};
+  double* out[1 + P->n_jparts];
+  int n[1 + P->n_jparts];
   int e, k, bad = 0;
+  out[0] = d->gv; n[0] = P->ng;
+  for (k = 0; k < P->n_jparts; ++k) { out[1 + k] = d->a + P->jpart[k]; n[1 + k] = P->jpart[k + 1] - P->jpart[k]; }
   read_primal(d, primal, s);
-  call(d, P->jac_g, in, 2, out, n, 2);
+  call(d, P->jac_g, in, 2, out, n, 1 + P->n_jparts);
   #pragma omp parallel for schedule(static) reduction(|:bad)
   for (e = 0; e < P->nnz_j; ++e) {
     if (P->jt[e] >= 0) d->jbuf[P->jt[e]] = P->js[e] * d->a[e];
@@ -214,9 +224,11 @@ static fatrop_int lag_hess(double scale, const double* primal, const double* lam
   rsf_data* d = D;
   const rsf_problem* P = d->P;
   const double* in[4] = {d->x, d->p, &scale, d->lam};
-  double* out[2] = {d->grad, d->h};
-  const int n[2] = {P->nv, P->nnz_h};
+  double* out[1 + P->n_hparts];
+  int n[1 + P->n_hparts];
   int e, k, i, c;
+  out[0] = d->grad; n[0] = P->nv;
+  for (k = 0; k < P->n_hparts; ++k) { out[1 + k] = d->h + P->hpart[k]; n[1 + k] = P->hpart[k + 1] - P->hpart[k]; }
   read_primal(d, primal, s);
   memset(d->lam, 0, sizeof(double) * P->ng);
   for (k = 0; k < P->K; ++k) {
@@ -227,7 +239,7 @@ static fatrop_int lag_hess(double scale, const double* primal, const double* lam
     if (k < P->K - 1)
       for (i = 0; i < P->nx[k + 1]; ++i) d->lam[P->roff[k] + i] = -lam_data[s->dyn_eq_offs[k] + i];
   }
-  call(d, P->hess_l, in, 4, out, n, 2);
+  call(d, P->hess_l, in, 4, out, n, 1 + P->n_hparts);
   for (k = 0; k < P->K; ++k) {
     if (k < P->K - 1)
       for (i = 0; i < P->nx[k + 1]; ++i) d->grad[P->xoff[k + 1] + i] += lam_data[s->dyn_eq_offs[k] + i];
@@ -237,7 +249,8 @@ static fatrop_int lag_hess(double scale, const double* primal, const double* lam
     for (i = P->x_eq_idx[k]; i < P->x_eq_idx[k + 1]; ++i) d->grad[P->x_eq[i]] += lam_data[s->g_offs[k] + c++];
   }
   #pragma omp parallel for schedule(static)
-  for (e = 0; e < P->nnz_h; ++e) d->hbuf[P->ht[e]] = d->h[e];
+  for (e = 0; e < P->nnz_h; ++e) if (P->ht[e] >= 0) d->hbuf[P->ht[e]] = d->h[e];
+  for (e = 0; e < P->n_hadd; ++e) d->hbuf[P->hadd_to[e]] += d->h[P->hadd[e]];
   #pragma omp parallel for schedule(static) private(i)
   for (k = 0; k < P->K; ++k) {
     int n = P->nx[k] + P->nu[k];
@@ -251,10 +264,11 @@ static fatrop_int lag_hess(double scale, const double* primal, const double* lam
 /* where this driver's BLASFEO calls go (libfatrop's bind alike): blasfeo.py names the library */
 void* rsf_blasfeo_function(void) { return (void*)&blasfeo_pack_dmat; }
 
-/* fatrop keeps the last writer for the process (a global stream): always pass one */
-static void quiet(const char* msg, int n) { (void)msg; (void)n; }
-static void to_stdout(const char* msg, int n) { fwrite(msg, 1, (size_t)n, stdout); }
-static void flush_out(void) { fflush(stdout); }
+/* fatrop keeps the last writer it was given for the process (a global stream): every solver gets
+   this one, which prints only while a verbose solve runs (solves are one at a time, fatrop_direct.py) */
+static int rsf_verbose = 0;
+static void writer(const char* msg, int n) { if (rsf_verbose) fwrite(msg, 1, (size_t)n, stdout); }
+static void flusher(void) { if (rsf_verbose) fflush(stdout); }
 
 /* The solver's entry points: fatrop's C interface, or the same functions with another barrier
    rule (fatrop_adaptive.cpp's rsq_*, passed in by fatrop_direct.py); counts: the oracle's and
@@ -289,81 +303,114 @@ static const rsf_api fatrop_api = {
   (void (*)(void*))fatrop_ocp_c_destroy,
   0};
 
-/* Options: names[i] with values[i] (double, int or bool by fatrop's type) or strings[i].
-   Returns 0 on success, 1 otherwise, -1 on an exception inside fatrop; stats[20 + RSF_MU]: FatropOcpCStats
-   in order, whether an evaluation failed, whether a gap row's x_{k+1} coefficient was not 1, the
-   barrier rule's counts and mu (above; -1 if none);
-   -1000 - i: option i unknown or refused. */
-int rsf_solve(const rsf_problem* P, const rsf_api* api, const double* x0, const double* p, const double* lbx,
-              const double* ubx, const double* lbg, const double* ubg, int n_opt, const char** names,
-              const double* values, const char** strings, int verbose, double* x_out, double* lam_g, double* lam_x,
-              double* stats) {
+/* A session: one solver (built once: its build took 3 ms of a 57 ms solve of (b)) and its data,
+   for one problem layout P, solved again and again (fatrop resets its iterates, bounds and barrier
+   rule on every solve; tested: the same iterates as a new solver). */
+typedef struct {
   rsf_data d;
   struct FatropOcpCInterface ocp;
+  const rsf_api* api;
   void* solver;
+} rsf_session;
+
+void rsf_close(rsf_session* S) {
+  rsf_data* d;
+  if (!S) return;
+  d = &S->d;
+  if (S->solver) S->api->destroy(S->solver);
+  free(d->x); free(d->gv); free(d->a); free(d->h); free(d->lam); free(d->grad); free(d->jbuf); free(d->hbuf);
+  free(d->arg); free(d->res); free(d->iw); free(d->w);
+  free(S);
+}
+
+rsf_session* rsf_open(const rsf_problem* P, const rsf_api* api) {
+  rsf_session* S = calloc(1, sizeof(rsf_session));
+  rsf_data* d;
+  if (!S) return 0;
+  d = &S->d;
+  S->api = api ? api : &fatrop_api;
+  d->P = P;
+  d->x = calloc(P->nv, sizeof(double)); d->gv = calloc(P->ng + 1, sizeof(double));
+  d->a = calloc(P->nnz_j + 1, sizeof(double)); d->h = calloc(P->nnz_h + 1, sizeof(double));
+  d->lam = calloc(P->ng + 1, sizeof(double)); d->grad = calloc(P->nv, sizeof(double));
+  d->jbuf = calloc(P->n_jbuf + 1, sizeof(double)); d->hbuf = calloc(P->n_hbuf + 1, sizeof(double));
+  d->arg = calloc(P->sz_arg + 4, sizeof(double*)); d->res = calloc(P->sz_res + 2, sizeof(double*));
+  d->iw = calloc(P->sz_iw + 1, sizeof(casadi_int)); d->w = calloc(P->sz_w + 1, sizeof(double));
+  S->ocp.get_nx = get_nx; S->ocp.get_nu = get_nu; S->ocp.get_ng = get_ng; S->ocp.get_ng_ineq = get_ng_ineq;
+  S->ocp.get_horizon_length = get_horizon; S->ocp.get_bounds = get_bounds;
+  S->ocp.get_initial_xk = initial_xk; S->ocp.get_initial_uk = initial_uk;
+  S->ocp.full_eval_constr_jac = constr_jac; S->ocp.full_eval_contr_viol = constr_viol;
+  S->ocp.full_eval_obj_grad = obj_grad; S->ocp.full_eval_obj = obj; S->ocp.full_eval_lag_hess = lag_hess;
+  S->ocp.user_data = d;
+  S->solver = S->api->create(&S->ocp, writer, flusher);
+  return S;
+}
+
+/* Options: names[i] with values[i] (double, int or bool by fatrop's type) or strings[i]; set
+   before every solve (some, as print_level, are fatrop's process-wide state).  0, or -1000 - i if
+   option i is unknown or refused. */
+int rsf_options(rsf_session* S, int n_opt, const char** names, const double* values, const char** strings) {
+  int i;
+  for (i = 0; i < n_opt; ++i) {
+    int type = fatrop_ocp_c_option_type(names[i]), bad = 1;
+    if (type == 0) bad = S->api->set_double(S->solver, names[i], values[i]);
+    else if (type == 1) bad = S->api->set_int(S->solver, names[i], (int)values[i]);
+    else if (type == 2) bad = S->api->set_bool(S->solver, names[i], values[i] != 0);
+    else if (type == 3) bad = S->api->set_string(S->solver, names[i], strings[i]);
+    if (bad) return -1000 - i;
+  }
+  return 0;
+}
+
+/* One solve of the session's problem from x0 with parameters p and these bounds (their
+   classification into equalities, inequalities and free is the session's layout).
+   Returns 0 on success, 1 otherwise, -1 on an exception inside fatrop (then close the session);
+   stats[20 + RSF_MU]: FatropOcpCStats in order, whether an evaluation failed, whether a gap row's
+   x_{k+1} coefficient was not 1, the barrier rule's counts and mu (above; -1 if none). */
+int rsf_run(rsf_session* S, const double* x0, const double* p, const double* lbx, const double* ubx,
+            const double* lbg, const double* ubg, int verbose, double* x_out, double* lam_g, double* lam_x,
+            double* stats) {
+  rsf_data* d = &S->d;
+  const rsf_problem* P = d->P;
+  const rsf_api* api = S->api;
   const struct FatropOcpCDims* s;
   const struct FatropOcpCStats* st;
   const double *primal, *dual;
-  int i, k, c, ret = 0;
-  if (!api) api = &fatrop_api;
-  memset(&d, 0, sizeof d);
-  memset(&ocp, 0, sizeof ocp);
-  d.P = P; d.p = p; d.lbx = lbx; d.ubx = ubx; d.lbg = lbg; d.ubg = ubg; d.x0 = x0;
-  d.x = calloc(P->nv, sizeof(double)); d.gv = calloc(P->ng + 1, sizeof(double));
-  d.a = calloc(P->nnz_j + 1, sizeof(double)); d.h = calloc(P->nnz_h + 1, sizeof(double));
-  d.lam = calloc(P->ng + 1, sizeof(double)); d.grad = calloc(P->nv, sizeof(double));
-  d.jbuf = calloc(P->n_jbuf + 1, sizeof(double)); d.hbuf = calloc(P->n_hbuf + 1, sizeof(double));
-  d.arg = calloc(P->sz_arg + 4, sizeof(double*)); d.res = calloc(P->sz_res + 2, sizeof(double*));
-  d.iw = calloc(P->sz_iw + 1, sizeof(casadi_int)); d.w = calloc(P->sz_w + 1, sizeof(double));
-  ocp.get_nx = get_nx; ocp.get_nu = get_nu; ocp.get_ng = get_ng; ocp.get_ng_ineq = get_ng_ineq;
-  ocp.get_horizon_length = get_horizon; ocp.get_bounds = get_bounds;
-  ocp.get_initial_xk = initial_xk; ocp.get_initial_uk = initial_uk;
-  ocp.full_eval_constr_jac = constr_jac; ocp.full_eval_contr_viol = constr_viol;
-  ocp.full_eval_obj_grad = obj_grad; ocp.full_eval_obj = obj; ocp.full_eval_lag_hess = lag_hess;
-  ocp.user_data = &d;
-  solver = api->create(&ocp, verbose ? to_stdout : quiet, verbose ? flush_out : 0);
-  for (i = 0; i < n_opt && !ret; ++i) {
-    int type = fatrop_ocp_c_option_type(names[i]), bad = 1;
-    if (type == 0) bad = api->set_double(solver, names[i], values[i]);
-    else if (type == 1) bad = api->set_int(solver, names[i], (int)values[i]);
-    else if (type == 2) bad = api->set_bool(solver, names[i], values[i] != 0);
-    else if (type == 3) bad = api->set_string(solver, names[i], strings[i]);
-    if (bad) ret = -1000 - i;
+  int i, k, c, ret;
+  d->p = p; d->lbx = lbx; d->ubx = ubx; d->lbg = lbg; d->ubg = ubg; d->x0 = x0;
+  d->failed = d->bad_gap = 0;
+  rsf_verbose = verbose;
+  ret = api->solve(S->solver);
+  rsf_verbose = 0;
+  primal = api->primal(S->solver)->pa;
+  dual = api->dual(S->solver)->pa;
+  s = api->dims(S->solver);
+  st = api->stats(S->solver);
+  read_primal(d, primal, s);
+  memcpy(x_out, d->x, sizeof(double) * P->nv);
+  memset(lam_g, 0, sizeof(double) * P->ng);
+  memset(lam_x, 0, sizeof(double) * P->nv);
+  for (k = 0; k < P->K; ++k) {
+    c = 0;
+    for (i = P->a_in_idx[k]; i < P->a_in_idx[k + 1]; ++i) lam_g[P->a_in[i]] = dual[s->g_ineq_offs[k] + c++];
+    for (i = P->x_in_idx[k]; i < P->x_in_idx[k + 1]; ++i) lam_x[P->x_in[i]] = dual[s->g_ineq_offs[k] + c++];
+    c = 0;
+    for (i = P->a_eq_idx[k]; i < P->a_eq_idx[k + 1]; ++i) lam_g[P->a_eq[i]] = dual[s->g_offs[k] + c++];
+    for (i = P->x_eq_idx[k]; i < P->x_eq_idx[k + 1]; ++i) lam_x[P->x_eq[i]] = dual[s->g_offs[k] + c++];
+    if (k < P->K - 1)
+      for (i = 0; i < P->nx[k + 1]; ++i) lam_g[P->roff[k] + i] = -dual[s->dyn_eq_offs[k] + i];
   }
-  if (!ret) {
-    ret = api->solve(solver);
-    primal = api->primal(solver)->pa;
-    dual = api->dual(solver)->pa;
-    s = api->dims(solver);
-    st = api->stats(solver);
-    read_primal(&d, primal, s);
-    memcpy(x_out, d.x, sizeof(double) * P->nv);
-    memset(lam_g, 0, sizeof(double) * P->ng);
-    memset(lam_x, 0, sizeof(double) * P->nv);
-    for (k = 0; k < P->K; ++k) {
-      c = 0;
-      for (i = P->a_in_idx[k]; i < P->a_in_idx[k + 1]; ++i) lam_g[P->a_in[i]] = dual[s->g_ineq_offs[k] + c++];
-      for (i = P->x_in_idx[k]; i < P->x_in_idx[k + 1]; ++i) lam_x[P->x_in[i]] = dual[s->g_ineq_offs[k] + c++];
-      c = 0;
-      for (i = P->a_eq_idx[k]; i < P->a_eq_idx[k + 1]; ++i) lam_g[P->a_eq[i]] = dual[s->g_offs[k] + c++];
-      for (i = P->x_eq_idx[k]; i < P->x_eq_idx[k + 1]; ++i) lam_x[P->x_eq[i]] = dual[s->g_offs[k] + c++];
-      if (k < P->K - 1)
-        for (i = 0; i < P->nx[k + 1]; ++i) lam_g[P->roff[k] + i] = -dual[s->dyn_eq_offs[k] + i];
-    }
-    stats[0] = st->compute_sd_time; stats[1] = st->duinf_time; stats[2] = st->eval_hess_time;
-    stats[3] = st->eval_jac_time; stats[4] = st->eval_cv_time; stats[5] = st->eval_grad_time;
-    stats[6] = st->eval_obj_time; stats[7] = st->initialization_time; stats[8] = st->time_total;
-    stats[9] = st->eval_hess_count; stats[10] = st->eval_jac_count; stats[11] = st->eval_cv_count;
-    stats[12] = st->eval_grad_count; stats[13] = st->eval_obj_count; stats[14] = st->iterations_count;
-    stats[15] = st->return_flag; stats[16] = d.failed; stats[17] = d.bad_gap;
-    if (api->barrier) {
-      int counts[2];
-      api->barrier(solver, counts, stats + 20, RSF_MU);
-      stats[18] = counts[0]; stats[19] = counts[1];
-    }
+  stats[0] = st->compute_sd_time; stats[1] = st->duinf_time; stats[2] = st->eval_hess_time;
+  stats[3] = st->eval_jac_time; stats[4] = st->eval_cv_time; stats[5] = st->eval_grad_time;
+  stats[6] = st->eval_obj_time; stats[7] = st->initialization_time; stats[8] = st->time_total;
+  stats[9] = st->eval_hess_count; stats[10] = st->eval_jac_count; stats[11] = st->eval_cv_count;
+  stats[12] = st->eval_grad_count; stats[13] = st->eval_obj_count; stats[14] = st->iterations_count;
+  stats[15] = st->return_flag; stats[16] = d->failed; stats[17] = d->bad_gap;
+  if (api->barrier) {
+    int counts[2];
+    api->barrier(S->solver, counts, stats + 20, RSF_MU);
+    stats[18] = counts[0]; stats[19] = counts[1];
   }
-  api->destroy(solver);
-  free(d.x); free(d.gv); free(d.a); free(d.h); free(d.lam); free(d.grad); free(d.jbuf); free(d.hbuf);
-  free(d.arg); free(d.res); free(d.iw); free(d.w);
+  d->p = d->lbx = d->ubx = d->lbg = d->ubg = d->x0 = 0;      /* the caller's arrays: this solve's only */
   return ret;
 }

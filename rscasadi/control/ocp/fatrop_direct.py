@@ -22,6 +22,8 @@ import shutil
 import subprocess
 import threading
 import time
+import weakref
+from collections import OrderedDict
 from pathlib import Path
 
 import casadi as ca
@@ -31,6 +33,7 @@ from ...codegen import _compiler, cache_dir
 from ...codegen.generate import native_flags
 from ...codegen.parallel import openmp_flags
 from . import blasfeo
+from .assembly import RAW_NAMES
 from .problem import BARRIERS
 
 _SOURCE = Path(__file__).with_name("fatrop_direct.c")
@@ -47,14 +50,20 @@ _LAYOUTS: dict = {}
 # time per process (threads could race on it; processes, as the sweeps use, run in parallel)
 _ONE_AT_A_TIME = threading.Lock()
 _Dp = ctypes.POINTER(ctypes.c_double)
+_SESSIONS = 4                   # fatrop solvers kept per DirectFatrop (one per bound layout, the newest)
+
+
+def _close_sessions(driver, sessions: OrderedDict):
+    while sessions:
+        driver.rsf_close(ctypes.c_void_p(sessions.popitem()[1][0]))
 
 
 class _Problem(ctypes.Structure):
     _fields_ = ([(k, ctypes.c_int) for k in ("K", "nv", "ng")]
                 + [(k, _I) for k in ("nx", "nu", "xoff", "roff", "a_eq", "a_eq_idx", "a_in", "a_in_idx",
                                      "x_eq", "x_eq_idx", "x_in", "x_in_idx")]
-                + [(k, ctypes.c_int) for k in ("nnz_j", "nnz_h", "n_jbuf", "n_hbuf")]
-                + [("jt", _I), ("ht", _I), ("js", _Dp)]
+                + [(k, ctypes.c_int) for k in ("nnz_j", "nnz_h", "n_jbuf", "n_hbuf", "n_jparts", "n_hparts", "n_hadd")]
+                + [("jt", _I), ("ht", _I), ("js", _Dp), ("jpart", _I), ("hpart", _I), ("hadd", _I), ("hadd_to", _I)]
                 + [(k, _I) for k in ("bab_off", "geq_off", "gin_off", "rsq_off")]
                 + [(k, ctypes.c_void_p) for k in ("f", "g", "grad_f", "jac_g", "hess_l")]
                 + [(k, ctypes.c_int) for k in ("sz_arg", "sz_res", "sz_iw", "sz_w")])
@@ -135,6 +144,10 @@ def tuned_kernels_library(log=print) -> str:
                            "BLASFEO's dgemm kernel for this processor", log)
 
 
+def _vec(v, n: int) -> np.ndarray:
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(v, float).reshape(-1), (n,)))
+
+
 def _ints(v) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(v, dtype=np.intc).reshape(-1))
 
@@ -169,10 +182,15 @@ class _Layout:
         rsq = np.concatenate([[0], np.cumsum(self.ld * (nx + nu))[:-1]])
         jt, self.js = self._jacobian_places(*jac[1:], lists, nu)
         ht = self._hessian_places(*hess[1:], rsq)
-        for t in (jt[jt >= 0], ht):                               # one nonzero per place: the C scatters in parallel
-            assert len(np.unique(t)) == len(t), "two nonzeros share a block entry"
+        assert len(np.unique(jt[jt >= 0])) == np.count_nonzero(jt >= 0), "two Jacobian nonzeros share a block entry"
+        # pieces overlap in the Hessian (e.g. the start piece and stage 0 at x_0): each place's first
+        # nonzero is written in parallel, the others are added after it
+        _, first = np.unique(ht, return_index=True)
+        hadd = np.setdiff1d(np.arange(len(ht)), first)
+        hadd_to = ht[hadd]
+        ht[hadd] = -1
         self.arrays = {key: _ints(v) for key, v in {
-            "nx": nx, "nu": nu, "xoff": xoff, "roff": roff, **lists, "jt": jt, "ht": ht,
+            "nx": nx, "nu": nu, "xoff": xoff, "roff": roff, **lists, "jt": jt, "ht": ht, "hadd": hadd, "hadd_to": hadd_to,
             "bab_off": self.offs[:, 0], "geq_off": self.offs[:, 1], "gin_off": self.offs[:, 2], "rsq_off": rsq}.items()}
         self.n_jbuf, self.n_hbuf = int(np.sum(sizes)), int(np.sum(self.ld * (nx + nu)))
 
@@ -221,10 +239,12 @@ class _Layout:
 class DirectFatrop:
     """fatrop on the NLP library `library` (its nlp_* functions with the fatrop plugin's
     signatures) with CasADi's manual stage structure `structure` (N, nx, nu, ng); `options` are
-    fatrop's own (tol, max_iter, mu_init, print_level, ...)."""
+    fatrop's own (tol, max_iter, mu_init, print_level, ...).  With `places` (assembly.places of
+    the NLP's pieces) and the library's raw_jac_g and raw_hess_l, the derivatives come unscattered,
+    one output per piece, and go to fatrop's blocks from there."""
 
     def __init__(self, library: str, structure: dict, options: dict | None = None, log=print,
-                 barrier: str = "monotone"):
+                 barrier: str = "monotone", places: tuple | None = None):
         if barrier not in BARRIERS:
             raise ValueError(f"barrier {barrier!r}: choose one of {', '.join(BARRIERS)}")
         driver = driver_library(log)
@@ -234,73 +254,116 @@ class DirectFatrop:
             self._rsq = ctypes.CDLL(adaptive_library(log))             # kept loaded while the table points into it
             self.api = _Api(*[ctypes.cast(getattr(self._rsq, "rsq_" + n), ctypes.c_void_p).value for n in _RSQ])
         self.driver = ctypes.CDLL(driver)
-        self.driver.rsf_solve.restype = ctypes.c_int
+        self.driver.rsf_open.restype = ctypes.c_void_p
+        self.driver.rsf_close.argtypes = [ctypes.c_void_p]
+        self.driver.rsf_run.restype = ctypes.c_int
         self.driver.rsf_blasfeo_function.restype = ctypes.c_void_p
         self.blasfeo = blasfeo.in_use(self.driver.rsf_blasfeo_function())
         self.library, self.nlp = library, ctypes.CDLL(library)
         self.structure = structure
         self.options = dict(options or {})
-        ext = {name: ca.external(name, library) for name in _NAMES}
-        self.jac_sp, self.hess_sp = ext["nlp_jac_g"].sparsity_out(1), ext["nlp_hess_l"].sparsity_out(1)
+        self.raw = places is not None and all(hasattr(self.nlp, name) for name in RAW_NAMES)
+        names = _NAMES[:3] + (RAW_NAMES if self.raw else _NAMES[3:])
+        ext = {name: ca.external(name, library) for name in names}
         self.n_x, self.n_p = ext["nlp_g"].size1_in(0), ext["nlp_g"].size1_in(1)
         self.n_g = ext["nlp_g"].size1_out(0)
-        self.work = [max(getattr(ext[n], "sz_" + k)() for n in _NAMES) for k in ("arg", "res", "iw", "w")]
+        self.work = [max(getattr(f, "sz_" + k)() for f in ext.values()) for k in ("arg", "res", "iw", "w")]
         self.pointers = {}
-        for name in _NAMES:
+        for field, name in zip(("f", "g", "grad_f", "jac_g", "hess_l"), names):
             getattr(self.nlp, name + "_incref", lambda: None)()
-            self.pointers[name] = ctypes.cast(getattr(self.nlp, name), ctypes.c_void_p).value
-        self._triplets = tuple((sp.shape, np.array(sp.row()), np.repeat(np.arange(sp.size2()), np.diff(sp.colind())))
-                               for sp in (self.jac_sp, self.hess_sp))
+            self.pointers[field] = ctypes.cast(getattr(self.nlp, name), ctypes.c_void_p).value
+        jac, hess = ext[names[3]], ext[names[4]]
+        self.parts = [[f.sparsity_out(i).nnz() for i in range(1, f.n_out())] for f in (jac, hess)]
+        if self.raw:
+            for kind, sizes, where in zip(("Jacobian", "Hessian"), self.parts, places):
+                if sizes != [len(r) for r, _ in where]:
+                    raise ValueError(f"the {kind} parts of {library} ({sizes} nonzeros) do not match the pieces' places")
+            shapes = ((self.n_g, self.n_x), (self.n_x, self.n_x))
+            self._triplets = tuple((shape, np.concatenate([r for r, _ in where]), np.concatenate([c for _, c in where]))
+                                   for shape, where in zip(shapes, places))
+        else:
+            self._triplets = tuple((sp.shape, np.array(sp.row()), np.repeat(np.arange(sp.size2()), np.diff(sp.colind())))
+                                   for sp in (jac.sparsity_out(1), hess.sparsity_out(1)))
+        self._offsets = [_ints(np.concatenate([[0], np.cumsum(sizes)])) for sizes in self.parts]
         self._stats = {}
+        # one fatrop solver per layout, built on its first solve and reused (closed with self)
+        self._sessions: OrderedDict = OrderedDict()
+        weakref.finalize(self, _close_sessions, self.driver, self._sessions)
 
     def _layout(self, lbx, ubx, lbg, ubg) -> _Layout:
         eq_g, eq_x = lbg == ubg, lbx == ubx
         in_g = ~eq_g & ~(np.isneginf(lbg) & np.isposinf(ubg))
         in_x = ~eq_x & ~(np.isneginf(lbx) & np.isposinf(ubx))
-        key = (self.library, np.packbits(np.concatenate([eq_g, in_g, eq_x, in_x])).tobytes())
+        key = (self.library, self.raw, np.packbits(np.concatenate([eq_g, in_g, eq_x, in_x])).tobytes())
         if key not in _LAYOUTS:                      # kept for the process: repeated solves, refinements, sweeps
             s = self.structure
             _LAYOUTS[key] = _Layout(s["nx"], s["nu"], s["ng"], *self._triplets, eq_g, in_g, eq_x, in_x)
         return _LAYOUTS[key]
 
     def _problem(self, L: _Layout) -> _Problem:
-        P = _Problem(K=L.K, nv=L.nv, ng=L.ng, nnz_j=self.jac_sp.nnz(), nnz_h=self.hess_sp.nnz(),
-                     n_jbuf=L.n_jbuf, n_hbuf=L.n_hbuf, js=L.js.ctypes.data_as(_Dp),
+        (jo, ho), arrays = self._offsets, L.arrays
+        P = _Problem(K=L.K, nv=L.nv, ng=L.ng, nnz_j=int(jo[-1]), nnz_h=int(ho[-1]), n_jbuf=L.n_jbuf, n_hbuf=L.n_hbuf,
+                     n_jparts=len(jo) - 1, n_hparts=len(ho) - 1, n_hadd=len(arrays["hadd"]), js=L.js.ctypes.data_as(_Dp),
+                     jpart=jo.ctypes.data_as(_I), hpart=ho.ctypes.data_as(_I),
                      sz_arg=self.work[0], sz_res=self.work[1], sz_iw=self.work[2], sz_w=self.work[3])
-        for key, v in L.arrays.items():
+        for key, v in arrays.items():
             setattr(P, key, v.ctypes.data_as(_I))
-        for field, name in zip(("f", "g", "grad_f", "jac_g", "hess_l"), _NAMES):
-            setattr(P, field, self.pointers[name])
+        for field, pointer in self.pointers.items():
+            setattr(P, field, pointer)
         return P
 
-    def __call__(self, x0, lbx, ubx, lbg, ubg, p) -> dict:
-        vec = lambda v, n: np.ascontiguousarray(np.broadcast_to(np.asarray(v, float).reshape(-1), (n,)))  # noqa: E731
-        x0, lbx, ubx = (vec(v, self.n_x) for v in (x0, lbx, ubx))
-        lbg, ubg, p = vec(lbg, self.n_g), vec(ubg, self.n_g), vec(p, self.n_p)
-        L = self._layout(lbx, ubx, lbg, ubg)
-        P = self._problem(L)
+    def _session(self, L: _Layout) -> int:
+        """The solver of layout L (fatrop_direct.c's rsf_session), built on first use, with self.options set."""
+        if id(L) in self._sessions:
+            self._sessions.move_to_end(id(L))
+        else:
+            P = self._problem(L)
+            handle = self.driver.rsf_open(ctypes.byref(P), ctypes.byref(self.api) if self.api is not None else None)
+            if not handle:
+                raise MemoryError("fatrop's solver could not be built")
+            self._sessions[id(L)] = (handle, P, L)     # P (and L's arrays) live as long as the solver
+            while len(self._sessions) > _SESSIONS:
+                self.driver.rsf_close(ctypes.c_void_p(self._sessions.popitem(last=False)[1][0]))
+        handle = self._sessions[id(L)][0]
         names = list(self.options)
         c_names = (ctypes.c_char_p * max(len(names), 1))(*[k.encode() for k in names])
         c_strings = (ctypes.c_char_p * max(len(names), 1))(*[str(self.options[k]).encode() for k in names])
         values = np.array([0.0 if isinstance(self.options[k], str) else float(self.options[k]) for k in names] or [0.0])
+        ret = self.driver.rsf_options(ctypes.c_void_p(handle), len(names), c_names, values.ctypes.data_as(_Dp), c_strings)
+        if ret <= -1000:
+            raise ValueError(f"fatrop refused option {names[-1000 - ret]!r}={self.options[names[-1000 - ret]]!r}")
+        return handle
+
+    def prepare(self, lbx, ubx, lbg, ubg):
+        """Build the solver for these bounds' layout now (a setup step, as an nlpsol's construction;
+        else the first solve of each layout builds it: 3 ms on problem (b))."""
+        lbx, ubx = (_vec(v, self.n_x) for v in (lbx, ubx))
+        lbg, ubg = (_vec(v, self.n_g) for v in (lbg, ubg))
+        with _ONE_AT_A_TIME:
+            self._session(self._layout(lbx, ubx, lbg, ubg))
+
+    def __call__(self, x0, lbx, ubx, lbg, ubg, p) -> dict:
+        x0, lbx, ubx = (_vec(v, self.n_x) for v in (x0, lbx, ubx))
+        lbg, ubg, p = _vec(lbg, self.n_g), _vec(ubg, self.n_g), _vec(p, self.n_p)
+        L = self._layout(lbx, ubx, lbg, ubg)
         verbose = int(bool(self.options.get("print_level", 0)))
         x, lam_g, lam_x, stats = np.zeros(self.n_x), np.zeros(self.n_g), np.zeros(self.n_x), np.zeros(20 + _MU)
         ptr = lambda a: a.ctypes.data_as(_Dp)  # noqa: E731
         with _ONE_AT_A_TIME:
-            api = ctypes.byref(self.api) if self.api is not None else None
-            ret = self.driver.rsf_solve(ctypes.byref(P), api, ptr(x0), ptr(p), ptr(lbx), ptr(ubx), ptr(lbg), ptr(ubg),
-                                        len(names), c_names, ptr(values), c_strings, verbose,
-                                        ptr(x), ptr(lam_g), ptr(lam_x), ptr(stats))
+            session = self._session(L)
+            ret = self.driver.rsf_run(ctypes.c_void_p(session), ptr(x0), ptr(p), ptr(lbx), ptr(ubx), ptr(lbg), ptr(ubg),
+                                      verbose, ptr(x), ptr(lam_g), ptr(lam_x), ptr(stats))
+            if ret == -1:                                # an exception inside fatrop: a new solver next time
+                self.driver.rsf_close(ctypes.c_void_p(self._sessions.pop(id(L))[0]))
         if stats[17]:
             raise ValueError("the NLP's gap-closing rows must read x_{k+1} - F_k(x_k, u_k): a coefficient of "
                              "x_{k+1} is not 1")
-        if ret <= -1000:
-            raise ValueError(f"fatrop refused option {names[-1000 - ret]!r}={self.options[names[-1000 - ret]]!r}")
         fat = {k: (int(v) if k.endswith(("count", "flag")) else float(v)) for k, v in zip(_STATS, stats)}
         self._stats = {"success": ret == 0, "return_status": fat["return_flag"],
                        "unified_return_status": {0: "SOLVER_RET_SUCCESS", -1: "SOLVER_RET_EXCEPTION"}.get(ret, "SOLVER_RET_UNKNOWN"),
                        "iter_count": fat["iterations_count"], "fatrop": fat, "evaluation_failed": bool(stats[16]),
-                       "interface": "direct", "blasfeo": dict(self.blasfeo), "barrier": self.barrier}
+                       "interface": "direct", "blasfeo": dict(self.blasfeo), "barrier": self.barrier,
+                       "raw_derivatives": self.raw}
         if self.api is not None:
             mu = stats[20:20 + min(_MU, fat["iterations_count"])]
             self._stats["barrier_adaptive"] = {"oracle_iterations": int(stats[18]), "fixed_iterations": int(stats[19]),

@@ -15,7 +15,7 @@ import casadi as ca
 from ...codegen import _compiler, cache_dir
 from ...codegen.parallel import openmp_flags
 from .fatrop_direct import DirectFatrop
-from .assembly import ASSEMBLY_VERSION, assembled, solver_functions
+from .assembly import ASSEMBLY_VERSION, assembled, places, solver_functions
 from .problem import Problem
 from .transcription import Transcription
 
@@ -47,7 +47,7 @@ def make_solver(problem: Problem, tr: Transcription, nlp: dict, log=print, print
         return ca.nlpsol("ocp", problem.solver, nlp, opts), objective
     library = compiled_nlp(problem.solver, nlp, opts, tr.pieces, log)
     if direct(problem):
-        return DirectFatrop(library, tr.structure(), opts["fatrop"], log, problem.barrier), objective
+        return DirectFatrop(library, tr.structure(), opts["fatrop"], log, problem.barrier, places(tr.pieces)), objective
     return ca.nlpsol("ocp", problem.solver, library, opts), objective
 
 
@@ -84,7 +84,8 @@ def compiled_nlp(solver: str, nlp: dict, opts: dict, pieces: list, log=print, op
     with open(directory / "generate.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         cg = ca.CodeGenerator("rscasadi_nlp.c", {"with_header": False})
-        for f in solver_functions(plain, nlp, pieces, "openmp" if omp else "serial"):
+        # fatrop's library also has the unscattered derivatives its direct interface reads
+        for f in solver_functions(plain, nlp, pieces, "openmp" if omp else "serial", raw=solver == "fatrop"):
             cg.add(f)
         cg.generate()
         Path("rscasadi_nlp.c").replace(src)

@@ -101,6 +101,8 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
     lbx, ubx = tr.bounds(problem.max_duration)
     w0 = guess(tr, problem, arm, t_guess, warm)
     solver, objective = make_solver(problem, tr, nlp, log, print_level, options)
+    if hasattr(solver, "prepare"):                 # the direct fatrop's solver, built for these bounds
+        solver.prepare(lbx, ubx, lbg, ubg)
     setup = time.perf_counter() - t0
     # the objective is scaled to about 1 at the guess: an effort of 1e-2 otherwise leaves the
     # solver crawling with a tiny dual infeasibility (seen: 1000+ iterations instead of 20)
