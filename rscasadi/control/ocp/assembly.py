@@ -245,7 +245,7 @@ def assembled(pieces: list, w: ca.MX, lam_f: ca.MX, lam_g: ca.MX, n_g: int, para
             "jac_parts": J, "hess_parts": H}
 
 
-ASSEMBLY_VERSION = "assembled-4"        # part of the compiled-NLP cache key
+ASSEMBLY_VERSION = "assembled-5"        # part of the compiled-NLP cache key
 NAMES = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l", "nlp_grad")
 # the same derivatives unscattered, for a caller that places them itself (fatrop_direct.c): each
 # piece's nonzeros as its map writes them, one output per piece (their places: places(pieces))
@@ -256,8 +256,8 @@ def solver_functions(plain: ca.Function, nlp: dict, pieces: list, parallel: str 
     """The functions the compiled solver `plain` loads by name, with its signatures; g, f and
     the first and second derivatives assembled from the pieces, their maps over the intervals
     `parallel` (nlp_grad, called once for the parameter multipliers, as CasADi makes it); with
-    `raw`, RAW_NAMES too: (x, p) -> (g, J_1, ..., J_m) and (x, p, lam_f, lam_g) -> (grad L, H_1,
-    ..., H_m) (at N = 100 the scatter had copied the Jacobian's 46 840 nonzeros five times, serially,
+    `raw`, RAW_NAMES too: (x, p) -> (J_1, ..., J_m) and (x, p, lam_f, lam_g) -> (grad L, H_1,
+    ..., H_m), g apart (its caller has it from the same point: "nlp" gives f and g) (at N = 100 the scatter had copied the Jacobian's 46 840 nonzeros five times, serially,
     in every call: 6 of a 63 ms fatrop solve)."""
     w, P, n_g = nlp["x"], nlp["p"], nlp["g"].numel()
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", n_g)
@@ -268,7 +268,7 @@ def solver_functions(plain: ca.Function, nlp: dict, pieces: list, parallel: str 
     sym = {"x": w, "p": P, "lam_f": lam_f, "lam_g": lam_g}
     out = [ca.Function("nlp", [w, P], [f, g], ["x", "p"], ["f", "g"])]
     if raw:
-        out += [ca.Function("raw_jac_g", [w, P], [g, *a["jac_parts"]]),
+        out += [ca.Function("raw_jac_g", [w, P], a["jac_parts"]),
                 ca.Function("raw_hess_l", [w, P, lam_f, lam_g], [a["grad_l"], *a["hess_parts"]])]
     for name in NAMES:
         try:

@@ -36,6 +36,7 @@ typedef struct {
   const int *hadd, *hadd_to;               /* Hessian nonzeros that share their place with another */
   const int *bab_off, *geq_off, *gin_off, *rsq_off;
   fn_t f, g, grad_f, jac_g, hess_l;
+  fn_t fg;                                 /* (x, p) -> (f, g), or NULL: then jac_g's first output is g */
   int sz_arg, sz_res, sz_iw, sz_w;
 } rsf_problem;
 
@@ -43,6 +44,8 @@ typedef struct {
   const rsf_problem* P;
   const double *p, *lbx, *ubx, *lbg, *ubg, *x0;
   double *x, *gv, *a, *h, *lam, *grad, *jbuf, *hbuf;
+  double *gx, fv;                          /* with fg: f and g (gv) are those at gx */
+  int g_valid;
   const double** arg;
   double** res;
   casadi_int* iw;
@@ -76,6 +79,19 @@ static void call(rsf_data* d, fn_t f, const double** in, int n_in, double** out,
     d->failed = 1;
     for (i = 0; i < n_out; ++i) for (j = 0; j < n[i]; ++j) out[i][j] = NAN;
   }
+}
+
+/* f and g at d->x, evaluated together once per point: fatrop asks for g at a trial point, then f
+   there, and (accepted) for the Jacobian there, whose constant terms are g again */
+static void eval_fg(rsf_data* d) {
+  const rsf_problem* P = d->P;
+  const double* in[2] = {d->x, d->p};
+  double* out[2] = {&d->fv, d->gv};
+  const int n[2] = {1, P->ng};
+  if (d->g_valid && !memcmp(d->gx, d->x, sizeof(double) * P->nv)) return;
+  call(d, P->fg, in, 2, out, n, 2);
+  memcpy(d->gx, d->x, sizeof(double) * P->nv);
+  d->g_valid = 1;
 }
 
 static fatrop_int get_nx(fatrop_int k, void* user_data) { return D->P->nx[k < D->P->K ? k : D->P->K - 1]; }
@@ -148,11 +164,12 @@ static fatrop_int constr_jac(const double* primal, const double* sp, const doubl
   const double* in[2] = {d->x, d->p};
   double* out[1 + P->n_jparts];
   int n[1 + P->n_jparts];
-  int e, k, bad = 0;
+  int e, k, bad = 0, g = P->fg ? 0 : 1;      /* outputs before the Jacobian's parts: g, or none */
   out[0] = d->gv; n[0] = P->ng;
-  for (k = 0; k < P->n_jparts; ++k) { out[1 + k] = d->a + P->jpart[k]; n[1 + k] = P->jpart[k + 1] - P->jpart[k]; }
+  for (k = 0; k < P->n_jparts; ++k) { out[g + k] = d->a + P->jpart[k]; n[g + k] = P->jpart[k + 1] - P->jpart[k]; }
   read_primal(d, primal, s);
-  call(d, P->jac_g, in, 2, out, n, 1 + P->n_jparts);
+  if (P->fg) eval_fg(d);
+  call(d, P->jac_g, in, 2, out, n, g + P->n_jparts);
   #pragma omp parallel for schedule(static) reduction(|:bad)
   for (e = 0; e < P->nnz_j; ++e) {
     if (P->jt[e] >= 0) d->jbuf[P->jt[e]] = P->js[e] * d->a[e];
@@ -172,7 +189,8 @@ static fatrop_int constr_viol(const double* primal, const double* sp, const doub
   double* out[1] = {d->gv};
   int k, i, c;
   read_primal(d, primal, s);
-  call(d, P->g, in, 2, out, &P->ng, 1);
+  if (P->fg) eval_fg(d);
+  else call(d, P->g, in, 2, out, &P->ng, 1);
   for (k = 0; k < P->K; ++k) {
     c = 0;
     for (i = P->a_in_idx[k]; i < P->a_in_idx[k + 1]; ++i) res[s->g_ineq_offs[k] + c++] = d->gv[P->a_in[i]];
@@ -209,7 +227,10 @@ static fatrop_int obj(double scale, const double* primal, const double* sp, cons
   double* out[1] = {res};
   const int one = 1;
   read_primal(d, primal, s);
-  call(d, d->P->f, in, 2, out, &one, 1);
+  if (d->P->fg) {
+    eval_fg(d);
+    *res = d->fv;
+  } else call(d, d->P->f, in, 2, out, &one, 1);
   *res *= scale;
   return 1;
 }
@@ -318,7 +339,7 @@ void rsf_close(rsf_session* S) {
   if (!S) return;
   d = &S->d;
   if (S->solver) S->api->destroy(S->solver);
-  free(d->x); free(d->gv); free(d->a); free(d->h); free(d->lam); free(d->grad); free(d->jbuf); free(d->hbuf);
+  free(d->x); free(d->gx); free(d->gv); free(d->a); free(d->h); free(d->lam); free(d->grad); free(d->jbuf); free(d->hbuf);
   free(d->arg); free(d->res); free(d->iw); free(d->w);
   free(S);
 }
@@ -330,7 +351,7 @@ rsf_session* rsf_open(const rsf_problem* P, const rsf_api* api) {
   d = &S->d;
   S->api = api ? api : &fatrop_api;
   d->P = P;
-  d->x = calloc(P->nv, sizeof(double)); d->gv = calloc(P->ng + 1, sizeof(double));
+  d->x = calloc(P->nv, sizeof(double)); d->gx = calloc(P->nv, sizeof(double)); d->gv = calloc(P->ng + 1, sizeof(double));
   d->a = calloc(P->nnz_j + 1, sizeof(double)); d->h = calloc(P->nnz_h + 1, sizeof(double));
   d->lam = calloc(P->ng + 1, sizeof(double)); d->grad = calloc(P->nv, sizeof(double));
   d->jbuf = calloc(P->n_jbuf + 1, sizeof(double)); d->hbuf = calloc(P->n_hbuf + 1, sizeof(double));
@@ -378,7 +399,7 @@ int rsf_run(rsf_session* S, const double* x0, const double* p, const double* lbx
   const double *primal, *dual;
   int i, k, c, ret;
   d->p = p; d->lbx = lbx; d->ubx = ubx; d->lbg = lbg; d->ubg = ubg; d->x0 = x0;
-  d->failed = d->bad_gap = 0;
+  d->failed = d->bad_gap = d->g_valid = 0;
   rsf_verbose = verbose;
   ret = api->solve(S->solver);
   rsf_verbose = 0;

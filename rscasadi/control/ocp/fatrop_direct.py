@@ -65,7 +65,7 @@ class _Problem(ctypes.Structure):
                 + [(k, ctypes.c_int) for k in ("nnz_j", "nnz_h", "n_jbuf", "n_hbuf", "n_jparts", "n_hparts", "n_hadd")]
                 + [("jt", _I), ("ht", _I), ("js", _Dp), ("jpart", _I), ("hpart", _I), ("hadd", _I), ("hadd_to", _I)]
                 + [(k, _I) for k in ("bab_off", "geq_off", "gin_off", "rsq_off")]
-                + [(k, ctypes.c_void_p) for k in ("f", "g", "grad_f", "jac_g", "hess_l")]
+                + [(k, ctypes.c_void_p) for k in ("f", "g", "grad_f", "jac_g", "hess_l", "fg")]
                 + [(k, ctypes.c_int) for k in ("sz_arg", "sz_res", "sz_iw", "sz_w")])
 
 
@@ -262,18 +262,19 @@ class DirectFatrop:
         self.library, self.nlp = library, ctypes.CDLL(library)
         self.structure = structure
         self.options = dict(options or {})
-        self.raw = places is not None and all(hasattr(self.nlp, name) for name in RAW_NAMES)
-        names = _NAMES[:3] + (RAW_NAMES if self.raw else _NAMES[3:])
+        self.raw = places is not None and all(hasattr(self.nlp, name) for name in RAW_NAMES + ("nlp",))
+        names = _NAMES[:3] + (RAW_NAMES + ("nlp",) if self.raw else _NAMES[3:])
         ext = {name: ca.external(name, library) for name in names}
         self.n_x, self.n_p = ext["nlp_g"].size1_in(0), ext["nlp_g"].size1_in(1)
         self.n_g = ext["nlp_g"].size1_out(0)
         self.work = [max(getattr(f, "sz_" + k)() for f in ext.values()) for k in ("arg", "res", "iw", "w")]
         self.pointers = {}
-        for field, name in zip(("f", "g", "grad_f", "jac_g", "hess_l"), names):
+        for field, name in zip(("f", "g", "grad_f", "jac_g", "hess_l", "fg"), names):
             getattr(self.nlp, name + "_incref", lambda: None)()
             self.pointers[field] = ctypes.cast(getattr(self.nlp, name), ctypes.c_void_p).value
         jac, hess = ext[names[3]], ext[names[4]]
-        self.parts = [[f.sparsity_out(i).nnz() for i in range(1, f.n_out())] for f in (jac, hess)]
+        # the parts after g (scattered Jacobian) or all of them (raw); the Hessian's after grad L
+        self.parts = [[f.sparsity_out(i).nnz() for i in range(first, f.n_out())] for f, first in ((jac, 0 if self.raw else 1), (hess, 1))]
         if self.raw:
             for kind, sizes, where in zip(("Jacobian", "Hessian"), self.parts, places):
                 if sizes != [len(r) for r, _ in where]:
