@@ -27,13 +27,17 @@ typedef struct {
   const int *a_eq, *a_eq_idx, *a_in, *a_in_idx;    /* path rows: equalities, inequalities */
   const int *x_eq, *x_eq_idx, *x_in, *x_in_idx;    /* bounded variables, likewise */
   int nnz_j, nnz_h, n_jbuf, n_hbuf;
-  int n_jparts, n_hparts, n_hadd;          /* the derivative functions' outputs after the first */
+  int n_jparts, n_hparts;                  /* the derivative functions' outputs of nonzeros */
   const int *jt, *ht;                      /* block index of each Jacobian / Hessian nonzero
                                               (-1: none, -2: x_{k+1} in a gap row, must be 1;
                                               Hessian -1: added after, by hadd) */
   const double* js;                        /* its sign (-1: A, B of the gap rows) */
   const int *jpart, *hpart;                /* where each output's nonzeros start in a, h */
-  const int *hadd, *hadd_to;               /* Hessian nonzeros that share their place with another */
+  const int *jorder, *jstart;              /* the Jacobian's nonzeros stage by stage: stage k's are
+                                              jorder[jstart[k] .. jstart[k + 1]) */
+  const int *horder, *hstart;              /* the Hessian's written ones, likewise */
+  const int *hadd, *hadd_to, *hadd_start;  /* its nonzeros that share a place with another (added),
+                                              likewise by stage */
   const int *bab_off, *geq_off, *gin_off, *rsq_off;
   fn_t f, g, grad_f, jac_g, hess_l;
   fn_t fg;                                 /* (x, p) -> (f, g), or NULL: then jac_g's first output is g */
@@ -164,20 +168,22 @@ static fatrop_int constr_jac(const double* primal, const double* sp, const doubl
   const double* in[2] = {d->x, d->p};
   double* out[1 + P->n_jparts];
   int n[1 + P->n_jparts];
-  int e, k, bad = 0, g = P->fg ? 0 : 1;      /* outputs before the Jacobian's parts: g, or none */
+  int i, k, bad = 0, g = P->fg ? 0 : 1;      /* outputs before the Jacobian's parts: g, or none */
   out[0] = d->gv; n[0] = P->ng;
   for (k = 0; k < P->n_jparts; ++k) { out[g + k] = d->a + P->jpart[k]; n[g + k] = P->jpart[k + 1] - P->jpart[k]; }
   read_primal(d, primal, s);
   if (P->fg) eval_fg(d);
   call(d, P->jac_g, in, 2, out, n, g + P->n_jparts);
-  #pragma omp parallel for schedule(static) reduction(|:bad)
-  for (e = 0; e < P->nnz_j; ++e) {
-    if (P->jt[e] >= 0) d->jbuf[P->jt[e]] = P->js[e] * d->a[e];
-    else if (P->jt[e] == -2 && d->a[e] != 1) bad = 1;               /* x_{k+1}'s coefficient */
+  #pragma omp parallel for schedule(static) private(i) reduction(|:bad)
+  for (k = 0; k < P->K; ++k) {
+    for (i = P->jstart[k]; i < P->jstart[k + 1]; ++i) {
+      int e = P->jorder[i];
+      if (P->jt[e] >= 0) d->jbuf[P->jt[e]] = P->js[e] * d->a[e];
+      else if (P->jt[e] == -2 && d->a[e] != 1) bad = 1;             /* x_{k+1}'s coefficient */
+    }
+    jac_stage(d, k, BAbt, Ggt, Ggt_ineq);
   }
   if (bad) d->bad_gap = 1;
-  #pragma omp parallel for schedule(static)
-  for (k = 0; k < P->K; ++k) jac_stage(d, k, BAbt, Ggt, Ggt_ineq);
   return 1;
 }
 
@@ -247,7 +253,7 @@ static fatrop_int lag_hess(double scale, const double* primal, const double* lam
   const double* in[4] = {d->x, d->p, &scale, d->lam};
   double* out[1 + P->n_hparts];
   int n[1 + P->n_hparts];
-  int e, k, i, c;
+  int k, i, c;
   out[0] = d->grad; n[0] = P->nv;
   for (k = 0; k < P->n_hparts; ++k) { out[1 + k] = d->h + P->hpart[k]; n[1 + k] = P->hpart[k + 1] - P->hpart[k]; }
   read_primal(d, primal, s);
@@ -269,13 +275,12 @@ static fatrop_int lag_hess(double scale, const double* primal, const double* lam
     c = P->a_eq_idx[k + 1] - P->a_eq_idx[k];
     for (i = P->x_eq_idx[k]; i < P->x_eq_idx[k + 1]; ++i) d->grad[P->x_eq[i]] += lam_data[s->g_offs[k] + c++];
   }
-  #pragma omp parallel for schedule(static)
-  for (e = 0; e < P->nnz_h; ++e) if (P->ht[e] >= 0) d->hbuf[P->ht[e]] = d->h[e];
-  for (e = 0; e < P->n_hadd; ++e) d->hbuf[P->hadd_to[e]] += d->h[P->hadd[e]];
   #pragma omp parallel for schedule(static) private(i)
   for (k = 0; k < P->K; ++k) {
     int n = P->nx[k] + P->nu[k];
     double* R = d->hbuf + P->rsq_off[k];
+    for (i = P->hstart[k]; i < P->hstart[k + 1]; ++i) R[P->ht[P->horder[i]] - P->rsq_off[k]] = d->h[P->horder[i]];
+    for (i = P->hadd_start[k]; i < P->hadd_start[k + 1]; ++i) R[P->hadd_to[i] - P->rsq_off[k]] += d->h[P->hadd[i]];
     for (i = 0; i < n; ++i) LAST(R, k, i) = d->grad[P->xoff[k] + (i < P->nu[k] ? P->nx[k] + i : i - P->nu[k])];
     blasfeo_pack_dmat(n + 1, n, R, n + 1, RSQrqt + k, 0, 0);
   }

@@ -62,8 +62,9 @@ class _Problem(ctypes.Structure):
     _fields_ = ([(k, ctypes.c_int) for k in ("K", "nv", "ng")]
                 + [(k, _I) for k in ("nx", "nu", "xoff", "roff", "a_eq", "a_eq_idx", "a_in", "a_in_idx",
                                      "x_eq", "x_eq_idx", "x_in", "x_in_idx")]
-                + [(k, ctypes.c_int) for k in ("nnz_j", "nnz_h", "n_jbuf", "n_hbuf", "n_jparts", "n_hparts", "n_hadd")]
-                + [("jt", _I), ("ht", _I), ("js", _Dp), ("jpart", _I), ("hpart", _I), ("hadd", _I), ("hadd_to", _I)]
+                + [(k, ctypes.c_int) for k in ("nnz_j", "nnz_h", "n_jbuf", "n_hbuf", "n_jparts", "n_hparts")]
+                + [("jt", _I), ("ht", _I), ("js", _Dp), ("jpart", _I), ("hpart", _I)]
+                + [(k, _I) for k in ("jorder", "jstart", "horder", "hstart", "hadd", "hadd_to", "hadd_start")]
                 + [(k, _I) for k in ("bab_off", "geq_off", "gin_off", "rsq_off")]
                 + [(k, ctypes.c_void_p) for k in ("f", "g", "grad_f", "jac_g", "hess_l", "fg")]
                 + [(k, ctypes.c_int) for k in ("sz_arg", "sz_res", "sz_iw", "sz_w")])
@@ -148,6 +149,11 @@ def _vec(v, n: int) -> np.ndarray:
     return np.ascontiguousarray(np.broadcast_to(np.asarray(v, float).reshape(-1), (n,)))
 
 
+def _by_stage(stage: np.ndarray, K: int):
+    """A stable order of entries by their stage, and where each stage's entries start in it (K + 1)."""
+    return np.argsort(stage, kind="stable"), np.concatenate([[0], np.cumsum(np.bincount(stage, minlength=K))])
+
+
 def _ints(v) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(v, dtype=np.intc).reshape(-1))
 
@@ -184,13 +190,21 @@ class _Layout:
         ht = self._hessian_places(*hess[1:], rsq)
         assert len(np.unique(jt[jt >= 0])) == np.count_nonzero(jt >= 0), "two Jacobian nonzeros share a block entry"
         # pieces overlap in the Hessian (e.g. the start piece and stage 0 at x_0): each place's first
-        # nonzero is written in parallel, the others are added after it
+        # nonzero is written, the others are added after it
         _, first = np.unique(ht, return_index=True)
         hadd = np.setdiff1d(np.arange(len(ht)), first)
         hadd_to = ht[hadd]
         ht[hadd] = -1
+        # each stage's nonzeros listed together: the driver places and packs a stage at once, on the
+        # thread that evaluated that interval (its values still in that core's cache)
+        jorder, jstart = _by_stage(self.r_stage[jac[1]], K)
+        kept = np.flatnonzero(ht >= 0)
+        horder, hstart = _by_stage(self.v_stage[hess[1][kept]], K)
+        hsort, hadd_start = _by_stage(self.v_stage[hess[1][hadd]], K)
         self.arrays = {key: _ints(v) for key, v in {
-            "nx": nx, "nu": nu, "xoff": xoff, "roff": roff, **lists, "jt": jt, "ht": ht, "hadd": hadd, "hadd_to": hadd_to,
+            "nx": nx, "nu": nu, "xoff": xoff, "roff": roff, **lists, "jt": jt, "ht": ht,
+            "jorder": jorder, "jstart": jstart, "horder": kept[horder], "hstart": hstart,
+            "hadd": hadd[hsort], "hadd_to": hadd_to[hsort], "hadd_start": hadd_start,
             "bab_off": self.offs[:, 0], "geq_off": self.offs[:, 1], "gin_off": self.offs[:, 2], "rsq_off": rsq}.items()}
         self.n_jbuf, self.n_hbuf = int(np.sum(sizes)), int(np.sum(self.ld * (nx + nu)))
 
@@ -304,7 +318,7 @@ class DirectFatrop:
     def _problem(self, L: _Layout) -> _Problem:
         (jo, ho), arrays = self._offsets, L.arrays
         P = _Problem(K=L.K, nv=L.nv, ng=L.ng, nnz_j=int(jo[-1]), nnz_h=int(ho[-1]), n_jbuf=L.n_jbuf, n_hbuf=L.n_hbuf,
-                     n_jparts=len(jo) - 1, n_hparts=len(ho) - 1, n_hadd=len(arrays["hadd"]), js=L.js.ctypes.data_as(_Dp),
+                     n_jparts=len(jo) - 1, n_hparts=len(ho) - 1, js=L.js.ctypes.data_as(_Dp),
                      jpart=jo.ctypes.data_as(_I), hpart=ho.ctypes.data_as(_I),
                      sz_arg=self.work[0], sz_res=self.work[1], sz_iw=self.work[2], sz_w=self.work[3])
         for key, v in arrays.items():
