@@ -257,8 +257,9 @@ def solver_functions(plain: ca.Function, nlp: dict, pieces: list, parallel: str 
     the first and second derivatives assembled from the pieces, their maps over the intervals
     `parallel` (nlp_grad, called once for the parameter multipliers, as CasADi makes it); with
     `raw`, RAW_NAMES too: (x, p) -> (J_1, ..., J_m) and (x, p, lam_f, lam_g) -> (grad L, H_1,
-    ..., H_m), g apart (its caller has it from the same point: "nlp" gives f and g) (at N = 100 the scatter had copied the Jacobian's 46 840 nonzeros five times, serially,
-    in every call: 6 of a 63 ms fatrop solve)."""
+    ..., H_m); g apart, its caller has it from the same point ("nlp" gives f and g).  Why: at
+    N = 100 the scatter copied the Jacobian's 46 840 nonzeros five times, serially, in every
+    call (6 of a 63 ms fatrop solve)."""
     w, P, n_g = nlp["x"], nlp["p"], nlp["g"].numel()
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", n_g)
     a = assembled(pieces, w, lam_f, lam_g, n_g, parallel)
