@@ -288,7 +288,8 @@ class DirectFatrop:
             self.pointers[field] = ctypes.cast(getattr(self.nlp, name), ctypes.c_void_p).value
         jac, hess = ext[names[3]], ext[names[4]]
         # the parts after g (scattered Jacobian) or all of them (raw); the Hessian's after grad L
-        self.parts = [[f.sparsity_out(i).nnz() for i in range(first, f.n_out())] for f, first in ((jac, 0 if self.raw else 1), (hess, 1))]
+        self.parts = [[f.sparsity_out(i).nnz() for i in range(first, f.n_out())]
+                      for f, first in ((jac, 0 if self.raw else 1), (hess, 1))]
         if self.raw:
             for kind, sizes, where in zip(("Jacobian", "Hessian"), self.parts, places):
                 if sizes != [len(r) for r, _ in where]:
@@ -301,7 +302,8 @@ class DirectFatrop:
                                    for sp in (jac.sparsity_out(1), hess.sparsity_out(1)))
         self._offsets = [_ints(np.concatenate([[0], np.cumsum(sizes)])) for sizes in self.parts]
         self._stats = {}
-        # one fatrop solver per layout, built on its first solve and reused (closed with self)
+        # one fatrop solver per layout, built on first use (prepare, or the first solve) and reused
+        # (closed with self)
         self._sessions: OrderedDict = OrderedDict()
         weakref.finalize(self, _close_sessions, self.driver, self._sessions)
 
