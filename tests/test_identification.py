@@ -138,6 +138,9 @@ def test_excitation_is_at_rest_within_limits_and_better_than_a_hand_picked_motio
     assert np.all(theta >= lo) and np.all(theta <= hi)
     assert np.max(np.abs(ff[:, 7:10] - theta)) <= 0.15                  # deflection limit
     assert summary["condition_number"] * 100 < summary["condition_number_hand_picked"]
+    # checked, not just stopped: converged, every joint sweeps a tenth of its range, kappa bounded
+    assert summary["status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+    assert np.all(np.ptp(theta, axis=0) >= 0.1 * (hi - lo)) and summary["condition_number"] < 1e4
 
 
 def test_identified_model_file_round_trips(identified, arm3):
@@ -152,6 +155,7 @@ def test_identified_model_file_round_trips(identified, arm3):
     assert "shoulder_yaw.sea.k1" in report["parameters"] and "residual_rms" in report and report["cutoff_hz"] > 20
     assert (identified / "validation.png").exists() and (identified / "fit.png").exists()
     assert len(names) > len(report["parameters"])                        # balanced rotors stay balanced
+    assert report["physical_fit"] == "converged"
 
 
 def test_prediction_of_held_out_torques(identified, synthetic, arm3):
@@ -218,3 +222,50 @@ def test_logs_that_cannot_identify_are_refused(synthetic, arm3):
                 np.repeat(lg.tau[:, :1], N, 1))
     with pytest.raises(LogError, match="still.csv.*determines only"):
         ident_mod.identify(arm3, [still])
+
+
+def test_a_degenerate_excitation_is_refused_naming_the_cause(arm3, tmp_path, capsys):
+    """The fresh machine's failure: a design where a joint hardly moves, or whose condition number
+    is too large, is refused: by the check, by `design`, and by `excite` with one line and exit 2."""
+    from rscasadi.control.trajectory import Trajectory
+    from rscasadi.identification import excitation as ex
+    t = np.linspace(0.0, 4.0, 401)
+    rng = np.random.default_rng(3)
+    a, b = ex._rest_projection(rng.normal(0, 0.1, (3, 3)), rng.normal(0, 0.1, (3, 3)))
+    a[0], b[0] = a[0] * 1e-4, b[0] * 1e-4                              # joint 1 still
+    still = Trajectory(model_path=REFERENCE, period=4.0, duration=4.0, kind="fourier", offset=np.zeros(3), a=a, b=b)
+    problems = ex.check_design(arm3, still, t, ex.condition_number(arm3, still))
+    assert any("shoulder_yaw" in p and "sweeps" in p for p in problems), problems
+    assert any("condition number" in p for p in problems), problems
+    with pytest.raises(ex.ExcitationError, match="start 1: .*condition number .* above 1"):
+        ex.design(arm3, period=4.0, harmonics=3, starts=1, max_condition=1.0, log=lambda m: None)
+
+
+def test_excitation_design_holds_on_other_blas_kernels(tmp_path):
+    """A fresh machine's BLAS took other kernels and the design landed on a trajectory where
+    joint 1 never moved (condition number 7e11).  Here numpy's OpenBLAS is forced onto another
+    kernel family: the design converges and passes its checks there too."""
+    import subprocess
+    import sys
+    import os
+    env = dict(os.environ, OPENBLAS_CORETYPE="Prescott")
+    out = tmp_path / "val"
+    res = subprocess.run([sys.executable, "-m", "rscasadi.cli", "excite", str(REFERENCE), "--out", str(out),
+                          "--period", "8", "--harmonics", "4"], capture_output=True, text=True, env=env, timeout=900)
+    assert res.returncode == 0, res.stderr
+    summary = json.loads((out / "excitation.json").read_text())
+    assert summary["status"] == "Solve_Succeeded" and summary["condition_number"] < 1e4, summary
+    assert all(not s["refused"] for s in summary["starts"]), summary["starts"]
+
+
+def test_held_out_log_that_does_not_move_a_joint_is_refused_by_name(synthetic, tmp_path, capsys):
+    _, logs = synthetic
+    lg = read_log(logs["validation"], 3)
+    lg.theta[0], lg.phi[0] = lg.theta[0, :1], lg.phi[0, :1]            # joint 1 held still
+    write_log(tmp_path / "still_joint.csv", lg)
+    code = main(["identify", str(REFERENCE), str(logs["identification"]), "--out", str(tmp_path / "o"),
+                 "--validate", str(tmp_path / "still_joint.csv")])
+    captured = capsys.readouterr()
+    assert code == 2 and "still_joint.csv" in captured.err and "phi_1" in captured.err
+    assert "shoulder_yaw" in captured.err and "identifying" not in captured.out and "nan" not in captured.out
+    assert not (tmp_path / "o").exists()

@@ -14,16 +14,16 @@ model gives the regressor rows and the limits:
   parameters, each column scaled by the size of its parameter (relative errors);
 - limits (times `margin`): motor torque, slow-side speed, deflection, link angles.
 
-The condition number kappa = lambda_max / lambda_min of A = sum Y^T Y is minimised exactly by
-its epigraph: min log t - log s subject to s 1 <= A <= t 1, each matrix inequality written as
-A - s 1 = L1 L1^T and t 1 - A = L2 L2^T with L1, L2 lower triangular (IPOPT, limited-memory
-Hessian).  The result is checked and, if needed, scaled down until the exact feedforward
-(the paper's pipeline) respects every limit.
+The design minimises tr(A^-1), A = sum Y^T Y / M (A-optimal: the sum of the relative variances
+of the base parameters, which also bounds the condition number, kappa <= tr(A) tr(A^-1)), with
+IPOPT and its exact Hessian from a few deterministic starts.  Each result is scaled down until
+the exact feedforward (the paper's pipeline) respects every limit, then checked: every joint
+sweeps at least MIN_SWEEP of its angle range and kappa stays below MAX_CONDITION.  The best
+checked design is kept; if none passes, ExcitationError names each start's cause.
 """
 from __future__ import annotations
 
 import functools
-import json
 import os
 from pathlib import Path
 
@@ -33,12 +33,15 @@ import numpy as np
 from ..control.simulation import feedforward
 from ..control.trajectory import Trajectory
 from ..dynamics.arm import Arm, load
-from ..files import fresh_directory
+from ..files import CheckError, fresh_directory, write_json
 from ..model.parameters import n_linear
 from .identify import Unknowns, prior_scale, structural_base
 from .regressor import regressor, spring_regressor
 
 TORQUE_NOISE = 0.005
+MAX_CONDITION = 1e5  # a design above this is refused (a hand-picked bump on every joint: ~1e9)
+MIN_SWEEP = 0.1      # every joint sweeps at least this fraction of its angle range
+STARTS = 3           # deterministic starts; the best checked design is kept
 
 
 def _basis(period, K, t):
@@ -86,14 +89,19 @@ def _limits(arm: Arm):
     return lim, lo, hi
 
 
-def condition_number(arm: Arm, traj: Trajectory, samples: int = 400) -> float:
-    """kappa of the weighted, scaled base regressor of the design model along traj (one period)."""
+def _singular_values(arm: Arm, traj: Trajectory, samples: int = 400) -> np.ndarray:
+    """Singular values of the weighted, scaled base regressor of the design model along traj
+    (one period), normalised by the number of samples like A = Z Z^T / M."""
     g, _ = _design_parts(arm)
     t = np.linspace(0, traj.period, samples, endpoint=False)
-    q = traj(t)
-    rows = np.array(g.map(samples)(*q)[0])
+    rows = np.array(g.map(samples)(*traj(t))[0])
     Z = rows.reshape(2 * arm.n, samples, -1).reshape(-1, rows.shape[1] // samples)
-    sv = np.linalg.svd(Z, compute_uv=False)
+    return np.linalg.svd(Z, compute_uv=False) / np.sqrt(samples)
+
+
+def condition_number(arm: Arm, traj: Trajectory, samples: int = 400) -> float:
+    """kappa of the weighted, scaled base regressor of the design model along traj (one period)."""
+    sv = _singular_values(arm, traj, samples)
     return float(sv[0] / sv[-1])
 
 
@@ -111,15 +119,17 @@ def _design_parts(arm: Arm):
     return _sample_function(arm, unknowns, list(base.independent), col_scale, weights), base
 
 
-def design(arm: Arm, period: float = 10.0, harmonics: int = 5, margin: float = 0.85, samples: int | None = None,
-           offset=None, rng=None, log=print) -> tuple[Trajectory, dict]:
-    n, K = arm.n, harmonics
-    M = samples or max(60, 12 * K)
-    rng = np.random.default_rng(1) if rng is None else rng
+class ExcitationError(CheckError):
+    """No designed trajectory passed its checks; the message names each start's cause."""
+
+
+def _design_problem(arm: Arm, period: float, K: int, margin: float, M: int):
+    """The design NLP over (a, b, q0) and its bounds: min log tr A^-1 subject to rest at t = 0 and
+    the limits at the M sample points (IPOPT, exact Hessian)."""
+    n = arm.n
     g, base = _design_parts(arm)
     r = base.rank
     lim, lo, hi = _limits(arm)
-    mid = 0.5 * (lo + hi) if offset is None else np.asarray(offset, float)
     t = np.linspace(0, period, M, endpoint=False)
     B = _basis(period, K, t)
     a, b, q0 = ca.MX.sym("a", n, K), ca.MX.sym("b", n, K), ca.MX.sym("q0", n)
@@ -127,64 +137,97 @@ def design(arm: Arm, period: float = 10.0, harmonics: int = 5, margin: float = 0
     rows, tau, psi, dphi = g.map(M)(*Q)
     Z = ca.reshape(rows.T, r, 2 * n * M)
     A = Z @ Z.T / M
-    log_s, log_t = ca.MX.sym("log_s"), ca.MX.sym("log_t")              # kappa = exp(log_t - log_s)
-    s, tt = ca.exp(log_s), ca.exp(log_t)
-    tri = np.tril_indices(r)
-    l1, l2 = ca.MX.sym("l1", len(tri[0])), ca.MX.sym("l2", len(tri[0]))
-
-    def lower(v):
-        L = ca.MX(r, r)
-        for k, (i, j) in enumerate(zip(*tri)):
-            L[i, j] = v[k]
-        return L
-
-    L1, L2 = lower(l1), lower(l2)
-    I = ca.DM.eye(r)
-    g_sdp = ca.vertcat(_tril(A - s * I - L1 @ L1.T, tri), _tril(tt * I - A - L2 @ L2.T, tri))
-    w = ca.vertcat(ca.vec(a), ca.vec(b), q0, log_s, log_t, l1, l2)
+    # A-optimal: tr(A^-1) is the sum of the (column-scaled, so relative) parameter variances; it
+    # bounds the condition number (kappa <= tr(A) tr(A^-1)) and, unlike kappa, rewards amplitude
+    f = ca.log(ca.trace(ca.solve(A, ca.DM.eye(r))))
     lvec = lambda v: np.repeat(v, M)                           # limits per sample, joint-major after vec
     rest = ca.vertcat(ca.sum2(a), b @ ca.DM(np.arange(1, K + 1)), a @ ca.DM(np.arange(1, K + 1) ** 2))
-    cons = ca.vertcat(g_sdp, rest, ca.vec(tau.T), ca.vec(psi.T), ca.vec(dphi.T), ca.vec(Q[0].T))
-    big = 1e20
-    fin = lambda v: np.where(np.isfinite(v), v, big)
-    lbg = np.r_[np.zeros(g_sdp.numel()), np.zeros(3 * n), -margin * lvec(fin(lim["tau"])),
-                -margin * lvec(fin(lim["psi"])), -margin * lvec(fin(lim["dphi"])),
-                lvec(lo + (1 - margin) * (hi - lo) / 2)]
-    ubg = np.r_[np.zeros(g_sdp.numel()), np.zeros(3 * n), margin * lvec(fin(lim["tau"])),
-                margin * lvec(fin(lim["psi"])), margin * lvec(fin(lim["dphi"])),
-                lvec(hi - (1 - margin) * (hi - lo) / 2)]
-    # a feasible start: small random coefficients meeting the rest conditions
-    a0, b0 = _rest_projection(rng.normal(0, 1, (n, K)), rng.normal(0, 1, (n, K)))
+    cons = ca.vertcat(rest, ca.vec(tau.T), ca.vec(psi.T), ca.vec(dphi.T), ca.vec(Q[0].T))
+    fin = lambda v: np.where(np.isfinite(v), v, 1e20)
+    bound = np.r_[margin * lvec(fin(lim["tau"])), margin * lvec(fin(lim["psi"])), margin * lvec(fin(lim["dphi"]))]
+    room = (1 - margin) * (hi - lo) / 2
+    solver = ca.nlpsol("excite", "ipopt", {"x": ca.vertcat(ca.vec(a), ca.vec(b), q0), "f": f, "g": cons}, {
+        "ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 500, "ipopt.tol": 1e-8})
+    bounds = {"lbg": np.r_[np.zeros(3 * n), -bound, lvec(lo + room)], "ubg": np.r_[np.zeros(3 * n), bound, lvec(hi - room)],
+              "lbx": np.r_[-np.inf * np.ones(2 * n * K), lo], "ubx": np.r_[np.inf * np.ones(2 * n * K), hi]}
+    return solver, bounds, r
+
+
+def _start(arm: Arm, K: int, seed: int):
+    """A feasible start: small random coefficients at rest at t = 0, mid-range."""
+    rng = np.random.default_rng(seed)
+    lim, lo, hi = _limits(arm)
+    a0, b0 = _rest_projection(rng.normal(0, 1, (arm.n, K)), rng.normal(0, 1, (arm.n, K)))
     peak = np.max(np.abs(np.hstack([a0, b0]))) + 1e-12
-    scale0 = 0.5 * np.min(fin(lim["dphi"])) / (K * peak)
-    a0, b0 = a0 * scale0, b0 * scale0
-    f_A = ca.Function("A", [a, b, q0], [A])
-    A0 = np.array(f_A(a0, b0, mid))
-    ev = np.linalg.eigvalsh(A0)
-    s0, t0 = 0.5 * ev[0], 2.0 * ev[-1]
-    L10, L20 = np.linalg.cholesky(A0 - s0 * np.eye(r)), np.linalg.cholesky(t0 * np.eye(r) - A0)
-    w0 = np.r_[a0.ravel(order="F"), b0.ravel(order="F"), mid, np.log(s0), np.log(t0), L10[tri], L20[tri]]
-    span = [np.log(max(ev[0], 1e-300 * ev[-1])) - 20, np.log(ev[-1]) + 20]     # keeps exp() finite
-    lbw = np.r_[-np.inf * np.ones(2 * n * K), lo, span[0], span[0], -np.inf * np.ones(2 * len(tri[0]))]
-    ubw = np.r_[np.inf * np.ones(2 * n * K), hi, span[1], span[1], np.inf * np.ones(2 * len(tri[0]))]
-    nlp = {"x": w, "f": log_t - log_s, "g": cons}
-    solver = ca.nlpsol("excite", "ipopt", nlp, {
-        "ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 400,
-        "ipopt.hessian_approximation": "limited-memory", "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4})
+    dphi = np.where(np.isfinite(lim["dphi"]), lim["dphi"], 1.0)
+    k = 0.5 * np.min(dphi) / (K * peak)
+    return np.r_[(k * a0).ravel(order="F"), (k * b0).ravel(order="F"), 0.5 * (lo + hi)]
+
+
+def check_design(arm: Arm, traj: Trajectory, t, kappa: float, max_condition: float = MAX_CONDITION) -> list[str]:
+    """What makes a designed trajectory unfit for identification: a joint that hardly moves, a
+    condition number above the bound, or numbers that are not finite."""
+    _, lo, hi = _limits(arm)
+    q = traj(t)[0]
+    if not np.all(np.isfinite(q)) or not np.isfinite(kappa):
+        return ["the trajectory or its condition number is not finite"]
+    sweep = np.ptp(q, axis=1) / (hi - lo)
+    out = [f"joint {jt.name} sweeps {100 * s:.2g} % of its angle range (at least {100 * MIN_SWEEP:g} % needed)"
+           for jt, s in zip(arm.model.joints, sweep) if s < MIN_SWEEP]
+    if kappa > max_condition:
+        out.append(f"condition number {kappa:.3g} above {max_condition:.3g}")
+    return out
+
+
+def design(arm: Arm, period: float = 10.0, harmonics: int = 5, margin: float = 0.85, samples: int | None = None,
+           starts: int = STARTS, rate: float = 1000.0, max_condition: float = MAX_CONDITION,
+           log=print) -> tuple[Trajectory, dict, dict, dict]:
+    """The best checked design of `starts` deterministic starts: (trajectory, its exact
+    feedforward, the limits' use, info).  Raises ExcitationError when no start passes."""
+    n, K = arm.n, harmonics
+    M = samples or max(60, 12 * K)
+    solver, bounds, r = _design_problem(arm, period, K, margin, M)
+    t = np.arange(int(round(period * rate)) + 1) / rate
     log(f"excitation: {n} joints, {K} harmonics, period {period} s, {M} samples, {r} base parameters; "
-        f"start kappa {ev[-1] / ev[0]:.3g}")
-    res = solver(x0=w0, lbx=lbw, ubx=ubw, lbg=lbg, ubg=ubg)
-    stats = solver.stats()
-    wopt = np.array(res["x"]).ravel()
-    a_opt = wopt[:n * K].reshape(n, K, order="F")
-    b_opt = wopt[n * K:2 * n * K].reshape(n, K, order="F")
-    q_opt = wopt[2 * n * K:2 * n * K + n]
-    a_opt, b_opt = _rest_projection(a_opt, b_opt)          # exactly at rest, whatever IPOPT's last iterate
-    log(f"excitation: IPOPT {stats['return_status']} after {stats['iter_count']} iterations")
-    traj = Trajectory(model_path=Path(arm.model.path), period=period, duration=period, kind="fourier",
-                      offset=q_opt, a=a_opt, b=b_opt)
-    return traj, {"status": stats["return_status"], "iterations": int(stats["iter_count"]), "samples": M,
-                  "base_parameters": r}
+        f"{starts} starts")
+    tried, best = [], None
+    for seed in range(1, starts + 1):
+        res = solver(x0=_start(arm, K, seed), **bounds)
+        stats = solver.stats()
+        w = np.array(res["x"]).ravel()
+        a = w[:n * K].reshape(n, K, order="F")
+        b = w[n * K:2 * n * K].reshape(n, K, order="F")
+        a, b = _rest_projection(a, b)                       # exactly at rest, whatever IPOPT's last iterate
+        traj = Trajectory(model_path=Path(arm.model.path), period=period, duration=period, kind="fourier",
+                          offset=w[2 * n * K:], a=a, b=b)
+        try:
+            traj, ff, use = within_limits(arm, traj, t, log=lambda m: None)
+            sv = _singular_values(arm, traj)
+            kappa, variance = float(sv[0] / sv[-1]), float(np.sum(sv ** -2.0))     # tr A^-1, the criterion
+            problems = check_design(arm, traj, t, kappa, max_condition)
+        except ExcitationError as exc:
+            kappa, variance, problems = float("nan"), float("nan"), [str(exc)]
+        entry = {"start": seed, "status": stats["return_status"], "iterations": int(stats["iter_count"]),
+                 "condition_number": kappa if np.isfinite(kappa) else None, "refused": problems}
+        tried.append(entry)
+        log(f"excitation: start {seed}/{starts}: IPOPT {_worded(stats['return_status'])} after "
+            f"{entry['iterations']} iterations, condition number {kappa:.4g}"
+            + (f"; refused: {'; '.join(problems)}" if problems else ""))
+        if not problems and (best is None or variance < best[3]):
+            best = (traj, ff, use, variance, entry)
+    if best is None:
+        raise ExcitationError(f"{arm.model.path}: no excitation design passed its checks: "
+                              + " | ".join(f"start {e['start']}: {'; '.join(e['refused'])}" for e in tried))
+    traj, ff, use, _, entry = best
+    return traj, ff, use, {"status": entry["status"], "iterations": entry["iterations"], "start": entry["start"],
+                           "starts": tried, "samples": M, "base_parameters": r}
+
+
+def _worded(status: str) -> str:
+    """IPOPT's return status as what it means for a design."""
+    return {"Solve_Succeeded": "converged", "Solved_To_Acceptable_Level": "converged to its acceptable tolerance",
+            "Maximum_Iterations_Exceeded": "stopped at its iteration limit (the design is checked below)"
+            }.get(status, status)
 
 
 def _tril(X, tri):
@@ -242,7 +285,7 @@ def within_limits(arm: Arm, traj: Trajectory, t, log=print, iterations: int = 20
             f"scaling the motion by {k:.3f}")
         traj = Trajectory(model_path=traj.model_path, period=traj.period, duration=traj.duration, kind="fourier",
                           offset=offset, a=traj.a * k, b=traj.b * k)
-    raise RuntimeError("could not bring the excitation trajectory within the limits")
+    raise ExcitationError(f"could not bring the motion within the limits in {iterations} scalings")
 
 
 def hand_picked(arm: Arm, period: float, amplitude: float = 0.5) -> Trajectory:
@@ -252,23 +295,24 @@ def hand_picked(arm: Arm, period: float, amplitude: float = 0.5) -> Trajectory:
                       start=0.5 * (lo + hi), amplitude=np.full(arm.n, amplitude))
 
 
-def run(model_file, out, period: float = 10.0, harmonics: int = 5, rate: float = 1000.0, log=print) -> dict:
+def run(model_file, out, period: float = 10.0, harmonics: int = 5, rate: float = 1000.0, starts: int = STARTS,
+        log=print) -> dict:
     arm = load(model_file)
-    traj, info = design(arm, period, harmonics, log=log)
-    t = np.arange(int(round(period * rate)) + 1) / rate
-    traj, ff, use = within_limits(arm, traj, t, log)
-    kappa, kappa_hand = condition_number(arm, traj), condition_number(arm, hand_picked(arm, period))
-    log(f"excitation: condition number {kappa:.4g} (hand-picked bump of 0.5 rad: {kappa_hand:.4g})")
-    summary = {"model": os.path.relpath(Path(model_file).resolve(), Path(out).resolve()), **info, "period": period, "harmonics": harmonics,
-               "condition_number": kappa, "condition_number_hand_picked": kappa_hand, "limit_use": use}
-    with fresh_directory(out, "excitation.json") as tmp:
+    with fresh_directory(out, "excitation.json") as tmp:       # checked writable before the design
+        traj, ff, use, info = design(arm, period, harmonics, starts=starts, rate=rate, log=log)
+        t = np.arange(int(round(period * rate)) + 1) / rate
+        kappa, kappa_hand = condition_number(arm, traj), condition_number(arm, hand_picked(arm, period))
+        log(f"excitation: condition number {kappa:.4g} (hand-picked bump of 0.5 rad: {kappa_hand:.4g})")
+        summary = {"model": os.path.relpath(Path(model_file).resolve(), Path(out).resolve()), **info, "period": period,
+                   "harmonics": harmonics, "condition_number": kappa, "condition_number_hand_picked": kappa_hand,
+                   "limit_use": use}
         # the model as seen from DIR, as trajectory files name theirs
         traj.write(tmp / "trajectory.toml", os.path.relpath(Path(model_file).resolve(), Path(out).resolve()))
         cols = ["t"] + [f"tau_{j + 1}" for j in range(arm.n)] + [f"theta_{j + 1}" for j in range(arm.n)] \
             + [f"phi_{j + 1}" for j in range(arm.n)]
         data = np.vstack([t, ff["tau"], ff["theta_d"], ff["phi"]]).T
         np.savetxt(tmp / "feedforward.csv", data, delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
-        (tmp / "excitation.json").write_text(json.dumps(summary, indent=2) + "\n")
+        write_json(tmp / "excitation.json", summary, indent=2)
         _plot(tmp / "excitation", t, ff, arm)
     log(f"wrote {Path(out) / 'trajectory.toml'}, feedforward.csv, excitation.json")
     return summary
