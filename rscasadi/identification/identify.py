@@ -13,38 +13,34 @@
 3. Least squares in the base parameters (`BaseParameters`), each row block weighted by the
    inverse of its residual standard deviation (two passes): the estimate, its covariance, and
    the standard deviation of every identifiable combination.
-4. A physically consistent model (`physical_fit`): each link's pseudo-inertia J = U U^T with U
-   upper triangular with a positive diagonal (log-Cholesky, Rucker & Wensing), balanced rotors
-   as balanced pseudo-inertias, k1 > 0 and k3, d, b, c >= 0, fitted to the base
-   estimate in its information metric plus a weak prior (30 %) on the model file's values for
-   the directions the data cannot see: a bounded nonlinear least-squares problem (residuals
-   and Jacobian from CasADi, scipy.optimize.least_squares, trust region).
+4. A physically consistent model (`physical_fit`): each body's pseudo-inertia J is positive
+   definite (a linear matrix inequality, Wensing, Kim and Slotine 2017; balanced rotors keep
+   their balanced parameters), k1 > 0 and k3, d, b, c >= 0, fitted to the base estimate in its
+   information metric plus a weak prior (30 %) on the model file's values for the directions the
+   data cannot see: a convex semidefinite program (cvxpy, Clarabel) with one optimum.
 """
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
 
-import casadi as ca
 import numpy as np
 import scipy.linalg
-import scipy.optimize
 import scipy.signal
 
 from ..dynamics.arm import Arm, load
-from ..files import fresh_directory
+from ..files import CheckError, check_writable, fresh_directory, write_json
 from ..model.modelfile import BODIES, ArmModel, document, to_toml
 from ..model.parameters import INERTIAL, PER_JOINT, body_from_parameters, n_linear
 from .logs import Log, LogError, read_log
 from .regressor import BaseParameters, base_of, random_samples, regressor, spring_regressor, stacked
 
 PRIOR = 0.3          # relative standard deviation of the prior on the model file's values
-LOG_SPAN = 3.0       # bound on the log-Cholesky factor's growth from the model file's value
 CUTOFF_FACTOR = 2.0  # filter cut-off / highest SEA mode (1.5 biases k1 by 100 sigma, see above)
 EDGE_S = 0.25        # seconds dropped at both ends of a log (filter transients)
 REVERSAL = 10.0      # motor-torque rows with |dphi| < REVERSAL * eps (Coulomb's tanh) are left out
+MIN_ROWS = 20        # a joint with fewer motor-torque rows than this is not moved by the log
 
 
 # ----------------------------------------------------------------------------- the unknowns
@@ -176,6 +172,18 @@ def rows(arm: Arm, sig: Signals, unknowns: Unknowns, reduced: bool = False) -> R
                 np.concatenate([b[3] for b in blocks]))
 
 
+def check_moving(rows_: Rows, arm: Arm, path) -> None:
+    """Refuse a log in which a joint's motor hardly turns: its torque rows (kept outside the
+    Coulomb reversal band) are too few to fit or to predict that joint's torque."""
+    for j, jt in enumerate(arm.model.joints):
+        b = rows_.labels.index(f"tau_{j + 1}")
+        count = int(np.sum(rows_.block == b))
+        if count < MIN_ROWS:
+            raise LogError(f"{path}: column 'phi_{j + 1}': joint {jt.name}'s motor hardly turns ({count} of "
+                           f"{int(np.sum(rows_.block == rows_.labels.index('spring_1')))} samples outside its Coulomb "
+                           f"band, at least {MIN_ROWS} needed): the log does not excite this joint")
+
+
 def combine(parts: list[Rows]) -> Rows:
     return Rows(np.vstack([r.A for r in parts]), np.concatenate([r.y for r in parts]),
                 np.concatenate([r.block for r in parts]), parts[0].labels, np.concatenate([r.t for r in parts]))
@@ -252,92 +260,51 @@ def _correlation_inflation(res, block) -> float:
     return (1 + rho) / (1 - rho)
 
 
-def _upper_from(J):
-    """U upper triangular with J = U U^T (J positive definite)."""
-    P = np.eye(4)[::-1]
-    L = np.linalg.cholesky(P @ J @ P)
-    return P @ L @ P
-
-
 def _pseudo_inertia(v):
-    """J = [[tr(I)/2 1 - I, h], [h^T, m]] from the ten parameters (I about the frame origin)."""
-    m, h = v[0], np.asarray(v[1:4])
-    I = np.array([[v[4], v[7], v[8]], [v[7], v[5], v[9]], [v[8], v[9], v[6]]])
-    return np.block([[0.5 * np.trace(I) * np.eye(3) - I, h[:, None]], [h[None, :], np.array([[m]])]])
+    """J = [[tr(I)/2 1 - I, h], [h^T, m]] from the ten parameters (I about the frame origin);
+    linear in v, so numbers and cvxpy expressions alike (Wensing, Kim and Slotine 2017, eq. 6)."""
+    m, h = v[0], [v[1], v[2], v[3]]
+    I = [[v[4], v[7], v[8]], [v[7], v[5], v[9]], [v[8], v[9], v[6]]]
+    half = 0.5 * (v[4] + v[5] + v[6])
+    return [[(half if r == c else 0) - I[r][c] for c in range(3)] + [h[r]] for r in range(3)] + [h + [m]]
 
 
-def _params_from_U(U):
-    """The ten parameters of J = U U^T (CasADi)."""
-    J = U @ U.T
-    S = J[:3, :3]
-    I = ca.trace(S) * ca.DM.eye(3) - S
-    return ca.vertcat(J[3, 3], J[0, 3], J[1, 3], J[2, 3], I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2])
+FIT_MARGIN = 1e-4     # every body's pseudo-inertia at least this fraction of its nominal diagonal
 
 
 def physical_fit(arm: Arm, unknowns: Unknowns, ls: LeastSquares, th_nominal: np.ndarray) -> tuple[np.ndarray, str]:
-    """The physically consistent th closest to the base estimate (covariance metric) with a
-    weak prior on the model file's values."""
+    """The physically consistent th closest to the base estimate in its information metric, with
+    a weak prior on the model file's values for the directions the data cannot see.  Convex:
+    every body's pseudo-inertia J(th) >= 0 is a linear matrix inequality (Wensing, Kim and
+    Slotine 2017), k1 > 0 and k3, d, b, c >= 0; the cost is quadratic.  Its optimum is unique,
+    so it does not depend on a start point or on the machine."""
+    import cvxpy as cp
     model, m = arm.model, len(unknowns.names)
-    z_parts, z0, th_expr, lbz, ubz = [], [], [None] * m, [], []
     scale = prior_scale(unknowns, th_nominal)
+    x = cp.Variable(m)                                    # th = scale * x: every unknown of size ~1
+    p = unknowns.E @ cp.multiply(scale, x)
     p_nom = unknowns.E @ th_nominal
+    cons = []
     for j, jt in enumerate(model.joints):
-        for i, body in enumerate(BODIES):
-            idx = [k for k, kind in enumerate(unknowns.kinds) if kind[1] == j and kind[2:] == (body,)]
-            v_nom = p_nom[j * PER_JOINT + 10 * i: j * PER_JOINT + 10 * (i + 1)]
-            U0 = _upper_from(_pseudo_inertia(v_nom))
-            if len(idx) == 4:                             # balanced rotor: diag(a, a, b) and t3, c
-                z = ca.SX.sym(f"z{j}{i}", 4)
-                U = ca.SX.zeros(4, 4)
-                U[0, 0] = U[1, 1] = ca.exp(z[0])
-                U[2, 2], U[2, 3], U[3, 3] = ca.exp(z[1]), z[2], ca.exp(z[3])
-                z_init = [np.log(U0[0, 0]), np.log(U0[2, 2]), U0[2, 3], np.log(U0[3, 3])]
-                logs = [0, 1, 3]
-                v = _params_from_U(U)
-                for k, (row) in zip(idx, (0, 3, 4, 6)):
-                    th_expr[k] = v[row]
-            else:                                         # general body: U upper, exp on the diagonal
-                z = ca.SX.sym(f"z{j}{i}", 10)
-                U = ca.SX.zeros(4, 4)
-                pos = [(0, 0), (1, 1), (2, 2), (3, 3), (0, 1), (0, 2), (1, 2), (0, 3), (1, 3), (2, 3)]
-                for k, (r, c) in enumerate(pos):
-                    U[r, c] = ca.exp(z[k]) if r == c else z[k]
-                z_init = [np.log(U0[r, c]) if r == c else U0[r, c] for r, c in pos]
-                logs = [0, 1, 2, 3]
-                v = _params_from_U(U)
-                for k, row in zip(idx, range(10)):
-                    th_expr[k] = v[row]
-            # U may grow e^LOG_SPAN-fold (J, and so a mass or an inertia, e^(2 LOG_SPAN)-fold): a wide
-            # physical box, which keeps the trust region from trial steps whose J overflows
-            z_parts.append(z), z0.extend(z_init)
-            big = np.exp(LOG_SPAN) * np.max(np.abs(U0))
-            lbz.extend([z_init[k] - LOG_SPAN if k in logs else -big for k in range(len(z_init))])
-            ubz.extend([z_init[k] + LOG_SPAN if k in logs else big for k in range(len(z_init))])
-        for r, attr in enumerate(("sea.k1", "sea.k3", "sea.d", "gear_loss.b", "gear_loss.c")):
+        for i in range(len(BODIES)):
+            first = j * PER_JOINT + 10 * i
+            J = cp.bmat(_pseudo_inertia([p[first + k] for k in range(10)]))
+            d = np.sqrt(np.maximum(np.diag(np.array(_pseudo_inertia(list(p_nom[first:first + 10])))), 1e-300))
+            Dinv = np.diag(1.0 / d)                      # congruence: each body's J on the scale of its nominal
+            cons.append(Dinv @ J @ Dinv - FIT_MARGIN * np.eye(4) >> 0)
+        for attr in ("sea.k1", "sea.k3", "sea.d", "gear_loss.b", "gear_loss.c"):
             k = unknowns.names.index(f"{jt.name}.{attr}")
-            z = ca.SX.sym(f"a{j}{r}")                    # in units of the parameter's size
-            th_expr[k] = z * scale[k]
-            z_parts.append(z), z0.append(th_nominal[k] / scale[k])
-            lbz.append(1e-3 if attr == "sea.k1" else 0.0), ubz.append(1e3)
-    z = ca.vertcat(*z_parts)
-    th = ca.vertcat(*th_expr)
-    # whitened residuals: the base estimate in its information metric, then the prior
+            cons.append(x[k] >= (1e-3 if attr == "sea.k1" else 0.0))
     d = 1.0 / np.sqrt(np.maximum(np.diag(ls.info), 1e-300))
-    C = np.linalg.cholesky(d[:, None] * ls.info * d[None, :])
-    W = ca.DM((C.T / d[None, :]))                       # W^T W = info
-    res = ca.vertcat(W @ (ca.DM(ls.base.P) @ th - ca.DM(ls.beta)),
-                     (th - ca.DM(th_nominal)) / ca.DM(PRIOR * scale))
-    f_res = ca.Function("res", [z], [res])
-    f_jac = ca.Function("res_jacobian", [z], [ca.jacobian(res, z)])
-    lbz, ubz = np.array(lbz), np.array(ubz)
-    inside = lambda v: np.clip(v, lbz, ubz)           # trial points are evaluated inside the box
-    sol = scipy.optimize.least_squares(lambda v: np.array(f_res(inside(v))).ravel(), np.array(z0),
-                                       jac=lambda v: np.array(f_jac(inside(v))), bounds=(lbz, ubz), method="trf",
-                                       x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-10, max_nfev=5000)
-    if sol.status < 0:
-        raise RuntimeError(f"the physically consistent fit failed: {sol.message}")
-    status = "converged" if sol.status > 0 else f"stopped: {sol.message}"
-    return np.array(ca.Function("th", [z], [th])(sol.x)).ravel(), status
+    W = np.linalg.cholesky(d[:, None] * ls.info * d[None, :]).T / d[None, :]     # W^T W = info
+    data = W @ ls.base.P @ np.diag(scale)
+    cost = cp.sum_squares(data @ x - W @ ls.beta) + cp.sum_squares((x - th_nominal / scale) / PRIOR)
+    problem = cp.Problem(cp.Minimize(cost), cons)
+    problem.solve(solver=cp.CLARABEL)
+    if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or x.value is None:
+        raise CheckError(f"the physically consistent fit failed: Clarabel reports {problem.status}")
+    status = "converged" if problem.status == cp.OPTIMAL else "converged to reduced accuracy"
+    return scale * np.asarray(x.value), status
 
 
 def prior_scale(unknowns: Unknowns, th_nominal) -> np.ndarray:
@@ -433,6 +400,7 @@ def identify(arm: Arm, logs: list[Log], reduced: bool = False, fc: float | None 
         raise LogError(f"{', '.join(lg.path for lg in logs)}: the logged motion determines only {excited} of the "
                        f"{base.rank} identifiable parameter combinations: log a longer or richer motion "
                        f"(rscasadi excite designs one)")
+    check_moving(rows_, arm, ", ".join(lg.path for lg in logs))
     ls = least_squares(rows_, base, th_nominal)
     th, status = physical_fit(arm, unknowns, ls, th_nominal)
     return Identification(unknowns, ls, th, th_nominal, identified_model(arm, unknowns, th), fc, why, rows_, status)
@@ -497,9 +465,13 @@ def plot(out: Path, rows_: Rows, th: np.ndarray, title: str):
 
 
 def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, reduced=False, log=print) -> dict:
+    check_writable(out)
     arm = load(model_file)
     logs = [read_log(f, arm.n) for f in log_files]
     val_log = read_log(validate, arm.n) if validate else None
+    if val_log is not None:                          # refused before the work, not after it
+        fc = cutoff or cutoff_hz(arm, logs[0])[0]
+        check_moving(rows(arm, prepare(val_log, fc), Unknowns.of(arm.model), reduced), arm, validate)
     if explain:
         u = Unknowns.of(arm.model)
         fc = cutoff or cutoff_hz(arm, logs[0])[0]
@@ -530,7 +502,7 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
     with fresh_directory(out, "report.json") as tmp:
         (tmp / "model.toml").write_text(f"# identified by rscasadi identify from {', '.join(rep['logs'])}\n"
                                          + to_toml(document(ident.model)))
-        (tmp / "report.json").write_text(json.dumps(rep, indent=2) + "\n")
+        write_json(tmp / "report.json", rep, indent=2)
         first = prepare(logs[0], ident.cutoff_hz)
         plot(tmp / "fit", rows(arm, first, ident.unknowns, reduced), ident.th,
              f"identification log {Path(log_files[0]).name}")
