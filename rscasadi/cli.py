@@ -9,12 +9,51 @@ from pathlib import Path
 import numpy as np
 
 from .dynamics.arm import load
-from .files import OutputError
+from .files import CheckError, OutputError, write_json
 from .model.modelfile import ModelFileError
 
 PROBLEMS = Path(__file__).resolve().parents[1] / "problems"
 REFERENCE = PROBLEMS / "arm3.toml"
 TRAJECTORY = PROBLEMS / "trajectory_arm3.toml"
+OCP_PROBLEMS = ("min_time", "min_effort", "tracking", "min_time_codesign", "min_time_gear_codesign", "panda_min_time")
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse, with a mistake told in one line (no usage block) and exit status 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def positive(kind, zero: bool = False, least=None):
+    """An argparse type: a finite number of `kind`, > 0 (>= 0 with zero=True, >= least if given)."""
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'a whole number' if kind is int else 'a number'}")
+        low = least if least is not None else 0
+        if not np.isfinite(value) or value < low or (value == low and least is None and not zero):
+            need = f">= {least}" if least is not None else (">= 0" if zero else "> 0")
+            raise argparse.ArgumentTypeError(f"must be {need}, got {text!r}")
+        return value
+    parse.__name__ = kind.__name__
+    return parse
+
+
+def opt_flag(text: str) -> str:
+    """An optimisation flag for the C compiler: -O0..-O3, -Os, -Og, -Oz or -Ofast, nothing else."""
+    if text not in ("-O0", "-O1", "-O2", "-O3", "-Os", "-Og", "-Oz", "-Ofast"):
+        raise argparse.ArgumentTypeError(f"{text!r} is not one of -O0, -O1, -O2, -O3, -Os, -Og, -Oz, -Ofast")
+    return text
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("rscasadi")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
 
 
 def model_report(path) -> str:
@@ -76,55 +115,105 @@ def cmd_sweep(args):
 
 def cmd_mpc(args):
     from .control.mpc import closed_loop, generate_mpc, plot_closed_loop
+    from .files import check_writable
+    check_writable(args.out)
     generate_mpc(args.problem, args.out, opt=args.opt, log=lambda msg: print(msg, flush=True), model=args.model)
     if args.study is not None:
-        import json
         import os
         traces = {}
         res = closed_loop(args.problem, args.out, duration=args.study or None, log=lambda msg: print(msg, flush=True),
                           model=args.model, traces=traces)
         out = Path(args.out)
-        tmp_json, tmp_png = out / f".closed_loop.{os.getpid()}.json", out / f".closed_loop.{os.getpid()}.png"
+        tmp_png = out / f".closed_loop.{os.getpid()}.png"
         try:                                          # both files, or neither
-            tmp_json.write_text(json.dumps(res, indent=1) + "\n")
             plot_closed_loop({"heavier_tip": traces}, tmp_png)
-            tmp_json.replace(out / "closed_loop.json")
+            write_json(out / "closed_loop.json", res)
             tmp_png.replace(out / "closed_loop.png")
         finally:
-            tmp_json.unlink(missing_ok=True)
             tmp_png.unlink(missing_ok=True)
         print(f"wrote {out / 'closed_loop.json'} and closed_loop.png")
 
 
+class PartFailed(RuntimeError):
+    """A part of the main job did not pass its own check."""
+
+
 def cmd_reproduce(args):
-    from .paper import run
-    out = Path(args.out)
-    _write(out / "model.md", model_report(REFERENCE))
-    print(f"wrote {out / 'model.md'}")
-    run(TRAJECTORY, out / "paper", log=lambda msg: print(msg, flush=True), ocp_problem=PROBLEMS / "ocp_tracking.toml")
-    from .control.ocp import run as run_ocp
-    failed = []
-    for name in ("min_time", "min_effort", "tracking", "min_time_codesign", "min_time_gear_codesign", "panda_min_time"):
-        sol = run_ocp(PROBLEMS / f"ocp_{name}.toml", out / "ocp" / name, log=lambda msg: print(msg, flush=True),
-                      print_level=0)
-        if not sol["success"]:
-            failed.append(name)
-    from .identification.demo import run as run_identification
-    run_identification(REFERENCE, out / "identification", log=lambda msg: print(msg, flush=True))
-    import json
-    import tempfile
-    from .control.mpc import study
-    from .files import fresh_directory
-    from .identification.demo import true_arm_of
-    with tempfile.TemporaryDirectory() as build, fresh_directory(out / "mpc", "closed_loop.json") as tmp:
-        print("MPC: generating the C controllers and running the closed-loop studies ...", flush=True)
-        res = study(PROBLEMS / "mpc_arm3.toml", build, identified_model=out / "identification" / "identified" / "model.toml",
-                    true_arm=true_arm_of(load(REFERENCE)), log=lambda msg: print(msg, flush=True),
-                    figure=tmp / "closed_loop.png")
-        (tmp / "closed_loop.json").write_text(json.dumps(res, indent=1) + "\n")
-    print(f"wrote {out / 'mpc' / 'closed_loop.json'}")
+    """The main job: every part runs (those that need a failed one are skipped); a summary of what
+    each produced; non-zero exit if any part failed its own check."""
+    from .files import check_writable
+    out = check_writable(args.out)
+    log = lambda msg: print(msg, flush=True)
+    summary = []
+
+    def part(name, work, needs=()):
+        missing = [n for n in needs if not any(s[0] == n and s[1] == "ok" for s in summary)]
+        if missing:
+            summary.append((name, "skipped", f"needs {', '.join(missing)}"))
+            return
+        try:
+            summary.append((name, "ok", work()))
+        except (PartFailed, ModelFileError, OutputError, ValueError, RuntimeError) as exc:
+            log(f"rscasadi reproduce: {name} FAILED: {exc}")
+            summary.append((name, "FAILED", str(exc)))
+
+    def model():
+        _write(out / "model.md", model_report(REFERENCE))
+        return f"{out / 'model.md'}"
+
+    def paper():
+        from .paper import run
+        res = run(TRAJECTORY, out / "paper", log=log, ocp_problem=PROBLEMS / "ocp_tracking.toml")
+        worst = max(res["rotor_separated"]["max_error"])
+        if not np.isfinite(worst):
+            raise PartFailed("the rotor-separated feedforward's tracking error is not finite")
+        return f"{out / 'paper'}/: rotor-separated feedforward max error {worst:.2e} rad"
+
+    def ocp(name):
+        def work():
+            from .control.ocp import run as run_ocp
+            sol = run_ocp(PROBLEMS / f"ocp_{name}.toml", out / "ocp" / name, log=log, print_level=0)
+            if not sol["success"]:
+                raise PartFailed(f"not solved and verified ({sol['status']})")
+            return f"{out / 'ocp' / name}/: objective {sol['objective']:.6g}, verified"
+        return work
+
+    def identification():
+        from .identification.demo import run as run_identification
+        res = run_identification(REFERENCE, out / "identification", log=log)
+        worst = max(v["relative"] for v in res["validation"]["prediction"].values())
+        return (f"{out / 'identification'}/: excitation condition number {res['excitation_condition_number']:.3g}, "
+                f"held-out motor torques within {100 * worst:.2f} % RMS")
+
+    def mpc():
+        import tempfile
+        from .control.mpc import study
+        from .files import fresh_directory, showing_final_paths
+        from .identification.demo import true_arm_of
+        with tempfile.TemporaryDirectory() as build, fresh_directory(out / "mpc", "closed_loop.json") as tmp:
+            shown = showing_final_paths(showing_final_paths(log, tmp, out / "mpc"), build, "(a temporary build)")
+            shown("MPC: generating the C controllers and running the closed-loop studies ...")
+            res = study(PROBLEMS / "mpc_arm3.toml", build, log=shown, true_arm=true_arm_of(load(REFERENCE)),
+                        identified_model=out / "identification" / "identified" / "model.toml",
+                        figure=tmp / "closed_loop.png")
+            write_json(tmp / "closed_loop.json", res)
+        worst = max(c["MPC (C)"]["max_error"] for c in res.values())
+        if not np.isfinite(worst):
+            raise PartFailed("the closed-loop MPC's tracking error is not finite")
+        return f"{out / 'mpc'}/: closed-loop MPC max tracking error {worst:.2e} rad"
+
+    part("model", model)
+    part("paper", paper)
+    for name in OCP_PROBLEMS:
+        part(f"ocp {name}", ocp(name))
+    part("identification", identification)
+    part("mpc", mpc, needs=("identification",))
+    log(f"\nrscasadi reproduce into {out}:")
+    for name, state, what in summary:
+        log(f"  {name:28s} {state:8s} {what}")
+    failed = [s[0] for s in summary if s[1] != "ok"]
     if failed:
-        print(f"rscasadi: error: optimal-control problems not solved and verified: {', '.join(failed)}", file=sys.stderr)
+        print(f"rscasadi: error: parts failed or skipped: {', '.join(failed)}", file=sys.stderr)
         return 1
 
 
@@ -152,9 +241,10 @@ def cmd_identify(args):
         reduced=args.reduced, log=lambda msg: print(msg, flush=True))
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(prog="rscasadi", description="Rotor-separated FS-SEA arm dynamics in CasADi")
-    sub = parser.add_subparsers(dest="command", required=True)
+def build_parser() -> argparse.ArgumentParser:
+    parser = Parser(prog="rscasadi", description="Rotor-separated FS-SEA arm dynamics in CasADi")
+    parser.add_argument("--version", action="version", version=f"rscasadi {_version()}")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
     p = sub.add_parser("info", help="summarise a model file")
     p.add_argument("model")
     p.set_defaults(func=cmd_info)
@@ -162,7 +252,7 @@ def main(argv=None):
     p.add_argument("model")
     p.add_argument("--out", required=True, help="directory for the sources, header, library and manifest.json")
     p.add_argument("--prefix", default=None, help="C identifier put before every function name (P_name)")
-    p.add_argument("--opt", default="-O3", help="optimisation flag (default -O3)")
+    p.add_argument("--opt", default="-O3", type=opt_flag, help="optimisation flag (default -O3)")
     p.add_argument("--parametric", action="store_true",
                    help="every function takes the parameter vector p last (names in manifest.json): one library "
                         "for every arm with these joints, no recompilation when a number changes")
@@ -173,7 +263,7 @@ def main(argv=None):
     p = sub.add_parser("paper", help="reproduce the paper's simulation (Figs. 5-11), the cascade study and sweeps")
     p.add_argument("--trajectory", default=str(TRAJECTORY), help="expected-trajectory file (names its model)")
     p.add_argument("--out", default="results/paper")
-    p.add_argument("--duration", type=float, default=None, help="simulated time (default: the file's)")
+    p.add_argument("--duration", type=positive(float), default=None, help="simulated time (default: the file's)")
     p.add_argument("--no-sweep", action="store_true", help="skip the parameter sweeps")
     p.add_argument("--ocp", default=str(PROBLEMS / "ocp_tracking.toml"),
                    help="tracking OCP problem for method (c) (empty string: skip)")
@@ -190,8 +280,8 @@ def main(argv=None):
     p.add_argument("problem", help="MPC problem file (TOML)")
     p.add_argument("--out", default="build/mpc")
     p.add_argument("--model", default=None, help="a model file that replaces the problem's (e.g. an identified one)")
-    p.add_argument("--opt", default="-O2", help="optimisation flag for the library (default -O2)")
-    p.add_argument("--study", type=float, nargs="?", const=0.0, metavar="SECONDS",
+    p.add_argument("--opt", default="-O2", type=opt_flag, help="optimisation flag for the library (default -O2)")
+    p.add_argument("--study", type=positive(float, zero=True), nargs="?", const=0.0, metavar="SECONDS",
                    help="then run the closed-loop study (heavier tip, quantised encoders) for SECONDS "
                         "(default: the whole trajectory) and write closed_loop.json")
     p.set_defaults(func=cmd_mpc)
@@ -199,30 +289,36 @@ def main(argv=None):
     p.add_argument("sweep", help="sweep file (TOML): problem and [grid]")
     p.add_argument("--out", default="results/sweep")
     p.add_argument("--scheduler", help="address of an existing Dask scheduler (default: a local cluster)")
-    p.add_argument("--workers", type=int, help="local cluster size (default: this machine's cores)")
+    p.add_argument("--workers", type=positive(int), help="local cluster size (default: this machine's cores)")
     p.set_defaults(func=cmd_sweep)
     p = sub.add_parser("excite", help="design a periodic excitation trajectory for identification")
     p.add_argument("model")
     p.add_argument("--out", required=True, help="directory for trajectory.toml, feedforward.csv, excitation.json")
-    p.add_argument("--period", type=float, default=10.0, help="period of the Fourier series (s), default 10")
-    p.add_argument("--harmonics", type=int, default=5, help="harmonics per joint, default 5")
+    p.add_argument("--period", type=positive(float), default=10.0, help="period of the Fourier series (s), default 10")
+    p.add_argument("--harmonics", type=positive(int, least=3), default=5,
+                   help="harmonics per joint (at least 3: the rest conditions take two), default 5")
     p.set_defaults(func=cmd_excite)
     p = sub.add_parser("identify", help="identify the complete model from logs (CSV: t,theta_j,phi_j,tau_j[,T_j])")
     p.add_argument("model", help="model file: kinematics, gear ratios and the starting guess")
     p.add_argument("logs", nargs="+", help="one or more logs")
     p.add_argument("--out", required=True, help="directory for model.toml, report.json and figures")
     p.add_argument("--validate", default=None, help="a held-out log: prediction error of the identified model")
-    p.add_argument("--cutoff", type=float, default=None, help="filter cut-off (Hz); default 2x the highest SEA mode")
+    p.add_argument("--cutoff", type=positive(float), default=None, help="filter cut-off (Hz); default 2x the highest SEA mode")
     p.add_argument("--explain", action="store_true", help="print the base parameters as combinations of physical ones")
     p.add_argument("--reduced", action="store_true", help="identify the DLR/Spong reduced model instead (ablation)")
     p.set_defaults(func=cmd_identify)
     p = sub.add_parser("reproduce", help="the main job: everything the project reproduces, into --out")
     p.add_argument("--out", default="results")
     p.set_defaults(func=cmd_reproduce)
+    return parser
+
+
+def main(argv=None):
+    parser = build_parser()
     args = parser.parse_args(argv)
     try:
         code = args.func(args)
-    except (ModelFileError, OutputError, ValueError) as exc:
+    except (ModelFileError, OutputError, CheckError, ValueError) as exc:
         print(f"rscasadi: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:                  # a path, permission or disk problem of the user's

@@ -1,4 +1,5 @@
-"""Output directories that appear whole or not at all."""
+"""Output directories: checked before the work, written whole or not at all, and never losing a
+file that rscasadi did not write."""
 from __future__ import annotations
 
 import contextlib
@@ -12,31 +13,127 @@ class OutputError(RuntimeError):
     """The output directory cannot be written or replaced."""
 
 
-@contextlib.contextmanager
-def fresh_directory(out, marker: str):
-    """Yield a temporary directory beside `out`; on success it replaces `out` whole, on any
-    failure it is removed and `out` is untouched.  An existing `out` is replaced only if it
-    holds `marker` (a file this project wrote there) or is empty."""
+class CheckError(RuntimeError):
+    """A result failed its own check (a designed trajectory, a fit, a study): nothing is written."""
+
+
+def _existing_ancestor(path: Path) -> Path:
+    while not path.exists():
+        path = path.parent
+    return path
+
+
+def check_writable(out) -> Path:
+    """`out` resolved, after checking that it is a directory (or can be made one) that this
+    process may write: before the work, not after it."""
     out = Path(out).resolve()
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out} exists and is not a directory; give --out a directory")
-    if out.exists() and any(out.iterdir()) and not (out / marker).exists():
-        raise OutputError(f"{out} exists and was not written by rscasadi (no {marker}); refusing to replace it")
+    here = _existing_ancestor(out)
+    if not here.is_dir():
+        raise OutputError(f"cannot write into {out}: {here} is not a directory")
+    if not os.access(here, os.W_OK | os.X_OK):
+        raise OutputError(f"cannot write into {out}: {here} is not writable")
+    return out
+
+
+def _replaced(src: Path, dst: Path, prefix: str = "") -> tuple[list[str], list[str]]:
+    """Entries of src that would replace an entry of dst (recursively inside directories), and
+    those whose kind differs (a file where dst has a directory, or the reverse)."""
+    replaced, clash = [], []
+    for entry in sorted(src.iterdir()):
+        target, name = dst / entry.name, f"{prefix}{entry.name}"
+        if entry.is_dir() and target.is_dir() and not target.is_symlink():
+            r, c = _replaced(entry, target, name + "/")
+            replaced, clash = replaced + r, clash + c
+        elif target.exists() or target.is_symlink():
+            replaced.append(name)
+            if target.is_dir() != entry.is_dir():
+                clash.append(name)
+    return replaced, clash
+
+
+def _merge(src: Path, dst: Path):
+    """Move every entry of src into dst, replacing the entry of the same name; directories are
+    merged, so files in dst that src does not name are kept."""
+    for entry in sorted(src.iterdir()):
+        target = dst / entry.name
+        if entry.is_dir() and target.is_dir() and not target.is_symlink():
+            _merge(entry, target)
+        else:
+            os.replace(entry, target)
+
+
+@contextlib.contextmanager
+def fresh_directory(out, marker: str):
+    """Yield a temporary directory to write the outputs into.  On success each entry written there
+    replaces the entry of the same name in `out` (which is created if need be, and keeps its
+    permissions if it exists); nothing else in `out` is touched.  On any failure or interrupt the
+    temporary directory is removed and `out` is as it was.  A directory that rscasadi did not
+    write (no `marker` in it) is refused if an output would replace one of its files."""
+    out = check_writable(out)
     try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-        tmp.chmod(0o755)
+        if out.exists():
+            tmp = Path(tempfile.mkdtemp(prefix=".rscasadi-tmp.", dir=out))
+        else:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     except OSError as exc:
-        raise OutputError(f"cannot write into {out.parent}: {exc.strerror}") from exc
+        raise OutputError(f"cannot write into {out}: {exc.strerror}") from exc
     try:
         yield tmp
-        old = None
-        if out.exists():
-            old = out.with_name(f".{out.name}.old.{os.getpid()}")
-            out.rename(old)
-        tmp.rename(out)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    except BaseException:
+        if not out.exists():
+            umask = os.umask(0)
+            os.umask(umask)
+            tmp.chmod(0o777 & ~umask)
+            tmp.rename(out)
+            return
+        replaced, clash = _replaced(tmp, out)
+        if clash:
+            raise OutputError(f"{out}: {', '.join(clash)} is of another kind (file or directory) than what "
+                              f"rscasadi writes there; refusing to replace it")
+        if replaced and not (out / marker).exists():
+            raise OutputError(f"{out} was not written by rscasadi (no {marker}) and holds "
+                              f"{', '.join(replaced)}; refusing to replace them")
+        _merge(tmp, out)
+    finally:
         shutil.rmtree(tmp, ignore_errors=True)
-        raise
+
+
+def showing_final_paths(log, tmp, out):
+    """A log that prints `out` (a path, or words such as "(a temporary build)") where a message
+    names the temporary directory `tmp`."""
+    tmp, out = str(tmp), str(Path(out).resolve()) if isinstance(out, Path) else str(out)
+    return lambda msg: log(str(msg).replace(tmp, out))
+
+
+def finite_json(obj):
+    """obj with every NaN or infinity replaced by None (JSON's null: "no number"), numpy scalars
+    and arrays as Python numbers and lists; the reason for a null is stated beside it by the writer."""
+    import math
+
+    import numpy as np
+    if isinstance(obj, dict):
+        return {str(k): finite_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_json(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return finite_json(obj.tolist())
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def write_json(path, obj, indent: int = 1):
+    """The project's one JSON writer: valid JSON (no NaN or Infinity), written whole or not at all."""
+    import json
+    path = Path(path)
+    text = json.dumps(finite_json(obj), indent=indent, allow_nan=False) + "\n"
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(text)
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)

@@ -9,7 +9,6 @@ run leaves no half-written results.
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from pathlib import Path
 
@@ -20,7 +19,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from .dynamics.arm import Arm, load  # noqa: E402
-from .files import fresh_directory  # noqa: E402
+from .files import fresh_directory, write_json  # noqa: E402
 from .control.simulation import cascade_simulate, feedforward, simulate, simulate_held  # noqa: E402
 from .control.trajectory import Trajectory, load_trajectory  # noqa: E402
 
@@ -73,7 +72,7 @@ def figures(out: Path, arm: Arm, t, theta_d, sims: dict):
 
 
 def tables(out: Path, model_file: str, results: dict, n: int):
-    (out / "tracking.json").write_text(json.dumps({"model": model_file, "methods": results}, indent=2) + "\n")
+    write_json(out / "tracking.json", {"model": model_file, "methods": results}, indent=2)
     rows = ["method,joint,max_error_rad,rms_error_rad"]
     md = ["| method | joint | max error (rad) | RMS error (rad) |", "|---|---|---|---|"]
     for m, r in results.items():
@@ -145,7 +144,7 @@ def sweep(out: Path, arm: Arm, traj: Trajectory, log):
             result[what].append({"value": value, **e, "torque_difference": dtau})
             log(f"  {what} = {value:g}: max tracking error DLR {max(e['dlr']):.2e} rad, "
                 f"rotor-separated {max(e['rotor_separated']):.2e} rad; DLR torque off by {100 * dtau:.2f} %")
-    (out / "sweep.json").write_text(json.dumps(result, indent=2) + "\n")
+    write_json(out / "sweep.json", result, indent=2)
     fig, axes = plt.subplots(2, 4, figsize=(15, 7), sharey="row")
     for k, (what, pts) in enumerate(result.items()):
         x = [p["value"] for p in pts]
@@ -206,11 +205,11 @@ def run(trajectory_file, out, duration: float | None = None, sweeps: bool = True
         tables(tmp, str(traj.model_path), results, arm.n)
         x0 = ffs["rotor_separated"]["x0"]
         n = arm.n
-        (tmp / "feedforward.json").write_text(json.dumps({
+        write_json(tmp / "feedforward.json", {
             "t": t.tolist(), "theta_d": theta_d.tolist(),
             "initial_state": {k: x0[i * n:(i + 1) * n].tolist() for i, k in enumerate(("theta", "phi", "dtheta", "dphi"))},
             "tau": {m: ffs[m]["tau"].tolist() for m in METHODS}, "tau_interpolation": "linear",
-            **({"tau_ocp_tracking": tau_ocp} if tau_ocp else {})}) + "\n")
+            **({"tau_ocp_tracking": tau_ocp} if tau_ocp else {})}, indent=None)
         log(f"[{time.perf_counter() - t0:5.1f} s] figures 5-11")
         figures(tmp, arm, t, theta_d, sims)
         log(f"[{time.perf_counter() - t0:5.1f} s] the paper's cascade against the exact simulation")

@@ -218,6 +218,9 @@ def test_missing_compiler_and_failed_compile_leave_nothing(tmp_path, monkeypatch
 
 
 def test_unwritable_or_foreign_directory(tmp_path):
+    """A file in the way, a read-only directory: refused before the work.  A directory of the
+    user's: the outputs land beside their files, and a file of theirs that an output would
+    replace is refused, untouched."""
     blocker = tmp_path / "file"
     blocker.write_text("")
     with pytest.raises(OutputError, match="cannot write into"):
@@ -225,10 +228,16 @@ def test_unwritable_or_foreign_directory(tmp_path):
     foreign = tmp_path / "foreign"
     foreign.mkdir()
     (foreign / "precious.txt").write_text("keep me")
-    with pytest.raises(OutputError, match="was not written by rscasadi"):
-        generate(REFERENCE, foreign, opt="-O1", log=lambda m: None)
-    assert (foreign / "precious.txt").read_text() == "keep me"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "foreign"]
+    manifest = generate(REFERENCE, foreign, opt="-O1", log=lambda m: None)
+    assert (foreign / "precious.txt").read_text() == "keep me" and (foreign / manifest["header"]).exists()
+    taken = tmp_path / "taken"
+    taken.mkdir()
+    (taken / manifest["header"]).write_text("my own header")
+    with pytest.raises(OutputError, match=f"was not written by rscasadi.*{manifest['header']}"):
+        generate(REFERENCE, taken, opt="-O1", log=lambda m: None)
+    assert [p.name for p in taken.iterdir()] == [manifest["header"]]
+    assert (taken / manifest["header"]).read_text() == "my own header"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "foreign", "taken"]
 
 
 def test_parametric_library_serves_every_arm_with_the_same_joints(tmp_path, arm3):

@@ -193,3 +193,28 @@ def test_unknown_design_parameter_is_named(pitch_arm):
 def test_bad_solver_name_is_named(pitch_arm):
     with pytest.raises(ModelFileError, match=r"field 'solver\.name'"):
         load_problem(problem(pitch_arm, "bad_solver.toml", solver={"name": "snopt"}))
+
+
+def test_codesign_writes_the_designed_arm_beside_its_solution(pitch_arm, tmp_path):
+    """`rscasadi ocp` on a gear co-design: solution.json names designed_model.toml, a complete
+    model file with the chosen ratio and the speed limit scaled as the test computes it; the
+    plain problem on that file reproduces the optimum."""
+    import json
+    import tomllib
+    import rscasadi
+    from rscasadi.control.ocp import run
+    path = problem(pitch_arm, "gear_out.toml", objective="min_time", max_duration=5.0,
+                   transcription={"intervals": 40}, design={"shoulder_pitch.gear_ratio": [30.0, 300.0]})
+    sol = run(path, tmp_path / "out", print_level=0, log=lambda m: None)
+    assert sol["success"] and json.loads((tmp_path / "out" / "solution.json").read_text())["designed_model"] \
+        == "designed_model.toml"
+    designed = rscasadi.load(tmp_path / "out" / "designed_model.toml").model.joints[0]
+    with open(pitch_arm / "pitch.toml", "rb") as fh:
+        nominal = tomllib.load(fh)["joints"][0]
+    mu = sol["design"]["shoulder_pitch.gear_ratio"]
+    assert abs(designed.gear_ratio - mu) < 1e-9 * mu
+    assert abs(designed.limits["dphi"] - nominal["limits"]["dphi"] * nominal["gear_ratio"] / mu) < 1e-9
+    fixed = load_problem(problem(tmp_path / "out", "plain.toml", model="designed_model.toml", objective="min_time",
+                                 max_duration=5.0, transcription={"intervals": sol["intervals"]}))
+    ref = solve_once(fixed, w=sol["mesh"], warm=sol, **QUIET)
+    assert ref["success"] and abs(ref["t"][-1] - sol["t"][-1]) < 1e-5 * sol["t"][-1]

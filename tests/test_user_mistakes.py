@@ -161,3 +161,55 @@ def test_commands_on_wrong_paths_say_one_line(tmp_path, capsys):
     _one_line_error(capsys, ["info", str(tmp_path)])                          # a directory as a model file
     (tmp_path / "binary.toml").write_bytes(b"\x00\xff\xfe garbage")
     assert "binary.toml" in _one_line_error(capsys, ["info", str(tmp_path / "binary.toml")])
+
+
+# ----------------------------------------------------------------------------- command-line options
+# Every numeric or enumerated option of every command: a value that passes the parser is one the
+# command can use (finite and in range); any other is refused by the parser in one line naming the
+# option, exit 2, before any work.
+from rscasadi.cli import build_parser  # noqa: E402
+
+OPTIONS = {   # command, required arguments, option -> predicate of an accepted value
+    ("excite", ("m.toml", "--out", "o")): {"--period": lambda v: 0 < v < float("inf"),
+                                           "--harmonics": lambda v: isinstance(v, int) and v >= 3},
+    ("identify", ("m.toml", "log.csv", "--out", "o")): {"--cutoff": lambda v: 0 < v < float("inf")},
+    ("paper", ()): {"--duration": lambda v: 0 < v < float("inf")},
+    ("mpc", ("p.toml",)): {"--study": lambda v: 0 <= v < float("inf"), "--opt": lambda v: v.startswith("-O")},
+    ("sweep", ("s.toml",)): {"--workers": lambda v: isinstance(v, int) and v >= 1},
+    ("codegen", ("m.toml", "--out", "o")): {"--opt": lambda v: v.startswith("-O") and ";" not in v},
+    ("ocp", ("p.toml",)): {"--solver": lambda v: v in ("ipopt", "fatrop")},
+}
+CASES = [(cmd, req, opt, ok) for (cmd, req), opts in OPTIONS.items() for opt, ok in opts.items()]
+option_values = st.one_of(st.integers(-10, 10).map(str), st.floats(allow_nan=True, allow_infinity=True).map(repr),
+                          st.sampled_from(["0", "-0", "nan", "inf", "-inf", "1e400", "", "abc", "-O3", "-O9", "-O2;ls",
+                                           "ipopt", "fatrop", "2.5", "3", " 4"]),
+                          st.text(max_size=6))
+
+
+@pytest.mark.parametrize("cmd, required, option, accepted", CASES, ids=[f"{c[0]} {c[2]}" for c in CASES])
+@SETTINGS
+@given(value=option_values)
+def test_command_line_options_are_checked_up_front(capsys, cmd, required, option, accepted, value):
+    try:
+        args = build_parser().parse_args([cmd, *required, f"{option}={value}"])
+    except SystemExit as exc:
+        err = capsys.readouterr().err.strip()
+        assert exc.code == 2 and len(err.splitlines()) == 1, err
+        assert err.startswith(f"rscasadi {cmd}: error:") and option in err and "Traceback" not in err, err
+        return
+    assert accepted(getattr(args, option.lstrip("-").replace("-", "_"))), (option, value)
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["excite", "m.toml", "--out", "o", "--period", "0"], "--period: must be > 0"),
+    (["excite", "m.toml", "--out", "o", "--period", "-1"], "--period: must be > 0"),
+    (["excite", "m.toml", "--out", "o", "--harmonics", "0"], "--harmonics: must be >= 3"),
+    (["paper", "--duration", "-1"], "--duration: must be > 0"),
+    (["mpc", "p.toml", "--study", "-5"], "--study: must be >= 0"),
+    (["sweep", "s.toml", "--workers", "0"], "--workers: must be > 0"),
+])
+def test_the_options_a_new_user_got_wrong(capsys, argv, words):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == 2 and words in err and len(err.splitlines()) == 1, err

@@ -21,7 +21,7 @@ import casadi as ca
 
 from ..control.feedforward import feedforward_functions
 from ..dynamics.arm import Arm, load
-from ..files import OutputError, fresh_directory
+from ..files import OutputError, fresh_directory, write_json
 from .step_kernel import kernel_source
 
 IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,62}\Z")
@@ -272,7 +272,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
             "compiler": cc + flags,
             "source_hash": key,
         }
-        (tmp / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+        write_json(tmp / "manifest.json", manifest, indent=2)
     return manifest
 
 

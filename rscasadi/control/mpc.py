@@ -26,7 +26,6 @@ buffers, `mpc_init(x_measured)`, `mpc_step(x_measured, reference, tau_out)` for 
 from __future__ import annotations
 
 import functools
-import json
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -381,7 +380,7 @@ def generate_mpc(problem_file, out, opt: str = "-O2", log=print, model=None) -> 
     (a model file) replaces the problem's, e.g. an identified model."""
     import subprocess
     from ..codegen import _compiler
-    from ..files import fresh_directory
+    from ..files import fresh_directory, write_json
     p = load_mpc_problem(problem_file)
     if model is not None:
         p.model_path = Path(model).resolve()
@@ -417,7 +416,7 @@ def generate_mpc(problem_file, out, opt: str = "-O2", log=print, model=None) -> 
                     "horizon": p.horizon, "interval": p.interval, "substeps": p.substeps,
                     "sample_time": p.sample_time, "sqp_iterations": p.sqp_iterations, "qp_iterations": p.qp_iterations, "weights": p.weights,
                     "compiler": cc + [opt]}
-        (tmp / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+        write_json(tmp / "manifest.json", manifest, indent=2)
     log(f"wrote {out / 'librscasadi_mpc.so'}, rscasadi_mpc.h and manifest.json")
     return manifest
 

@@ -25,7 +25,9 @@ import csv
 import dataclasses
 import itertools
 import json
+import logging
 import os
+import signal
 import time
 from pathlib import Path
 
@@ -159,8 +161,10 @@ def run(sweep_file, out, scheduler: str | None = None, workers: int | None = Non
     """Solve every grid point on Dask; write DIR/sweep.csv and DIR/sweep.png."""
     from distributed import Client, LocalCluster, as_completed
     from .ocp.solving import solve_once
+    from ..files import check_writable
     sweep = load_sweep(sweep_file)
     out = Path(out)
+    check_writable(out)
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not (out / "sweep.csv").exists())):
         raise ModelFileError(f"{out}: exists and was not written by rscasadi sweep (no sweep.csv); refusing to write there")
     keys = list(sweep.grid)
@@ -184,8 +188,14 @@ def run(sweep_file, out, scheduler: str | None = None, workers: int | None = Non
             except (OSError, TimeoutError) as exc:
                 raise ModelFileError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there ({exc})") from None
         else:
-            cluster = LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1, processes=True,
-                                   dashboard_address=None)
+            # the workers inherit an ignored SIGINT: Ctrl-C reaches this process alone, which
+            # closes the cluster, instead of every worker printing its own traceback
+            previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+            try:
+                cluster = LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1, processes=True,
+                                       dashboard_address=None, silence_logs=logging.ERROR)
+            finally:
+                signal.signal(signal.SIGINT, previous)
             client = Client(cluster)
         try:
             log(f"Dask: {len(client.scheduler_info()['workers'])} workers"

@@ -5,7 +5,6 @@ paper's feedforward loop closed with the identified models.
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -15,13 +14,14 @@ from ..control.ocp import rest_state
 from ..control.simulation import feedforward, simulate
 from ..control.trajectory import load_trajectory
 from ..dynamics.arm import Arm, load
-from ..files import fresh_directory
+from ..files import CheckError, fresh_directory, showing_final_paths, write_json
 from ..model.parameters import n_linear
 from . import excitation, identify as ident_mod
 from .logs import read_log, write_log
 from .synthetic import perturbed_arm, record
 
 SEED = 20261122
+HELD_OUT_LIMIT = 0.05   # the identified model predicts every held-out motor torque within 5 % RMS
 
 
 def recovered_table(ident, arm: Arm, true_arm: Arm) -> list[dict]:
@@ -93,6 +93,18 @@ def true_arm_of(arm: Arm) -> Arm:
     return perturbed_arm(arm, np.random.default_rng(SEED))
 
 
+def check(summary: dict) -> None:
+    """The demo's own check: every figure finite and the held-out torques predicted within
+    HELD_OUT_LIMIT by the identified complete model."""
+    worst = max(v["relative"] for v in summary["validation"]["prediction"].values())
+    loop = [v for r in summary["paper_loop"].values() for v in r["max_error"]]
+    if not (np.isfinite(worst) and np.all(np.isfinite(loop))):
+        raise CheckError("the identification demo produced a figure that is not finite")
+    if worst > HELD_OUT_LIMIT:
+        raise CheckError(f"the identified model predicts the held-out motor torques only within {100 * worst:.2f} % "
+                         f"RMS (at most {100 * HELD_OUT_LIMIT:g} % expected)")
+
+
 def run(model_file, out, log=print) -> dict:
     t0 = time.perf_counter()
     stamp = lambda: f"[{time.perf_counter() - t0:5.1f} s]"
@@ -100,8 +112,9 @@ def run(model_file, out, log=print) -> dict:
     rng = np.random.default_rng(SEED)
     true_arm = perturbed_arm(arm, rng)                  # = true_arm_of(arm); rng goes on to the logs' noise
     with fresh_directory(out, "summary.json") as tmp:
+        log = showing_final_paths(log, tmp, Path(out))
         log(f"{stamp()} 1. rscasadi excite: identification and validation trajectories")
-        excitation.run(model_file, tmp / "excitation", period=10.0, harmonics=5, log=log)
+        designed = excitation.run(model_file, tmp / "excitation", period=10.0, harmonics=5, log=log)
         excitation.run(model_file, tmp / "validation_trajectory", period=8.0, harmonics=4, log=log)
         log(f"{stamp()} 2. 'run it on the robot': a perturbed arm, feedforward + motor PD, quantised encoders")
         (tmp / "logs").mkdir()
@@ -128,9 +141,11 @@ def run(model_file, out, log=print) -> dict:
                                      "nominal model file": (arm, False)}, traj, t)
         _loop_outputs(tmp, loop, t)
         summary = {"model": Path(model_file).name, "seed": SEED, "recovered": table, "model_error": model_error,
+                   "excitation_condition_number": designed["condition_number"],
                    "validation": rep["validation"], "validation_reduced": rep_red["validation"],
                    "paper_loop": {k: {m: v[m] for m in ("max_error", "rms_error")} for k, v in loop.items()}}
-        (tmp / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        check(summary)
+        write_json(tmp / "summary.json", summary, indent=2)
     log(f"{stamp()} wrote {out}")
     return summary
 

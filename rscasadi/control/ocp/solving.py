@@ -20,7 +20,7 @@ import numpy as np
 from ...codegen import _compiler
 from ...codegen.parallel import available_cores, openmp_flags, set_threads
 from ...dynamics.arm import Arm
-from ...model.modelfile import read
+from ...model.modelfile import document, read, to_toml
 from ...model.parameters import value, with_values
 from ..simulation import held_interval, simulate_held, spring_deflection
 from ..trajectory import load_trajectory
@@ -301,11 +301,20 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
 
 def run(problem_file, out, warm_file=None, log=print, print_level: int = 5, solver: str | None = None) -> dict:
     """`rscasadi ocp`: solve, verify, refine, write DIR/solution.json and the plots; return the record."""
-    from ...files import fresh_directory
+    from ...files import check_writable, fresh_directory, write_json
+    from ...model.modelfile import ModelFileError
+    check_writable(out)
     problem = load_problem(problem_file)
     if solver:
         problem.solver = solver
-    warm = json.loads(Path(warm_file).read_text()) if warm_file else None
+    warm = None
+    if warm_file:
+        try:
+            warm = json.loads(Path(warm_file).read_text())
+        except json.JSONDecodeError as exc:
+            raise ModelFileError(f"{warm_file}: --warm: not a solution.json ({exc})") from None
+        if not isinstance(warm, dict) or not {"t", "theta", "phi", "tau"} <= set(warm):
+            raise ModelFileError(f"{warm_file}: --warm: not a solution.json (no t, theta, phi, tau)")
     log(f"{problem.path}: {problem.objective}, {problem.method}"
         + (f" degree {problem.degree}" if problem.method != "hermite-simpson" else "")
         + f", {problem.intervals} intervals, "
@@ -317,7 +326,14 @@ def run(problem_file, out, warm_file=None, log=print, print_level: int = 5, solv
     if sol["design"]:
         log("optimal design: " + ", ".join(f"{k} = {v:.6g}" for k, v in sol["design"].items()))
     with fresh_directory(out, "solution.json") as tmp:
-        (tmp / "solution.json").write_text(json.dumps(sol, indent=1) + "\n")
+        if sol["design"]:                  # the arm the torques are for, as a complete model file
+            designed = solution_arm(sol).model
+            (tmp / "designed_model.toml").write_text(
+                f"# {designed.name}: {Path(sol['model']).name} with the optimal design of {Path(problem.path).name}\n"
+                + "# (" + ", ".join(f"{k} = {v:.10g}" for k, v in sol["design"].items()) + ")\n"
+                + to_toml(document(dataclasses.replace(designed, name=designed.name + "-designed"))))
+            sol["designed_model"] = "designed_model.toml"
+        write_json(tmp / "solution.json", sol, indent=1)
         plot_solution(sol, solution_arm(sol), tmp)
     if not sol["solver_success"]:
         hint = (" (the limits cannot all be met: widen them or allow more time)"

@@ -1,0 +1,55 @@
+"""The main job's identification part, run from a clean state exactly as `rscasadi reproduce`
+runs it: its figures are the README's, within the tolerances stated here and in the README."""
+import json
+
+import numpy as np
+import pytest
+
+from rscasadi.identification.demo import run
+
+from conftest import REFERENCE
+
+# what the README quotes, and how far another machine may land from it (the design's local
+# optimum depends on the floating-point path; every design is checked, see test_identification)
+CONDITION_NUMBER = (1e3, 5e3)            # README: the excitation's condition number
+HELD_OUT_MAX = 0.03                      # README: held-out motor torques within 3 % RMS
+Z_MAX = 4.0                              # every identifiable quantity within 4 standard deviations
+LOOP_IDENTIFIED_MAX = 0.06               # rad: open-loop paper trajectory from the identified model
+LOOP_GAIN = 50.0                         # identified feedforward at least 50x better than the file's
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    out = tmp_path_factory.mktemp("reproduce") / "identification"
+    return out, run(REFERENCE, out, log=lambda m: None)
+
+
+def test_the_identification_demo_reproduces_the_readme(demo):
+    out, summary = demo
+    lo, hi = CONDITION_NUMBER
+    assert lo < summary["excitation_condition_number"] < hi
+    for folder in ("excitation", "validation_trajectory"):
+        e = json.loads((out / folder / "excitation.json").read_text())
+        assert e["status"] == "Solve_Succeeded" and lo < e["condition_number"] < hi, e
+    worst = max(v["relative"] for v in summary["validation"]["prediction"].values())
+    assert worst < HELD_OUT_MAX
+    for r in summary["recovered"]:
+        assert r["z"] is None or abs(r["z"]) < Z_MAX, r
+    loop = summary["paper_loop"]
+    ident, nominal = loop["identified, rotor-separated"]["max_error"], loop["nominal model file"]["max_error"]
+    assert max(ident) < LOOP_IDENTIFIED_MAX and max(nominal) > LOOP_GAIN * max(ident)
+
+
+def test_the_demo_writes_what_it_reports_and_valid_json(demo):
+    out, summary = demo
+    for path in out.rglob("*.json"):
+        text = path.read_text()
+        assert "NaN" not in text and "Infinity" not in text, path
+        json.loads(text)
+    assert json.loads((out / "summary.json").read_text())["recovered"] == summary["recovered"]
+    md = (out / "paper_loop.md").read_text()
+    for name, r in summary["paper_loop"].items():
+        assert f"| {name} | {', '.join(f'{1e3 * v:.3g}' for v in r['max_error'])} |" in md
+    report = json.loads((out / "identified" / "report.json").read_text())
+    assert report["physical_fit"] == "converged" and np.isfinite(report["condition_number"])
+    assert (out / "identified" / "validation.png").stat().st_size > 10_000
