@@ -11,7 +11,7 @@ from rscasadi.control.ocp import load_problem, solve_once
 from rscasadi.control.sweep import load_sweep
 from rscasadi.model.modelfile import ModelFileError, to_toml
 
-from conftest import problem
+from conftest import ROOT, problem
 
 
 def write_sweep(directory, name, grid, base="sweep_base.toml"):
@@ -102,3 +102,26 @@ def test_unreachable_scheduler_is_named(pitch_arm, tmp_path, capsys):
     code = main(["sweep", str(path), "--out", str(tmp_path / "o"), "--scheduler", "tcp://127.0.0.1:9"])
     assert code == 2 and "tcp://127.0.0.1:9" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()                    # nothing half-written
+
+
+def test_interrupt_prints_one_line_and_keeps_the_finished_points(tmp_path):
+    """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) during a sweep: one
+    line, exit 130, no worker tracebacks; the points finished so far stay for the resume."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    out = tmp_path / "sweep"
+    p = subprocess.Popen([sys.executable, "-m", "rscasadi.cli", "sweep",
+                          str(ROOT / "problems" / "sweep_spring_stiffness.toml"), "--out", str(out), "--workers", "2"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    for line in p.stdout:
+        if "points  point" in line:
+            os.killpg(p.pid, signal.SIGINT)
+            break
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err
+    assert err.strip().splitlines() == ["rscasadi: interrupted; nothing half-written was kept"], err
+    rows = (out / "sweep.csv").read_text().splitlines()
+    assert len(rows) >= 2 and rows[0].startswith("point,")
