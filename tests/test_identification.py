@@ -155,7 +155,7 @@ def test_identified_model_file_round_trips(identified, arm3):
     assert "shoulder_yaw.sea.k1" in report["parameters"] and "residual_rms" in report and report["cutoff_hz"] > 20
     assert (identified / "validation.png").exists() and (identified / "fit.png").exists()
     assert len(names) > len(report["parameters"])                        # balanced rotors stay balanced
-    assert report["physical_fit"] == "converged"
+    assert report["physical_fit"].startswith("converged")
 
 
 def test_prediction_of_held_out_torques(identified, synthetic, arm3):

@@ -51,5 +51,7 @@ def test_the_demo_writes_what_it_reports_and_valid_json(demo):
     for name, r in summary["paper_loop"].items():
         assert f"| {name} | {', '.join(f'{1e3 * v:.3g}' for v in r['max_error'])} |" in md
     report = json.loads((out / "identified" / "report.json").read_text())
-    assert report["physical_fit"] == "converged" and np.isfinite(report["condition_number"])
+    assert report["physical_fit"].startswith("converged") and np.isfinite(report["condition_number"])
     assert (out / "identified" / "validation.png").stat().st_size > 10_000
+    import rscasadi                      # physically consistent: the model file loader checks every body
+    assert rscasadi.load(out / "identified" / "model.toml").n == 3

@@ -303,7 +303,7 @@ def physical_fit(arm: Arm, unknowns: Unknowns, ls: LeastSquares, th_nominal: np.
     problem.solve(solver=cp.CLARABEL)
     if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or x.value is None:
         raise CheckError(f"the physically consistent fit failed: Clarabel reports {problem.status}")
-    status = "converged" if problem.status == cp.OPTIMAL else "converged to reduced accuracy"
+    status = "converged" if problem.status == cp.OPTIMAL else "converged (to Clarabel's reduced tolerances)"
     return scale * np.asarray(x.value), status
 
 
