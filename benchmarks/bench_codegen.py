@@ -20,10 +20,10 @@ import numpy as np  # noqa: E402
 from common import chain_arm, per_call, write_results  # noqa: E402
 import rscasadi  # noqa: E402
 from rscasadi.codegen import generate  # noqa: E402
-from rscasadi.dynamics.numeric import Numeric  # noqa: E402
+from rscasadi.reference.numeric import Numeric  # noqa: E402
 
 try:
-    from rscasadi.dynamics.pinocchio_route import PinocchioRoute
+    from rscasadi.reference.pinocchio_route import PinocchioRoute
 except ImportError:                                   # pin is optional
     PinocchioRoute = None
 
@@ -166,7 +166,8 @@ def mx_route_ns(arm, work: Path, harness: Path) -> float:
     """ns per call of the step Jacobian as CasADi generates it from step_functions' MX chain rule
     (its sparse products and LDL solve): the route the C kernel replaced, same flags, same run."""
     import casadi as ca
-    from rscasadi.codegen.generate import native_flags, step_functions
+    from rscasadi.codegen.generate import step_functions
+    from rscasadi.native.build import native_flags
     d = work / f"mx{arm.n}"
     d.mkdir()
     gen = ca.CodeGenerator("mx_step_jacobian.c")

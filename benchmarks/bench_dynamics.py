@@ -11,7 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from common import chain_arm, mass_matrix_forward_dynamics, per_call, write_results  # noqa: E402
-from rscasadi.dynamics.numeric import Numeric  # noqa: E402
+from rscasadi.reference.numeric import Numeric  # noqa: E402
 
 SIZES = (3, 6, 12, 24)
 FUNCTIONS = ("forward_dynamics", "inverse_dynamics", "reduced_forward_dynamics", "reduced_inverse_dynamics",
@@ -47,7 +47,7 @@ def main():
     md = ["# Symbolic dynamics: time per call in-process and symbolic size", "",
           "Measured by `python benchmarks/bench_dynamics.py` (median of 5 batches, 2-core machine).",
           "casadi = the SX Function called from Python (dominated by call overhead);",
-          "numeric = the numpy numerical core (`rscasadi.dynamics.numeric`).", "",
+          "numeric = the numpy numerical core (`rscasadi.reference.numeric`).", "",
           "| n | function | n_instructions | casadi (us) | numeric core (us) |", "|---|---|---|---|---|"]
     md += [f"| {n} | {name} | {ni} | {tc:.1f} | {tn:.1f} |" for n, name, ni, tc, tn in rows]
     md += ["", "## Forward dynamics size against n", "", "| n | recursive O(n) sweep | mass matrix + solve |",

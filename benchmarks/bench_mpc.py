@@ -16,9 +16,9 @@ from pathlib import Path
 
 from common import RESULTS, ROOT  # noqa: E402
 from rscasadi.codegen import generate  # noqa: E402
-from rscasadi.control.mpc import generate_mpc, load_mpc_problem, reach_pose, study  # noqa: E402
+from rscasadi.mpc import generate_mpc, load_mpc_problem, reach_pose, study  # noqa: E402
 from rscasadi.dynamics.arm import load  # noqa: E402
-from rscasadi.identification.demo import run as identification_demo, true_arm_of  # noqa: E402
+from rscasadi.studies.identification_demo import run as identification_demo, true_arm_of  # noqa: E402
 
 PROBLEM = ROOT / "problems" / "mpc_arm3.toml"
 TARGET = [0.6, 0.8, -0.9]

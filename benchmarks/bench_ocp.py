@@ -12,10 +12,10 @@
     python benchmarks/bench_ocp.py       # writes results/bench_ocp.{md,csv,png}
 
 fatrop's BLASFEO in the rows above: the CasADi wheel's with its 4x4 dgemm kernel compiled for this
-processor (the default; rscasadi/control/ocp/blasfeo.py).  A child process runs IPOPT and fatrop
+processor (the default; rscasadi/ocp/fatrop/blasfeo.py).  A child process runs IPOPT and fatrop
 (condensed, N = 100, round-robin within the child) on the wheel's kernels as shipped
 (RSCASADI_BLASFEO=wheel); with RSCASADI_BLASFEO=/path/to/libblasfeo.so (an optimised BLASFEO,
-docs/model.md) a second child runs them on that one.
+docs/user-guide/model.md) a second child runs them on that one.
 """
 import dataclasses
 import json
@@ -34,10 +34,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from common import ROOT, write_results  # noqa: E402
-from rscasadi.codegen.parallel import available_cores  # noqa: E402
-from rscasadi.control.ocp.blasfeo import ENV as BLASFEO_ENV, WHEEL  # noqa: E402
-import rscasadi.control.ocp.solving as solving  # noqa: E402
-from rscasadi.control.ocp import load_problem, solve, solve_once  # noqa: E402
+from rscasadi.native.parallel import available_cores  # noqa: E402
+from rscasadi.ocp.fatrop.blasfeo import ENV as BLASFEO_ENV, WHEEL  # noqa: E402
+import rscasadi.ocp.solving as solving  # noqa: E402
+from rscasadi.ocp import load_problem, solve, solve_once  # noqa: E402
 
 PROBLEMS = {"min_time": ROOT / "problems" / "ocp_min_time.toml", "min_effort": ROOT / "problems" / "ocp_min_effort.toml"}
 TARGET = {"min_effort": 0.1, "min_time": 0.25}
@@ -116,7 +116,7 @@ def blasfeo_section(path) -> list:
              if path == WHEEL else "an optimised BLASFEO (RSCASADI_BLASFEO)")
     head = ["", f"## fatrop on {title}; N = 100, condensed", ""]
     if not path:
-        return head + ["Not run: set RSCASADI_BLASFEO to a BLASFEO built for this CPU (docs/model.md, "
+        return head + ["Not run: set RSCASADI_BLASFEO to a BLASFEO built for this CPU (docs/user-guide/model.md, "
                        "'fatrop's linear algebra')."]
     print(f"IPOPT and fatrop on {BLASFEO_ENV}={path} (a child process, ~2 min) ...", flush=True)
     run = subprocess.run([sys.executable, __file__, "--blasfeo-rows"], env={**os.environ, BLASFEO_ENV: path},

@@ -10,7 +10,7 @@ import tempfile
 from pathlib import Path
 
 from common import RESULTS, ROOT  # noqa: E402
-from rscasadi.control.sweep import run  # noqa: E402
+from rscasadi.ocp.sweep import run  # noqa: E402
 
 
 def main():

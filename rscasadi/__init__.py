@@ -1,6 +1,13 @@
 """rscasadi: rotor-separated dynamics of FS-SEA arms (Chen & Li) in CasADi."""
-from .dynamics.arm import Arm, load
-from .codegen import CodegenError, load_compiled
-from .model.modelfile import ArmModel, ModelFileError
+from importlib.metadata import PackageNotFoundError, version as _version
 
-__all__ = ["Arm", "ArmModel", "CodegenError", "ModelFileError", "load", "load_compiled"]
+from rscasadi.codegen import CodegenError, load_compiled
+from rscasadi.dynamics.arm import Arm, load
+from rscasadi.model.modelfile import ArmModel, ModelFileError
+
+try:
+    __version__ = _version("rscasadi")
+except PackageNotFoundError:                       # run from a source tree that is not installed
+    __version__ = "unknown"
+
+__all__ = ["Arm", "ArmModel", "CodegenError", "ModelFileError", "__version__", "load", "load_compiled"]

@@ -8,14 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .dynamics.arm import load
-from .files import CheckError, OutputError, write_json
-from .model.modelfile import ModelFileError
-
-PROBLEMS = Path(__file__).resolve().parents[1] / "problems"
-REFERENCE = PROBLEMS / "arm3.toml"
-TRAJECTORY = PROBLEMS / "trajectory_arm3.toml"
-OCP_PROBLEMS = ("min_time", "min_effort", "tracking", "min_time_codesign", "min_time_gear_codesign", "panda_min_time")
+from rscasadi import __version__
+from rscasadi.files import CheckError, OutputError, write_json
+from rscasadi.model.modelfile import ModelFileError
+from rscasadi.studies.reproduce import PROBLEMS, TRAJECTORY
 
 
 class Parser(argparse.ArgumentParser):
@@ -48,58 +44,19 @@ def opt_flag(text: str) -> str:
     return text
 
 
-def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-    try:
-        return version("rscasadi")
-    except PackageNotFoundError:
-        return "unknown (not installed)"
-
-
-def model_report(path) -> str:
-    """A Markdown summary of a model: rotor inertias, couplings and the static holding torques."""
-    arm = load(path)
-    n, m = arm.n, arm.model
-    theta = np.linspace(0.3, -0.6, n)
-    M = np.array(arm.mass_matrix()(theta, theta))
-    zero = np.zeros(n)
-    T = np.array(arm.inverse_dynamics()(theta, theta, zero, zero, zero, zero)[1]).ravel()
-    psi = T / m.column("k1")                         # static: k3 correction ignored in the report
-    tau = np.array(arm.inverse_dynamics()(theta, theta + psi, zero, zero, zero, zero)[0]).ravel()
-    lines = [f"# Model `{m.name}` ({m.path})", "", f"{n} joints; gravity {m.gravity.tolist()} m/s^2.", "",
-             "| j | joint | mu | B_j = Izz(S)+mu^2 Izz(F) (kg m^2) | rotors balanced |", "|---|---|---|---|---|"]
-    lines += [f"| {j + 1} | {jt.name} | {jt.gear_ratio:g} | {jt.rotor_inertia:.6g} | "
-              f"{'yes' if jt.slow_rotor.balanced and jt.fast_rotor.balanced else 'no'} |"
-              for j, jt in enumerate(m.joints)]
-    S = M[:n, n:]
-    lines += ["", f"Coupling block S (link rows, rotor columns) at theta = phi = {np.round(theta, 3).tolist()}:", ""]
-    lines += ["| link \\ rotor | " + " | ".join(str(j + 1) for j in range(n)) + " |", "|---" * (n + 1) + "|"]
-    lines += [f"| {i + 1} | " + " | ".join(f"{S[i, j]:.3g}" for j in range(n)) + " |" for i in range(n)]
-    lines += ["", "Static holding at that pose: SEA torque T (N m), deflection psi = T/k1 (rad), motor torque tau (N m):",
-              "", "| j | T | psi | tau |", "|---|---|---|---|"]
-    lines += [f"| {j + 1} | {T[j]:.4g} | {psi[j]:.4g} | {tau[j]:.4g} |" for j in range(n)]
-    return "\n".join(lines) + "\n"
-
-
-def _write(path: Path, text: str):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
-
-
 def cmd_info(args):
+    from rscasadi.studies.model_report import model_report
     print(model_report(args.model), end="")
 
 
 def cmd_paper(args):
-    from .paper import run
+    from rscasadi.studies.paper import run
     run(args.trajectory, args.out, duration=args.duration, sweeps=not args.no_sweep,
         log=lambda msg: print(msg, flush=True), ocp_problem=args.ocp or None)
 
 
 def cmd_ocp(args):
-    from .control.ocp import run
+    from rscasadi.ocp import run
     sol = run(args.problem, args.out, warm_file=args.warm, log=lambda msg: print(msg, flush=True),
               print_level=0 if args.quiet else 5, solver=args.solver)
     print(f"wrote {Path(args.out) / 'solution.json'}")
@@ -107,15 +64,15 @@ def cmd_ocp(args):
 
 
 def cmd_sweep(args):
-    from .control.sweep import run
+    from rscasadi.ocp.sweep import run
     res = run(args.sweep, args.out, scheduler=args.scheduler, workers=args.workers,
               log=lambda msg: print(msg, flush=True))
     return 0 if res["solved"] == len(res["rows"]) else 1
 
 
 def cmd_mpc(args):
-    from .control.mpc import closed_loop, generate_mpc, plot_closed_loop
-    from .files import check_writable
+    from rscasadi.mpc import closed_loop, generate_mpc, plot_closed_loop
+    from rscasadi.files import check_writable
     check_writable(args.out)
     generate_mpc(args.problem, args.out, opt=args.opt, log=lambda msg: print(msg, flush=True), model=args.model)
     if args.study is not None:
@@ -134,91 +91,17 @@ def cmd_mpc(args):
         print(f"wrote {out / 'closed_loop.json'} and closed_loop.png")
 
 
-class PartFailed(RuntimeError):
-    """A part of the main job did not pass its own check."""
-
-
 def cmd_reproduce(args):
-    """The main job: every part runs (those that need a failed one are skipped); a summary of what
-    each produced; non-zero exit if any part failed its own check."""
-    from .files import check_writable
-    out = check_writable(args.out)
-    log = lambda msg: print(msg, flush=True)
-    summary = []
-
-    def part(name, work, needs=()):
-        missing = [n for n in needs if not any(s[0] == n and s[1] == "ok" for s in summary)]
-        if missing:
-            summary.append((name, "skipped", f"needs {', '.join(missing)}"))
-            return
-        try:
-            summary.append((name, "ok", work()))
-        except (PartFailed, ModelFileError, OutputError, ValueError, RuntimeError) as exc:
-            log(f"rscasadi reproduce: {name} FAILED: {exc}")
-            summary.append((name, "FAILED", str(exc)))
-
-    def model():
-        _write(out / "model.md", model_report(REFERENCE))
-        return f"{out / 'model.md'}"
-
-    def paper():
-        from .paper import run
-        res = run(TRAJECTORY, out / "paper", log=log, ocp_problem=PROBLEMS / "ocp_tracking.toml")
-        worst = max(res["rotor_separated"]["max_error"])
-        if not np.isfinite(worst):
-            raise PartFailed("the rotor-separated feedforward's tracking error is not finite")
-        return f"{out / 'paper'}/: rotor-separated feedforward max error {worst:.2e} rad"
-
-    def ocp(name):
-        def work():
-            from .control.ocp import run as run_ocp
-            sol = run_ocp(PROBLEMS / f"ocp_{name}.toml", out / "ocp" / name, log=log, print_level=0)
-            if not sol["success"]:
-                raise PartFailed(f"not solved and verified ({sol['status']})")
-            return f"{out / 'ocp' / name}/: objective {sol['objective']:.6g}, verified"
-        return work
-
-    def identification():
-        from .identification.demo import run as run_identification
-        res = run_identification(REFERENCE, out / "identification", log=log)
-        worst = max(v["relative"] for v in res["validation"]["prediction"].values())
-        return (f"{out / 'identification'}/: excitation condition number {res['excitation_condition_number']:.3g}, "
-                f"held-out motor torques within {100 * worst:.2f} % RMS")
-
-    def mpc():
-        import tempfile
-        from .control.mpc import study
-        from .files import fresh_directory, showing_final_paths
-        from .identification.demo import true_arm_of
-        with tempfile.TemporaryDirectory() as build, fresh_directory(out / "mpc", "closed_loop.json") as tmp:
-            shown = showing_final_paths(showing_final_paths(log, tmp, out / "mpc"), build, "(a temporary build)")
-            shown("MPC: generating the C controllers and running the closed-loop studies ...")
-            res = study(PROBLEMS / "mpc_arm3.toml", build, log=shown, true_arm=true_arm_of(load(REFERENCE)),
-                        identified_model=out / "identification" / "identified" / "model.toml",
-                        figure=tmp / "closed_loop.png")
-            write_json(tmp / "closed_loop.json", res)
-        worst = max(c["MPC (C)"]["max_error"] for c in res.values())
-        if not np.isfinite(worst):
-            raise PartFailed("the closed-loop MPC's tracking error is not finite")
-        return f"{out / 'mpc'}/: closed-loop MPC max tracking error {worst:.2e} rad"
-
-    part("model", model)
-    part("paper", paper)
-    for name in OCP_PROBLEMS:
-        part(f"ocp {name}", ocp(name))
-    part("identification", identification)
-    part("mpc", mpc, needs=("identification",))
-    log(f"\nrscasadi reproduce into {out}:")
-    for name, state, what in summary:
-        log(f"  {name:28s} {state:8s} {what}")
-    failed = [s[0] for s in summary if s[1] != "ok"]
+    from rscasadi.studies.reproduce import run
+    summary = run(args.out, log=lambda msg: print(msg, flush=True))
+    failed = [name for name, state, _ in summary if state != "ok"]
     if failed:
         print(f"rscasadi: error: parts failed or skipped: {', '.join(failed)}", file=sys.stderr)
         return 1
 
 
 def cmd_codegen(args):
-    from .codegen import generate
+    from rscasadi.codegen import generate
     t0 = time.perf_counter()
     manifest = generate(args.model, args.out, prefix=args.prefix, opt=args.opt,
                         log=lambda msg: print(msg, flush=True), parametric=args.parametric, native=args.native)
@@ -231,19 +114,19 @@ def cmd_codegen(args):
 
 
 def cmd_excite(args):
-    from .identification.excitation import run
+    from rscasadi.identification.excitation import run
     run(args.model, args.out, period=args.period, harmonics=args.harmonics, log=lambda msg: print(msg, flush=True))
 
 
 def cmd_identify(args):
-    from .identification.identify import run
+    from rscasadi.identification.identify import run
     run(args.model, args.logs, args.out, validate=args.validate, cutoff=args.cutoff, explain=args.explain,
         reduced=args.reduced, log=lambda msg: print(msg, flush=True))
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = Parser(prog="rscasadi", description="Rotor-separated FS-SEA arm dynamics in CasADi")
-    parser.add_argument("--version", action="version", version=f"rscasadi {_version()}")
+    parser.add_argument("--version", action="version", version=f"rscasadi {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
     p = sub.add_parser("info", help="summarise a model file")
     p.add_argument("model")

@@ -126,14 +126,18 @@ def finite_json(obj):
     return obj
 
 
-def write_json(path, obj, indent: int = 1):
-    """The project's one JSON writer: valid JSON (no NaN or Infinity), written whole or not at all."""
-    import json
+def write_text(path, text: str):
+    """The project's one file writer: `text` into `path`, written whole or not at all."""
     path = Path(path)
-    text = json.dumps(finite_json(obj), indent=indent, allow_nan=False) + "\n"
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
         tmp.write_text(text)
         tmp.replace(path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def write_json(path, obj, indent: int = 1):
+    """Valid JSON (no NaN or Infinity: null), written whole or not at all."""
+    import json
+    write_text(path, json.dumps(finite_json(obj), indent=indent, allow_nan=False) + "\n")

@@ -138,7 +138,7 @@ def problem(directory, name="p.toml", **over):
 def raw_solve(monkeypatch, p, **kw):
     """solve_once, keeping the solver's raw result too (x, lam_g, lam_x as flat arrays; its stats;
     the solver and its arguments as "solver" and "args", to call it again)."""
-    from rscasadi.control.ocp import solve_once, solvers
+    from rscasadi.ocp import solve_once, solvers
     raw, make = {}, solvers.make_solver
 
     def spy(*a, **k):
@@ -154,7 +154,7 @@ def raw_solve(monkeypatch, p, **kw):
             def stats(self):
                 return s.stats()
         return Kept(), f
-    monkeypatch.setattr("rscasadi.control.ocp.solving.make_solver", spy)
+    monkeypatch.setattr("rscasadi.ocp.solving.make_solver", spy)
     sol = solve_once(p, **{"print_level": 0, "log": lambda m: None, **kw})
     return sol, raw
 
@@ -163,7 +163,7 @@ def raw_solve(monkeypatch, p, **kw):
 # (session-wide: the identification tests and the MPC's identified-model study share them)
 
 from rscasadi.cli import main  # noqa: E402
-from rscasadi.control.trajectory import load_trajectory  # noqa: E402
+from rscasadi.sim.trajectory import load_trajectory  # noqa: E402
 from rscasadi.identification.logs import write_log  # noqa: E402
 from rscasadi.identification.synthetic import perturbed_arm, record  # noqa: E402
 

@@ -13,7 +13,7 @@ import pytest
 import rscasadi
 from rscasadi.codegen import CodegenError, functions, generate
 from rscasadi.files import OutputError
-from rscasadi.dynamics.numeric import Numeric
+from rscasadi.reference.numeric import Numeric
 
 from conftest import REFERENCE, cc, random_arm_doc, to_toml, write_arm
 
@@ -273,8 +273,8 @@ def test_parametric_library_serves_every_arm_with_the_same_joints(tmp_path, arm3
 def test_compiled_feedforward_equals_the_pipeline_over_the_paper_trajectory(built, arm3):
     """feedforward_init/step in C, run sample by sample at 1 kHz, give the torques of the
     paper's pipeline (whose tracking on the complete model is tested in test_simulation)."""
-    from rscasadi.control.simulation import feedforward
-    from rscasadi.control.trajectory import load_trajectory
+    from rscasadi.sim.simulation import feedforward
+    from rscasadi.sim.trajectory import load_trajectory
     out, _ = built
     lib = rscasadi.load_compiled(out)
     traj = load_trajectory(REFERENCE.parent / "trajectory_arm3.toml")

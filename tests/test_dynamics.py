@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from rscasadi.dynamics.numeric import Numeric, ReducedNumeric
+from rscasadi.reference.numeric import Numeric, ReducedNumeric
 
 from conftest import dm, random_state
 from lagrange import Lagrange

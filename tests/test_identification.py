@@ -8,9 +8,9 @@ import pytest
 
 import rscasadi
 from rscasadi.cli import main
-from rscasadi.control.trajectory import load_trajectory
+from rscasadi.sim.trajectory import load_trajectory
 from rscasadi.identification import identify as ident_mod
-from rscasadi.identification.demo import recovered_table
+from rscasadi.studies.identification_demo import recovered_table
 from rscasadi.identification.logs import LogError, Log, header, read_log, write_log
 from rscasadi.identification.regressor import base_parameters, random_samples, regressor, stacked
 from rscasadi.model.parameters import n_linear
@@ -227,7 +227,7 @@ def test_logs_that_cannot_identify_are_refused(synthetic, arm3):
 def test_a_degenerate_excitation_is_refused_naming_the_cause(arm3, tmp_path, capsys):
     """The fresh machine's failure: a design where a joint hardly moves, or whose condition number
     is too large, is refused: by the check, by `design`, and by `excite` with one line and exit 2."""
-    from rscasadi.control.trajectory import Trajectory
+    from rscasadi.sim.trajectory import Trajectory
     from rscasadi.identification import excitation as ex
     t = np.linspace(0.0, 4.0, 401)
     rng = np.random.default_rng(3)

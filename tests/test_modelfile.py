@@ -1,4 +1,4 @@
-"""Every rule of MODEL.md section 4 refuses a bad file with the file, the joint and the field."""
+"""Every rule of docs/user-guide/model.md section 4 refuses a bad file with the file, the joint and the field."""
 import tomllib
 
 import numpy as np

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from rscasadi.cli import main
-from rscasadi.control import mpc as M
-from rscasadi.control.mpc import CompiledMPC, closed_loop, hold_function, load_mpc_problem, rti_function
-from rscasadi.control.ocp import rest_state
+import rscasadi.mpc as M
+from rscasadi.mpc import CompiledMPC, closed_loop, hold_function, load_mpc_problem, rti_function
+from rscasadi.ocp import rest_state
 from rscasadi.dynamics.arm import load
 from rscasadi.model.modelfile import ModelFileError
-from rscasadi.identification.synthetic import LINK_COUNTS
+from rscasadi.sim.sensors import LINK_COUNTS
 
 from conftest import ROOT
 
@@ -146,10 +146,10 @@ def test_sqp_mode_reaches_a_far_target_pose_within_the_limits(tmp_path, arm3):
 
 
 def test_the_documented_problem_file_is_the_shipped_one(tmp_path):
-    """docs/model.md section 6 shows the MPC problem file: every field it names is read, and its
+    """docs/user-guide/problems.md shows the MPC problem file: every field it names is read, and its
     values are those of problems/mpc_arm3.toml."""
     import dataclasses
-    doc = (ROOT / "docs" / "model.md").read_text()
+    doc = (ROOT / "docs" / "user-guide" / "problems.md").read_text()
     block = doc.split("**MPC problem**", 1)[1].split("```toml\n", 1)[1].split("```", 1)[0]
     path = tmp_path / "documented.toml"
     path.write_text(block.replace('"arm3.toml"', f'"{(ROOT / "problems" / "arm3.toml").as_posix()}"')

@@ -6,7 +6,7 @@ import pytest
 
 from rscasadi.cli import main
 from rscasadi.model.modelfile import ModelFileError
-from rscasadi.control.ocp import load_problem, solve, verify
+from rscasadi.ocp import load_problem, solve, verify
 
 from conftest import problem
 
@@ -104,7 +104,7 @@ def test_compiled_nlp_equals_vm_and_is_cached(pitch_arm):
                log=lambda m: None)
     assert a["success"] and b["success"] and vm["success"]
     assert abs(a["objective"] - vm["objective"]) < 1e-8 * vm["objective"]
-    assert any(m.startswith("compiled NLP in") for m in logs) and any("cache hit" in m for m in logs)
+    assert any(m.startswith("compiled the NLP in") for m in logs) and any("cache hit" in m for m in logs)
 
 
 def test_a_failed_fatrop_solve_falls_back_to_ipopt_and_says_so(pitch_arm):

@@ -8,10 +8,10 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from rscasadi.control.ocp import load_problem, solve_once
-from rscasadi.control.ocp.assembly import Piece, assembled, derivative_functions, solver_functions
-from rscasadi.control.ocp.solvers import options
-from rscasadi.control.ocp.transcription import Transcription
+from rscasadi.ocp import load_problem, solve_once
+from rscasadi.ocp.assembly import Piece, assembled, derivative_functions, solver_functions
+from rscasadi.ocp.solvers import options
+from rscasadi.ocp.transcription import Transcription
 from rscasadi.dynamics.arm import Arm
 from rscasadi.model.modelfile import read
 

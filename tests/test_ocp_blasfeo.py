@@ -18,14 +18,14 @@ import sys
 import numpy as np
 import pytest
 
-from rscasadi.control.ocp import blasfeo, load_problem, solve_once
-from rscasadi.control.ocp.fatrop_direct import casadi_dir, driver_library, tuned_kernels_library
+from rscasadi.ocp import blasfeo, load_problem, solve_once
+from rscasadi.ocp.fatrop.driver import casadi_dir, driver_library, tuned_kernels_library
 
 from conftest import cc, problem
 
 CHILD = """
 import dataclasses, json, sys
-from rscasadi.control.ocp import load_problem, solve_once
+from rscasadi.ocp import load_problem, solve_once
 p = dataclasses.replace(load_problem(sys.argv[1]), solver="fatrop")
 sol = solve_once(p, print_level=0, log=lambda m: None)
 print(json.dumps({k: sol[k] for k in ("status", "iterations", "theta", "tau", "blasfeo")}))
@@ -162,11 +162,11 @@ def test_a_tuned_kernel_that_differs_from_the_wheels_is_refused(tmp_path):
 
 TUNED_CHILD = """
 import ctypes, dataclasses, json, sys
-from rscasadi.control.ocp import load_problem, solve_once
+from rscasadi.ocp import load_problem, solve_once
 p = dataclasses.replace(load_problem(sys.argv[1]), solver="fatrop")
 solve_once(p, print_level=0, log=lambda m: None)
 tuned = None
-import rscasadi.control.ocp.blasfeo as b
+import rscasadi.ocp.fatrop.blasfeo as b
 if b._loaded.get("tuned"):
     tuned = ctypes.c_int.in_dll(ctypes.CDLL(b._loaded["tuned"]["library"]), "rsc_tuned_reached")
     tuned.value = 0                                  # the next solve must set it again

@@ -9,9 +9,9 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from rscasadi.control.ocp import load_problem, solve_once
-from rscasadi.control.ocp.solving import guess
-from rscasadi.control.ocp.transcription import Transcription
+from rscasadi.ocp import load_problem, solve_once
+from rscasadi.ocp.solving import guess
+from rscasadi.ocp.transcription import Transcription
 from rscasadi.dynamics.arm import Arm
 from rscasadi.model.modelfile import ModelFileError, read
 
@@ -74,7 +74,7 @@ def test_kernel_equals_casadi_rootfinder_and_its_ad(name, over):
     P = lifted.parameters(base.theta_start, base.theta_end, base.duration, base.effort_weight, np.full(N, 1 / N),
                           None if not lifted.tracking else np.zeros((n, N)), list(base.parameters.values()))
     if lifted.tracking:
-        from rscasadi.control.ocp.solving import _reference as reference_of
+        from rscasadi.ocp.solving import _reference as reference_of
         P = lifted.parameters(reference_of(base, t[:1])[:, 0], None, base.duration, base.effort_weight,
                               np.full(N, 1 / N), reference_of(base, t)[:, 1:], list(base.parameters.values()))
     rng = np.random.default_rng(11)

@@ -8,8 +8,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from rscasadi.control.ocp import load_problem, solve_once, solvers
-from rscasadi.control.ocp.fatrop_direct import _Layout
+from rscasadi.ocp import load_problem, solve_once, solvers
+from rscasadi.ocp.fatrop.driver import _Layout
 from rscasadi.model.modelfile import ModelFileError
 
 from conftest import problem, raw_solve
@@ -114,7 +114,7 @@ def _tiny_ocp(tmp_path, sign=1.0):
     """min sum u_k^2 + c x_3^2 s.t. x_{k+1} = x_k + u_k, x_0 = 1, |u_k| <= 10, x_k + u_k <= 100:
     u_k = -c / (1 + 3c) for every k.  The NLP's functions under the fatrop plugin's signatures,
     written here by hand (no transcription), gap rows sign * (x_{k+1} - x_k - u_k)."""
-    from rscasadi.codegen import _compiler
+    from rscasadi.native.build import compiler
     import subprocess
     x = ca.SX.sym("x", 7)                                   # x0 u0 x1 u1 x2 u2 x3
     c = ca.SX.sym("p")
@@ -136,12 +136,12 @@ def _tiny_ocp(tmp_path, sign=1.0):
         cg.add(fn)
     cg.generate(str(tmp_path) + "/")
     lib = tmp_path / "tiny_ocp.so"
-    subprocess.run([*_compiler(), "-O1", "-fPIC", "-shared", str(tmp_path / "tiny_ocp.c"), "-o", str(lib), "-lm"], check=True)
+    subprocess.run([*compiler(), "-O1", "-fPIC", "-shared", str(tmp_path / "tiny_ocp.c"), "-o", str(lib), "-lm"], check=True)
     return str(lib), {"N": 3, "nx": [1, 1, 1, 1], "nu": [1, 1, 1, 0], "ng": [1, 1, 1, 0]}
 
 
 def test_direct_fatrop_solves_a_small_ocp_to_its_closed_form(tmp_path):
-    from rscasadi.control.ocp.fatrop_direct import DirectFatrop
+    from rscasadi.ocp.fatrop.driver import DirectFatrop
     lib, structure = _tiny_ocp(tmp_path)
     inf = np.inf
     lbx = [1.0, -10, -inf, -10, -inf, -10, -inf]
@@ -156,7 +156,7 @@ def test_direct_fatrop_solves_a_small_ocp_to_its_closed_form(tmp_path):
 
 
 def test_a_gap_row_of_the_wrong_sign_is_refused(tmp_path):
-    from rscasadi.control.ocp.fatrop_direct import DirectFatrop
+    from rscasadi.ocp.fatrop.driver import DirectFatrop
     lib, structure = _tiny_ocp(tmp_path, sign=-1.0)
     solver = DirectFatrop(lib, structure, {"print_level": 0})
     with pytest.raises(ValueError, match=r"x_\{k\+1\} - F_k"):
@@ -168,7 +168,7 @@ def test_direct_fatrop_solves_from_two_threads(tmp_path):
     # the driver's state is per call (and fatrop's process-wide writer behind a lock): solves from
     # threads of one process each find their own closed form
     from concurrent.futures import ThreadPoolExecutor
-    from rscasadi.control.ocp.fatrop_direct import DirectFatrop
+    from rscasadi.ocp.fatrop.driver import DirectFatrop
     lib, structure = _tiny_ocp(tmp_path)
     inf = np.inf
 
@@ -183,14 +183,13 @@ def test_direct_fatrop_solves_from_two_threads(tmp_path):
         assert ok and abs(u + c / (1 + 3 * c)) < 1e-8
 
 
-@pytest.mark.parametrize("barrier", ["monotone", "adaptive"])
-def test_a_reused_solver_iterates_as_a_new_one(pitch_arm, monkeypatch, barrier):
+def test_a_reused_solver_iterates_as_a_new_one(pitch_arm, monkeypatch):
     # fatrop's solver is built once per layout and reused: every solve must start afresh (iterates,
     # bounds, barrier parameter, filter), so a solve after others equals a new solver's, bit for bit
     # (lifted: no condensing kernel, whose warm starts would differ in the last bits)
-    from rscasadi.control.ocp.fatrop_direct import DirectFatrop
-    p = load_problem(problem(pitch_arm, f"reuse_{barrier}.toml", transcription={"intervals": 12, "condense": False, "compiled": True},
-                             solver={"name": "fatrop", "interface": "direct", "barrier": barrier}))
+    from rscasadi.ocp.fatrop.driver import DirectFatrop
+    p = load_problem(problem(pitch_arm, "reuse.toml", transcription={"intervals": 12, "condense": False, "compiled": True},
+                             solver={"name": "fatrop", "interface": "direct", "barrier": "monotone"}))
     _, raw = raw_solve(monkeypatch, p)
     s, kw = raw["solver"], raw["args"]
     first = s(**kw)
@@ -202,7 +201,7 @@ def test_a_reused_solver_iterates_as_a_new_one(pitch_arm, monkeypatch, barrier):
              "lbx": lbx + shrink, "ubx": ubx - shrink}
     second = s(**other)
     assert s.stats()["success"] and len(s._sessions) == 1
-    fresh = DirectFatrop(s.library, s.structure, dict(s.options), barrier=barrier)
+    fresh = DirectFatrop(s.library, s.structure, dict(s.options))
     alone = fresh(**other)
     assert fresh.stats()["iter_count"] == s.stats()["iter_count"]
     for key in ("x", "lam_g", "lam_x"):
@@ -216,7 +215,7 @@ def test_a_reused_solver_iterates_as_a_new_one(pitch_arm, monkeypatch, barrier):
 
 def test_a_quiet_solver_stays_quiet_beside_a_verbose_one(tmp_path, capfd):
     # one process-wide writer for every (kept) solver: it prints only for a verbose solve
-    from rscasadi.control.ocp.fatrop_direct import DirectFatrop
+    from rscasadi.ocp.fatrop.driver import DirectFatrop
     lib, structure = _tiny_ocp(tmp_path)
     inf = np.inf
     args = dict(x0=np.zeros(7), lbx=[1.0] + [-inf] * 6, ubx=[1.0] + [inf] * 6, lbg=[0, -inf] * 3, ubg=[0, 100] * 3, p=10.0)

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from rscasadi.cli import main
-from rscasadi.control.ocp import load_problem, solve, solve_once, verify
-from rscasadi.control.ocp.solving import local_errors
+from rscasadi.ocp import load_problem, solve, solve_once, verify
+from rscasadi.ocp.solving import local_errors
 from rscasadi.dynamics.arm import Arm
 from rscasadi.model.modelfile import ModelFileError
 from rscasadi.model.parameters import with_values
@@ -202,7 +202,7 @@ def test_codesign_writes_the_designed_arm_beside_its_solution(pitch_arm, tmp_pat
     import json
     import tomllib
     import rscasadi
-    from rscasadi.control.ocp import run
+    from rscasadi.ocp import run
     path = problem(pitch_arm, "gear_out.toml", objective="min_time", max_duration=5.0,
                    transcription={"intervals": 40}, design={"shoulder_pitch.gear_ratio": [30.0, 300.0]})
     sol = run(path, tmp_path / "out", print_level=0, log=lambda m: None)

@@ -10,10 +10,10 @@ import multiprocessing
 import numpy as np
 import pytest
 
-from rscasadi.codegen import _compiler
-from rscasadi.codegen.parallel import openmp_flags, set_threads
-from rscasadi.control.ocp import load_problem, solve_once
-from rscasadi.control.sweep import point_problem
+from rscasadi.native.build import compiler
+from rscasadi.native.parallel import openmp_flags, set_threads
+from rscasadi.ocp import load_problem, solve_once
+from rscasadi.ocp.sweep import point_problem
 from rscasadi.model.modelfile import ModelFileError
 
 from conftest import problem, raw_solve
@@ -46,7 +46,7 @@ def test_the_number_of_threads_changes_no_iterate(pitch_arm, monkeypatch, case, 
 
 def test_the_compiled_nlp_really_runs_on_threads(pitch_arm):
     # the machines we support have gcc with OpenMP: without it the comparison above is empty
-    assert openmp_flags(tuple(_compiler())) == ("-fopenmp",)
+    assert openmp_flags(tuple(compiler())) == ("-fopenmp",)
     assert set_threads(2) == 2
     logs = []
     path = problem(pitch_arm, "threads_lib.toml", transcription={"intervals": 17, "compiled": True})

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 pytest.importorskip("pinocchio")
-from rscasadi.dynamics.pinocchio_route import PinocchioRoute  # noqa: E402
+from rscasadi.reference.pinocchio_route import PinocchioRoute  # noqa: E402
 
 from conftest import dm, random_state  # noqa: E402
 

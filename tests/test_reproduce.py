@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from rscasadi.identification.demo import run
+from rscasadi.studies.identification_demo import run
 
 from conftest import REFERENCE
 

@@ -6,9 +6,9 @@ import pytest
 
 import rscasadi
 from rscasadi.model.modelfile import ModelFileError
-from rscasadi.paper import run
-from rscasadi.control.simulation import cascade_simulate, feedforward, simulate
-from rscasadi.control.trajectory import load_trajectory
+from rscasadi.studies.paper import run
+from rscasadi.sim.simulation import cascade_simulate, feedforward, simulate
+from rscasadi.sim.trajectory import load_trajectory
 
 from conftest import ROOT
 
@@ -118,7 +118,7 @@ def test_failed_paper_run_leaves_nothing(tmp_path):
 
 
 def test_tilted_variant_file_is_the_sweeps_point(arm3):
-    from rscasadi.paper import _variant
+    from rscasadi.studies.paper import _variant
     tilted = rscasadi.load(ROOT / "problems" / "arm3_tilted.toml")
     q = np.array([0.2, -0.4, 0.9])
     M_file = np.array(tilted.mass_matrix()(q, q))

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from rscasadi.cli import main
-from rscasadi.control.ocp import load_problem, solve_once
-from rscasadi.control.sweep import load_sweep
+from rscasadi.ocp import load_problem, solve_once
+from rscasadi.ocp.sweep import load_sweep
 from rscasadi.model.modelfile import ModelFileError, to_toml
 
 from conftest import ROOT, problem

@@ -9,7 +9,7 @@ import pytest
 
 import rscasadi
 from rscasadi import ModelFileError
-from rscasadi.dynamics.pinocchio_route import PinocchioRoute
+from rscasadi.reference.pinocchio_route import PinocchioRoute
 
 from conftest import REFERENCE, ROOT, dm, random_state, to_toml
 

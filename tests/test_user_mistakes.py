@@ -12,8 +12,8 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 import rscasadi
 from rscasadi import ModelFileError
 from rscasadi.cli import main
-from rscasadi.control.ocp import load_problem
-from rscasadi.control.sweep import load_sweep
+from rscasadi.ocp import load_problem
+from rscasadi.ocp.sweep import load_sweep
 
 from conftest import REFERENCE, ROOT, to_toml
 

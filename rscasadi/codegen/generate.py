@@ -7,29 +7,26 @@ Compiled libraries are cached by a hash of their sources, compiler and flags.
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import os
-import platform
 import re
-import shlex
 import shutil
-import subprocess
 from pathlib import Path
 
 import casadi as ca
 
-from ..control.feedforward import feedforward_functions
-from ..dynamics.arm import Arm, load
-from ..files import OutputError, fresh_directory, write_json
-from .step_kernel import kernel_source
+from rscasadi.dynamics.feedforward import feedforward_functions
+from rscasadi.dynamics.arm import Arm, load
+from rscasadi.files import OutputError, fresh_directory, write_json
+from rscasadi.codegen.step_kernel import kernel_source
+from rscasadi.native.build import OPT_LEVELS, BuildError, cached_library, compiler, native_flags
 
 IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,62}\Z")
 LIBRARY = "librscasadi_arm.so"
 HEADER = "rscasadi_arm.h"
 
 
-class CodegenError(OutputError):
+class CodegenError(BuildError, OutputError):
     """Generating or compiling the C code failed; nothing was left half-written."""
 
 
@@ -161,42 +158,6 @@ def _io(f: ca.Function, out: bool):
     return [{"name": names[i], "rows": sp(i).size1(), "cols": sp(i).size2()} for i in range(n)]
 
 
-def _compiler():
-    cc = shlex.split(os.environ.get("CC", "cc")) or ["cc"]
-    if shutil.which(cc[0]) is None:
-        raise CodegenError(f"C compiler {cc[0]!r} not found (set $CC to a C compiler)")
-    return cc
-
-
-def native_flags() -> list:
-    """This processor's instructions, fused multiply-adds, and on x86 full-width vectors (gcc
-    tunes Zen 1 to 128-bit ones): the step-Jacobian kernel 20-25 % faster at n = 12, the rest
-    unchanged."""
-    wide = ["-mprefer-vector-width=256"] if platform.machine().lower() in ("x86_64", "amd64") else []
-    return ["-march=native", "-ffp-contract=fast"] + wide
-
-
-def cache_dir() -> Path:
-    return Path(os.environ.get("RSCASADI_CACHE", Path.home() / ".cache" / "rscasadi"))
-
-
-def _compile(cc, flags, sources, lib: Path, workdir: Path):
-    """Compile each source to an object (in parallel), then link the shared library."""
-    procs = [(src, subprocess.Popen([*cc, *flags, "-fPIC", "-c", src.name, "-o", src.stem + ".o"], cwd=workdir,
-                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
-             for src in sources]
-    for src, proc in procs:
-        _, err = proc.communicate()
-        if proc.returncode != 0:
-            raise CodegenError(f"compiling {src.name} failed ({' '.join(cc)}):\n{err[-2000:]}")
-    link = subprocess.run([*cc, "-shared", *[s.stem + ".o" for s in sources], "-o", lib.name, "-lm"],
-                          cwd=workdir, capture_output=True, text=True)
-    if link.returncode != 0:
-        raise CodegenError(f"linking {lib.name} failed:\n{link.stderr[-2000:]}")
-    for s in sources:
-        (workdir / (s.stem + ".o")).unlink()
-
-
 def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print, parametric: bool = False,
              native: bool = False) -> dict:
     """Write C sources, one header, one shared library and manifest.json into `out`.
@@ -206,11 +167,14 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
     prefix = prefix or ""
     if prefix and not IDENTIFIER.match(prefix):
         raise CodegenError(f"prefix {prefix!r} is not a C identifier ([A-Za-z_][A-Za-z0-9_]*, at most 63)")
-    if opt not in ("-O0", "-O1", "-O2", "-O3", "-Os"):
-        raise CodegenError(f"optimisation flag {opt!r} not one of -O0 -O1 -O2 -O3 -Os")
+    if opt not in OPT_LEVELS:
+        raise CodegenError(f"optimisation flag {opt!r} not one of {' '.join(OPT_LEVELS)}")
     arm = model if isinstance(model, Arm) else load(model)
     out = Path(out).resolve()
-    cc = _compiler()
+    try:
+        cc = compiler()
+    except BuildError as exc:
+        raise CodegenError(str(exc)) from None
     flags = [opt, "-std=c99"] + (native_flags() if native else [])
     with fresh_directory(out, "manifest.json") as tmp:
         fns, omitted = functions(arm, prefix, parametric)
@@ -235,24 +199,13 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
         (tmp / f"{HEADER.removesuffix('.h')}.c").unlink()        # only its header is used
         if kernels:
             _declare(tmp / HEADER, [k.header for k in kernels.values()])
-        digest = hashlib.sha256()
-        for part in [*cc, *flags, ca.__version__] + [s.read_text() for s in sources]:
-            digest.update(part.encode())
-        key = digest.hexdigest()
-        cached = cache_dir() / key / LIBRARY
-        if cached.exists():
-            log(f"cache hit: {cached}")
-            shutil.copy2(cached, tmp / LIBRARY)
-        else:
-            log(f"compiling {len(sources)} sources with {' '.join(cc + flags)} ...")
-            _compile(cc, flags, sources, tmp / LIBRARY, tmp)
-            try:
-                cached.parent.mkdir(parents=True, exist_ok=True)
-                part = cached.with_name(cached.name + f".{os.getpid()}.part")
-                shutil.copy2(tmp / LIBRARY, part)
-                part.replace(cached)
-            except OSError:
-                log(f"note: could not write the compile cache {cache_dir()}")
+        try:
+            lib = cached_library({src.name: src.read_text() for src in sources}, flags, name="arm",
+                                 what=f"{len(sources)} sources", log=log, cc=cc,
+                                 log_hit=True)
+        except BuildError as exc:
+            raise CodegenError(str(exc)) from None
+        shutil.copy2(lib, tmp / LIBRARY)
         manifest = {
             "model": str(getattr(arm.model, "path", "")),
             "header": HEADER,
@@ -270,7 +223,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
                            if parametric else None),
             "prefix": prefix,
             "compiler": cc + flags,
-            "source_hash": key,
+            "source_hash": lib.stem.rsplit("_", 1)[1],
         }
         write_json(tmp / "manifest.json", manifest, indent=2)
     return manifest

@@ -34,9 +34,9 @@ from typing import NamedTuple
 import casadi as ca
 import numpy as np
 
-from ..model.parameters import gear_ratios
-from . import lanes
-from .lanes import LANES
+from rscasadi.model.parameters import gear_ratios
+from rscasadi.codegen import lanes
+from rscasadi.codegen.lanes import LANES
 
 BLOCK = 32          # columns accumulated at once (8 AVX2 registers; the last block narrower, to a multiple of 4):
                     # 16 and 20 ran 3 % slower, 64 spilled
@@ -61,7 +61,7 @@ def point_functions(arm, name: str, parametric: bool):
     q, zero = ca.vertsplit(x, n), ca.DM.zeros(n)
     d, LT, perm = ca.ldl(arm.mass_matrix(parametric=parametric)(q[0], q[1], *p), True)
     mu = gear_ratios(arm.model, arm.free if parametric else None, *p)
-    # the forward dynamics from the same factors: the residual R(a) = M a + R(0) (docs/model.md
+    # the forward dynamics from the same factors: the residual R(a) = M a + R(0) (docs/user-guide/model.md
     # section 3) vanishes at a = -M^-1 R(0); 20 % faster than a separate articulated-body sweep
     tau_id, T_id = arm.inverse_dynamics(parametric)(*q, zero, zero, *p)
     phys = arm._physics_of(p[0]) if parametric else arm.physics

@@ -4,18 +4,18 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from . import recursions as rec
-from ..model.modelfile import ArmModel, read
-from ..model.parameters import Physics, gear_ratios, names as parameter_names, nominal as parameter_nominal
+from rscasadi.dynamics import recursions as rec
+from rscasadi.model.modelfile import ArmModel, read
+from rscasadi.model.parameters import Physics, gear_ratios, names as parameter_names, nominal as parameter_nominal
 
 STATE = ["theta", "phi", "dtheta", "dphi"]
 
 
 class Arm:
     """An n-joint FS-SEA arm (joints base to tip). Every method returns a casadi.Function
-    whose inputs and outputs are (n, 1) columns named as in docs/model.md section 3.
+    whose inputs and outputs are (n, 1) columns named as in docs/user-guide/model.md section 3.
 
-    `parametric=True` gives the twin with one more input, p (docs/model.md, "Parameters"):
+    `parametric=True` gives the twin with one more input, p (docs/user-guide/model.md, "Parameters"):
     the same equations with every physical parameter symbolic, equal to the constant version
     at p = arm.parameters()[1].  `Arm(model, free=[names])` makes p only those parameters (in
     that order), the others staying the model file's numbers: compact expressions for design
@@ -43,7 +43,7 @@ class Arm:
         """The ordered parameter names and their nominal values (the model file's numbers)."""
         return parameter_names(self.model), parameter_nominal(self.model)
 
-    # -- actuator laws (docs/model.md section 2) ---------------------------------------------
+    # -- actuator laws (docs/user-guide/model.md section 2) ---------------------------------------------
     def sea_torque(self, theta, phi, dtheta, dphi, phys=None):
         """T = T_K(psi) + T_B(dpsi) = k1 psi + k3 psi^3 + d dpsi, psi = phi - theta."""
         c, psi, dpsi = (phys or self.physics).columns, phi - theta, dphi - dtheta
@@ -55,7 +55,7 @@ class Arm:
         return c["b"] * dphi + c["c"] * ca.tanh(dphi / c["eps"])
 
     def _phi_force(self, phys, x, tau):
-        """Q_phi = -T - T_B2 - mu tau (docs/model.md section 3)."""
+        """Q_phi = -T - T_B2 - mu tau (docs/user-guide/model.md section 3)."""
         return -self.sea_torque(*x, phys=phys) - self.gear_loss(x[3], phys) - phys.columns["gear_ratio"] * tau
 
     # -- plumbing ---------------------------------------------------------------------------
@@ -161,7 +161,7 @@ class Arm:
 
     def residual_jacobian(self, parametric: bool = False) -> ca.Function:
         """theta, phi, dtheta, dphi, ddtheta, ddphi -> dr/d(theta, phi, dtheta, dphi) (2n x 4n), where
-        r = M ddq + c - Q without its tau term (the rows of docs/model.md section 3)."""
+        r = M ddq + c - Q without its tau term (the rows of docs/user-guide/model.md section 3)."""
         def build(phys, theta, phi, dtheta, dphi, ddtheta, ddphi):
             x = (theta, phi, dtheta, dphi)
             segs, kin = self._kin(False, phys, x)
@@ -219,5 +219,5 @@ class Arm:
 
 
 def load(path) -> Arm:
-    """Read a model file (MODEL.md section 4) and return its Arm."""
+    """Read a model file (docs/user-guide/model.md section 4) and return its Arm."""
     return Arm(read(path))

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from .spatial import H, Xup, as_casadi, base_acceleration, base_pose, coriolis, gyroscopic, joint_rotation
+from rscasadi.spatial import H, Xup, as_casadi, base_acceleration, base_pose, coriolis, gyroscopic, joint_rotation
 
 
 @dataclass

@@ -30,13 +30,13 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from ..control.simulation import feedforward
-from ..control.trajectory import Trajectory
-from ..dynamics.arm import Arm, load
-from ..files import CheckError, fresh_directory, write_json
-from ..model.parameters import n_linear
-from .identify import Unknowns, prior_scale, structural_base
-from .regressor import regressor, spring_regressor
+from rscasadi.sim.simulation import feedforward
+from rscasadi.sim.trajectory import Trajectory
+from rscasadi.dynamics.arm import Arm, load
+from rscasadi.files import CheckError, fresh_directory, write_json
+from rscasadi.model.parameters import n_linear
+from rscasadi.identification.identify import Unknowns, prior_scale, structural_base
+from rscasadi.identification.regressor import regressor, spring_regressor
 
 TORQUE_NOISE = 0.005
 MAX_CONDITION = 1e5  # a design above this is refused (a hand-picked bump on every joint: ~1e9)

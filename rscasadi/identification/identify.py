@@ -29,12 +29,12 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
-from ..dynamics.arm import Arm, load
-from ..files import CheckError, check_writable, fresh_directory, write_json
-from ..model.modelfile import BODIES, ArmModel, document, to_toml
-from ..model.parameters import INERTIAL, PER_JOINT, body_from_parameters, n_linear
-from .logs import Log, LogError, read_log
-from .regressor import BaseParameters, base_of, random_samples, regressor, spring_regressor, stacked
+from rscasadi.dynamics.arm import Arm, load
+from rscasadi.files import CheckError, check_writable, fresh_directory, write_json
+from rscasadi.model.modelfile import BODIES, ArmModel, document, to_toml
+from rscasadi.model.parameters import INERTIAL, PER_JOINT, body_from_parameters, n_linear
+from rscasadi.identification.logs import Log, LogError, read_log
+from rscasadi.identification.regressor import BaseParameters, base_of, random_samples, regressor, spring_regressor, stacked
 
 PRIOR = 0.3          # relative standard deviation of the prior on the model file's values
 CUTOFF_FACTOR = 2.0  # filter cut-off / highest SEA mode (1.5 biases k1 by 100 sigma, see above)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..model.modelfile import ModelFileError
+from rscasadi.model.modelfile import ModelFileError
 
 
 class LogError(ModelFileError):

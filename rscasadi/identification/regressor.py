@@ -24,7 +24,7 @@ import casadi as ca
 import numpy as np
 import scipy.linalg
 
-from ..model.parameters import n_linear
+from rscasadi.model.parameters import n_linear
 
 STATE_ACC = ["theta", "phi", "dtheta", "dphi", "ddtheta", "ddphi"]
 

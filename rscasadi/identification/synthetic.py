@@ -15,13 +15,13 @@ import dataclasses
 import casadi as ca
 import numpy as np
 
-from ..codegen import rk4
-from ..control.simulation import feedforward
-from ..dynamics.arm import Arm
-from ..model.modelfile import Body, inertia_problem
-from .logs import Log
+from rscasadi.codegen import rk4
+from rscasadi.sim.simulation import feedforward
+from rscasadi.dynamics.arm import Arm
+from rscasadi.model.modelfile import Body, inertia_problem
+from rscasadi.identification.logs import Log
+from rscasadi.sim.sensors import quanta
 
-LINK_COUNTS, MOTOR_COUNTS = 2 ** 19, 2 ** 17
 
 
 def _factor(rng, lo=0.1, hi=0.4):
@@ -67,7 +67,7 @@ def _closed_loop_step(true_arm: Arm, dt: float, substeps: int, gains):
     fd = true_arm.forward_dynamics()
     x, phi_prev = ca.SX.sym("x", 4 * n), ca.SX.sym("phi_prev", n)
     ref = ca.SX.sym("ref", 3 * n)                                    # tau_ff, phi_d, dphi_d
-    q_link, q_motor = 2 * np.pi / LINK_COUNTS, 2 * np.pi / MOTOR_COUNTS / mu
+    q_link, q_motor = quanta(mu)
     theta_m = ca.floor(x[:n] / q_link + 0.5) * q_link
     phi_m = ca.floor(x[n:2 * n] / q_motor + 0.5) * q_motor
     dphi_m = (phi_m - phi_prev) / dt                                 # backward difference of the encoder

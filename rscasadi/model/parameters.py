@@ -5,7 +5,7 @@ The parameter vector p of an arm, in this order:
 - for each joint j (base to tip), for each of its bodies (link, slow_rotor, fast_rotor), the ten
   inertial parameters that the dynamics is linear in: mass m, first moment m c (`mx, my, mz`),
   and the inertia about the body-frame origin (`Ixx, Iyy, Izz, Ixy, Ixz, Iyz`), all in the
-  body's own frame (docs/model.md section 2);
+  body's own frame (docs/user-guide/model.md section 2);
 - then its actuator: `sea.k1, sea.k3, sea.d, gear_loss.b, gear_loss.c`;
 - last, `gravity.x, gravity.y, gravity.z`.
 
@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from ..dynamics.spatial import spatial_inertia
-from .modelfile import BODIES, ArmModel, Body
+from rscasadi.spatial import spatial_inertia
+from rscasadi.model.modelfile import BODIES, ArmModel, Body
 
 INERTIAL = ("mass", "mx", "my", "mz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 ACTUATOR = ("sea.k1", "sea.k3", "sea.d", "gear_loss.b", "gear_loss.c")

@@ -1,4 +1,4 @@
-"""URDF-based model files (docs/model.md, "URDF form"): links, joint placements and axes from
+"""URDF-based model files (docs/user-guide/model.md, "URDF form"): links, joint placements and axes from
 a URDF, the actuators (gear, SEA, losses, rotors, limits) from the model file.
 
 The URDF is parsed by yourdfpy (meshes never loaded).  The tree is cut into the serial chain
@@ -13,9 +13,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..dynamics.spatial import spatial_inertia, transform_inertia
-from .modelfile import (DEFAULT_GRAVITY, ACTUATOR_KEYS, ArmModel, Body, Joint, ModelFileError, _Ctx, _number,
-                        _table, _vector, actuator, inertia_problem, joint_context, rpy_of)
+from rscasadi.spatial import spatial_inertia, transform_inertia
+from rscasadi.model.checks import ACTUATOR_KEYS, _Ctx, _number, _table, _vector, actuator, joint_context
+from rscasadi.model.types import DEFAULT_GRAVITY, ArmModel, Body, Joint, ModelFileError, inertia_problem, rpy_of
 
 URDF_TOP_KEYS = {"name", "urdf", "tip", "locked", "gravity", "joints"}
 MOVING = ("revolute", "continuous")

@@ -1,7 +1,0 @@
-"""Optimal control of the motor torques: problem files, a stage-wise direct collocation, fatrop
-or IPOPT, verification on the complete model with mesh refinement, co-design and sweeps."""
-from .problem import Problem, load_problem
-from .solving import rest_state, run, solve, solve_once, verify
-from .transcription import Transcription
-
-__all__ = ["Problem", "Transcription", "load_problem", "rest_state", "run", "solve", "solve_once", "verify"]

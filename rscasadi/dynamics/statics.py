@@ -1,0 +1,22 @@
+"""Statics of the SEA arm: the spring deflection that carries a torque, and the rest state."""
+from __future__ import annotations
+
+import numpy as np
+
+from rscasadi.dynamics.arm import Arm
+
+
+def spring_deflection(arm: Arm, T, psi=None):
+    """psi with k1 psi + k3 psi^3 = T (static part of the spring law), by Newton."""
+    k1, k3 = arm.model.column("k1"), arm.model.column("k3")
+    psi = T / k1 if psi is None else psi
+    for _ in range(30):
+        psi = psi - (k1 * psi + k3 * psi ** 3 - T) / (k1 + 3 * k3 * psi ** 2)
+    return psi
+
+
+def rest_state(arm: Arm, theta) -> np.ndarray:
+    """At rest at theta with the SEAs holding the links statically (no residual oscillation)."""
+    z, theta = np.zeros(arm.n), np.asarray(theta, float)
+    T = np.array(arm.inverse_dynamics()(theta, theta, z, z, z, z)[1]).ravel()
+    return np.concatenate([theta, theta + spring_deflection(arm, T), z, z])

@@ -1,0 +1,130 @@
+"""Reading and checking documents: every refusal is a `ModelFileError` naming the file, the
+joint and the field."""
+from __future__ import annotations
+
+import math
+import tomllib
+
+import numpy as np
+
+from rscasadi.model.types import (BODY_KEYS, GEAR_LOSS_KEYS, LIMIT_KEYS, SEA_KEYS, Body, ModelFileError,
+                                  inertia_problem)
+
+class _Ctx:
+    """Where we are in the file, for error messages."""
+
+    def __init__(self, path, joint=None):
+        self.path, self.joint = path, joint
+
+    def fail(self, fld: str, problem: str):
+        where = f"{self.path}: "
+        if self.joint is not None:
+            idx, name = self.joint
+            where += f"joint {idx + 1}" + (f" ({name!r})" if name else "") + ", "
+        raise ModelFileError(f"{where}field '{fld}': {problem}")
+
+
+def _number(ctx, fld, value, *, positive=False, nonneg=False):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        ctx.fail(fld, f"expected a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        ctx.fail(fld, f"must be finite, got {value!r}")
+    if positive and value <= 0.0:
+        ctx.fail(fld, f"must be > 0, got {value!r}")
+    if nonneg and value < 0.0:
+        ctx.fail(fld, f"must be >= 0, got {value!r}")
+    return value
+
+
+def _vector(ctx, fld, value, size):
+    if not isinstance(value, list) or len(value) != size:
+        ctx.fail(fld, f"expected a list of {size} numbers, got {value!r}")
+    return np.array([_number(ctx, f"{fld}[{i}]", v) for i, v in enumerate(value)])
+
+
+def _table(ctx, fld, value, allowed, required=()):
+    if not isinstance(value, dict):
+        ctx.fail(fld, f"expected a table, got {value!r}")
+    for key in value:
+        if key not in allowed:
+            ctx.fail(f"{fld}.{key}" if fld else key, f"unknown key (allowed: {', '.join(sorted(allowed))})")
+    for key in required:
+        if key not in value:
+            ctx.fail(f"{fld}.{key}" if fld else key, "missing required field")
+    return value
+
+
+def _body(ctx, fld, value) -> Body:
+    t = _table(ctx, fld, value, BODY_KEYS, BODY_KEYS)
+    mass = _number(ctx, f"{fld}.mass", t["mass"], positive=True)
+    com = _vector(ctx, f"{fld}.com", t["com"], 3)
+    ixx, iyy, izz, ixy, ixz, iyz = _vector(ctx, f"{fld}.inertia", t["inertia"], 6)
+    inertia = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+    problem = inertia_problem(inertia)
+    if problem:
+        ctx.fail(f"{fld}.inertia", problem)
+    return Body(mass, com, inertia)
+
+
+ACTUATOR_KEYS = {"name", "gear_ratio", "sea", "gear_loss", "limits", "slow_rotor", "fast_rotor"}
+
+
+def joint_context(path, idx, raw) -> _Ctx:
+    name = raw.get("name") if isinstance(raw, dict) else None
+    return _Ctx(path, (idx, name if isinstance(name, str) else None))
+
+
+def actuator(ctx, t: dict, names) -> dict:
+    """The actuator part of a [[joints]] table, common to both forms of the file: name, gear
+    ratio, SEA, gear loss, limits and the two rotor bodies (given in J_j, z = joint axis)."""
+    name = t.get("name")
+    if not isinstance(name, str) or not name.strip():
+        ctx.fail("name", f"expected a non-empty string, got {name!r}")
+    if name in names:
+        ctx.fail("name", f"duplicate joint name {name!r}")
+    sea = _table(ctx, "sea", t["sea"], SEA_KEYS, ("k1",))
+    loss = _table(ctx, "gear_loss", t.get("gear_loss", {}), GEAR_LOSS_KEYS)
+    lim_raw = _table(ctx, "limits", t.get("limits", {}), LIMIT_KEYS)
+    limits = {key: _number(ctx, f"limits.{key}", lim_raw[key], positive=True)
+              for key in ("tau", "dphi", "psi") if key in lim_raw}
+    if "theta" in lim_raw:
+        lo, hi = _vector(ctx, "limits.theta", lim_raw["theta"], 2)
+        if not lo < hi:
+            ctx.fail("limits.theta", f"lower bound {lo} must be below upper bound {hi}")
+        limits["theta"] = (float(lo), float(hi))
+    return dict(
+        name=name,
+        gear_ratio=_number(ctx, "gear_ratio", t["gear_ratio"], positive=True),
+        k1=_number(ctx, "sea.k1", sea["k1"], positive=True),
+        k3=_number(ctx, "sea.k3", sea.get("k3", 0.0), nonneg=True),
+        d=_number(ctx, "sea.d", sea.get("d", 0.0), nonneg=True),
+        b=_number(ctx, "gear_loss.b", loss.get("b", 0.0), nonneg=True),
+        c=_number(ctx, "gear_loss.c", loss.get("c", 0.0), nonneg=True),
+        eps=_number(ctx, "gear_loss.eps", loss.get("eps", 0.01), positive=True),
+        limits=limits,
+        slow_rotor=_body(ctx, "slow_rotor", t["slow_rotor"]),
+        fast_rotor=_body(ctx, "fast_rotor", t["fast_rotor"]),
+    )
+
+
+def field_checker(path, d: dict, allowed):
+    """For a document read from `path`: refuse keys not in `allowed`, and return fail(field,
+    message), which raises the ModelFileError naming file and field."""
+    def fail(fld, msg):
+        raise ModelFileError(f"{path}: field '{fld}': {msg}")
+    for key in d:
+        if key not in allowed:
+            fail(key, f"unknown key (allowed: {', '.join(sorted(allowed))})")
+    return fail
+
+
+def read_toml(path, kind: str = "model") -> dict:
+    """A TOML document, or a ModelFileError that names the file (kind: model, problem, trajectory)."""
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except OSError as exc:
+        raise ModelFileError(f"{path}: cannot read {kind} file: {exc.strerror}") from exc
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ModelFileError(f"{path}: not valid TOML: {exc}") from exc

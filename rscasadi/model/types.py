@@ -1,0 +1,137 @@
+"""The constant model: bodies, joints and the arm (docs/user-guide/model.md section 4), as plain data.
+
+Everything here is numpy; the recursions read it and never change it.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
+TOP_KEYS = {"name", "gravity", "joints"}
+JOINT_KEYS = {"name", "origin_xyz", "origin_rpy", "gear_ratio", "sea", "gear_loss", "limits",
+              "link", "slow_rotor", "fast_rotor"}
+BODY_KEYS = {"mass", "com", "inertia"}
+SEA_KEYS = {"k1", "k3", "d"}
+GEAR_LOSS_KEYS = {"b", "c", "eps"}
+LIMIT_KEYS = {"tau", "dphi", "psi", "theta"}
+BODIES = ("link", "slow_rotor", "fast_rotor")
+
+
+class ModelFileError(ValueError):
+    """A model file breaks a rule of docs/user-guide/model.md section 4."""
+
+
+def rpy_matrix(rpy) -> np.ndarray:
+    """URDF convention: R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    r, p, y = rpy
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+@dataclass(frozen=True)
+class Body:
+    """A rigid body's inertial parameters in its own frame."""
+    mass: float
+    com: np.ndarray          # (3,) centre of mass in the body frame
+    inertia: np.ndarray      # (3, 3) about the centre of mass
+
+    @property
+    def inertia_origin(self) -> np.ndarray:
+        """Inertia about the frame origin (parallel-axis theorem): I_O = I_C + m (p.p 1 - p p^T)."""
+        p = self.com
+        return self.inertia + self.mass * (p @ p * np.eye(3) - np.outer(p, p))
+
+    @staticmethod
+    def from_spatial(M: np.ndarray) -> "Body":
+        """The inverse of eq. (11): mass, centre of mass and inertia about it from a 6x6 M."""
+        m = M[3, 3]
+        com = np.array([M[2, 4], M[0, 5], M[1, 3]]) / m
+        return Body(m, com, M[:3, :3] - m * (com @ com * np.eye(3) - np.outer(com, com)))
+
+    @property
+    def balanced(self) -> bool:
+        """Centre of mass on the z axis and inertia symmetric about it (MODEL.md section 3)."""
+        I = self.inertia
+        return (self.com[0] == 0.0 and self.com[1] == 0.0 and I[0, 0] == I[1, 1]
+                and I[0, 1] == 0.0 and I[0, 2] == 0.0 and I[1, 2] == 0.0)
+
+
+@dataclass(frozen=True)
+class Joint:
+    name: str
+    origin_xyz: np.ndarray   # J_j origin in the parent frame
+    origin_rpy: np.ndarray
+    gear_ratio: float        # mu_j
+    k1: float
+    k3: float
+    d: float
+    b: float
+    c: float
+    eps: float
+    limits: dict
+    link: Body
+    slow_rotor: Body
+    fast_rotor: Body
+
+    origin_R: np.ndarray | None = None   # J_j's rotation when it came from a URDF (else from origin_rpy)
+
+    @property
+    def R(self) -> np.ndarray:
+        """Rotation of J_j relative to the parent frame; the round-off of exact right angles
+        (cos(pi/2) = 6e-17) is set to 0 so that symbolic code folds it away."""
+        R = rpy_matrix(self.origin_rpy) if self.origin_R is None else np.array(self.origin_R, dtype=float)
+        R[np.abs(R) < 1e-15] = 0.0
+        return R
+
+    @property
+    def rotor_inertia(self) -> float:
+        """B_j = Izz_O(S_j) + mu_j^2 Izz_O(F_j) (MODEL.md section 3)."""
+        return float(self.slow_rotor.inertia_origin[2, 2]
+                     + self.gear_ratio ** 2 * self.fast_rotor.inertia_origin[2, 2])
+
+
+@dataclass(frozen=True)
+class ArmModel:
+    """The constant description of an n-joint FS-SEA arm; joints base to tip."""
+    name: str
+    gravity: np.ndarray
+    joints: tuple
+    path: str = "<memory>"
+    extra: dict = field(default_factory=dict, compare=False)
+
+    @property
+    def n(self) -> int:
+        return len(self.joints)
+
+    def column(self, attr: str) -> np.ndarray:
+        """One joint parameter as an (n,) array, e.g. column('gear_ratio')."""
+        return np.array([getattr(jt, attr) for jt in self.joints], dtype=float)
+
+
+def inertia_problem(inertia: np.ndarray, rtol: float = 1e-12) -> str | None:
+    """Why a 3x3 inertia about the centre of mass is not physical, or None."""
+    if not np.all(np.isfinite(inertia)):
+        return "has a value that is not finite"
+    eig = np.linalg.eigvalsh(inertia)
+    if eig[0] <= 0.0:
+        return f"not positive definite (principal moments {eig.tolist()})"
+    if eig[2] > eig[0] + eig[1] + rtol * eig[-1]:
+        return f"principal moments {eig.tolist()} break the triangle inequality"
+    return None
+
+
+def rpy_of(R) -> np.ndarray | None:
+    """Roll, pitch, yaw (URDF convention) of a rotation, or None where scipy's angles do not give
+    R back to 1e-12 (a gimbal lock it resolves badly)."""
+    from scipy.spatial.transform import Rotation
+    with warnings.catch_warnings():                                  # gimbal lock: checked below
+        warnings.simplefilter("ignore")
+        rpy = Rotation.from_matrix(R).as_euler("xyz")
+    return rpy if np.max(np.abs(rpy_matrix(rpy) - R)) <= 1e-12 else None

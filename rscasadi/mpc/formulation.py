@@ -1,0 +1,228 @@
+"""Nonlinear MPC on the complete model, generated to C (`rscasadi mpc PROBLEM.toml --out DIR`).
+
+Multiple shooting on the complete model: a state plan X (4n x N+1, at the ends of N intervals of
+length h) and a torque plan U (n x N, held on each interval); each interval is `substeps` RK4
+steps of `step`, its sensitivities from the structured `step_jacobian` (codegen.generate).
+Gauss-Newton SQP: the QP of each iteration is condensed onto dU (Bock & Plitt; the gaps of the
+shooting nodes enter its affine part); its motor-torque box is solved by a fixed number of
+primal-dual interior-point iterations (`box_qp`: no data-dependent loops, no allocation). `sqp_iterations = 1` is
+the real-time iteration (Diehl et al.: one full step per sample); more iterations take the
+longest of a fixed set of step sizes whose simulated rollout lowers the cost (else the shortest),
+so the work per sample is bounded. After the iterations the plan is shifted by one sample.
+
+Cost (per interval end k = 1..N): w_theta |theta_k - theta_ref_k|^2 + w_dtheta |dtheta_k -
+dtheta_ref_k|^2 + w_tau |tau_k|^2, and a penalty w_limits (|c| - 0.9 c_max)^2 on the SEA
+deflection psi and the slow-side speed dphi beyond 90 % of their limits (Gauss-Newton on the
+part active at the linearisation point); the motor torques are hard bounds.
+
+Problem file and C interface: docs/user-guide/problems.md (`problems/mpc_arm3.toml` is an example).
+
+Generated (DIR): `mpc_rti.c` (CasADi: mpc_rti(x, reference, X, U) -> tau, X_next, U_next and
+mpc_hold(x) -> X, U), `rscasadi_mpc.c` and `rscasadi_mpc.h` (the controller: static
+buffers, `mpc_init(x_measured)`, `mpc_step(x_measured, reference, tau_out)` for a trajectory,
+`mpc_step_to(x_measured, theta_target, tau_out)` for a target pose), `librscasadi_mpc.so`,
+`manifest.json`.  reference is 2n x N, column-major: theta_ref then dtheta_ref at t + k h.
+"""
+from __future__ import annotations
+
+import functools
+
+import casadi as ca
+import numpy as np
+
+from rscasadi.dynamics.arm import Arm
+from rscasadi.mpc.problem import SOFT, LINE_SEARCH, MPCProblem
+
+
+def interval_functions(arm: Arm, h: float, substeps: int):
+    """F: (x, tau) -> (x after h, A = dx/dx0, B = dx/dtau): `substeps` RK4 steps and their
+    structured Jacobians chained (A = A_s ... A_1, B = A_s (...) B_1 + ... + B_s); Fx: the state alone.
+    One substep (step, Jacobian and the chain's products) is one Function, straight-line SX when
+    the step Jacobian is SX (small arms), called `substeps` times: its C is generated once, so
+    the controller compiles in a fifth of the time of one straight-line interval, as fast."""
+    from rscasadi.codegen.generate import step_functions
+    n, hs = arm.n, h / substeps
+    step, step_jac = step_functions(arm)
+    sym = ca.SX if step_jac.is_a("SXFunction") else ca.MX
+    if sym is ca.SX:
+        step = step.expand()
+    z, tau, A, B = sym.sym("x", 4 * n), sym.sym("tau", n), sym.sym("A", 4 * n, 4 * n), sym.sym("B", 4 * n, n)
+    Ai, Bi = step_jac(z, tau, hs)
+    opts = {"cse": True} if sym is ca.SX else {}
+    substep = ca.Function("substep", [z, tau, A, B], [step(z, tau, hs), ca.mtimes(Ai, A), ca.mtimes(Ai, B) + Bi], opts)
+    substep_x = ca.Function("substep_x", [z, tau], [step(z, tau, hs)], opts)
+    x, u = ca.MX.sym("x", 4 * n), ca.MX.sym("tau", n)
+    zk, Ak, Bk, z_only = x, ca.MX.eye(4 * n), ca.MX.zeros(4 * n, n), x
+    for _ in range(substeps):
+        zk, Ak, Bk = substep(zk, u, Ak, Bk)
+        z_only = substep_x(z_only, u)
+    return ca.Function("interval", [x, u], [zk, Ak, Bk]), ca.Function("interval_x", [x, u], [z_only])
+
+
+def limit_arrays(arm: Arm) -> dict:
+    """The motor-torque, deflection and slow-side speed limits per joint (inf where none)."""
+    return {key: np.array([jt.limits.get(key, 1e3 if key == "tau" else np.inf) for jt in arm.model.joints])
+            for key in ("tau", "psi", "dphi")}
+
+
+def stage_residual(n: int, p: MPCProblem, limits: dict) -> ca.Function:
+    """(x_k, reference_k) -> (r, dr/dx): the weighted residual whose half squared norm is the stage
+    cost: tracking errors, and the psi and dphi excess beyond 90 % of their limits."""
+    x, ref = ca.SX.sym("x", 4 * n), ca.SX.sym("reference", 2 * n)
+    w = p.weights
+    parts = [np.sqrt(w["theta"]) * (x[:n] - ref[:n]), np.sqrt(w["dtheta"]) * (x[2 * n:3 * n] - ref[n:])]
+    for c, cmax in ((x[n:2 * n] - x[:n], limits["psi"]), (x[3 * n:], limits["dphi"])):
+        finite = np.isfinite(cmax)
+        if finite.any():
+            excess = ca.fmax(ca.fabs(c) - SOFT * np.where(finite, cmax, 1.0), 0) * ca.sign(c)
+            parts.append(np.sqrt(w["limits"]) * finite * excess)
+    r = ca.vertcat(*parts)
+    return ca.Function("stage_residual", [x, ref], [r, ca.jacobian(r, x)])
+
+
+class _Linearisation:
+    """The Gauss-Newton QP of the multiple-shooting NLP at (X, U), condensed (Bock & Plitt):
+    dx_0 = x_measured - X_0 (initial-value embedding); dx_{k+1} = A_k dx_k + B_k du_k + c_k with the
+    gap c_k = F(X_k, U_k) - X_{k+1}; so dx_k = E_k + G_k dU, and the QP is in dU alone."""
+
+    def __init__(self, F, residual, p: MPCProblem, xm, ref, X, U):
+        n, N = U.shape[0], p.horizon
+        nx = X.shape[0]
+        self.H, self.g = p.weights["tau"] * ca.MX.eye(n * N), p.weights["tau"] * ca.vec(U)
+        E, G = xm - X[:, 0], ca.MX.zeros(nx, n * N)
+        self.E, self.G = [E], [G]
+        for k in range(N):
+            xp, A, B = F(X[:, k], U[:, k])
+            E = ca.mtimes(A, E) + xp - X[:, k + 1]
+            G = ca.horzcat(ca.mtimes(A, G[:, :n * k]), B, ca.MX.zeros(nx, n * (N - k - 1)))
+            self.E.append(E)
+            self.G.append(G)
+            r, Jx = residual(X[:, k + 1] + E, ref[:, k])
+            J = ca.mtimes(Jx, G)
+            self.H += ca.mtimes(J.T, J)
+            self.g += ca.mtimes(J.T, r)
+
+    def step(self, dU):
+        """dX = (E_k + G_k dU)_k."""
+        return ca.horzcat(*[E + ca.mtimes(G, dU) for E, G in zip(self.E, self.G)])
+
+
+def rollout(Fx, residual, p: MPCProblem, xm, ref, U):
+    """The NLP's cost along the plan's states simulated from the measured state, and those states:
+    the measure of progress of the line search (a condensed, hence gap-free, merit function)."""
+    xs, total = [xm], 0.5 * p.weights["tau"] * ca.sumsqr(U)
+    for k in range(p.horizon):
+        xs.append(Fx(xs[-1], U[:, k]))
+        total += 0.5 * ca.sumsqr(residual(xs[-1], ref[:, k])[0])
+    return total, ca.horzcat(*xs)
+
+
+def _max_step(v, dv, fraction: float):
+    """The longest step <= 1 keeping v + a dv > 0, times the fraction to the boundary."""
+    neg = dv < 0
+    ratios = neg * (-v / (dv - (1 - neg))) + (1 - neg) * 1e30
+    return ca.fmin(1.0, fraction * ca.mmin(ratios))
+
+
+@functools.lru_cache(maxsize=None)
+def _ipm_iteration(m: int) -> ca.Function:
+    """One Mehrotra predictor-corrector iteration (Nocedal & Wright, alg. 16.4) of box_qp on the
+    (scaled) QP of size m, as straight-line SX: the reduced KKT matrix is factored once (Cholesky)
+    and its factor serves both the predictor and the corrector."""
+    H, g, lo, hi, d, sl, su, zl, zu = (ca.SX.sym(name, *shape) for name, shape in (
+        ("H", (m, m)), ("g", (m, 1)), ("lo", (m, 1)), ("hi", (m, 1)), ("d", (m, 1)),
+        ("sl", (m, 1)), ("su", (m, 1)), ("zl", (m, 1)), ("zu", (m, 1))))
+    rd, rl, ru = ca.mtimes(H, d) + g - zl + zu, d - lo - sl, hi - d - su
+    mu = (ca.dot(sl, zl) + ca.dot(su, zu)) / (2 * m)
+    R = ca.chol(H + ca.diag(zl / sl + zu / su))                       # R' R = K
+
+    def newton(sigma_mu, cl, cu):                                     # the reduced KKT system, eq. (16.58)
+        rhs = -rd + (sigma_mu - sl * zl - cl - zl * rl) / sl - (sigma_mu - su * zu - cu - zu * ru) / su
+        dd = ca.solve(R, ca.solve(R.T, rhs))
+        dsl, dsu = dd + rl, ru - dd
+        return dd, dsl, dsu, (sigma_mu - sl * zl - cl - zl * dsl) / sl, (sigma_mu - su * zu - cu - zu * dsu) / su
+
+    def longest(dsl, dsu, dzl, dzu, fraction):
+        return ca.fmin(ca.fmin(_max_step(sl, dsl, fraction), _max_step(su, dsu, fraction)),
+                       ca.fmin(_max_step(zl, dzl, fraction), _max_step(zu, dzu, fraction)))
+
+    dd, dsl, dsu, dzl, dzu = newton(0, 0, 0)                          # predictor (affine scaling)
+    a = longest(dsl, dsu, dzl, dzu, 1)
+    mu_aff = (ca.dot(sl + a * dsl, zl + a * dzl) + ca.dot(su + a * dsu, zu + a * dzu)) / (2 * m)
+    dd, dsl, dsu, dzl, dzu = newton((mu_aff / mu) ** 3 * mu, dsl * dzl, dsu * dzu)     # corrector
+    a = longest(dsl, dsu, dzl, dzu, 0.995)
+    return ca.Function("box_qp_iteration", [H, g, lo, hi, d, sl, su, zl, zu],
+                       [d + a * dd, sl + a * dsl, su + a * dsu, zl + a * dzl, zu + a * dzu], {"cse": True})
+
+
+def box_qp(H, g, lo, hi, iterations: int):
+    """min 1/2 d' H d + g' d subject to lo <= d <= hi: `iterations` primal-dual interior-point
+    iterations with Mehrotra's predictor-corrector (`_ipm_iteration`), slacks for both bounds, the
+    QP scaled to O(1) first.  Fixed work and no allocation in C.  On this MPC's cold steps to far
+    poses it reaches qpOASES' solution to 3e-9 in 15 iterations (tests/test_mpc.py).
+    Why not a generated solver: CasADi's qrqp returned bound-violating 'successes' on these QPs
+    (casadi issue 3141), DAQP's generated C allocates in every call, and projected Newton without
+    a line search cycles (with one it stalls at this conditioning, ~1e8)."""
+    m = g.shape[0]
+    c = ca.mmax(ca.fabs(g)) + ca.mmax(ca.diag(H))
+    H, g = H / c, g / c
+    d = ca.fmin(ca.fmax(ca.MX.zeros(m), lo), hi)
+    sl, su, zl, zu = (ca.MX.ones(m) for _ in range(4))
+    iteration = _ipm_iteration(m)
+    for _ in range(iterations):
+        d, sl, su, zl, zu = iteration(H, g, lo, hi, d, sl, su, zl, zu)
+    return ca.fmin(ca.fmax(d, lo), hi)
+
+
+def shifted(Z, alpha: float):
+    """The plan moved forward by alpha intervals (one sample): linear interpolation, last column held."""
+    Zn = ca.horzcat(Z[:, 1:], Z[:, -1])
+    return (1 - alpha) * Z + alpha * Zn
+
+
+def rti_function(arm: Arm, p: MPCProblem) -> ca.Function:
+    """mpc_rti(x, reference, X, U) -> (tau, X_next, U_next): `sqp_iterations`
+    Gauss-Newton SQP iterations of the multiple-shooting NLP (1: the real-time iteration; more:
+    each with a line search on the rollout's cost), then the plan shifted by one sample."""
+    n, N, nx = arm.n, p.horizon, 4 * arm.n
+    F, Fx = interval_functions(arm, p.interval, p.substeps)
+    limits = limit_arrays(arm)
+    residual = stage_residual(n, p, limits)
+    xm, ref = ca.MX.sym("x", nx), ca.MX.sym("reference", 2 * n, N)
+    X0, U0 = ca.MX.sym("X", nx, N + 1), ca.MX.sym("U", n, N)
+    X, U, phi0 = X0, U0, None
+    tau_max = np.tile(limits["tau"], N)
+    for _ in range(p.sqp_iterations):
+        lin = _Linearisation(F, residual, p, xm, ref, X, U)
+        dU = box_qp(lin.H, lin.g, -tau_max - ca.vec(U), tau_max - ca.vec(U), p.qp_iterations)
+        dX = lin.step(dU)
+        if p.sqp_iterations == 1:                                         # RTI: the full step
+            X, U = X + dX, U + ca.reshape(dU, n, N)
+            continue
+        # step sizes tried in a fixed set (fixed work in C): the longest whose rollout lowers the
+        # cost, else the shortest; the states become that rollout (the gaps close), and its cost
+        # is the next iteration's reference
+        if phi0 is None:
+            phi0 = rollout(Fx, residual, p, xm, ref, U)[0]
+        dU = ca.reshape(dU, n, N)
+        alpha = ca.MX(LINE_SEARCH[-1])
+        phi_new, X_new = rollout(Fx, residual, p, xm, ref, U + alpha * dU)
+        for a in reversed(LINE_SEARCH[:-1]):
+            phi, Xa = rollout(Fx, residual, p, xm, ref, U + a * dU)
+            better = phi < phi0
+            alpha, phi_new, X_new = ca.if_else(better, a, alpha), ca.if_else(better, phi, phi_new), ca.if_else(better, Xa, X_new)
+        X, U, phi0 = X_new, U + alpha * dU, phi_new
+    X = ca.horzcat(xm, X[:, 1:])
+    alpha = p.sample_time / p.interval
+    return ca.Function("mpc_rti", [xm, ref, X0, U0], [U[:, 0], shifted(X, alpha), shifted(U, alpha)],
+                       ["x", "reference", "X", "U"], ["tau", "X_next", "U_next"])
+
+
+def hold_function(arm: Arm, p: MPCProblem) -> ca.Function:
+    """mpc_hold(x) -> (X, U): the initial plan, the arm held where it is over the horizon."""
+    n = arm.n
+    x = ca.SX.sym("x", 4 * n)
+    z = ca.SX.zeros(n)
+    tau = arm.inverse_dynamics()(x[:n], x[n:2 * n], z, z, z, z)[0]
+    return ca.Function("mpc_hold", [x], [ca.repmat(x, 1, p.horizon + 1), ca.repmat(tau, 1, p.horizon)],
+                       ["x"], ["X", "U"])

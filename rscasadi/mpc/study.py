@@ -1,0 +1,184 @@
+"""The closed-loop evidence: the C MPC, feedforward alone and feedforward + PD on a plant that is
+not the controllers' model, at 1 kHz with quantised encoders."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from rscasadi.dynamics.arm import Arm, load
+from rscasadi.mpc.compiled import CompiledMPC
+from rscasadi.mpc.formulation import limit_arrays
+from rscasadi.mpc.generate import generate_mpc
+from rscasadi.mpc.problem import load_mpc_problem
+
+
+def heavier_tip(arm: Arm, factor: float = 1.2) -> Arm:
+    """The same arm with its last link's mass (and inertia) scaled: the plant of the mismatch study."""
+    import dataclasses
+    from rscasadi.model.modelfile import Body
+    last = arm.model.joints[-1]
+    link = Body(last.link.mass * factor, last.link.com, last.link.inertia * factor)
+    joints = arm.model.joints[:-1] + (dataclasses.replace(last, link=link),)
+    return Arm(dataclasses.replace(arm.model, joints=joints, name=arm.model.name + f"-tip-x{factor:g}"))
+
+
+def plant_step(plant: Arm, dt: float) -> ca.Function:
+    """(x, tau) -> x after dt: the simulated arm, four RK4 steps of its complete model."""
+    from rscasadi.codegen import rk4
+    n, fd = plant.n, plant.forward_dynamics()
+    xs, us = ca.SX.sym("x", 4 * n), ca.SX.sym("u", n)
+    z = xs
+    for _ in range(4):
+        z = rk4(lambda v: ca.vertcat(v[2 * n:], *fd(*ca.vertsplit(v, n), us)), z, dt / 4)[0]
+    return ca.Function("advance", [xs, us], [z])
+
+
+def reach_pose(problem_file, mpc_dir, theta_target, seconds: float = 1.0, plant: Arm | None = None) -> dict:
+    """From rest at theta = 0 to a target pose with the C MPC's mpc_step_to, on the problem's arm
+    (or `plant`), exact measurements: final angle error and speed, largest limit violation
+    (fraction of the limit beyond it), the torques and the time per step."""
+    p = load_mpc_problem(problem_file)
+    arm = load(p.model_path) if plant is None else plant
+    from rscasadi.dynamics.statics import rest_state
+    n, advance, limits = arm.n, plant_step(arm, p.sample_time), limit_arrays(arm)
+    target = np.asarray(theta_target, float)
+    mpc = CompiledMPC(mpc_dir)
+    x = rest_state(arm, np.zeros(n))
+    mpc.init(x)
+    violation, taus, times = 0.0, [], []
+    for _ in range(int(round(seconds / p.sample_time))):
+        tau, t, flag = mpc.step_to(x, target)
+        if flag != 0:
+            raise RuntimeError(f"mpc_step_to returned {flag}")
+        taus.append(tau)
+        times.append(t)
+        x = np.array(advance(x, tau)).ravel()
+        violation = max(violation, float(np.max(np.abs(x[n:2 * n] - x[:n]) / limits["psi"] - 1)),
+                        float(np.max(np.abs(x[3 * n:]) / limits["dphi"] - 1)))
+    return {"final_angle_error": float(np.max(np.abs(x[:n] - target))), "final_speed": float(np.max(np.abs(x[2 * n:]))),
+            "max_limit_violation": max(violation, 0.0), "tau": np.array(taus),
+            "step_median_s": float(np.median(times)), "step_worst_s": float(np.max(times))}
+
+
+def closed_loop(problem_file, mpc_dir, duration: float | None = None, tip_factor: float = 1.2,
+                log=print, model=None, plant: Arm | None = None, quantised: bool = True,
+                traces: dict | None = None) -> dict:
+    """Controllers from one model (the problem's, or the model file `model`, e.g. an identified
+    one; the C MPC in `mpc_dir` must be generated from it) on a plant that differs (`plant`, by
+    default the model with a heavier tip), at 1 kHz, encoders quantised (speeds by backward
+    differences; `quantised=False`: the exact state): feedforward alone, feedforward + motor-side PD, the C MPC.  Returns per
+    controller the tracking error (max, RMS), the largest limit violation and, for the MPC, its
+    time per step (measured in C); `traces`, if given, receives per controller the time, the error
+    over time and (MPC) the step times, for `plot_closed_loop`."""
+    from rscasadi.sim.sensors import quanta              # the same encoders as the identification logs
+    from rscasadi.sim.simulation import feedforward
+    from rscasadi.sim.trajectory import load_trajectory
+    p = load_mpc_problem(problem_file)
+    nominal = load(p.model_path if model is None else model)
+    plant = heavier_tip(nominal, tip_factor) if plant is None else plant
+    traj = load_trajectory(p.trajectory)
+    n, dt = nominal.n, p.sample_time
+    T = traj.duration if duration is None else duration
+    K = int(round(T / dt))
+    t = np.arange(K + 1) * dt
+    ff = feedforward(nominal, traj, t)
+    advance = plant_step(plant, dt)
+    mu = nominal.model.column("gear_ratio")
+    q_link, q_motor = quanta(mu)
+    B = np.array([jt.rotor_inertia for jt in nominal.model.joints])
+    wn = 2 * np.pi * 4.0
+    kp, kd = B * wn ** 2, 2 * 0.8 * B * wn
+    limits = limit_arrays(plant)
+    mpc = CompiledMPC(mpc_dir)
+    results = {}
+    for name in ("feedforward", "feedforward + PD", "MPC (C)"):
+        x = ff["x0"].copy()
+        meas_prev = np.concatenate([np.round(x[:n] / q_link) * q_link, np.round(x[n:2 * n] / q_motor) * q_motor])
+        errors, violation, times = [], 0.0, []
+        if name == "MPC (C)":
+            mpc.init(x)
+        for k in range(K):
+            meas = np.concatenate([np.round(x[:n] / q_link) * q_link, np.round(x[n:2 * n] / q_motor) * q_motor])
+            speeds = (meas - meas_prev) / dt if k else x[2 * n:]
+            meas_prev = meas
+            if not quantised:
+                meas, speeds = x[:2 * n], x[2 * n:]
+            if name == "MPC (C)":
+                tk = t[k] + p.interval * np.arange(1, p.horizon + 1)
+                q, dq = traj(np.minimum(tk, traj.duration))[:2]
+                tau, seconds, flag = mpc.step(np.concatenate([meas, speeds]), np.vstack([q, dq]))
+                times.append(seconds)
+            else:
+                tau = ff["tau"][:, k].copy()
+                if name == "feedforward + PD":
+                    tau -= (kp * (ff["phi"][:, k] - meas[n:]) + kd * (ff["dphi"][:, k] - speeds[n:])) / mu
+            tau = np.clip(tau, -limits["tau"], limits["tau"])
+            x = np.array(advance(x, tau)).ravel()
+            errors.append(np.max(np.abs(x[:n] - ff["theta_d"][:, k + 1])))
+            violation = max(violation, float(np.max(np.abs(x[n:2 * n] - x[:n]) / limits["psi"] - 1)),
+                            float(np.max(np.abs(x[3 * n:]) / limits["dphi"] - 1)))
+        e = np.array(errors)
+        if traces is not None:
+            traces[name] = {"t": t[1:K + 1], "error": e, "step_s": np.array(times)}
+        results[name] = {"max_error": float(e.max()), "max_error_at_s": float(t[1 + int(np.argmax(e))]),
+                         "rms_error": float(np.sqrt(np.mean(e ** 2))),
+                         "max_limit_violation": max(violation, 0.0)}
+        if times:
+            results[name].update(step_median_s=float(np.median(times)), step_worst_s=float(np.max(times)))
+        log(f"{name:18s} max error {e.max():.2e} rad, RMS {results[name]['rms_error']:.2e} rad, "
+            f"limit violation {max(violation, 0.0):.1e}"
+            + (f", step median {np.median(times) * 1e6:.0f} us, worst {np.max(times) * 1e6:.0f} us" if times else ""))
+    return results
+
+
+def study(problem_file, build, identified_model=None, true_arm: Arm | None = None, log=print,
+          figure: Path | None = None) -> dict:
+    """The closed-loop evidence, whole trajectory: the problem's model against a 20 % heavier tip;
+    if given, the identified model's controllers (MPC generated into `build`) against the true arm
+    that produced the identification logs.  `figure`: where to draw them (plot_closed_loop)."""
+    build = Path(build)
+    res, traces = {}, {}
+    log("closed loop: the model's controllers on a plant with a 20 % heavier tip, quantised encoders")
+    generate_mpc(problem_file, build / "mpc", log=log)
+    res["heavier_tip"] = closed_loop(problem_file, build / "mpc", log=log, traces=traces.setdefault("heavier_tip", {}))
+    if identified_model is not None:
+        log("closed loop: the identified model's controllers on the true arm, quantised encoders")
+        generate_mpc(problem_file, build / "mpc_identified", log=log, model=identified_model)
+        res["identified_on_true_arm"] = closed_loop(problem_file, build / "mpc_identified", log=log,
+                                                    model=identified_model, plant=true_arm,
+                                                    traces=traces.setdefault("identified_on_true_arm", {}))
+    if figure is not None:
+        plot_closed_loop(traces, figure)
+        log(f"wrote {figure}")
+    return res
+
+
+CASES = {"heavier_tip": "controllers' model, plant with a 20 % heavier tip",
+         "identified_on_true_arm": "identified model, true arm"}
+
+
+def plot_closed_loop(traces: dict, path: Path):
+    """Per case (a column): the tracking error of each controller over time (log scale), and the
+    C MPC's time per step against the 1 ms budget of 1 kHz."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(2, len(traces), figsize=(6 * len(traces), 6.5), squeeze=False)
+    for col, (case, ctrl) in enumerate(traces.items()):
+        ax = axes[0, col]
+        for name, tr in ctrl.items():
+            ax.semilogy(tr["t"], np.maximum(tr["error"], 1e-9), label=name, lw=1)
+        ax.set(title=CASES.get(case, case), xlabel="t (s)", ylabel="max |theta - theta_d| (rad)")
+        ax.legend(fontsize=8)
+        ax = axes[1, col]
+        steps = ctrl["MPC (C)"]["step_s"] * 1e6
+        ax.plot(ctrl["MPC (C)"]["t"], steps, ".", ms=1.5)
+        ax.axhline(1000.0, color="r", lw=1, label="1 ms (1 kHz)")
+        ax.set(xlabel="t (s)", ylabel="mpc_step in C (us)", ylim=(0, max(1100.0, steps.max() * 1.05)),
+               title=f"median {np.median(steps):.0f} us, worst {steps.max():.0f} us")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,401 @@
+/* fatrop through its own C interface (fatrop/ocp/OCPCInterface.h, shipped in the CasADi wheel),
+   stage by stage, on the NLP's compiled functions: what CasADi's fatrop plugin does, without its
+   per-call sparse projections and function-call layers (rscasadi/ocp/fatrop/driver.py).
+
+   The NLP is ordered as CasADi's manual structure: variables x_0 u_0 x_1 u_1 ... x_N; rows per
+   stage k the nx[k+1] gap rows x_{k+1} - F_k(x_k, u_k) then the stage's path rows.  fatrop's
+   per stage data (u first, then x; its dynamics x_{k+1} = F_k):
+     BAbt_k = [B' ; A' ; b'] with b = F_k - x_{k+1},  Ggt_k = [G' ; g'] for equalities (g - lb),
+     Ggt_ineq_k = [G' ; g'] for inequalities,  RSQrqt_k = [H ; grad L'] (u first).
+   The Jacobian's and Hessian's nonzeros go to these blocks by index maps made once in Python;
+   the blocks' other entries are zero from the start and every call writes the same places.
+   The full_eval callbacks return 1: done, no per-stage callbacks, and (unlike 2) fatrop still
+   subtracts the slacks from the inequality rows of the constraint violation. */
+#include <stdlib.h>
+#include <string.h>
+#include <math.h>
+#include <stdio.h>
+#include <blasfeo.h>
+#include <fatrop/ocp/OCPCInterface.h>
+
+typedef long long casadi_int;
+typedef int (*fn_t)(const double**, double**, casadi_int*, double*, int);
+
+typedef struct {
+  int K, nv, ng;                           /* stages (N + 1), NLP variables, NLP rows */
+  const int *nx, *nu, *xoff, *roff;        /* per stage: sizes, first variable, first row */
+  const int *a_eq, *a_eq_idx, *a_in, *a_in_idx;    /* path rows: equalities, inequalities */
+  const int *x_eq, *x_eq_idx, *x_in, *x_in_idx;    /* bounded variables, likewise */
+  int nnz_j, nnz_h, n_jbuf, n_hbuf;
+  int n_jparts, n_hparts;                  /* the derivative functions' outputs of nonzeros */
+  const int *jt, *ht;                      /* block index of each Jacobian / Hessian nonzero
+                                              (-1: none, -2: x_{k+1} in a gap row, must be 1;
+                                              Hessian -1: added after, by hadd) */
+  const double* js;                        /* its sign (-1: A, B of the gap rows) */
+  const int *jpart, *hpart;                /* where each output's nonzeros start in a, h */
+  const int *jorder, *jstart;              /* the Jacobian's nonzeros stage by stage: stage k's are
+                                              jorder[jstart[k] .. jstart[k + 1]) */
+  const int *horder, *hstart;              /* the Hessian's written ones, likewise */
+  const int *hadd, *hadd_to, *hadd_start;  /* its nonzeros that share a place with another (added),
+                                              likewise by stage */
+  const int *bab_off, *geq_off, *gin_off, *rsq_off;
+  fn_t f, g, grad_f, jac_g, hess_l;
+  fn_t fg;                                 /* (x, p) -> (f, g), or NULL: then jac_g's first output is g */
+  int sz_arg, sz_res, sz_iw, sz_w;
+} rsf_problem;
+
+typedef struct {
+  const rsf_problem* P;
+  const double *p, *lbx, *ubx, *lbg, *ubg, *x0;
+  double *x, *gv, *a, *h, *lam, *grad, *jbuf, *hbuf;
+  double *gx, fv;                          /* with fg: f and g (gv) are those at gx */
+  int g_valid;
+  const double** arg;
+  double** res;
+  casadi_int* iw;
+  double* w;
+  int failed, bad_gap;
+} rsf_data;
+
+#define D ((rsf_data*)user_data)
+
+static int pos(const rsf_problem* P, int k, int v) {      /* a stage variable's place: u, then x */
+  int i = v - P->xoff[k];
+  return i < P->nx[k] ? P->nu[k] + i : i - P->nx[k];
+}
+
+static void read_primal(rsf_data* d, const double* primal, const struct FatropOcpCDims* s) {
+  const rsf_problem* P = d->P;
+  int k;
+  for (k = 0; k < P->K; ++k) {
+    memcpy(d->x + P->xoff[k] + P->nx[k], primal + s->ux_offs[k], sizeof(double) * P->nu[k]);
+    memcpy(d->x + P->xoff[k], primal + s->ux_offs[k] + P->nu[k], sizeof(double) * P->nx[k]);
+  }
+}
+
+/* one NLP function with outputs of sizes n[]; an error (e.g. the kernel's Newton failing) leaves
+   NaN in every output for fatrop to reject */
+static void call(rsf_data* d, fn_t f, const double** in, int n_in, double** out, const int* n, int n_out) {
+  int i, j;
+  for (i = 0; i < n_in; ++i) d->arg[i] = in[i];
+  for (i = 0; i < n_out; ++i) d->res[i] = out[i];
+  if (f(d->arg, d->res, d->iw, d->w, 0)) {
+    d->failed = 1;
+    for (i = 0; i < n_out; ++i) for (j = 0; j < n[i]; ++j) out[i][j] = NAN;
+  }
+}
+
+/* f and g at d->x, evaluated together once per point: fatrop asks for g at a trial point, then f
+   there, and (accepted) for the Jacobian there, whose constant terms are g again */
+static void eval_fg(rsf_data* d) {
+  const rsf_problem* P = d->P;
+  const double* in[2] = {d->x, d->p};
+  double* out[2] = {&d->fv, d->gv};
+  const int n[2] = {1, P->ng};
+  if (d->g_valid && !memcmp(d->gx, d->x, sizeof(double) * P->nv)) return;
+  call(d, P->fg, in, 2, out, n, 2);
+  memcpy(d->gx, d->x, sizeof(double) * P->nv);
+  d->g_valid = 1;
+}
+
+static fatrop_int get_nx(fatrop_int k, void* user_data) { return D->P->nx[k < D->P->K ? k : D->P->K - 1]; }
+static fatrop_int get_nu(fatrop_int k, void* user_data) { return D->P->nu[k]; }
+static fatrop_int get_ng(fatrop_int k, void* user_data) {
+  const rsf_problem* P = D->P;
+  return P->a_eq_idx[k + 1] - P->a_eq_idx[k] + P->x_eq_idx[k + 1] - P->x_eq_idx[k];
+}
+static fatrop_int get_ng_ineq(fatrop_int k, void* user_data) {
+  const rsf_problem* P = D->P;
+  return P->a_in_idx[k + 1] - P->a_in_idx[k] + P->x_in_idx[k + 1] - P->x_in_idx[k];
+}
+static fatrop_int get_horizon(void* user_data) { return D->P->K; }
+
+static fatrop_int get_bounds(double* lo, double* up, fatrop_int k, void* user_data) {
+  const rsf_problem* P = D->P;
+  int i, c = 0;
+  if (!D->lbg) {                           /* while the solver is built: every solve reads them again */
+    for (i = 0; i < get_ng_ineq(k, user_data); ++i) { lo[i] = -INFINITY; up[i] = INFINITY; }
+    return 0;
+  }
+  for (i = P->a_in_idx[k]; i < P->a_in_idx[k + 1]; ++i, ++c) { lo[c] = D->lbg[P->a_in[i]]; up[c] = D->ubg[P->a_in[i]]; }
+  for (i = P->x_in_idx[k]; i < P->x_in_idx[k + 1]; ++i, ++c) { lo[c] = D->lbx[P->x_in[i]]; up[c] = D->ubx[P->x_in[i]]; }
+  return 0;
+}
+static fatrop_int initial_xk(double* xk, fatrop_int k, void* user_data) {
+  memcpy(xk, D->x0 + D->P->xoff[k], sizeof(double) * D->P->nx[k]);
+  return 0;
+}
+static fatrop_int initial_uk(double* uk, fatrop_int k, void* user_data) {
+  memcpy(uk, D->x0 + D->P->xoff[k] + D->P->nx[k], sizeof(double) * D->P->nu[k]);
+  return 0;
+}
+
+/* the last row of stage k's block, column c */
+#define LAST(buf, k, c) (buf)[(P->nx[k] + P->nu[k]) + (c) * (P->nx[k] + P->nu[k] + 1)]
+
+/* stage k's blocks of the Jacobian: the gap rows' constants, the identity rows of bounded
+   variables, packed for fatrop (each stage its own blocks: the stages run on threads) */
+static void jac_stage(rsf_data* d, int k, struct blasfeo_dmat* BAbt, struct blasfeo_dmat* Ggt,
+                      struct blasfeo_dmat* Ggt_ineq) {
+  const rsf_problem* P = d->P;
+  int i, c, ld = P->nx[k] + P->nu[k] + 1;
+  double *B = d->jbuf + P->bab_off[k], *G = d->jbuf + P->geq_off[k], *I = d->jbuf + P->gin_off[k];
+  if (k < P->K - 1) {
+    for (i = 0; i < P->nx[k + 1]; ++i) LAST(B, k, i) = d->lbg[P->roff[k] + i] - d->gv[P->roff[k] + i];
+    blasfeo_pack_dmat(ld, P->nx[k + 1], B, ld, BAbt + k, 0, 0);
+  }
+  c = 0;
+  for (i = P->a_eq_idx[k]; i < P->a_eq_idx[k + 1]; ++i, ++c) LAST(G, k, c) = d->gv[P->a_eq[i]] - d->lbg[P->a_eq[i]];
+  for (i = P->x_eq_idx[k]; i < P->x_eq_idx[k + 1]; ++i, ++c) {
+    G[pos(P, k, P->x_eq[i]) + c * ld] = 1;
+    LAST(G, k, c) = d->x[P->x_eq[i]] - d->lbx[P->x_eq[i]];
+  }
+  if (c) blasfeo_pack_dmat(ld, c, G, ld, Ggt + k, 0, 0);
+  c = 0;
+  for (i = P->a_in_idx[k]; i < P->a_in_idx[k + 1]; ++i, ++c) LAST(I, k, c) = d->gv[P->a_in[i]];
+  for (i = P->x_in_idx[k]; i < P->x_in_idx[k + 1]; ++i, ++c) {
+    I[pos(P, k, P->x_in[i]) + c * ld] = 1;
+    LAST(I, k, c) = d->x[P->x_in[i]];
+  }
+  if (c) blasfeo_pack_dmat(ld, c, I, ld, Ggt_ineq + k, 0, 0);
+}
+
+static fatrop_int constr_jac(const double* primal, const double* sp, const double* gp, struct blasfeo_dmat* BAbt,
+                             struct blasfeo_dmat* Ggt, struct blasfeo_dmat* Ggt_ineq,
+                             const struct FatropOcpCDims* s, void* user_data) {
+  rsf_data* d = D;
+  const rsf_problem* P = d->P;
+  const double* in[2] = {d->x, d->p};
+  double* out[1 + P->n_jparts];
+  int n[1 + P->n_jparts];
+  int i, k, bad = 0, g = P->fg ? 0 : 1;      /* outputs before the Jacobian's parts: g, or none */
+  out[0] = d->gv; n[0] = P->ng;
+  for (k = 0; k < P->n_jparts; ++k) { out[g + k] = d->a + P->jpart[k]; n[g + k] = P->jpart[k + 1] - P->jpart[k]; }
+  read_primal(d, primal, s);
+  if (P->fg) eval_fg(d);
+  call(d, P->jac_g, in, 2, out, n, g + P->n_jparts);
+  #pragma omp parallel for schedule(static) private(i) reduction(|:bad)
+  for (k = 0; k < P->K; ++k) {
+    for (i = P->jstart[k]; i < P->jstart[k + 1]; ++i) {
+      int e = P->jorder[i];
+      if (P->jt[e] >= 0) d->jbuf[P->jt[e]] = P->js[e] * d->a[e];
+      else if (P->jt[e] == -2 && d->a[e] != 1) bad = 1;             /* x_{k+1}'s coefficient */
+    }
+    jac_stage(d, k, BAbt, Ggt, Ggt_ineq);
+  }
+  if (bad) d->bad_gap = 1;
+  return 1;
+}
+
+static fatrop_int constr_viol(const double* primal, const double* sp, const double* gp, double* res,
+                              const struct FatropOcpCDims* s, void* user_data) {
+  rsf_data* d = D;
+  const rsf_problem* P = d->P;
+  const double* in[2] = {d->x, d->p};
+  double* out[1] = {d->gv};
+  int k, i, c;
+  read_primal(d, primal, s);
+  if (P->fg) eval_fg(d);
+  else call(d, P->g, in, 2, out, &P->ng, 1);
+  for (k = 0; k < P->K; ++k) {
+    c = 0;
+    for (i = P->a_in_idx[k]; i < P->a_in_idx[k + 1]; ++i) res[s->g_ineq_offs[k] + c++] = d->gv[P->a_in[i]];
+    for (i = P->x_in_idx[k]; i < P->x_in_idx[k + 1]; ++i) res[s->g_ineq_offs[k] + c++] = d->x[P->x_in[i]];
+    c = 0;
+    for (i = P->a_eq_idx[k]; i < P->a_eq_idx[k + 1]; ++i) res[s->g_offs[k] + c++] = d->gv[P->a_eq[i]] - d->lbg[P->a_eq[i]];
+    for (i = P->x_eq_idx[k]; i < P->x_eq_idx[k + 1]; ++i) res[s->g_offs[k] + c++] = d->x[P->x_eq[i]] - d->lbx[P->x_eq[i]];
+    if (k < P->K - 1)
+      for (i = 0; i < P->nx[k + 1]; ++i) res[s->dyn_eq_offs[k] + i] = d->lbg[P->roff[k] + i] - d->gv[P->roff[k] + i];
+  }
+  return 1;
+}
+
+static fatrop_int obj_grad(double scale, const double* primal, const double* sp, const double* gp, double* res,
+                           const struct FatropOcpCDims* s, void* user_data) {
+  rsf_data* d = D;
+  const rsf_problem* P = d->P;
+  const double* in[2] = {d->x, d->p};
+  double* out[1] = {d->grad};
+  int k, i;
+  read_primal(d, primal, s);
+  call(d, P->grad_f, in, 2, out, &P->nv, 1);
+  for (k = 0; k < P->K; ++k) {
+    for (i = 0; i < P->nu[k]; ++i) res[s->ux_offs[k] + i] = scale * d->grad[P->xoff[k] + P->nx[k] + i];
+    for (i = 0; i < P->nx[k]; ++i) res[s->ux_offs[k] + P->nu[k] + i] = scale * d->grad[P->xoff[k] + i];
+  }
+  return 1;
+}
+
+static fatrop_int obj(double scale, const double* primal, const double* sp, const double* gp, double* res,
+                      const struct FatropOcpCDims* s, void* user_data) {
+  rsf_data* d = D;
+  const double* in[2] = {d->x, d->p};
+  double* out[1] = {res};
+  const int one = 1;
+  read_primal(d, primal, s);
+  if (d->P->fg) {
+    eval_fg(d);
+    *res = d->fv;
+  } else call(d, d->P->f, in, 2, out, &one, 1);
+  *res *= scale;
+  return 1;
+}
+
+/* fatrop's Lagrangian: scale f + lam_dyn' F_k + lam_eq' g_eq + lam_ineq' g_ineq (+ bound rows);
+   the NLP's gap rows are x_{k+1} - F_k, so they take -lam_dyn and x_{k+1} gets lam_dyn back.
+   The last row (the Lagrangian's gradient) is written as CasADi's plugin writes it; fatrop 1.1.8
+   sets that row itself before it uses it (a wrong one here changes no iterate: tested). */
+static fatrop_int lag_hess(double scale, const double* primal, const double* lam_data, const double* sp,
+                           const double* gp, struct blasfeo_dmat* RSQrqt, const struct FatropOcpCDims* s,
+                           void* user_data) {
+  rsf_data* d = D;
+  const rsf_problem* P = d->P;
+  const double* in[4] = {d->x, d->p, &scale, d->lam};
+  double* out[1 + P->n_hparts];
+  int n[1 + P->n_hparts];
+  int k, i, c;
+  out[0] = d->grad; n[0] = P->nv;
+  for (k = 0; k < P->n_hparts; ++k) { out[1 + k] = d->h + P->hpart[k]; n[1 + k] = P->hpart[k + 1] - P->hpart[k]; }
+  read_primal(d, primal, s);
+  memset(d->lam, 0, sizeof(double) * P->ng);
+  for (k = 0; k < P->K; ++k) {
+    c = 0;
+    for (i = P->a_in_idx[k]; i < P->a_in_idx[k + 1]; ++i) d->lam[P->a_in[i]] = lam_data[s->g_ineq_offs[k] + c++];
+    c = 0;
+    for (i = P->a_eq_idx[k]; i < P->a_eq_idx[k + 1]; ++i) d->lam[P->a_eq[i]] = lam_data[s->g_offs[k] + c++];
+    if (k < P->K - 1)
+      for (i = 0; i < P->nx[k + 1]; ++i) d->lam[P->roff[k] + i] = -lam_data[s->dyn_eq_offs[k] + i];
+  }
+  call(d, P->hess_l, in, 4, out, n, 1 + P->n_hparts);
+  for (k = 0; k < P->K; ++k) {
+    if (k < P->K - 1)
+      for (i = 0; i < P->nx[k + 1]; ++i) d->grad[P->xoff[k + 1] + i] += lam_data[s->dyn_eq_offs[k] + i];
+    c = P->a_in_idx[k + 1] - P->a_in_idx[k];
+    for (i = P->x_in_idx[k]; i < P->x_in_idx[k + 1]; ++i) d->grad[P->x_in[i]] += lam_data[s->g_ineq_offs[k] + c++];
+    c = P->a_eq_idx[k + 1] - P->a_eq_idx[k];
+    for (i = P->x_eq_idx[k]; i < P->x_eq_idx[k + 1]; ++i) d->grad[P->x_eq[i]] += lam_data[s->g_offs[k] + c++];
+  }
+  #pragma omp parallel for schedule(static) private(i)
+  for (k = 0; k < P->K; ++k) {
+    int n = P->nx[k] + P->nu[k];
+    double* R = d->hbuf + P->rsq_off[k];
+    for (i = P->hstart[k]; i < P->hstart[k + 1]; ++i) R[P->ht[P->horder[i]] - P->rsq_off[k]] = d->h[P->horder[i]];
+    for (i = P->hadd_start[k]; i < P->hadd_start[k + 1]; ++i) R[P->hadd_to[i] - P->rsq_off[k]] += d->h[P->hadd[i]];
+    for (i = 0; i < n; ++i) LAST(R, k, i) = d->grad[P->xoff[k] + (i < P->nu[k] ? P->nx[k] + i : i - P->nu[k])];
+    blasfeo_pack_dmat(n + 1, n, R, n + 1, RSQrqt + k, 0, 0);
+  }
+  return 1;
+}
+
+/* where this driver's BLASFEO calls go (libfatrop's bind alike): blasfeo.py names the library */
+void* rsf_blasfeo_function(void) { return (void*)&blasfeo_pack_dmat; }
+
+/* fatrop keeps the last writer it was given for the process (a global stream): every solver gets
+   this one, which prints only while a verbose solve runs (solves are one at a time, driver.py) */
+static int rsf_verbose = 0;
+static void writer(const char* msg, int n) { if (rsf_verbose) fwrite(msg, 1, (size_t)n, stdout); }
+static void flusher(void) { if (rsf_verbose) fflush(stdout); }
+
+/* A session: one solver (built once: its build took 3 ms of a 57 ms solve of (b)) and its data,
+   for one problem layout P, solved again and again (fatrop resets its iterates, bounds and barrier
+   rule on every solve; tested: the same iterates as a new solver). */
+typedef struct {
+  rsf_data d;
+  struct FatropOcpCInterface ocp;
+  void* solver;
+} rsf_session;
+
+void rsf_close(rsf_session* S) {
+  rsf_data* d;
+  if (!S) return;
+  d = &S->d;
+  if (S->solver) fatrop_ocp_c_destroy(S->solver);
+  free(d->x); free(d->gx); free(d->gv); free(d->a); free(d->h); free(d->lam); free(d->grad); free(d->jbuf); free(d->hbuf);
+  free(d->arg); free(d->res); free(d->iw); free(d->w);
+  free(S);
+}
+
+rsf_session* rsf_open(const rsf_problem* P) {
+  rsf_session* S = calloc(1, sizeof(rsf_session));
+  rsf_data* d;
+  if (!S) return 0;
+  d = &S->d;
+  d->P = P;
+  d->x = calloc(P->nv, sizeof(double)); d->gx = calloc(P->nv, sizeof(double)); d->gv = calloc(P->ng + 1, sizeof(double));
+  d->a = calloc(P->nnz_j + 1, sizeof(double)); d->h = calloc(P->nnz_h + 1, sizeof(double));
+  d->lam = calloc(P->ng + 1, sizeof(double)); d->grad = calloc(P->nv, sizeof(double));
+  d->jbuf = calloc(P->n_jbuf + 1, sizeof(double)); d->hbuf = calloc(P->n_hbuf + 1, sizeof(double));
+  d->arg = calloc(P->sz_arg + 4, sizeof(double*)); d->res = calloc(P->sz_res + 2, sizeof(double*));
+  d->iw = calloc(P->sz_iw + 1, sizeof(casadi_int)); d->w = calloc(P->sz_w + 1, sizeof(double));
+  S->ocp.get_nx = get_nx; S->ocp.get_nu = get_nu; S->ocp.get_ng = get_ng; S->ocp.get_ng_ineq = get_ng_ineq;
+  S->ocp.get_horizon_length = get_horizon; S->ocp.get_bounds = get_bounds;
+  S->ocp.get_initial_xk = initial_xk; S->ocp.get_initial_uk = initial_uk;
+  S->ocp.full_eval_constr_jac = constr_jac; S->ocp.full_eval_contr_viol = constr_viol;
+  S->ocp.full_eval_obj_grad = obj_grad; S->ocp.full_eval_obj = obj; S->ocp.full_eval_lag_hess = lag_hess;
+  S->ocp.user_data = d;
+  S->solver = fatrop_ocp_c_create(&S->ocp, writer, flusher);
+  return S;
+}
+
+/* Options: names[i] with values[i] (double, int or bool by fatrop's type) or strings[i]; set
+   before every solve (some, as print_level, are fatrop's process-wide state).  0, or -1000 - i if
+   option i is unknown or refused. */
+int rsf_options(rsf_session* S, int n_opt, const char** names, const double* values, const char** strings) {
+  int i;
+  for (i = 0; i < n_opt; ++i) {
+    int type = fatrop_ocp_c_option_type(names[i]), bad = 1;
+    if (type == 0) bad = fatrop_ocp_c_set_option_double(S->solver, names[i], values[i]);
+    else if (type == 1) bad = fatrop_ocp_c_set_option_int(S->solver, names[i], (int)values[i]);
+    else if (type == 2) bad = fatrop_ocp_c_set_option_bool(S->solver, names[i], values[i] != 0);
+    else if (type == 3) bad = fatrop_ocp_c_set_option_string(S->solver, names[i], strings[i]);
+    if (bad) return -1000 - i;
+  }
+  return 0;
+}
+
+/* One solve of the session's problem from x0 with parameters p and these bounds (their
+   classification into equalities, inequalities and free is the session's layout).
+   Returns 0 on success, 1 otherwise, -1 on an exception inside fatrop (then close the session);
+   stats[18]: FatropOcpCStats in order, whether an evaluation failed, whether a gap row's
+   x_{k+1} coefficient was not 1. */
+int rsf_run(rsf_session* S, const double* x0, const double* p, const double* lbx, const double* ubx,
+            const double* lbg, const double* ubg, int verbose, double* x_out, double* lam_g, double* lam_x,
+            double* stats) {
+  rsf_data* d = &S->d;
+  const rsf_problem* P = d->P;
+  const struct FatropOcpCDims* s;
+  const struct FatropOcpCStats* st;
+  const double *primal, *dual;
+  int i, k, c, ret;
+  d->p = p; d->lbx = lbx; d->ubx = ubx; d->lbg = lbg; d->ubg = ubg; d->x0 = x0;
+  d->failed = d->bad_gap = d->g_valid = 0;
+  rsf_verbose = verbose;
+  ret = fatrop_ocp_c_solve(S->solver);
+  rsf_verbose = 0;
+  primal = fatrop_ocp_c_get_primal(S->solver)->pa;
+  dual = fatrop_ocp_c_get_dual(S->solver)->pa;
+  s = fatrop_ocp_c_get_dims(S->solver);
+  st = fatrop_ocp_c_get_stats(S->solver);
+  read_primal(d, primal, s);
+  memcpy(x_out, d->x, sizeof(double) * P->nv);
+  memset(lam_g, 0, sizeof(double) * P->ng);
+  memset(lam_x, 0, sizeof(double) * P->nv);
+  for (k = 0; k < P->K; ++k) {
+    c = 0;
+    for (i = P->a_in_idx[k]; i < P->a_in_idx[k + 1]; ++i) lam_g[P->a_in[i]] = dual[s->g_ineq_offs[k] + c++];
+    for (i = P->x_in_idx[k]; i < P->x_in_idx[k + 1]; ++i) lam_x[P->x_in[i]] = dual[s->g_ineq_offs[k] + c++];
+    c = 0;
+    for (i = P->a_eq_idx[k]; i < P->a_eq_idx[k + 1]; ++i) lam_g[P->a_eq[i]] = dual[s->g_offs[k] + c++];
+    for (i = P->x_eq_idx[k]; i < P->x_eq_idx[k + 1]; ++i) lam_x[P->x_eq[i]] = dual[s->g_offs[k] + c++];
+    if (k < P->K - 1)
+      for (i = 0; i < P->nx[k + 1]; ++i) lam_g[P->roff[k] + i] = -dual[s->dyn_eq_offs[k] + i];
+  }
+  stats[0] = st->compute_sd_time; stats[1] = st->duinf_time; stats[2] = st->eval_hess_time;
+  stats[3] = st->eval_jac_time; stats[4] = st->eval_cv_time; stats[5] = st->eval_grad_time;
+  stats[6] = st->eval_obj_time; stats[7] = st->initialization_time; stats[8] = st->time_total;
+  stats[9] = st->eval_hess_count; stats[10] = st->eval_jac_count; stats[11] = st->eval_cv_count;
+  stats[12] = st->eval_grad_count; stats[13] = st->eval_obj_count; stats[14] = st->iterations_count;
+  stats[15] = st->return_flag; stats[16] = d->failed; stats[17] = d->bad_gap;
+  d->p = d->lbx = d->ubx = d->lbg = d->ubg = d->x0 = 0;      /* the caller's arrays: this solve's only */
+  return ret;
+}

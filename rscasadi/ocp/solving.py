@@ -1,0 +1,367 @@
+"""Solve an optimal-control problem, verify it on the complete model, refine the mesh where the
+verification fails, and write the result (`rscasadi ocp`).
+
+One round: transcribe (transcription.py) on the current mesh, solve with fatrop or IPOPT
+(solvers.py), replay the held torques on the complete model with CVODES (verify).  If the
+replay misses a tolerance, the intervals whose local error (each interval integrated from its
+own start node) or limit violation is largest are halved, the previous solution is
+interpolated onto the new mesh as the initial guess, and the problem is solved again, until
+the verification passes or `[refinement] rounds` is spent.  solution.json records each round.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from rscasadi.native.build import compiler
+from rscasadi.native.parallel import available_cores, openmp_flags, set_threads
+from rscasadi.dynamics.arm import Arm
+from rscasadi.model.modelfile import document, read, to_toml
+from rscasadi.model.parameters import value, with_values
+from rscasadi.dynamics.statics import rest_state  # noqa: F401  (exported by rscasadi.ocp)
+from rscasadi.sim.simulation import held_interval, simulate_held
+from rscasadi.sim.trajectory import load_trajectory
+from rscasadi.ocp.problem import Problem, check_against_model, load_problem
+from rscasadi.ocp.solvers import direct, make_solver
+from rscasadi.ocp.transcription import Transcription
+
+
+WARM = {"ipopt": {"mu_strategy": "monotone", "mu_init": 1e-6, "bound_push": 1e-8, "bound_frac": 1e-8},
+        "fatrop": {"mu_init": 1e-6}}
+
+
+def _reference(problem: Problem, t):
+    return load_trajectory(problem.trajectory)(t)[0]
+
+
+def guess(tr: Transcription, problem: Problem, arm: Arm, t, warm: dict | None):
+    """Straight line between the rest states (or along the reference), holding the start's
+    torque; or a previous solution interpolated onto this mesh (states at every point, the
+    torque of the old interval that holds each new interval's midpoint).  Accelerations at the
+    collocation points: the forward dynamics there."""
+    n, N, m = tr.n, tr.N, tr.m
+    T = t[-1]
+    tc = (t[:-1, None] + np.diff(t)[:, None] * tr.fractions[None, :]).ravel()       # interval-major
+    design = np.array([np.clip(v, *problem.design[k]) for k, v in _design_start(problem, arm).items()])
+    if warm:
+        tw = np.asarray(warm["t"]) * T / warm["t"][-1]
+        Xw = np.vstack([np.asarray(warm[k]) for k in ("theta", "phi", "dtheta", "dphi")])
+        interp = lambda s: np.vstack([np.interp(s, tw, row) for row in Xw])
+        mid = (t[:-1] + t[1:]) / 2
+        k = np.clip(np.searchsorted(tw, mid, side="right") - 1, 0, len(tw) - 2)
+        Xs, Xc, U = interp(t), interp(tc), np.asarray(warm["tau"])[:, k]
+        if warm.get("design"):
+            design = np.array([warm["design"].get(name, v) for name, v in zip(problem.design, design)])
+    else:
+        x0 = rest_state(arm, problem.theta_start if problem.theta_start is not None else _reference(problem, t[:1])[:, 0])
+        xe = rest_state(arm, problem.theta_end) if problem.theta_end is not None else x0
+        s, sc = t / T, tc / T
+        Xs, Xc = np.outer(x0, 1 - s) + np.outer(xe, s), np.outer(x0, 1 - sc) + np.outer(xe, sc)
+        if tr.tracking:
+            ref, refc = _reference(problem, t), _reference(problem, tc)
+            for X, r in ((Xs, ref), (Xc, refc)):
+                X[:n], X[n:2 * n] = r, r + (x0[n:2 * n] - x0[:n])[:, None]
+        z = np.zeros(n)
+        U = np.repeat(np.array(arm.inverse_dynamics()(Xs[:n, 0], Xs[n:2 * n, 0], z, z, z, z)[0]), N, axis=1)
+    u = np.repeat(U, m, axis=1)
+    fd = arm.forward_dynamics().map(N * m)
+    acc = np.vstack([np.array(a) for a in fd(Xc[:n], Xc[n:2 * n], Xc[2 * n:3 * n], Xc[3 * n:], u)])
+    return tr.pack(Xs, U, T, design, acc.reshape(2 * n, N, m).transpose(0, 2, 1))
+
+
+def _design_start(problem: Problem, arm: Arm) -> dict:
+    return {k: value(arm.model, k) for k in problem.design}
+
+
+def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, print_level: int = 5,
+               options: dict | None = None) -> dict:
+    """One solve on the mesh w (interval fractions; uniform over problem.intervals by default)."""
+    base = read(problem.model_path)
+    check_against_model(problem, base)
+    arm = Arm(with_values(base, problem.parameters))              # the plant for guesses and replay
+    w = np.full(problem.intervals, 1.0 / problem.intervals) if w is None else np.asarray(w, float)
+    tr = Transcription(problem, Arm(base), N=len(w))
+    t_guess = (warm["t"][-1] if warm else problem.duration) * np.concatenate([[0.0], np.cumsum(w)])
+    ref = _reference(problem, t_guess)[:, 1:] if tr.tracking else None
+    theta_start = _reference(problem, t_guess[:1])[:, 0] if tr.tracking else problem.theta_start
+    P = tr.parameters(theta_start, problem.theta_end, problem.duration, problem.effort_weight, w, ref,
+                      list(problem.parameters.values()))
+    t0 = time.perf_counter()                       # setup: the NLP, its kernel and library (cached)
+    nlp, lbg, ubg = tr.nlp(log)
+    lbx, ubx = tr.bounds(problem.max_duration)
+    w0 = guess(tr, problem, arm, t_guess, warm)
+    solver, objective = make_solver(problem, tr, nlp, log, print_level, options)
+    if hasattr(solver, "prepare"):                 # the direct fatrop's solver, built for these bounds
+        solver.prepare(lbx, ubx, lbg, ubg)
+    setup = time.perf_counter() - t0
+    # the objective is scaled to about 1 at the guess: an effort of 1e-2 otherwise leaves the
+    # solver crawling with a tiny dual infeasibility (seen: 1000+ iterations instead of 20)
+    f0 = float(objective(w0, P))
+    scaled = P.copy()
+    scaled[tr.parameter_layout()[0]["scale"]] = np.clip(1.0 / max(abs(f0), 1e-12), 1e-2, 1e4)
+    if tr.kernel is not None:
+        # no state from earlier solves, nor from f0 (in this thread only): the solve starts
+        # alike on any number of threads
+        tr.kernel.reset()
+    # the loops are parallel only in a library compiled with OpenMP (solvers.compiled_nlp)
+    threads = set_threads(problem.threads or available_cores()) if problem.compiled and openmp_flags(tuple(compiler())) else 1
+    t0 = time.perf_counter()
+    res = solver(x0=w0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, p=scaled)
+    solve_time = time.perf_counter() - t0
+    stats = solver.stats()
+    out = tr.unpack(np.array(res["x"]))
+    n, T = arm.n, out["T"] if out["T"] is not None else problem.duration
+    t = T * np.concatenate([[0.0], np.cumsum(w)])
+    Xs, U = out["Xs"], out["U"]
+    design = dict(zip(problem.design, out["design"].tolist()))
+    target = None
+    if not tr.tracking:
+        target = rest_state(Arm(with_values(base, {**problem.parameters, **design})), problem.theta_end).tolist()
+    return {"model": str(problem.model_path), "solver": problem.solver,
+            "interface": ("direct" if direct(problem) else "casadi") if problem.solver == "fatrop" else None,
+            "blasfeo": stats.get("blasfeo"),          # fatrop's linear algebra library (direct interface)
+            "threads": threads, "status": _status(stats),
+            "success": _success(stats), "solve_time_s": solve_time, "setup_time_s": setup,
+            "iterations": int(stats["iter_count"]), "objective": float(objective(res["x"], P)),
+            "intervals": len(w), "mesh": (np.asarray(w) / np.sum(w)).tolist(), "t": t.tolist(),
+            **{k: Xs[i * n:(i + 1) * n].tolist() for i, k in enumerate(("theta", "phi", "dtheta", "dphi"))},
+            "tau": np.hstack([U, U[:, -1:]]).tolist(), "tau_interpolation": "constant",
+            "design": design, "parameters": dict(problem.parameters), "target_state": target,
+            "trajectory": None if problem.trajectory is None else str(problem.trajectory),
+            "theta_reference": None if ref is None else _reference(problem, t).tolist()}
+
+
+# fatrop 1.1.8's return flags (IpSolverReturnFlag, include/fatrop/ip_algorithm/ip_algorithm.hpp in
+# the CasADi wheel) in IPOPT's words where they mean the same
+FATROP_STATUS = {0: "Solve_Succeeded", 1: "Maximum_Iterations_Exceeded", 2: "Solved_To_Acceptable_Level",
+                 3: "Infeasible_Problem_Detected", 4: "Line_Search_Failed", 5: "Error_In_Step_Computation",
+                 6: "Unknown"}
+
+
+def _status(stats: dict) -> str:
+    """IPOPT's return status, or fatrop's (named as IPOPT's where they mean the same)."""
+    if "fatrop" not in stats:
+        return stats["return_status"]
+    flag = stats["fatrop"]["return_flag"]
+    failed = ", an NLP evaluation failed" if stats.get("evaluation_failed") else ""
+    if flag == 0 and stats["success"]:
+        return "Solve_Succeeded"
+    return f"{FATROP_STATUS.get(flag, 'Unknown')} (fatrop return flag {flag}{failed})"
+
+
+def _success(stats: dict) -> bool:
+    """The solver's success: fatrop's acceptable point counts as IPOPT's does (CasADi calls IPOPT's
+    Solved_To_Acceptable_Level a success, fatrop's through its plugin not); the replay decides."""
+    return bool(stats["success"]) or ("fatrop" in stats and stats["fatrop"]["return_flag"] == 2)
+
+
+def solution_arm(solution: dict) -> Arm:
+    """The arm the solution is for: the model file with its swept and designed parameters."""
+    return Arm(with_values(read(solution["model"]), {**solution.get("parameters", {}), **solution.get("design", {})}))
+
+
+def verify(solution: dict, substeps: int = 20, tol: float = 1e-10) -> dict:
+    """Replay the torques on the complete model with CVODES, on a grid `substeps` times finer than
+    the collocation grid; report the final-state error and the largest limit violation anywhere."""
+    arm = solution_arm(solution)
+    n, t, tau = arm.n, np.asarray(solution["t"]), np.asarray(solution["tau"])
+    x0 = np.concatenate([np.asarray(solution[k])[:, 0] for k in ("theta", "phi", "dtheta", "dphi")])
+    sim = simulate_held(arm, x0, t, tau, substeps, tol)
+    per_interval = _violations(arm, sim).reshape(-1)[1:].reshape(len(t) - 1, substeps).max(axis=1)
+    report = {"max_limit_violation": max(float(per_interval.max()), 0.0), "substeps": substeps}
+    if solution.get("target_state") is not None:
+        err = np.abs(sim["x"][:, -1] - np.asarray(solution["target_state"]))
+        report["final_angle_error"] = float(np.max(err[:2 * n]))
+        report["final_speed_error"] = float(np.max(err[2 * n:]))
+    if solution.get("trajectory"):                                     # between the nodes too
+        ref = load_trajectory(solution["trajectory"])(sim["t"])[0]
+        report["tracking_error"] = float(np.max(np.abs(sim["theta"] - ref)))
+    report["max_collocation_deviation"] = float(np.max(np.abs(sim["theta"][:, ::substeps] - np.asarray(solution["theta"]))))
+    report["interval_violation"] = per_interval.tolist()
+    return report
+
+
+def _violations(arm: Arm, sim) -> np.ndarray:
+    """Largest limit violation at each replay sample, relative to each limit (<= 0: within)."""
+    v = np.full(len(sim["t"]), -np.inf)
+    for j, jt in enumerate(arm.model.joints):
+        lim = jt.limits
+        for key in ("psi", "dphi"):
+            if key in lim:
+                v = np.maximum(v, (np.abs(sim[key][j]) - lim[key]) / lim[key])
+        if "theta" in lim:
+            lo, hi = lim["theta"]
+            v = np.maximum(v, np.maximum(lo - sim["theta"][j], sim["theta"][j] - hi) / (hi - lo))
+    return v
+
+
+def checks(problem: Problem, report: dict) -> list:
+    """The verification's failures, as readable strings (empty: passed)."""
+    tols = {"final_angle_error": problem.final_angle_tol, "final_speed_error": problem.final_speed_tol,
+            "tracking_error": problem.tracking_tol, "max_limit_violation": problem.limit_tol}
+    return [f"{k} {report[k]:.2e} > {tol:g}" for k, tol in tols.items() if k in report and report[k] > tol]
+
+
+def local_errors(problem: Problem, solution: dict) -> np.ndarray:
+    """Each interval integrated on the complete model from its own start node, compared with
+    its end node; normalised by the tolerances (angles, speeds)."""
+    arm = solution_arm(solution)
+    n, t = arm.n, np.asarray(solution["t"])
+    X = np.vstack([np.asarray(solution[k]) for k in ("theta", "phi", "dtheta", "dphi")])
+    N = len(t) - 1
+    ends = np.array(held_interval(arm).map(N)(X[:, :N], np.vstack([np.asarray(solution["tau"])[:, :N], np.diff(t)])))
+    err = np.abs(ends - X[:, 1:])
+    angle_tol = problem.tracking_tol if solution.get("trajectory") else problem.final_angle_tol
+    return np.maximum(err[:2 * n].max(axis=0) / angle_tol, err[2 * n:].max(axis=0) / problem.final_speed_tol)
+
+
+def refined_mesh(problem: Problem, solution: dict, report: dict) -> np.ndarray:
+    """Halve the intervals that carry most of the local error (the largest, until the others sum
+    to at most a quarter of the tolerance) and those where a limit is violated between nodes."""
+    w = np.asarray(solution["mesh"])
+    e = local_errors(problem, solution)
+    order = np.argsort(e)[::-1]
+    rest = np.cumsum(e[order][::-1])[::-1]                 # rest[i] = sum of e[order[i:]]
+    count = int(np.searchsorted(-rest, -0.25))              # first i with rest[i] <= 0.25
+    split = np.zeros(len(w), bool)
+    split[order[:max(count, 1)]] = True
+    split |= np.asarray(report["interval_violation"]) > problem.limit_tol
+    return np.concatenate([[wk / 2, wk / 2] if s else [wk] for wk, s in zip(w, split)])
+
+
+def solve(problem: Problem, warm: dict | None = None, log=print, print_level: int = 5,
+          options: dict | None = None) -> dict:
+    """Solve, verify, and refine the mesh until the verification passes (or the rounds run out).
+    A co-design problem first solves the nominal arm (design at the model file's values) and
+    starts from that solution: the design can then only improve on it (a local solver from a
+    straight-line guess found a worse local minimum here)."""
+    nominal = None
+    if problem.design and warm is None:
+        log("co-design: first the nominal arm, as the starting point")
+        nominal = solve(dataclasses.replace(problem, design={}), None, log, print_level, options)
+        warm = nominal if nominal["solver_success"] else None
+    # on the nominal's refined mesh: a coarse mesh lets the design exploit the discretisation
+    # (seen: a stiffer design 'faster' on 100 intervals whose replay broke a limit)
+    w, rounds = (np.asarray(nominal["mesh"]) if nominal is not None and warm else None), []
+    fallback = None
+    for r in range(problem.rounds + 1):
+        # a refinement round starts next to the answer: a small barrier keeps the solver there
+        # (seen: a co-design round wandered from T = 0.2472 s to another local minimum, 0.2506 s)
+        extra = {**(WARM.get(problem.solver, {}) if r else {}), **(options or {})}
+        sol = solve_once(problem, w, warm, log, print_level, extra)
+        if not sol["success"] and problem.solver == "fatrop":
+            # fatrop fails on some problems where IPOPT does not (maximum iterations, a failed
+            # line search): the same start with IPOPT
+            log(f"fatrop: {sol['status']}; solving again with IPOPT from the same start")
+            problem = dataclasses.replace(problem, solver="ipopt")
+            fallback = {"solver": "fatrop", "round": r, "status": sol["status"], "iterations": sol["iterations"]}
+            options = None                                     # fatrop's own options mean nothing to IPOPT
+            sol = solve_once(problem, w, warm, log, print_level, WARM["ipopt"] if r else None)
+        if fallback:
+            sol["fallback_from"] = fallback                    # kept through the later rounds (IPOPT's)
+        report = verify(sol)
+        failed = checks(problem, report)
+        rounds.append({"round": r, "intervals": sol["intervals"], "solver": sol["solver"], "status": sol["status"],
+                       "iterations": sol["iterations"], "solve_time_s": sol["solve_time_s"],
+                       "setup_time_s": sol["setup_time_s"], "objective": sol["objective"],
+                       **{k: v for k, v in report.items() if isinstance(v, float)}, "passed": not failed})
+        log(f"round {r}: {sol['intervals']} intervals, {sol['solver']} {sol['status']} after {sol['iterations']} "
+            f"iterations, {sol['solve_time_s']:.2f} s; replay: "
+            + ", ".join(f"{k} {v:.1e}" for k, v in report.items() if isinstance(v, float))
+            + ("" if not failed else " -- misses " + "; ".join(failed)))
+        if not failed or not sol["success"] or r == problem.rounds:
+            break
+        w, warm = refined_mesh(problem, sol, report), sol
+        log(f"refining: {sol['intervals']} -> {len(w)} intervals where the local error is largest")
+    report["passed"] = not failed
+    report.pop("interval_violation")
+    sol["verification"], sol["rounds"] = report, rounds
+    sol["solver_success"], sol["success"] = sol["success"], bool(sol["success"] and not failed)
+    if nominal is not None:
+        sol["nominal"] = {"objective": nominal["objective"], "duration": nominal["t"][-1],
+                          "success": nominal["success"], "design": _design_start(problem, solution_arm(nominal))}
+        sol["improved"] = bool(sol["objective"] <= nominal["objective"] * (1 + 1e-9))
+        if not sol["improved"]:
+            log(f"note: the co-design ended in a local minimum worse than the nominal arm ({sol['objective']:.6g} "
+                f"> {nominal['objective']:.6g}); try the other solver or other design bounds")
+    return sol
+
+
+def run(problem_file, out, warm_file=None, log=print, print_level: int = 5, solver: str | None = None) -> dict:
+    """`rscasadi ocp`: solve, verify, refine, write DIR/solution.json and the plots; return the record."""
+    from rscasadi.files import check_writable, fresh_directory, write_json
+    from rscasadi.model.modelfile import ModelFileError
+    check_writable(out)
+    problem = load_problem(problem_file)
+    if solver:
+        problem.solver = solver
+    warm = None
+    if warm_file:
+        try:
+            warm = json.loads(Path(warm_file).read_text())
+        except json.JSONDecodeError as exc:
+            raise ModelFileError(f"{warm_file}: --warm: not a solution.json ({exc})") from None
+        if not isinstance(warm, dict) or not {"t", "theta", "phi", "tau"} <= set(warm):
+            raise ModelFileError(f"{warm_file}: --warm: not a solution.json (no t, theta, phi, tau)")
+    log(f"{problem.path}: {problem.objective}, {problem.method}"
+        + (f" degree {problem.degree}" if problem.method != "hermite-simpson" else "")
+        + f", {problem.intervals} intervals, "
+        + ("condensed (each interval's collocation solved in C)" if problem.condense
+           else f"lifted, {problem.dynamics} dynamics, {'compiled' if problem.compiled else 'not compiled'}")
+        + (f", designing {', '.join(problem.design)}" if problem.design else ""))
+    log(f"solving with {problem.solver}" + (" (log quieted)" if print_level == 0 else "") + " ...")
+    sol = solve(problem, warm, log=log, print_level=print_level)
+    if sol["design"]:
+        log("optimal design: " + ", ".join(f"{k} = {v:.6g}" for k, v in sol["design"].items()))
+    with fresh_directory(out, "solution.json") as tmp:
+        if sol["design"]:                  # the arm the torques are for, as a complete model file
+            designed = solution_arm(sol).model
+            (tmp / "designed_model.toml").write_text(
+                f"# {designed.name}: {Path(sol['model']).name} with the optimal design of {Path(problem.path).name}\n"
+                + "# (" + ", ".join(f"{k} = {v:.10g}" for k, v in sol["design"].items()) + ")\n"
+                + to_toml(document(dataclasses.replace(designed, name=designed.name + "-designed"))))
+            sol["designed_model"] = "designed_model.toml"
+        write_json(tmp / "solution.json", sol, indent=1)
+        plot_solution(sol, solution_arm(sol), tmp)
+    if not sol["solver_success"]:
+        hint = (" (the limits cannot all be met: widen them or allow more time)"
+                if "nfeasible" in sol["status"] else "")
+        log(f"FAILED: solver status {sol['status']}{hint}")
+    elif not sol["verification"]["passed"]:
+        log("FAILED: the solver converged, but its torques do not do on the complete model what the "
+            "collocation promised, after the last refinement round; allow more [refinement] rounds or "
+            "start with more intervals")
+    return sol
+
+
+def plot_solution(sol: dict, arm: Arm, out: Path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    t = np.asarray(sol["t"])
+    th, ph, dph, tau = (np.asarray(sol[k]) for k in ("theta", "phi", "dphi", "tau"))
+    panels = [("theta", th, "link angle theta (rad)", "theta"), ("psi", ph - th, "SEA deflection psi (rad)", "psi"),
+              ("tau", tau, "motor torque tau (N m)", "tau"), ("dphi", dph, "slow-side speed dphi (rad/s)", "dphi")]
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
+    for ax, (key, data, label, lim) in zip(axes.ravel(), panels):
+        for j, jt in enumerate(arm.model.joints):
+            line = ax.step(t, data[j], where="post", label=jt.name)[0] if key == "tau" else ax.plot(t, data[j], label=jt.name)[0]
+            bound = jt.limits.get(lim)
+            if bound is not None:
+                lo, hi = bound if isinstance(bound, tuple) else (-bound, bound)
+                for b in (lo, hi):
+                    ax.axhline(b, color=line.get_color(), ls=":", lw=1)
+        ax.set(ylabel=label)
+    for ax in axes[1]:
+        ax.set(xlabel="t (s)")
+    axes[0, 0].legend(fontsize=8)
+    fig.suptitle(f"{Path(sol['model']).name}: {sol['status']}, {sol['intervals']} intervals, "
+                 f"success {sol['success']} (dotted: limits)")
+    fig.tight_layout()
+    for ext in ("png", "pdf"):
+        fig.savefig(out / f"solution.{ext}", dpi=120)
+    plt.close(fig)

@@ -1,0 +1,356 @@
+"""Direct collocation, stage by stage, so that a structure-exploiting solver (fatrop) sees the
+optimal-control structure and a general one (IPOPT) is none the worse.
+
+Collocation is written as the implicit Runge-Kutta method it is (Butcher tableau A, b, c of
+the collocation points: Radau IIA, Gauss-Legendre, or Lobatto IIIA for Hermite-Simpson), with
+the *accelerations* at the points as the unknowns.  For q'' = a the positions and speeds at the
+points are then linear in them,
+
+    v_j = v_k + h sum_l A_jl a_l,   q_j = q_k + h c_j v_k + h^2 sum_l (A A)_jl a_l,
+
+so an interval carries 2n m unknowns and 2n m dynamics equations instead of 4n m of each: the
+same polynomial solution as collocating the states, half the stage size (fatrop's Riccati
+recursion costs about the cube of it).
+
+Stage k = 0..N-1 has the state x_k = (theta, phi, dtheta, dphi, [T], [design]) and the
+"control" u_k = (tau_k, the accelerations at its m points, scaled).  Constraints in stage order:
+
+    x_{k+1} - F(x_k, u_k) = 0           gap closing: the interval's end point (T, design carried)
+    c_k(x_k, u_k) (=, <=) 0             dynamics at the points (explicit: a_j = FD(q_j, v_j, tau);
+                                        implicit: the inverse-dynamics residual), limits at the
+                                        interior points and the SEA deflection (and a geared
+                                        joint's motor speed) at x_k, (stage 0) the start
+    c_N(x_N)                            the end at rest (rest-to-rest problems), deflection, motor speed
+
+A designed or swept gear ratio keeps the motor: its speed limit mu dphi is the model file's, so
+dphi's limit is a row (mu / mu_file) dphi within limits.dphi instead of a bound.  The NLP is
+built as stage, start and end pieces, whose own derivatives assembly.py places.
+
+Rest is the SEA's static equilibrium, stated as constraints (theta given, speeds zero, spring
+torque = gravity torque), so it holds for any designed or swept spring.  The mesh is the vector
+of interval fractions w (sum 1, h_k = T w_k), an NLP parameter: refining a mesh with the same N
+reuses the compiled NLP.  NLP parameters P = (theta_start, theta_end, duration, effort_weight,
+objective scale, w, [theta_ref], [fixed model parameters]).
+"""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from rscasadi.dynamics.arm import Arm
+from rscasadi.model.parameters import gear_ratios
+from rscasadi.ocp.assembly import Calls, Piece, chain_rule_derivatives, constraints_and_objective
+from rscasadi.ocp.condensing import Condensed, condense
+from rscasadi.ocp.problem import Problem
+
+
+class Transcription:
+    def __init__(self, problem: Problem, arm: Arm, N: int | None = None):
+        self.p, self.model = problem, arm.model
+        self.n, self.N = arm.n, N or problem.intervals
+        self.design, self.fixed = list(problem.design), list(problem.parameters)
+        free = self.design + self.fixed
+        self.arm = Arm(arm.model, free=free) if free else arm
+        # joints whose gear ratio is designed or swept: their motor speed limit mu dphi is the
+        # model's, so dphi's limit becomes a constraint row instead of a bound
+        self.geared = [j for j, jt in enumerate(arm.model.joints) if f"{jt.name}.gear_ratio" in free]
+        n = self.n
+        c = np.array([0.0, 0.5, 1.0]) if problem.method == "hermite-simpson" else \
+            np.array(ca.collocation_points(problem.degree, problem.method))
+        self.A, self.b = butcher(c)
+        self.fractions, self.m = c, len(c)
+        self.interior = [j for j in range(self.m) if 0.0 < c[j] < 1.0]
+        self.nT = 1 if problem.objective == "min_time" else 0
+        self.nz = self.nT + len(self.design)                                 # carried constants
+        self.nx = 4 * n + self.nz
+        self.nu_lifted = n + 2 * n * self.m
+        # condensed: the accelerations are solved for inside the NLP's functions (condensing.py)
+        self.condensed = problem.condense
+        self.nu = n if self.condensed else self.nu_lifted
+        # condensed, the collocation equations are solved exactly, so both forms give the same
+        # NLP; the inverse dynamics' derivatives are the cheaper (Hessian 17 807 SX instructions
+        # with the projections, 26 332 through the forward dynamics; n = 3)
+        self.dynamics = "implicit" if self.condensed else problem.dynamics
+        self.tracking = problem.objective == "tracking"
+        self.acc_scale = self._acceleration_scale()
+        self.calls = None                    # a Calls recorder while the stage's derivatives are built
+        self.kernel = None                   # the condensing kernel (condensing.Condensed), if condensed
+        self.stage = self._stage_function()
+
+    # -- the pieces of one stage ------------------------------------------------------------
+    def _call(self, name, *args, pf=None):
+        f = getattr(self.arm, name)(parametric=pf is not None)
+        args = [*args, *([] if pf is None else [pf])]
+        return f(*args) if self.calls is None else self.calls(f, args)
+
+    def _f(self, x, u, pf):
+        q = ca.vertsplit(x, self.n)
+        return ca.vertcat(q[2], q[3], *self._call("forward_dynamics", *q, u, pf=pf))
+
+    def _residual(self, x, a, u, pf):
+        """Implicit dynamics: M ddq + c - Q = 0 (MODEL.md section 3) from the inverse dynamics; the
+        rotor rows mu (u - tau_id) are generalized forces like the link rows (N m)."""
+        n, q = self.n, ca.vertsplit(x, self.n)
+        tau_id, T_id = self._call("inverse_dynamics", *q, a[:n], a[n:], pf=pf)
+        phys = self.arm.physics if pf is None else self.arm._physics_of(pf)
+        return ca.vertcat(T_id - self.arm.sea_torque(*q, phys=phys), phys.columns["gear_ratio"] * (u - tau_id))
+
+    def rest_residual(self, x, theta, pf):
+        """At rest at theta in the SEA's static equilibrium: theta, speeds 0, T_K(psi) = gravity torque."""
+        n, q = self.n, ca.vertsplit(x[:4 * self.n], self.n)
+        z = ca.DM.zeros(n)
+        T_g = self._call("inverse_dynamics", q[0], q[1], z, z, z, z, pf=pf)[1]
+        phys = self.arm.physics if pf is None else self.arm._physics_of(pf)
+        return ca.vertcat(q[0] - theta, q[2], q[3], self.arm.sea_torque(q[0], q[1], z, z, phys=phys) - T_g)
+
+    def _pf(self, design, p_fixed):
+        """The free parameters' values, in the order of Arm(free=design + fixed); None if none."""
+        parts = ([design] if self.design else []) + ([p_fixed] if self.fixed else [])
+        return ca.vertcat(*parts) if parts else None
+
+    def _speed_scale(self, pf):
+        """mu / mu_nominal per joint (1 where the gear ratio is the model's)."""
+        if not self.geared:
+            return ca.DM.ones(self.n)
+        return gear_ratios(self.model, self.design + self.fixed, pf) / ca.DM(self.model.column("gear_ratio"))
+
+    def _geared_speeds(self, dphi, pf):
+        """Rows of the geared joints' speed limits: their mu dphi / mu_nominal (none if none)."""
+        return (self._speed_scale(pf) * dphi)[self.geared] if self.geared else ca.SX(0, 1)   # x[[]] of 1x1 is 1x1
+
+    def _acceleration_scale(self):
+        """The accelerations are variables a = s * a_scaled, s per coordinate about the largest
+        acceleration the torque and deflection limits can cause, so that every variable is O(1)
+        (unscaled, the implicit form took 149 iterations where the explicit one took 18)."""
+        theta = self.p.theta_start if self.p.theta_start is not None else np.zeros(self.n)
+        M = np.array(Arm(self.model).mass_matrix()(theta, theta))
+        tau = np.array([jt.limits.get("tau", 1.0) for jt in self.model.joints]) * self.model.column("gear_ratio")
+        k_psi = np.array([jt.k1 * jt.limits.get("psi", 0.1) for jt in self.model.joints])
+        force = np.concatenate([k_psi, tau + k_psi])
+        acc = np.abs(np.linalg.solve(M, np.diag(force))).max(axis=1)
+        return np.maximum(acc, 1e-3)
+
+    def _stage_function(self) -> ca.Function:
+        """(x_k, u_k, w_k, P) -> (x_{k+1} target, path constraints, effort): SX, mapped over N."""
+        x, u, w = ca.SX.sym("x", self.nx), ca.SX.sym("u", self.nu_lifted), ca.SX.sym("w")
+        dur, pfix = ca.SX.sym("duration"), ca.SX.sym("p_fixed", len(self.fixed))
+        return ca.Function("stage", [x, u, w, dur, pfix], self._stage(x, u, w, dur, pfix),
+                           ["x", "u", "w", "duration", "p_fixed"], ["x_next", "path", "effort"])
+
+    def _stage(self, x, u, w, dur, pfix):
+        """The stage's expressions (its model calls recorded if self.calls is a recorder)."""
+        n, m, A, b, c = self.n, self.m, self.A, self.b, self.fractions
+        q, v, z = x[:2 * n], x[2 * n:4 * n], x[4 * n:]
+        h = (z[0] if self.nT else dur) * w
+        pf = self._pf(z[self.nT:self.nz] if self.design else None, pfix)
+        tau, s = u[:n], ca.DM(self.acc_scale)
+        acc = [s * u[n + 2 * n * j: n + 2 * n * (j + 1)] for j in range(m)]        # ddtheta, ddphi
+        AA = A @ A
+        V = [v + h * sum(A[j, l] * acc[l] for l in range(m)) for j in range(m)]
+        Q = [q + h * c[j] * v + h ** 2 * sum(AA[j, l] * acc[l] for l in range(m)) for j in range(m)]
+        dynamics = []
+        for j in range(m):
+            xj = ca.vertcat(Q[j], V[j])
+            if self.dynamics == "implicit":
+                dynamics.append(self._residual(xj, acc[j], tau, pf))
+            else:
+                dynamics.append((acc[j] - self._f(xj, tau, pf)[2 * n:]) / s)
+        x_end = ca.vertcat(q + h * v + h ** 2 * sum((b @ A)[l] * acc[l] for l in range(m)),
+                           v + h * sum(b[l] * acc[l] for l in range(m)))
+        speed = self._speed_scale(pf)                      # dphi -> mu dphi / mu_nominal
+        limits = [q[n:] - q[:n], self._geared_speeds(v[n:], pf)]               # psi (geared dphi) at x_k
+        for j in self.interior:                                                 # theta, psi, dphi inside
+            limits += [Q[j][:n], Q[j][n:] - Q[j][:n], speed * V[j][n:]]
+        return [ca.vertcat(x_end, z), ca.vertcat(*dynamics, *limits), h * ca.sumsqr(tau)]
+
+    # -- the NLP ----------------------------------------------------------------------------
+    def parameter_layout(self):
+        n, N = self.n, self.N
+        sizes = [("theta_start", n), ("theta_end", n), ("duration", 1), ("effort_weight", 1), ("scale", 1),
+                 ("w", N), ("theta_ref", n * N if self.tracking else 0), ("p_fixed", len(self.fixed))]
+        out, i = {}, 0
+        for key, size in sizes:
+            out[key] = slice(i, i + size)
+            i += size
+        return out, i
+
+    def _stage_piece(self):
+        """Stage k's constraint rows (gap closing, then path) and objective share, of its
+        variables z = (x_k, u_k, x_{k+1}), and their derivatives by the chain rule through the
+        stage's model calls (assembly.chain_rule_derivatives: 2.4x fewer instructions than AD)."""
+        n, nx, nu = self.n, self.nx, self.nu_lifted
+        z = ca.SX.sym("z", 2 * nx + nu)
+        x, u, x1 = z[:nx], z[nx:nx + nu], z[nx + nu:]
+        w, dur, pfix = ca.SX.sym("w"), ca.SX.sym("duration"), ca.SX.sym("p_fixed", len(self.fixed))
+        ew, scale, ref = ca.SX.sym("effort_weight"), ca.SX.sym("scale"), ca.SX.sym("theta_ref", n)
+        args = [w, dur, pfix, ew, scale] + ([ref] if self.tracking else [])
+
+        def pieces(stage):
+            x_next, path, effort = stage(x, u, w, dur, pfix)
+            if self.p.objective == "min_time":
+                f = ew * effort
+            elif self.p.objective == "min_effort":
+                f = effort
+            else:
+                f = dur * w * ca.sumsqr(x1[:n] - ref) / ca.fmax(ew, 1e-12) + effort
+            return ca.vertcat(x1 - x_next, path), scale * f
+
+        fn = ca.Function("stage_piece", [z, *args], list(pieces(self.stage)),
+                         ["z", "w", "duration", "p_fixed", "effort_weight", "scale"] + (["theta_ref"] if self.tracking else []),
+                         ["rows", "f"])
+        self.calls = Calls()
+        try:
+            rows, f = pieces(self._stage)
+            return fn, chain_rule_derivatives(fn, z, args, rows, f, self.calls)
+        finally:
+            self.calls = None
+
+    def _boundary_piece(self, end: bool) -> ca.Function:
+        """The start (at rest at theta_start; T is the min-time objective) or the end (at rest at
+        theta_end unless tracking; the SEA deflection within its limit) of x_0 or x_N."""
+        n = self.n
+        x, theta = ca.SX.sym("x", self.nx), ca.SX.sym("theta", n)
+        pfix, scale = ca.SX.sym("p_fixed", len(self.fixed)), ca.SX.sym("scale")
+        pf = self._pf(x[4 * n + self.nT:] if self.design else None, pfix)
+        if end:
+            rows = ([] if self.tracking else [self.rest_residual(x, theta, pf)]) + [x[n:2 * n] - x[:n],
+                                                                                   self._geared_speeds(x[3 * n:4 * n], pf)]
+            f = ca.SX(0)
+        else:
+            rows = [self.rest_residual(x, theta, pf)]
+            f = scale * x[4 * n] if self.p.objective == "min_time" else ca.SX(0)
+        return ca.Function("end_piece" if end else "start_piece", [x, theta, pfix, scale], [ca.vertcat(*rows), f],
+                           ["z", "theta", "p_fixed", "scale"], ["rows", "f"])
+
+    def _n_path(self):
+        """A stage's path rows (without the dynamics rows when condensed)."""
+        return self.stage.size1_out(1) - (2 * self.n * self.m if self.condensed else 0)
+
+    def _condensed(self, derivatives, log) -> Condensed:
+        """The stage piece with its accelerations eliminated (condensing.py): kept z = (x_k, tau_k,
+        x_{k+1}), solved rows = the dynamics at the points (the first path rows)."""
+        n, nx, nul, na = self.n, self.nx, self.nu_lifted, 2 * self.n * self.m
+        keep = np.r_[np.arange(nx + n), nx + nul + np.arange(nx)]
+        return condense(*derivatives, keep, nx + n + np.arange(na), nx + np.arange(na), log=log)
+
+    def nlp(self, log=print):
+        """The NLP dict and its constant bounds on g; variables and constraints in stage order.
+        self.pieces: the same NLP as a sum of stage, start and end pieces (assembly.py)."""
+        n, N, nx = self.n, self.N, self.nx
+        layout, n_par = self.parameter_layout()
+        P = ca.MX.sym("P", n_par)
+        par = {k: P[s] for k, s in layout.items()}
+        stride = nx + self.nu
+        w = ca.MX.sym("w", N * stride + nx)                                 # stage by stage
+        r = nx + self._n_path()                                             # a stage's rows
+        n_end = (0 if self.tracking else 4 * n) + n + len(self.geared)
+        stage_rows = np.vstack([np.arange(r)] + [r + 4 * n + (k - 1) * r + np.arange(r) for k in range(1, N)])
+        n_g = r + 4 * n + (N - 1) * r + n_end
+        stage_args = [ca.reshape(par["w"], 1, N), par["duration"], par["p_fixed"], par["effort_weight"], par["scale"]]
+        if self.tracking:
+            stage_args.append(ca.reshape(par["theta_ref"], n, N))
+        stage, derivatives = self._stage_piece()
+        if self.condensed:
+            self.kernel = self._condensed(derivatives, log)
+            stage, derivatives = self.kernel.fn, self.kernel.derivatives
+            stage_args.append(ca.DM(np.arange(N)).T)                        # the interval, for the kernel's cache
+        self.pieces = [
+            Piece(stage, np.arange(N)[:, None] * stride + np.arange(stride + nx), stage_rows, stage_args, derivatives,
+                  self.kernel.library if self.kernel else None),
+            Piece(self._boundary_piece(False), np.arange(nx)[None, :], r + np.arange(4 * n)[None, :],
+                  [par["theta_start"], par["p_fixed"], par["scale"]]),
+            Piece(self._boundary_piece(True), N * stride + np.arange(nx)[None, :], n_g - n_end + np.arange(n_end)[None, :],
+                  [par["theta_end"], par["p_fixed"], par["scale"]])]
+        g, f = constraints_and_objective(self.pieces, w, n_g)
+        stage_lo, stage_hi = self._path_bounds()
+        psi_max, dphi_max = self._limit("psi"), self._limit("dphi")[self.geared]
+        rest = [] if self.tracking else [np.zeros(4 * n)]
+        lbg = np.concatenate([stage_lo, np.zeros(4 * n), np.tile(stage_lo, N - 1), *rest, -psi_max, -dphi_max])
+        ubg = np.concatenate([stage_hi, np.zeros(4 * n), np.tile(stage_hi, N - 1), *rest, psi_max, dphi_max])
+        return {"x": w, "f": f, "g": g, "p": P}, lbg, ubg
+
+    def _limit(self, key):
+        return np.array([jt.limits.get(key, np.inf) for jt in self.model.joints])
+
+    def _path_bounds(self):
+        """Bounds of one stage's path rows: gap rows and dynamics = 0, then the limits."""
+        n, inf = self.n, np.inf
+        lo_th = np.array([jt.limits.get("theta", (-inf, inf))[0] for jt in self.model.joints])
+        hi_th = np.array([jt.limits.get("theta", (-inf, inf))[1] for jt in self.model.joints])
+        psi, dphi = self._limit("psi"), self._limit("dphi")
+        eq = np.zeros(self.nx + (0 if self.condensed else 2 * n * self.m))
+        lo = [eq, -psi, -dphi[self.geared]] + [np.r_[lo_th, -psi, -dphi]] * len(self.interior)
+        hi = [eq, psi, dphi[self.geared]] + [np.r_[hi_th, psi, dphi]] * len(self.interior)
+        return np.concatenate(lo), np.concatenate(hi)
+
+    def structure(self) -> dict:
+        """fatrop's manual structure: per stage nx, nu and the number of non-gap constraints."""
+        n, N = self.n, self.N
+        n_path = self._n_path()
+        ng = [n_path + 4 * n] + [n_path] * (N - 1)
+        ng.append((0 if self.tracking else 4 * n) + n + len(self.geared))
+        return {"structure_detection": "manual", "N": N, "nx": [self.nx] * (N + 1),
+                "nu": [self.nu] * N + [0], "ng": ng}
+
+    def bounds(self, max_duration: float):
+        """Simple bounds: theta and dphi limits on every state point, tau limits, T and design boxes."""
+        n, N, jts = self.n, self.N, self.model.joints
+        lo_q, hi_q = np.full(4 * n, -np.inf), np.full(4 * n, np.inf)
+        for j, jt in enumerate(jts):
+            if "theta" in jt.limits:
+                lo_q[j], hi_q[j] = jt.limits["theta"]
+            if "dphi" in jt.limits and j not in self.geared:             # geared: a row (_geared_speeds)
+                lo_q[3 * n + j], hi_q[3 * n + j] = -jt.limits["dphi"], jt.limits["dphi"]
+        lo_z = ([1e-3] if self.nT else []) + [b[0] for b in self.p.design.values()]
+        hi_z = ([max_duration] if self.nT else []) + [b[1] for b in self.p.design.values()]
+        tau_max = np.array([jt.limits.get("tau", np.inf) for jt in jts])
+        lo_u = np.concatenate([-tau_max, np.full(self.nu - n, -np.inf)])
+        hi_u = np.concatenate([tau_max, np.full(self.nu - n, np.inf)])
+        lo_x, hi_x = np.concatenate([lo_q, lo_z]), np.concatenate([hi_q, hi_z])
+        lb = np.concatenate([np.tile(np.concatenate([lo_x, lo_u]), N), lo_x])
+        ub = np.concatenate([np.tile(np.concatenate([hi_x, hi_u]), N), hi_x])
+        return lb, ub
+
+    def parameters(self, theta_start, theta_end, duration, effort_weight, w, theta_ref=None, p_fixed=(), scale=1.0):
+        layout, n_par = self.parameter_layout()
+        P = np.zeros(n_par)
+        for key, value in (("theta_start", theta_start), ("theta_end", theta_end), ("duration", duration),
+                           ("effort_weight", effort_weight), ("scale", scale), ("w", w),
+                           ("theta_ref", theta_ref), ("p_fixed", p_fixed)):
+            if value is not None and layout[key].stop > layout[key].start:
+                P[layout[key]] = np.ravel(value, order="F")
+        return P
+
+    # -- guesses and solutions --------------------------------------------------------------
+    def pack(self, Xs, U, T, design, acc):
+        """Stage-ordered vector from Xs (4n, N+1), U (n, N), T, design, acc (2n, m, N) unscaled."""
+        n, N = self.n, self.N
+        z = np.concatenate([[T] if self.nT else [], design])
+        X = np.vstack([Xs, np.repeat(np.reshape(z, (-1, 1)), N + 1, axis=1)])
+        scaled = (np.asarray(acc) / self.acc_scale[:, None, None]).reshape(2 * n * self.m, N, order="F")
+        body = [X[:, :N], U] + ([] if self.condensed else [scaled])      # condensed: solved for inside
+        return np.concatenate([np.vstack(body).ravel("F"), X[:, N]])
+
+    def unpack(self, w) -> dict:
+        n, N = self.n, self.N
+        w = np.asarray(w, float).ravel()
+        body = w[:N * (self.nx + self.nu)].reshape(self.nx + self.nu, N, order="F")
+        X = np.hstack([body[:self.nx], w[N * (self.nx + self.nu):, None]])
+        z = X[4 * n:, 0]
+        acc = None if self.condensed else body[self.nx + n:].reshape(2 * n, self.m, N, order="F") * self.acc_scale[:, None, None]
+        return {"Xs": X[:4 * n], "U": body[self.nx:self.nx + n], "acc": acc,
+                "T": float(z[0]) if self.nT else None, "design": z[self.nT:]}
+
+
+def butcher(c):
+    """The collocation method on points c as a Runge-Kutta tableau: A_jl = int_0^c_j L_l,
+    b_l = int_0^1 L_l, L_l the Lagrange polynomials on c."""
+    from numpy.polynomial import polynomial as P
+    m = len(c)
+    A, b = np.zeros((m, m)), np.zeros(m)
+    for l in range(m):
+        others = [c[i] for i in range(m) if i != l]
+        L = P.polyint(P.polyfromroots(others) / np.prod([c[l] - o for o in others]))
+        b[l] = P.polyval(1.0, L) - P.polyval(0.0, L)
+        A[:, l] = P.polyval(np.asarray(c), L) - P.polyval(0.0, L)
+    return A, b

@@ -1,0 +1,101 @@
+"""The complete model the Pinocchio way, as an outside reference (optional: `pip install pin`).
+
+Every rotor is a separate revolute joint of a 3n-joint tree (each joint's two rotors added
+before its link, so the tree stays in depth-first order, which Pinocchio's CRBA needs).
+The gear constraint q_tree = G q, with fast-rotor angle -mu phi, projects the tree's
+dynamics onto q = (theta, phi): M = G^T M_tree G, c = G^T rnea(q_tree, G dq, 0).
+
+Two ways to build it: from our ArmModel (`PinocchioRoute(model)`), or from the URDF itself
+(`PinocchioRoute.from_urdf(model)`), where Pinocchio parses the URDF, merges fixed links and
+locks joints by its own code, and only the actuators come from our model file.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from rscasadi.model.urdf import axis_rotation
+
+
+class PinocchioRoute:
+    def __init__(self, model, stages=None, gravity=None):
+        """stages: per joint (placement SE3 in the parent joint frame, joint model, link Inertia,
+        rotation from the joint frame to J_j, whose z is the axis); default: from `model`."""
+        self.arm_model, n = model, model.n
+        if stages is None:
+            stages = [(pin.SE3(jt.R, np.asarray(jt.origin_xyz, float)), pin.JointModelRZ(),
+                       _inertia(jt.link, np.eye(3)), np.eye(3)) for jt in model.joints]
+        self.model = pin.Model()
+        self.model.gravity.linear = np.asarray(model.gravity if gravity is None else gravity, float)
+        parent, G = 0, np.zeros((3 * n, 2 * n))
+        for j, ((placement, jmodel, link_inertia, R_a), jt) in enumerate(zip(stages, model.joints)):
+            for k, (inertia, col, gear) in enumerate(((_inertia(jt.slow_rotor, R_a), n + j, 1.0),
+                                                      (_inertia(jt.fast_rotor, R_a), n + j, -jt.gear_ratio),
+                                                      (link_inertia, j, 1.0))):
+                jid = self.model.addJoint(parent, jmodel, placement, f"joint{j}_{k}")
+                self.model.appendBodyToJoint(jid, inertia, pin.SE3.Identity())
+                G[jid - 1, col] = gear
+            parent = jid                                   # the link carries the next joint
+        self.G, self.data = G, self.model.createData()
+        self._cols = {a: model.column(a) for a in ("k1", "k3", "d", "b", "c", "eps", "gear_ratio")}
+
+    @classmethod
+    def from_urdf(cls, model):
+        """The link tree from Pinocchio's own URDF parser (fixed links merged, locked joints
+        removed by buildReducedModel at their locked values); rotors from our model file."""
+        extra = model.extra
+        full = pin.buildModelFromUrdf(extra["urdf"])
+        q0 = pin.neutral(full)
+        lock_ids = []
+        for name, value in extra["locked"].items():
+            jid = full.getJointId(name)
+            lock_ids.append(jid)
+            jm = full.joints[jid]
+            if jm.nq == 2:
+                q0[jm.idx_q:jm.idx_q + 2] = [np.cos(value), np.sin(value)]
+            else:
+                q0[jm.idx_q] = value
+        reduced = pin.buildReducedModel(full, lock_ids, q0) if lock_ids else full
+        names = [reduced.names[i] for i in range(1, reduced.njoints)]
+        if names != [jt.name for jt in model.joints]:
+            raise ValueError(f"Pinocchio's chain {names} differs from the model's joints")
+        stages = []
+        for i in range(1, reduced.njoints):
+            axis = _axis(reduced.joints[i])
+            stages.append((reduced.jointPlacements[i], pin.JointModelRevoluteUnaligned(*axis),
+                           reduced.inertias[i], axis_rotation(axis)))
+        return cls(model, stages)
+
+    def mass_bias(self, theta, phi, dtheta, dphi):
+        q, v = self.G @ np.r_[theta, phi], self.G @ np.r_[dtheta, dphi]
+        M = pin.crba(self.model, self.data, q)
+        M = np.triu(M) + np.triu(M, 1).T                  # crba fills the upper triangle
+        c = pin.rnea(self.model, self.data, q, v, np.zeros(self.model.nv))
+        return self.G.T @ M @ self.G, self.G.T @ c
+
+    def forward_dynamics(self, theta, phi, dtheta, dphi, tau):
+        M, c = self.mass_bias(theta, phi, dtheta, dphi)
+        k = self._cols
+        psi, dpsi = np.asarray(phi) - theta, np.asarray(dphi) - dtheta
+        T = k["k1"] * psi + k["k3"] * psi ** 3 + k["d"] * dpsi
+        TB2 = k["b"] * dphi + k["c"] * np.tanh(np.asarray(dphi) / k["eps"])
+        L = np.linalg.cholesky(M)                          # M = L L^T, then two triangular solves
+        ddq = np.linalg.solve(L.T, np.linalg.solve(L, np.r_[T, -T - TB2 - k["gear_ratio"] * tau] - c))
+        n = self.arm_model.n
+        return ddq[:n], ddq[n:]
+
+
+def _inertia(body, R):
+    """A body given in J_j (z = axis) as a Pinocchio Inertia in the joint frame J_j R^T."""
+    return pin.Inertia(body.mass, R @ np.asarray(body.com, float), R @ body.inertia @ R.T)
+
+
+def _axis(jmodel) -> np.ndarray:
+    """The rotation axis of a Pinocchio revolute joint model, in its joint frame."""
+    short = jmodel.shortname()
+    for letter, axis in (("X", [1.0, 0, 0]), ("Y", [0, 1.0, 0]), ("Z", [0, 0, 1.0])):
+        if short in (f"JointModelR{letter}", f"JointModelRUB{letter}"):
+            return np.array(axis)
+    if hasattr(jmodel, "axis"):
+        return np.asarray(jmodel.axis, float)
+    raise ValueError(f"not a revolute joint: {short}")

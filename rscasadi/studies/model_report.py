@@ -1,0 +1,31 @@
+"""`rscasadi info`: a model's rotor inertias, couplings and static holding torques, in Markdown."""
+from __future__ import annotations
+
+import numpy as np
+
+from rscasadi.dynamics.arm import load
+
+
+def model_report(path) -> str:
+    """A Markdown summary of a model: rotor inertias, couplings and the static holding torques."""
+    arm = load(path)
+    n, m = arm.n, arm.model
+    theta = np.linspace(0.3, -0.6, n)
+    M = np.array(arm.mass_matrix()(theta, theta))
+    zero = np.zeros(n)
+    T = np.array(arm.inverse_dynamics()(theta, theta, zero, zero, zero, zero)[1]).ravel()
+    psi = T / m.column("k1")                         # static: k3 correction ignored in the report
+    tau = np.array(arm.inverse_dynamics()(theta, theta + psi, zero, zero, zero, zero)[0]).ravel()
+    lines = [f"# Model `{m.name}` ({m.path})", "", f"{n} joints; gravity {m.gravity.tolist()} m/s^2.", "",
+             "| j | joint | mu | B_j = Izz(S)+mu^2 Izz(F) (kg m^2) | rotors balanced |", "|---|---|---|---|---|"]
+    lines += [f"| {j + 1} | {jt.name} | {jt.gear_ratio:g} | {jt.rotor_inertia:.6g} | "
+              f"{'yes' if jt.slow_rotor.balanced and jt.fast_rotor.balanced else 'no'} |"
+              for j, jt in enumerate(m.joints)]
+    S = M[:n, n:]
+    lines += ["", f"Coupling block S (link rows, rotor columns) at theta = phi = {np.round(theta, 3).tolist()}:", ""]
+    lines += ["| link \\ rotor | " + " | ".join(str(j + 1) for j in range(n)) + " |", "|---" * (n + 1) + "|"]
+    lines += [f"| {i + 1} | " + " | ".join(f"{S[i, j]:.3g}" for j in range(n)) + " |" for i in range(n)]
+    lines += ["", "Static holding at that pose: SEA torque T (N m), deflection psi = T/k1 (rad), motor torque tau (N m):",
+              "", "| j | T | psi | tau |", "|---|---|---|---|"]
+    lines += [f"| {j + 1} | {T[j]:.4g} | {psi[j]:.4g} | {tau[j]:.4g} |" for j in range(n)]
+    return "\n".join(lines) + "\n"
