@@ -90,7 +90,7 @@ RUNS = {"condensed": [("ipopt", 1), ("ipopt", CORES), ("fatrop", 1), ("fatrop", 
 
 def configured(base, N, transcription, dynamics, runs):
     """The problems of `runs` ((solver, threads) rows) and their solver options, compiled (cached) first."""
-    ps = [dataclasses.replace(base, intervals=N, dynamics=dynamics, solver=solver.split()[0], compiled=True,
+    ps = [base.replace(intervals=N, dynamics=dynamics, solver=solver.split()[0], compiled=True,
                               condense=transcription == "condensed", threads=threads,
                               interface="casadi" if "plugin" in solver else "direct") for solver, threads in runs]
     for p in ps:

@@ -26,7 +26,12 @@ def set_path(d, path, value):
         d[keys[-1]] = value
 
 
-DELETE = object()
+class _Delete:
+    def __repr__(self):                 # a stable test id (pytest-xdist workers must agree)
+        return "DELETE"
+
+
+DELETE = _Delete()
 CASES = [
     # (path in the document, new value, joint named in the message, field named, words)
     ("name", DELETE, None, "name", "missing"),

@@ -30,7 +30,7 @@ def mpc_dir(tmp_path_factory):
 
 def test_generated_c_equals_the_casadi_function(mpc_dir):
     p = load_mpc_problem(PROBLEM)
-    arm = load(p.model_path)
+    arm = load(p.model)
     rti, hold = rti_function(arm, p), hold_function(arm, p)
     c = CompiledMPC(mpc_dir)
     rng = np.random.default_rng(3)

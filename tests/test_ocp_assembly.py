@@ -20,8 +20,8 @@ from conftest import REFERENCE, problem
 
 def transcription(name, N=5, **over):
     """The lifted NLP (condense = false): its every function is CasADi's, so AD can check it."""
-    p = dataclasses.replace(load_problem(REFERENCE.parent / f"{name}.toml"), intervals=N, **{"condense": False, **over})
-    tr = Transcription(p, Arm(read(p.model_path)), N=N)
+    p = load_problem(REFERENCE.parent / f"{name}.toml").replace(intervals=N, **{"condense": False, **over})
+    tr = Transcription(p, Arm(read(p.task.model)), N=N)
     return tr, *tr.nlp()
 
 

@@ -18,7 +18,8 @@ import sys
 import numpy as np
 import pytest
 
-from rscasadi.ocp import blasfeo, load_problem, solve_once
+from rscasadi.ocp import load_problem, solve_once
+from rscasadi.ocp.fatrop import blasfeo
 from rscasadi.ocp.fatrop.driver import casadi_dir, driver_library, tuned_kernels_library
 
 from conftest import cc, problem
@@ -26,7 +27,7 @@ from conftest import cc, problem
 CHILD = """
 import dataclasses, json, sys
 from rscasadi.ocp import load_problem, solve_once
-p = dataclasses.replace(load_problem(sys.argv[1]), solver="fatrop")
+p = load_problem(sys.argv[1]).replace(solver="fatrop")
 sol = solve_once(p, print_level=0, log=lambda m: None)
 print(json.dumps({k: sol[k] for k in ("status", "iterations", "theta", "tau", "blasfeo")}))
 """
@@ -39,7 +40,7 @@ def _fatrop_problem(pitch_arm):
 def test_the_users_blasfeo_is_the_one_fatrop_calls_and_it_iterates_alike(pitch_arm, tmp_path, monkeypatch):
     monkeypatch.delenv(blasfeo.ENV, raising=False)
     path = _fatrop_problem(pitch_arm)
-    ours = solve_once(dataclasses.replace(load_problem(path), solver="fatrop"), print_level=0, log=lambda m: None)
+    ours = solve_once(load_problem(path).replace(solver="fatrop"), print_level=0, log=lambda m: None)
     assert ours["success"] and ours["blasfeo"]["library"] == os.path.realpath(blasfeo.wheel_library())
     # a copy under another soname: with the wheel's soname the dynamic linker would hand the copy to
     # libfatrop as its dependency, and the global-scope binding would go untested (the same length:
@@ -163,7 +164,7 @@ def test_a_tuned_kernel_that_differs_from_the_wheels_is_refused(tmp_path):
 TUNED_CHILD = """
 import ctypes, dataclasses, json, sys
 from rscasadi.ocp import load_problem, solve_once
-p = dataclasses.replace(load_problem(sys.argv[1]), solver="fatrop")
+p = load_problem(sys.argv[1]).replace(solver="fatrop")
 solve_once(p, print_level=0, log=lambda m: None)
 tuned = None
 import rscasadi.ocp.fatrop.blasfeo as b

@@ -22,10 +22,10 @@ QUIET = {"print_level": 0, "log": lambda m: None}
 
 def _pair(name, N=4, **over):
     """The lifted (explicit) and the condensed transcription of one problem, built."""
-    base = dataclasses.replace(load_problem(REFERENCE.parent / f"{name}.toml"), intervals=N, **over)
-    arm = Arm(read(base.model_path))
-    lifted = Transcription(dataclasses.replace(base, condense=False, dynamics="explicit"), arm, N=N)
-    condensed = Transcription(dataclasses.replace(base, condense=True), arm, N=N)
+    base = load_problem(REFERENCE.parent / f"{name}.toml").replace(intervals=N, **over)
+    arm = Arm(read(base.task.model))
+    lifted = Transcription(base.replace(condense=False, dynamics="explicit"), arm, N=N)
+    condensed = Transcription(base.replace(condense=True), arm, N=N)
     return base, arm, lifted, lifted.nlp(), condensed, condensed.nlp(log=lambda m: None)
 
 
@@ -69,14 +69,14 @@ def test_kernel_equals_casadi_rootfinder_and_its_ad(name, over):
     kernel, piece = cond.kernel, cond.pieces[0]
     first, objective, second = piece.derivatives
     N = lifted.N
-    t = base.duration * np.linspace(0, 1, N + 1)
+    t = base.task.duration * np.linspace(0, 1, N + 1)
     w0 = guess(lifted, base, arm, t, None)
-    P = lifted.parameters(base.theta_start, base.theta_end, base.duration, base.effort_weight, np.full(N, 1 / N),
-                          None if not lifted.tracking else np.zeros((n, N)), list(base.parameters.values()))
+    P = lifted.parameters(base.task.theta_start, base.task.theta_end, base.task.duration, base.task.effort_weight, np.full(N, 1 / N),
+                          None if not lifted.tracking else np.zeros((n, N)), list(base.task.parameters.values()))
     if lifted.tracking:
         from rscasadi.ocp.solving import _reference as reference_of
-        P = lifted.parameters(reference_of(base, t[:1])[:, 0], None, base.duration, base.effort_weight,
-                              np.full(N, 1 / N), reference_of(base, t)[:, 1:], list(base.parameters.values()))
+        P = lifted.parameters(reference_of(base, t[:1])[:, 0], None, base.task.duration, base.task.effort_weight,
+                              np.full(N, 1 / N), reference_of(base, t)[:, 1:], list(base.task.parameters.values()))
     rng = np.random.default_rng(11)
     for k in (0, N - 1):
         z = w0[lifted.pieces[0].cols[k]]
@@ -110,10 +110,10 @@ def test_kernel_reports_a_failed_solve_instead_of_returning_garbage():
 def test_condensed_solution_equals_the_lifted_one(objective):
     """Same optimum (N = 20): condensed and lifted with IPOPT agree to 1e-9 in the objective;
     fatrop (which stops at a looser point: 1e-7 apart even on one NLP) to 1e-6."""
-    base = dataclasses.replace(load_problem(REFERENCE.parent / f"ocp_{objective}.toml"), intervals=20)
-    lifted = solve_once(dataclasses.replace(base, condense=False, solver="ipopt"), **QUIET)
+    base = load_problem(REFERENCE.parent / f"ocp_{objective}.toml").replace(intervals=20)
+    lifted = solve_once(base.replace(condense=False, solver="ipopt"), **QUIET)
     for solver, tol in (("ipopt", 1e-9), ("fatrop", 1e-6)):
-        cond = solve_once(dataclasses.replace(base, condense=True, solver=solver), **QUIET)
+        cond = solve_once(base.replace(condense=True, solver=solver), **QUIET)
         assert cond["success"] and lifted["success"], (cond["status"], lifted["status"])
         assert abs(cond["objective"] - lifted["objective"]) <= tol * abs(lifted["objective"]), solver
         if solver == "ipopt":
@@ -124,7 +124,7 @@ def test_condensed_solution_equals_the_lifted_one(objective):
 
 def test_condensed_solves_are_reproducible_in_one_process():
     """The kernel's cache is reset before each solve: the same problem twice gives the same bits."""
-    base = dataclasses.replace(load_problem(REFERENCE.parent / "ocp_min_effort.toml"), intervals=20)
+    base = load_problem(REFERENCE.parent / "ocp_min_effort.toml").replace(intervals=20)
     a, b = (solve_once(base, **QUIET) for _ in range(2))
     assert a["iterations"] == b["iterations"] and a["tau"] == b["tau"] and a["theta"] == b["theta"]
 
@@ -133,4 +133,4 @@ def test_condense_needs_compiled(pitch_arm):
     path = problem(pitch_arm, "bad.toml", transcription={"compiled": False, "condense": True})
     with pytest.raises(ModelFileError, match="transcription.condense"):
         load_problem(path)
-    assert load_problem(problem(pitch_arm, "ok.toml", transcription={"compiled": False})).condense is False
+    assert load_problem(problem(pitch_arm, "ok.toml", transcription={"compiled": False})).transcription.condense is False

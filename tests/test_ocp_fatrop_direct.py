@@ -29,7 +29,7 @@ def test_direct_fatrop_iterates_as_casadis_plugin(pitch_arm, monkeypatch, case, 
     path = problem(pitch_arm, f"direct_{case}.toml", **{**over, "transcription": tr})
     out = {}
     for interface in ("casadi", "direct"):
-        p = dataclasses.replace(load_problem(path), solver="fatrop", interface=interface)
+        p = load_problem(path).replace(solver="fatrop", interface=interface)
         out[interface] = raw_solve(monkeypatch, p)
         assert out[interface][0]["success"], out[interface][0]["status"]
     (a, ra), (b, rb) = out["casadi"], out["direct"]
@@ -44,7 +44,7 @@ def test_direct_fatrop_iterates_as_casadis_plugin(pitch_arm, monkeypatch, case, 
 def test_direct_is_the_default_and_reports_fatrops_stats(pitch_arm):
     p = load_problem(problem(pitch_arm, "direct_default.toml", transcription={"intervals": 12, "compiled": True},
                              solver={"name": "fatrop"}))
-    assert p.interface == "direct" and solvers.direct(p)
+    assert p.solver.interface == "direct" and solvers.direct(p)
     sol = solve_once(p, **QUIET)
     assert sol["status"] == "Solve_Succeeded" and sol["interface"] == "direct" and sol["iterations"] > 0
 

@@ -3,6 +3,7 @@ the template files in `templates/` (static buffers, `mpc_init`, `mpc_step`, `mpc
 compiled once per source by the one build step, and described by a manifest."""
 from __future__ import annotations
 
+import dataclasses
 import re
 import shutil
 from pathlib import Path
@@ -13,19 +14,20 @@ import casadi as ca
 from rscasadi.dynamics.arm import load
 from rscasadi.files import fresh_directory, write_json
 from rscasadi.mpc.formulation import hold_function, rti_function
-from rscasadi.mpc.problem import load_mpc_problem
+from rscasadi.mpc.problem import mpc_problem
 from rscasadi.native.build import cached_library, compiler
 
 TEMPLATES = Path(__file__).with_name("templates")
 
 
-def generate_mpc(problem_file, out, opt: str = "-O2", log=print, model=None) -> dict:
-    """Write the MPC's C, header, library and manifest into `out` (whole or not at all); `model`
-    (a model file) replaces the problem's, e.g. an identified model."""
-    p = load_mpc_problem(problem_file)
+def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None) -> dict:
+    """Write the C of `problem` (an `MPCProblem` or the path of its file), its header, library and
+    manifest into `out` (whole or not at all); `model` (a model file) replaces the problem's,
+    e.g. an identified model."""
+    p = mpc_problem(problem)
     if model is not None:
-        p.model_path = Path(model).resolve()
-    arm = load(p.model_path)
+        p = dataclasses.replace(p, model=Path(model).resolve())
+    arm = load(p.model)
     if p.interval / p.substeps > 2e-3:
         log(f"note: {p.interval / p.substeps * 1e3:.1f} ms RK4 steps: the SEA damping (d/k1 ~ 1 ms) may make them unstable")
     rti, hold = rti_function(arm, p), hold_function(arm, p)
@@ -49,7 +51,7 @@ def generate_mpc(problem_file, out, opt: str = "-O2", log=print, model=None) -> 
                                                                       "rscasadi_mpc.h")},
                              [opt, "-std=c99"], name="mpc", what=f"the MPC ({opt})", log=log, cc=cc, log_hit=True)
         shutil.copy2(lib, tmp / "librscasadi_mpc.so")
-        manifest = {"model": str(p.model_path), "problem": str(p.path), "header": "rscasadi_mpc.h",
+        manifest = {"model": str(p.model), "problem": None if p.path is None else str(p.path), "header": "rscasadi_mpc.h",
                     "library": "librscasadi_mpc.so", "sources": ["mpc_rti.c", "rscasadi_mpc.c"],
                     "api": {"mpc_init": ["x_measured"], "mpc_step": ["x_measured", "reference", "tau_out"],
                             "mpc_step_to": ["x_measured", "theta_target", "tau_out"], "mpc_step_seconds": []},

@@ -11,7 +11,7 @@ from rscasadi.dynamics.arm import Arm, load
 from rscasadi.mpc.compiled import CompiledMPC
 from rscasadi.mpc.formulation import limit_arrays
 from rscasadi.mpc.generate import generate_mpc
-from rscasadi.mpc.problem import load_mpc_problem
+from rscasadi.mpc.problem import mpc_problem
 
 
 def heavier_tip(arm: Arm, factor: float = 1.2) -> Arm:
@@ -35,12 +35,12 @@ def plant_step(plant: Arm, dt: float) -> ca.Function:
     return ca.Function("advance", [xs, us], [z])
 
 
-def reach_pose(problem_file, mpc_dir, theta_target, seconds: float = 1.0, plant: Arm | None = None) -> dict:
+def reach_pose(problem, mpc_dir, theta_target, seconds: float = 1.0, plant: Arm | None = None) -> dict:
     """From rest at theta = 0 to a target pose with the C MPC's mpc_step_to, on the problem's arm
     (or `plant`), exact measurements: final angle error and speed, largest limit violation
     (fraction of the limit beyond it), the torques and the time per step."""
-    p = load_mpc_problem(problem_file)
-    arm = load(p.model_path) if plant is None else plant
+    p = mpc_problem(problem)
+    arm = load(p.model) if plant is None else plant
     from rscasadi.dynamics.statics import rest_state
     n, advance, limits = arm.n, plant_step(arm, p.sample_time), limit_arrays(arm)
     target = np.asarray(theta_target, float)
@@ -62,21 +62,22 @@ def reach_pose(problem_file, mpc_dir, theta_target, seconds: float = 1.0, plant:
             "step_median_s": float(np.median(times)), "step_worst_s": float(np.max(times))}
 
 
-def closed_loop(problem_file, mpc_dir, duration: float | None = None, tip_factor: float = 1.2,
+def closed_loop(problem, mpc_dir, duration: float | None = None, tip_factor: float = 1.2,
                 log=print, model=None, plant: Arm | None = None, quantised: bool = True,
                 traces: dict | None = None) -> dict:
     """Controllers from one model (the problem's, or the model file `model`, e.g. an identified
     one; the C MPC in `mpc_dir` must be generated from it) on a plant that differs (`plant`, by
     default the model with a heavier tip), at 1 kHz, encoders quantised (speeds by backward
-    differences; `quantised=False`: the exact state): feedforward alone, feedforward + motor-side PD, the C MPC.  Returns per
+    differences; `quantised=False`: the exact state): feedforward alone, feedforward +
+    motor-side PD, the C MPC.  `problem`: an `MPCProblem` or the path of its file.  Returns per
     controller the tracking error (max, RMS), the largest limit violation and, for the MPC, its
     time per step (measured in C); `traces`, if given, receives per controller the time, the error
     over time and (MPC) the step times, for `plot_closed_loop`."""
     from rscasadi.sim.sensors import quanta              # the same encoders as the identification logs
     from rscasadi.sim.simulation import feedforward
     from rscasadi.sim.trajectory import load_trajectory
-    p = load_mpc_problem(problem_file)
-    nominal = load(p.model_path if model is None else model)
+    p = mpc_problem(problem)
+    nominal = load(p.model if model is None else model)
     plant = heavier_tip(nominal, tip_factor) if plant is None else plant
     traj = load_trajectory(p.trajectory)
     n, dt = nominal.n, p.sample_time
@@ -133,7 +134,7 @@ def closed_loop(problem_file, mpc_dir, duration: float | None = None, tip_factor
     return results
 
 
-def study(problem_file, build, identified_model=None, true_arm: Arm | None = None, log=print,
+def study(problem, build, identified_model=None, true_arm: Arm | None = None, log=print,
           figure: Path | None = None) -> dict:
     """The closed-loop evidence, whole trajectory: the problem's model against a 20 % heavier tip;
     if given, the identified model's controllers (MPC generated into `build`) against the true arm
@@ -141,12 +142,12 @@ def study(problem_file, build, identified_model=None, true_arm: Arm | None = Non
     build = Path(build)
     res, traces = {}, {}
     log("closed loop: the model's controllers on a plant with a 20 % heavier tip, quantised encoders")
-    generate_mpc(problem_file, build / "mpc", log=log)
-    res["heavier_tip"] = closed_loop(problem_file, build / "mpc", log=log, traces=traces.setdefault("heavier_tip", {}))
+    generate_mpc(problem, build / "mpc", log=log)
+    res["heavier_tip"] = closed_loop(problem, build / "mpc", log=log, traces=traces.setdefault("heavier_tip", {}))
     if identified_model is not None:
         log("closed loop: the identified model's controllers on the true arm, quantised encoders")
-        generate_mpc(problem_file, build / "mpc_identified", log=log, model=identified_model)
-        res["identified_on_true_arm"] = closed_loop(problem_file, build / "mpc_identified", log=log,
+        generate_mpc(problem, build / "mpc_identified", log=log, model=identified_model)
+        res["identified_on_true_arm"] = closed_loop(problem, build / "mpc_identified", log=log,
                                                     model=identified_model, plant=true_arm,
                                                     traces=traces.setdefault("identified_on_true_arm", {}))
     if figure is not None:

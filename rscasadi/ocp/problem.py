@@ -1,4 +1,17 @@
-"""The optimal-control problem file (TOML), every field checked and named in errors:
+"""An optimal-control problem, stated in four parts, as rockit and acados state theirs:
+
+- `Task`: what the arm must do (model, objective, boundary conditions, limits from the model,
+  parameters, design variables);
+- `TranscriptionOptions`: how time is discretised;
+- `SolverOptions`: which NLP solver and how;
+- `Verification`: what the replay on the complete model must meet, and how many mesh
+  refinements it may ask for.
+
+`Problem(task, transcription, solver, verification)` in Python, or `load_problem(path)` from a
+TOML file; both are checked by `Problem.check()`, whose errors name the field (and the file).
+`problem.replace(intervals=200, solver="ipopt")` gives a changed copy by the fields' names.
+
+The TOML file, every field checked and named in errors:
 
     model = "arm3.toml"                  # relative to the problem file
     objective = "min_effort"             # min_time | min_effort | tracking
@@ -45,18 +58,21 @@ Names in [design] are the model's parameter names (docs/user-guide/model.md, "Pa
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from rscasadi.model.modelfile import ModelFileError, field_checker, read_toml
+from rscasadi.model.checks import field_checker, read_toml
+from rscasadi.model.types import ModelFileError
 
 OBJECTIVES = ("min_time", "min_effort", "tracking")
 METHODS = ("radau", "legendre", "hermite-simpson")
+DYNAMICS = ("explicit", "implicit")
 SOLVERS = ("fatrop", "ipopt")
 INTERFACES = ("direct", "casadi")
-BARRIERS = ("monotone",)                     # fatrop's barrier rule (docs/design/fatrop.md)
+BARRIERS = ("monotone",)                     # fatrop's barrier rule (docs/design/condensing.md)
 HESSIANS = ("exact", "limited-memory")
 TOP = {"model", "objective", "theta_start", "theta_end", "duration", "max_duration", "trajectory",
        "effort_weight", "transcription", "verification", "solver", "refinement", "design"}
@@ -69,44 +85,156 @@ SWEEPABLE = ("theta_start", "theta_end", "duration", "max_duration", "effort_wei
 
 
 @dataclass
-class Problem:
-    path: Path
-    model_path: Path
+class Task:
+    """What the arm must do.  `model`: the model file; `objective`: min_time | min_effort |
+    tracking; `duration` (s): fixed, or min_time's first guess; the rest poses `theta_start`,
+    `theta_end` (not for tracking) or the `trajectory` file to track; `design`: parameter name
+    -> (lower, upper), chosen by the optimiser; `parameters`: name -> value, set (sweeps)."""
+    model: Path
     objective: str
     duration: float
     theta_start: np.ndarray | None = None
     theta_end: np.ndarray | None = None
-    max_duration: float = 10.0
+    max_duration: float = 10.0                      # min_time's upper bound (s)
     trajectory: Path | None = None
-    effort_weight: float = 1e-3
+    effort_weight: float = 1e-3                     # min_time, tracking: weight of the integral of tau^2
+    design: dict = field(default_factory=dict)
+    parameters: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.model = Path(self.model)
+        self.trajectory = None if self.trajectory is None else Path(self.trajectory)
+        for key in ("theta_start", "theta_end"):
+            if getattr(self, key) is not None:
+                setattr(self, key, np.asarray(getattr(self, key), float))
+        self.design = {k: (float(lo), float(hi)) for k, (lo, hi) in self.design.items()}
+
+
+@dataclass
+class TranscriptionOptions:
+    """Direct collocation: `method` radau | legendre | hermite-simpson with `degree` points on
+    each of `intervals` intervals; `dynamics` explicit (forward dynamics) | implicit
+    (inverse-dynamics residual); `compiled`: the NLP's functions as C; `condense`: each
+    interval's collocation solved inside the NLP's functions (needs compiled)."""
     method: str = "radau"
     degree: int = 3
     intervals: int = 100
     dynamics: str = "explicit"
     compiled: bool = True
     condense: bool = True
-    solver: str = "fatrop"
+
+
+@dataclass
+class SolverOptions:
+    """`name` fatrop | ipopt; `hessian` exact | limited-memory (ipopt); `interface` direct
+    (fatrop's C interface, needs compiled) | casadi; `threads` for the NLP's loops over the
+    intervals (0: one per core)."""
+    name: str = "fatrop"
     hessian: str = "exact"
     interface: str = "direct"
-    threads: int = 1                                 # 0: one per available core
+    threads: int = 1
+
+
+@dataclass
+class Verification:
+    """What the replay on the complete model must meet (angles rad, speeds rad/s, limits
+    relative), and at most how many re-solves on a refined mesh it may ask for."""
     final_angle_tol: float = 1e-4
     final_speed_tol: float = 1e-3
     tracking_tol: float = 1e-3
     limit_tol: float = 1e-3
     rounds: int = 4
-    design: dict = field(default_factory=dict)       # name -> (lo, hi): decision variables
-    parameters: dict = field(default_factory=dict)   # name -> value: NLP inputs (sweeps)
+
+
+PARTS = {"task": Task, "transcription": TranscriptionOptions, "solver": SolverOptions, "verification": Verification}
+# a field's flat name (as sweeps and `Problem.replace` use it) -> (part, attribute)
+FIELDS = {**{f.name: (part, f.name) for part, cls in PARTS.items() for f in dataclasses.fields(cls)},
+          "solver": ("solver", "name")}
+
+
+@dataclass
+class Problem:
+    """An optimal-control problem: the task, and how it is transcribed, solved and verified.
+    `path`: the file it was read from (errors name it), if any."""
+    task: Task
+    transcription: TranscriptionOptions = field(default_factory=TranscriptionOptions)
+    solver: SolverOptions = field(default_factory=SolverOptions)
+    verification: Verification = field(default_factory=Verification)
+    path: Path | None = None
+
+    def replace(self, **changes) -> "Problem":
+        """A copy with fields changed by their names (`intervals=200`, `solver="ipopt"`,
+        `theta_end=...`); a part may also be replaced whole (`solver=SolverOptions(...)`)."""
+        parts = {name: getattr(self, name) for name in PARTS}
+        for key, value in changes.items():
+            if key in PARTS and isinstance(value, PARTS[key]):
+                parts[key] = value
+            elif key in FIELDS:
+                part, attr = FIELDS[key]
+                parts[part] = dataclasses.replace(parts[part], **{attr: value})
+            elif key == "path":
+                continue
+            else:
+                raise TypeError(f"Problem has no field {key!r} (fields: {', '.join(sorted(FIELDS))})")
+        return Problem(**parts, path=changes.get("path", self.path))
+
+    def check(self) -> "Problem":
+        """Every rule of the problem file, on the objects; a `ModelFileError` names the field."""
+        where = str(self.path) if self.path is not None else "<Problem>"
+
+        def fail(fld, msg):
+            raise ModelFileError(f"{where}: field '{fld}': {msg}")
+        t, tr, s, v = self.task, self.transcription, self.solver, self.verification
+        if t.objective not in OBJECTIVES:
+            fail("objective", f"must be one of {', '.join(OBJECTIVES)}, got {t.objective!r}")
+        for fld, value, positive in (("duration", t.duration, True), ("max_duration", t.max_duration, True),
+                                     ("effort_weight", t.effort_weight, False)):
+            _number(fail, fld, value, positive)
+        if t.objective == "tracking":
+            if t.trajectory is None:
+                fail("trajectory", "missing required field (objective tracking)")
+        else:
+            for key in ("theta_start", "theta_end"):
+                if getattr(t, key) is None:
+                    fail(key, f"missing required field (objective {t.objective})")
+                if np.size(getattr(t, key)) == 0 or not np.all(np.isfinite(getattr(t, key))):
+                    fail(key, f"expected a list of finite numbers, got {getattr(t, key)!r}")
+        for name, bounds in t.design.items():
+            if len(bounds) != 2 or not bounds[0] < bounds[1]:
+                fail(f"design.{name}", f"expected [lower, upper] with lower < upper, got {bounds!r}")
+        for fld, value, allowed in (("transcription.method", tr.method, METHODS),
+                                    ("transcription.dynamics", tr.dynamics, DYNAMICS),
+                                    ("solver.name", s.name, SOLVERS), ("solver.hessian", s.hessian, HESSIANS),
+                                    ("solver.interface", s.interface, INTERFACES)):
+            if value not in allowed:
+                fail(fld, f"must be one of {', '.join(allowed)}, got {value!r}")
+        for fld, value, lo in (("transcription.degree", tr.degree, 1), ("transcription.intervals", tr.intervals, 2),
+                               ("refinement.rounds", v.rounds, 0), ("solver.threads", s.threads, 0)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo:
+                fail(fld, f"must be an integer >= {lo}, got {value!r}")
+        for fld in ("compiled", "condense"):
+            if not isinstance(getattr(tr, fld), bool):
+                fail(f"transcription.{fld}", f"must be true or false, got {getattr(tr, fld)!r}")
+        for fld in ("final_angle_tol", "final_speed_tol", "tracking_tol", "limit_tol"):
+            _number(fail, f"verification.{fld}", getattr(v, fld), True)
+        if s.hessian != "exact" and s.name == "fatrop":
+            fail("solver.hessian", "fatrop needs the exact Hessian; use name = \"ipopt\" for limited-memory")
+        if tr.condense and not tr.compiled:
+            fail("transcription.condense", "the condensing kernel is C: needs compiled = true (or condense = false)")
+        return self
+
+
+def _number(fail, fld, v, positive: bool):
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.floating)) or not np.isfinite(v) or (positive and v <= 0):
+        fail(fld, f"must be a{' positive' if positive else ''} number, got {v!r}")
+    return float(v)
 
 
 def load_problem(path) -> Problem:
+    """Read a problem file (the format above) into a checked `Problem`."""
     path = Path(path)
     d = read_toml(path, "problem")
     fail = field_checker(path, d, TOP)
-
-    def number(fld, v, positive=True):
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or (positive and v <= 0):
-            fail(fld, f"must be a{' positive' if positive else ''} number, got {v!r}")
-        return float(v)
 
     def table(name):
         t = d.get(name, {})
@@ -123,94 +251,59 @@ def load_problem(path) -> Problem:
     for key in ("model", "trajectory"):
         if key in d and (not isinstance(d[key], str) or not d[key].strip()):
             fail(key, f"expected the path of a file, got {d[key]!r}")
-    if d["objective"] not in OBJECTIVES:
-        fail("objective", f"must be one of {', '.join(OBJECTIVES)}, got {d['objective']!r}")
-    tr = table("transcription")
-    p = Problem(path=path, model_path=(path.parent / str(d["model"])).resolve(), objective=d["objective"],
-                duration=number("duration", d["duration"]))
-    if d["objective"] == "tracking":
-        if "trajectory" not in d:
-            fail("trajectory", "missing required field (objective tracking)")
-        p.trajectory = (path.parent / str(d["trajectory"])).resolve()
-    else:
-        for key in ("theta_start", "theta_end"):
-            v = d.get(key)
-            if v is None:
-                fail(key, f"missing required field (objective {d['objective']})")
+    task = {"model": (path.parent / str(d["model"])).resolve(), "objective": d["objective"],
+            "duration": _number(fail, "duration", d["duration"], True)}
+    if "trajectory" in d and d["objective"] == "tracking":
+        task["trajectory"] = (path.parent / str(d["trajectory"])).resolve()
+    for key in ("theta_start", "theta_end"):
+        if key in d and d["objective"] != "tracking":
+            v = d[key]
             if not isinstance(v, list) or not v:
                 fail(key, f"expected a list of numbers, got {v!r}")
-            setattr(p, key, np.array([number(f"{key}[{i}]", x, positive=False) for i, x in enumerate(v)]))
+            task[key] = np.array([_number(fail, f"{key}[{i}]", x, False) for i, x in enumerate(v)])
     if "max_duration" in d:
-        p.max_duration = number("max_duration", d["max_duration"])
+        task["max_duration"] = _number(fail, "max_duration", d["max_duration"], True)
     if "effort_weight" in d:
-        p.effort_weight = number("effort_weight", d["effort_weight"], positive=False)
-    p.method = tr.get("method", "radau")
-    if p.method not in METHODS:
-        fail("transcription.method", f"must be one of {', '.join(METHODS)}, got {p.method!r}")
-    for fld, lo, value in (("transcription.degree", 1, tr.get("degree", p.degree)),
-                           ("transcription.intervals", 2, tr.get("intervals", p.intervals)),
-                           ("refinement.rounds", 0, table("refinement").get("rounds", p.rounds)),
-                           ("solver.threads", 0, table("solver").get("threads", p.threads))):
-        if isinstance(value, bool) or not isinstance(value, int) or value < lo:
-            fail(fld, f"must be an integer >= {lo}, got {value!r}")
-        setattr(p, fld.split(".")[1], value)
-    p.dynamics = tr.get("dynamics", "explicit")
-    if p.dynamics not in ("explicit", "implicit"):
-        fail("transcription.dynamics", f"must be explicit or implicit, got {p.dynamics!r}")
-    for key, value in table("verification").items():
-        setattr(p, key, number(f"verification.{key}", value))
-    solver = table("solver")
-    p.solver, p.hessian = solver.get("name", p.solver), solver.get("hessian", p.hessian)
-    if p.solver not in SOLVERS:
-        fail("solver.name", f"must be one of {', '.join(SOLVERS)}, got {p.solver!r}")
-    if p.hessian not in HESSIANS:
-        fail("solver.hessian", f"must be one of {', '.join(HESSIANS)}, got {p.hessian!r}")
-    p.interface = solver.get("interface", p.interface)
-    if p.interface not in INTERFACES:
-        fail("solver.interface", f"must be one of {', '.join(INTERFACES)}, got {p.interface!r}")
-    if p.hessian != "exact" and p.solver == "fatrop":
-        fail("solver.hessian", "fatrop needs the exact Hessian; use name = \"ipopt\" for limited-memory")
-    p.compiled = tr.get("compiled", True)
-    if not isinstance(p.compiled, bool):
-        fail("transcription.compiled", f"must be true or false, got {p.compiled!r}")
-    p.condense = tr.get("condense", p.compiled)
-    if not isinstance(p.condense, bool):
-        fail("transcription.condense", f"must be true or false, got {p.condense!r}")
-    if solver.get("barrier", "monotone") not in BARRIERS:
-        fail("solver.barrier", f"must be \"monotone\" (fatrop's rule; the adaptive rule was removed, "
-                               f"docs/design/fatrop.md), got {solver['barrier']!r}")
-    if solver.get("interface") == "direct" and not p.compiled:
-        fail("solver.interface", "the direct fatrop interface calls the compiled NLP: needs compiled = true")
-    if p.condense and not p.compiled:
-        fail("transcription.condense", "the condensing kernel is C: needs compiled = true (or condense = false)")
+        task["effort_weight"] = _number(fail, "effort_weight", d["effort_weight"], False)
+    design = {}
     for name, bounds in table("design").items():
         if (not isinstance(bounds, list) or len(bounds) != 2
-                or any(isinstance(b, bool) or not isinstance(b, (int, float)) for b in bounds)
-                or not bounds[0] < bounds[1]):
+                or any(isinstance(b, bool) or not isinstance(b, (int, float)) for b in bounds)):
             fail(f"design.{name}", f"expected [lower, upper] with lower < upper, got {bounds!r}")
-        p.design[name] = (float(bounds[0]), float(bounds[1]))
-    return p
+        design[name] = (float(bounds[0]), float(bounds[1]))
+    tr = dict(table("transcription"))
+    tr.setdefault("condense", tr.get("compiled", True))          # condensed wherever it can be
+    solver = dict(table("solver"))
+    if solver.pop("barrier", "monotone") not in BARRIERS:
+        fail("solver.barrier", f"must be \"monotone\" (fatrop's rule; the adaptive rule was removed, "
+                               f"docs/design/condensing.md), got {table('solver')['barrier']!r}")
+    if solver.get("interface") == "direct" and not tr.get("compiled", True):
+        fail("solver.interface", "the direct fatrop interface calls the compiled NLP: needs compiled = true")
+    verification = {**table("verification"), **table("refinement")}
+    return Problem(Task(**task, design=design), TranscriptionOptions(**tr), SolverOptions(**solver),
+                   Verification(**verification), path=path).check()
 
 
 def check_against_model(problem: Problem, model):
     """The problem's poses and parameter names fit the arm (errors name the problem file)."""
     from rscasadi.model.parameters import check_names
+    t = problem.task
     for key in ("theta_start", "theta_end"):
-        v = getattr(problem, key)
+        v = getattr(t, key)
         if v is not None and len(v) != model.n:
             raise ModelFileError(f"{problem.path}: field '{key}': {len(v)} entries for a {model.n}-joint arm")
     try:
-        check_names(model, problem.design, f"{problem.path}: field 'design'")
-        check_names(model, problem.parameters, f"{problem.path}: parameters")
+        check_names(model, t.design, f"{problem.path}: field 'design'")
+        check_names(model, t.parameters, f"{problem.path}: parameters")
     except ValueError as exc:
         raise ModelFileError(str(exc)) from None
-    for name, (lo, _) in problem.design.items():
+    for name, (lo, _) in t.design.items():
         if name.endswith(".gear_ratio") and lo <= 0:
             raise ModelFileError(f"{problem.path}: field 'design.{name}': a gear ratio stays positive "
                                  f"(lower bound {lo:g})")
-    for name, v in problem.parameters.items():
+    for name, v in t.parameters.items():
         if name.endswith(".gear_ratio") and v <= 0:
             raise ModelFileError(f"{problem.path}: parameter '{name}' = {v:g}: a gear ratio is positive")
-    both = set(problem.design) & set(problem.parameters)
+    both = set(t.design) & set(t.parameters)
     if both:
         raise ModelFileError(f"{problem.path}: field 'design': {sorted(both)} cannot be both designed and swept")

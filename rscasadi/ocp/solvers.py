@@ -20,7 +20,7 @@ from rscasadi.ocp.transcription import Transcription
 def options(problem: Problem, tr: Transcription, print_level: int, extra: dict | None = None) -> dict:
     """Solver options: tolerances alike for both, so that their times compare."""
     extra = extra or {}
-    if problem.solver == "fatrop":
+    if problem.solver.name == "fatrop":
         return {**tr.structure(), "print_time": False, "expand": False,
                 "fatrop": {"print_level": 10 if print_level else 0, "tol": 1e-8, "max_iter": 1000,
                            # condensed, a smaller first barrier: min time 33-37 iterations instead of
@@ -29,7 +29,7 @@ def options(problem: Problem, tr: Transcription, print_level: int, extra: dict |
     return {"print_time": False, "ipopt.print_level": print_level, "ipopt.sb": "yes", "ipopt.max_iter": 1000,
             "ipopt.tol": 1e-8, "ipopt.mu_strategy": "adaptive",
             "ipopt.mumps_pivot_order": 0,          # AMD: min-time N = 100 in 1.8 s instead of 4.5 s here
-            "ipopt.hessian_approximation": problem.hessian, **{f"ipopt.{k}": v for k, v in extra.items()}}
+            "ipopt.hessian_approximation": problem.solver.hessian, **{f"ipopt.{k}": v for k, v in extra.items()}}
 
 
 def make_solver(problem: Problem, tr: Transcription, nlp: dict, log=print, print_level: int = 5,
@@ -40,17 +40,17 @@ def make_solver(problem: Problem, tr: Transcription, nlp: dict, log=print, print
     if tr.condensed:
         # the kernel's functions have no AD: the parameters' multipliers (by AD) are not asked for
         opts["calc_lam_p"] = False
-    if not problem.compiled and not tr.condensed:      # condensed: its kernel is C anyway
-        return ca.nlpsol("ocp", problem.solver, nlp, opts), objective
-    library = compiled_nlp(problem.solver, nlp, opts, tr.pieces, log)
+    if not problem.transcription.compiled and not tr.condensed:      # condensed: its kernel is C anyway
+        return ca.nlpsol("ocp", problem.solver.name, nlp, opts), objective
+    library = compiled_nlp(problem.solver.name, nlp, opts, tr.pieces, log)
     if direct(problem):
         return DirectFatrop(library, tr.structure(), opts["fatrop"], log, places(tr.pieces)), objective
-    return ca.nlpsol("ocp", problem.solver, library, opts), objective
+    return ca.nlpsol("ocp", problem.solver.name, library, opts), objective
 
 
 def direct(problem: Problem) -> bool:
     """fatrop through its own C interface (ocp/fatrop/driver.py): on the compiled NLP, unless asked otherwise."""
-    return problem.solver == "fatrop" and problem.interface == "direct" and problem.compiled
+    return problem.solver.name == "fatrop" and problem.solver.interface == "direct" and problem.transcription.compiled
 
 
 def compiled_nlp(solver: str, nlp: dict, opts: dict, pieces: list, log=print, opt: str | None = None) -> str:

@@ -23,10 +23,11 @@ from rscasadi.dynamics.arm import Arm
 from rscasadi.model.modelfile import document, read, to_toml
 from rscasadi.model.parameters import value, with_values
 from rscasadi.dynamics.statics import rest_state  # noqa: F401  (exported by rscasadi.ocp)
-from rscasadi.sim.simulation import held_interval, simulate_held
+from rscasadi.sim.simulation import held_interval
 from rscasadi.sim.trajectory import load_trajectory
 from rscasadi.ocp.problem import Problem, check_against_model, load_problem
 from rscasadi.ocp.solvers import direct, make_solver
+from rscasadi.ocp.solution import Solution, solution_arm, verify
 from rscasadi.ocp.transcription import Transcription
 
 
@@ -35,7 +36,7 @@ WARM = {"ipopt": {"mu_strategy": "monotone", "mu_init": 1e-6, "bound_push": 1e-8
 
 
 def _reference(problem: Problem, t):
-    return load_trajectory(problem.trajectory)(t)[0]
+    return load_trajectory(problem.task.trajectory)(t)[0]
 
 
 def guess(tr: Transcription, problem: Problem, arm: Arm, t, warm: dict | None):
@@ -46,7 +47,7 @@ def guess(tr: Transcription, problem: Problem, arm: Arm, t, warm: dict | None):
     n, N, m = tr.n, tr.N, tr.m
     T = t[-1]
     tc = (t[:-1, None] + np.diff(t)[:, None] * tr.fractions[None, :]).ravel()       # interval-major
-    design = np.array([np.clip(v, *problem.design[k]) for k, v in _design_start(problem, arm).items()])
+    design = np.array([np.clip(v, *problem.task.design[k]) for k, v in _design_start(problem, arm).items()])
     if warm:
         tw = np.asarray(warm["t"]) * T / warm["t"][-1]
         Xw = np.vstack([np.asarray(warm[k]) for k in ("theta", "phi", "dtheta", "dphi")])
@@ -55,10 +56,10 @@ def guess(tr: Transcription, problem: Problem, arm: Arm, t, warm: dict | None):
         k = np.clip(np.searchsorted(tw, mid, side="right") - 1, 0, len(tw) - 2)
         Xs, Xc, U = interp(t), interp(tc), np.asarray(warm["tau"])[:, k]
         if warm.get("design"):
-            design = np.array([warm["design"].get(name, v) for name, v in zip(problem.design, design)])
+            design = np.array([warm["design"].get(name, v) for name, v in zip(problem.task.design, design)])
     else:
-        x0 = rest_state(arm, problem.theta_start if problem.theta_start is not None else _reference(problem, t[:1])[:, 0])
-        xe = rest_state(arm, problem.theta_end) if problem.theta_end is not None else x0
+        x0 = rest_state(arm, problem.task.theta_start if problem.task.theta_start is not None else _reference(problem, t[:1])[:, 0])
+        xe = rest_state(arm, problem.task.theta_end) if problem.task.theta_end is not None else x0
         s, sc = t / T, tc / T
         Xs, Xc = np.outer(x0, 1 - s) + np.outer(xe, s), np.outer(x0, 1 - sc) + np.outer(xe, sc)
         if tr.tracking:
@@ -74,25 +75,25 @@ def guess(tr: Transcription, problem: Problem, arm: Arm, t, warm: dict | None):
 
 
 def _design_start(problem: Problem, arm: Arm) -> dict:
-    return {k: value(arm.model, k) for k in problem.design}
+    return {k: value(arm.model, k) for k in problem.task.design}
 
 
 def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, print_level: int = 5,
-               options: dict | None = None) -> dict:
-    """One solve on the mesh w (interval fractions; uniform over problem.intervals by default)."""
-    base = read(problem.model_path)
+               options: dict | None = None) -> Solution:
+    """One solve on the mesh w (interval fractions; uniform over problem.transcription.intervals by default)."""
+    base = read(problem.task.model)
     check_against_model(problem, base)
-    arm = Arm(with_values(base, problem.parameters))              # the plant for guesses and replay
-    w = np.full(problem.intervals, 1.0 / problem.intervals) if w is None else np.asarray(w, float)
+    arm = Arm(with_values(base, problem.task.parameters))              # the plant for guesses and replay
+    w = np.full(problem.transcription.intervals, 1.0 / problem.transcription.intervals) if w is None else np.asarray(w, float)
     tr = Transcription(problem, Arm(base), N=len(w))
-    t_guess = (warm["t"][-1] if warm else problem.duration) * np.concatenate([[0.0], np.cumsum(w)])
+    t_guess = (warm["t"][-1] if warm else problem.task.duration) * np.concatenate([[0.0], np.cumsum(w)])
     ref = _reference(problem, t_guess)[:, 1:] if tr.tracking else None
-    theta_start = _reference(problem, t_guess[:1])[:, 0] if tr.tracking else problem.theta_start
-    P = tr.parameters(theta_start, problem.theta_end, problem.duration, problem.effort_weight, w, ref,
-                      list(problem.parameters.values()))
+    theta_start = _reference(problem, t_guess[:1])[:, 0] if tr.tracking else problem.task.theta_start
+    P = tr.parameters(theta_start, problem.task.theta_end, problem.task.duration, problem.task.effort_weight, w, ref,
+                      list(problem.task.parameters.values()))
     t0 = time.perf_counter()                       # setup: the NLP, its kernel and library (cached)
     nlp, lbg, ubg = tr.nlp(log)
-    lbx, ubx = tr.bounds(problem.max_duration)
+    lbx, ubx = tr.bounds(problem.task.max_duration)
     w0 = guess(tr, problem, arm, t_guess, warm)
     solver, objective = make_solver(problem, tr, nlp, log, print_level, options)
     if hasattr(solver, "prepare"):                 # the direct fatrop's solver, built for these bounds
@@ -108,21 +109,21 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
         # alike on any number of threads
         tr.kernel.reset()
     # the loops are parallel only in a library compiled with OpenMP (solvers.compiled_nlp)
-    threads = set_threads(problem.threads or available_cores()) if problem.compiled and openmp_flags(tuple(compiler())) else 1
+    threads = set_threads(problem.solver.threads or available_cores()) if problem.transcription.compiled and openmp_flags(tuple(compiler())) else 1
     t0 = time.perf_counter()
     res = solver(x0=w0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, p=scaled)
     solve_time = time.perf_counter() - t0
     stats = solver.stats()
     out = tr.unpack(np.array(res["x"]))
-    n, T = arm.n, out["T"] if out["T"] is not None else problem.duration
+    n, T = arm.n, out["T"] if out["T"] is not None else problem.task.duration
     t = T * np.concatenate([[0.0], np.cumsum(w)])
     Xs, U = out["Xs"], out["U"]
-    design = dict(zip(problem.design, out["design"].tolist()))
+    design = dict(zip(problem.task.design, out["design"].tolist()))
     target = None
     if not tr.tracking:
-        target = rest_state(Arm(with_values(base, {**problem.parameters, **design})), problem.theta_end).tolist()
-    return {"model": str(problem.model_path), "solver": problem.solver,
-            "interface": ("direct" if direct(problem) else "casadi") if problem.solver == "fatrop" else None,
+        target = rest_state(Arm(with_values(base, {**problem.task.parameters, **design})), problem.task.theta_end).tolist()
+    return Solution({"model": str(problem.task.model), "solver": problem.solver.name,
+            "interface": ("direct" if direct(problem) else "casadi") if problem.solver.name == "fatrop" else None,
             "blasfeo": stats.get("blasfeo"),          # fatrop's linear algebra library (direct interface)
             "threads": threads, "status": _status(stats),
             "success": _success(stats), "solve_time_s": solve_time, "setup_time_s": setup,
@@ -130,9 +131,9 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
             "intervals": len(w), "mesh": (np.asarray(w) / np.sum(w)).tolist(), "t": t.tolist(),
             **{k: Xs[i * n:(i + 1) * n].tolist() for i, k in enumerate(("theta", "phi", "dtheta", "dphi"))},
             "tau": np.hstack([U, U[:, -1:]]).tolist(), "tau_interpolation": "constant",
-            "design": design, "parameters": dict(problem.parameters), "target_state": target,
-            "trajectory": None if problem.trajectory is None else str(problem.trajectory),
-            "theta_reference": None if ref is None else _reference(problem, t).tolist()}
+            "design": design, "parameters": dict(problem.task.parameters), "target_state": target,
+            "trajectory": None if problem.task.trajectory is None else str(problem.task.trajectory),
+            "theta_reference": None if ref is None else _reference(problem, t).tolist()})
 
 
 # fatrop 1.1.8's return flags (IpSolverReturnFlag, include/fatrop/ip_algorithm/ip_algorithm.hpp in
@@ -159,50 +160,10 @@ def _success(stats: dict) -> bool:
     return bool(stats["success"]) or ("fatrop" in stats and stats["fatrop"]["return_flag"] == 2)
 
 
-def solution_arm(solution: dict) -> Arm:
-    """The arm the solution is for: the model file with its swept and designed parameters."""
-    return Arm(with_values(read(solution["model"]), {**solution.get("parameters", {}), **solution.get("design", {})}))
-
-
-def verify(solution: dict, substeps: int = 20, tol: float = 1e-10) -> dict:
-    """Replay the torques on the complete model with CVODES, on a grid `substeps` times finer than
-    the collocation grid; report the final-state error and the largest limit violation anywhere."""
-    arm = solution_arm(solution)
-    n, t, tau = arm.n, np.asarray(solution["t"]), np.asarray(solution["tau"])
-    x0 = np.concatenate([np.asarray(solution[k])[:, 0] for k in ("theta", "phi", "dtheta", "dphi")])
-    sim = simulate_held(arm, x0, t, tau, substeps, tol)
-    per_interval = _violations(arm, sim).reshape(-1)[1:].reshape(len(t) - 1, substeps).max(axis=1)
-    report = {"max_limit_violation": max(float(per_interval.max()), 0.0), "substeps": substeps}
-    if solution.get("target_state") is not None:
-        err = np.abs(sim["x"][:, -1] - np.asarray(solution["target_state"]))
-        report["final_angle_error"] = float(np.max(err[:2 * n]))
-        report["final_speed_error"] = float(np.max(err[2 * n:]))
-    if solution.get("trajectory"):                                     # between the nodes too
-        ref = load_trajectory(solution["trajectory"])(sim["t"])[0]
-        report["tracking_error"] = float(np.max(np.abs(sim["theta"] - ref)))
-    report["max_collocation_deviation"] = float(np.max(np.abs(sim["theta"][:, ::substeps] - np.asarray(solution["theta"]))))
-    report["interval_violation"] = per_interval.tolist()
-    return report
-
-
-def _violations(arm: Arm, sim) -> np.ndarray:
-    """Largest limit violation at each replay sample, relative to each limit (<= 0: within)."""
-    v = np.full(len(sim["t"]), -np.inf)
-    for j, jt in enumerate(arm.model.joints):
-        lim = jt.limits
-        for key in ("psi", "dphi"):
-            if key in lim:
-                v = np.maximum(v, (np.abs(sim[key][j]) - lim[key]) / lim[key])
-        if "theta" in lim:
-            lo, hi = lim["theta"]
-            v = np.maximum(v, np.maximum(lo - sim["theta"][j], sim["theta"][j] - hi) / (hi - lo))
-    return v
-
-
 def checks(problem: Problem, report: dict) -> list:
     """The verification's failures, as readable strings (empty: passed)."""
-    tols = {"final_angle_error": problem.final_angle_tol, "final_speed_error": problem.final_speed_tol,
-            "tracking_error": problem.tracking_tol, "max_limit_violation": problem.limit_tol}
+    tols = {"final_angle_error": problem.verification.final_angle_tol, "final_speed_error": problem.verification.final_speed_tol,
+            "tracking_error": problem.verification.tracking_tol, "max_limit_violation": problem.verification.limit_tol}
     return [f"{k} {report[k]:.2e} > {tol:g}" for k, tol in tols.items() if k in report and report[k] > tol]
 
 
@@ -215,8 +176,8 @@ def local_errors(problem: Problem, solution: dict) -> np.ndarray:
     N = len(t) - 1
     ends = np.array(held_interval(arm).map(N)(X[:, :N], np.vstack([np.asarray(solution["tau"])[:, :N], np.diff(t)])))
     err = np.abs(ends - X[:, 1:])
-    angle_tol = problem.tracking_tol if solution.get("trajectory") else problem.final_angle_tol
-    return np.maximum(err[:2 * n].max(axis=0) / angle_tol, err[2 * n:].max(axis=0) / problem.final_speed_tol)
+    angle_tol = problem.verification.tracking_tol if solution.get("trajectory") else problem.verification.final_angle_tol
+    return np.maximum(err[:2 * n].max(axis=0) / angle_tol, err[2 * n:].max(axis=0) / problem.verification.final_speed_tol)
 
 
 def refined_mesh(problem: Problem, solution: dict, report: dict) -> np.ndarray:
@@ -229,35 +190,35 @@ def refined_mesh(problem: Problem, solution: dict, report: dict) -> np.ndarray:
     count = int(np.searchsorted(-rest, -0.25))              # first i with rest[i] <= 0.25
     split = np.zeros(len(w), bool)
     split[order[:max(count, 1)]] = True
-    split |= np.asarray(report["interval_violation"]) > problem.limit_tol
+    split |= np.asarray(report["interval_violation"]) > problem.verification.limit_tol
     return np.concatenate([[wk / 2, wk / 2] if s else [wk] for wk, s in zip(w, split)])
 
 
 def solve(problem: Problem, warm: dict | None = None, log=print, print_level: int = 5,
-          options: dict | None = None) -> dict:
+          options: dict | None = None) -> Solution:
     """Solve, verify, and refine the mesh until the verification passes (or the rounds run out).
     A co-design problem first solves the nominal arm (design at the model file's values) and
     starts from that solution: the design can then only improve on it (a local solver from a
     straight-line guess found a worse local minimum here)."""
     nominal = None
-    if problem.design and warm is None:
+    if problem.task.design and warm is None:
         log("co-design: first the nominal arm, as the starting point")
-        nominal = solve(dataclasses.replace(problem, design={}), None, log, print_level, options)
+        nominal = solve(problem.replace(design={}), None, log, print_level, options)
         warm = nominal if nominal["solver_success"] else None
     # on the nominal's refined mesh: a coarse mesh lets the design exploit the discretisation
     # (seen: a stiffer design 'faster' on 100 intervals whose replay broke a limit)
     w, rounds = (np.asarray(nominal["mesh"]) if nominal is not None and warm else None), []
     fallback = None
-    for r in range(problem.rounds + 1):
+    for r in range(problem.verification.rounds + 1):
         # a refinement round starts next to the answer: a small barrier keeps the solver there
         # (seen: a co-design round wandered from T = 0.2472 s to another local minimum, 0.2506 s)
-        extra = {**(WARM.get(problem.solver, {}) if r else {}), **(options or {})}
+        extra = {**(WARM.get(problem.solver.name, {}) if r else {}), **(options or {})}
         sol = solve_once(problem, w, warm, log, print_level, extra)
-        if not sol["success"] and problem.solver == "fatrop":
+        if not sol["success"] and problem.solver.name == "fatrop":
             # fatrop fails on some problems where IPOPT does not (maximum iterations, a failed
             # line search): the same start with IPOPT
             log(f"fatrop: {sol['status']}; solving again with IPOPT from the same start")
-            problem = dataclasses.replace(problem, solver="ipopt")
+            problem = problem.replace(solver="ipopt")
             fallback = {"solver": "fatrop", "round": r, "status": sol["status"], "iterations": sol["iterations"]}
             options = None                                     # fatrop's own options mean nothing to IPOPT
             sol = solve_once(problem, w, warm, log, print_level, WARM["ipopt"] if r else None)
@@ -273,7 +234,7 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
             f"iterations, {sol['solve_time_s']:.2f} s; replay: "
             + ", ".join(f"{k} {v:.1e}" for k, v in report.items() if isinstance(v, float))
             + ("" if not failed else " -- misses " + "; ".join(failed)))
-        if not failed or not sol["success"] or r == problem.rounds:
+        if not failed or not sol["success"] or r == problem.verification.rounds:
             break
         w, warm = refined_mesh(problem, sol, report), sol
         log(f"refining: {sol['intervals']} -> {len(w)} intervals where the local error is largest")
@@ -291,14 +252,15 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
     return sol
 
 
-def run(problem_file, out, warm_file=None, log=print, print_level: int = 5, solver: str | None = None) -> dict:
-    """`rscasadi ocp`: solve, verify, refine, write DIR/solution.json and the plots; return the record."""
-    from rscasadi.files import check_writable, fresh_directory, write_json
+def run(problem, out, warm_file=None, log=print, print_level: int = 5, solver: str | None = None) -> Solution:
+    """`rscasadi ocp`: solve `problem` (a `Problem`, or the path of a problem file), verify,
+    refine, write DIR/solution.json and the plots; return the solution."""
+    from rscasadi.files import check_writable, fresh_directory
     from rscasadi.model.modelfile import ModelFileError
     check_writable(out)
-    problem = load_problem(problem_file)
+    problem = problem.check() if isinstance(problem, Problem) else load_problem(problem)
     if solver:
-        problem.solver = solver
+        problem = problem.replace(solver=solver)
     warm = None
     if warm_file:
         try:
@@ -307,13 +269,13 @@ def run(problem_file, out, warm_file=None, log=print, print_level: int = 5, solv
             raise ModelFileError(f"{warm_file}: --warm: not a solution.json ({exc})") from None
         if not isinstance(warm, dict) or not {"t", "theta", "phi", "tau"} <= set(warm):
             raise ModelFileError(f"{warm_file}: --warm: not a solution.json (no t, theta, phi, tau)")
-    log(f"{problem.path}: {problem.objective}, {problem.method}"
-        + (f" degree {problem.degree}" if problem.method != "hermite-simpson" else "")
-        + f", {problem.intervals} intervals, "
-        + ("condensed (each interval's collocation solved in C)" if problem.condense
-           else f"lifted, {problem.dynamics} dynamics, {'compiled' if problem.compiled else 'not compiled'}")
-        + (f", designing {', '.join(problem.design)}" if problem.design else ""))
-    log(f"solving with {problem.solver}" + (" (log quieted)" if print_level == 0 else "") + " ...")
+    log(f"{problem.path}: {problem.task.objective}, {problem.transcription.method}"
+        + (f" degree {problem.transcription.degree}" if problem.transcription.method != "hermite-simpson" else "")
+        + f", {problem.transcription.intervals} intervals, "
+        + ("condensed (each interval's collocation solved in C)" if problem.transcription.condense
+           else f"lifted, {problem.transcription.dynamics} dynamics, {'compiled' if problem.transcription.compiled else 'not compiled'}")
+        + (f", designing {', '.join(problem.task.design)}" if problem.task.design else ""))
+    log(f"solving with {problem.solver.name}" + (" (log quieted)" if print_level == 0 else "") + " ...")
     sol = solve(problem, warm, log=log, print_level=print_level)
     if sol["design"]:
         log("optimal design: " + ", ".join(f"{k} = {v:.6g}" for k, v in sol["design"].items()))
@@ -325,8 +287,8 @@ def run(problem_file, out, warm_file=None, log=print, print_level: int = 5, solv
                 + "# (" + ", ".join(f"{k} = {v:.10g}" for k, v in sol["design"].items()) + ")\n"
                 + to_toml(document(dataclasses.replace(designed, name=designed.name + "-designed"))))
             sol["designed_model"] = "designed_model.toml"
-        write_json(tmp / "solution.json", sol, indent=1)
-        plot_solution(sol, solution_arm(sol), tmp)
+        sol.to_json(tmp / "solution.json")
+        sol.plot(tmp)
     if not sol["solver_success"]:
         hint = (" (the limits cannot all be met: widen them or allow more time)"
                 if "nfeasible" in sol["status"] else "")
@@ -336,32 +298,3 @@ def run(problem_file, out, warm_file=None, log=print, print_level: int = 5, solv
             "collocation promised, after the last refinement round; allow more [refinement] rounds or "
             "start with more intervals")
     return sol
-
-
-def plot_solution(sol: dict, arm: Arm, out: Path):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    t = np.asarray(sol["t"])
-    th, ph, dph, tau = (np.asarray(sol[k]) for k in ("theta", "phi", "dphi", "tau"))
-    panels = [("theta", th, "link angle theta (rad)", "theta"), ("psi", ph - th, "SEA deflection psi (rad)", "psi"),
-              ("tau", tau, "motor torque tau (N m)", "tau"), ("dphi", dph, "slow-side speed dphi (rad/s)", "dphi")]
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
-    for ax, (key, data, label, lim) in zip(axes.ravel(), panels):
-        for j, jt in enumerate(arm.model.joints):
-            line = ax.step(t, data[j], where="post", label=jt.name)[0] if key == "tau" else ax.plot(t, data[j], label=jt.name)[0]
-            bound = jt.limits.get(lim)
-            if bound is not None:
-                lo, hi = bound if isinstance(bound, tuple) else (-bound, bound)
-                for b in (lo, hi):
-                    ax.axhline(b, color=line.get_color(), ls=":", lw=1)
-        ax.set(ylabel=label)
-    for ax in axes[1]:
-        ax.set(xlabel="t (s)")
-    axes[0, 0].legend(fontsize=8)
-    fig.suptitle(f"{Path(sol['model']).name}: {sol['status']}, {sol['intervals']} intervals, "
-                 f"success {sol['success']} (dotted: limits)")
-    fig.tight_layout()
-    for ext in ("png", "pdf"):
-        fig.savefig(out / f"solution.{ext}", dpi=120)
-    plt.close(fig)

@@ -41,6 +41,7 @@ COLUMNS = ("point", "status", "success", "verified", "objective", "final_time_s"
 
 @dataclasses.dataclass
 class Sweep:
+    """A sweep file: the problem it varies and the grid (name -> values)."""
     path: Path
     problem_path: Path
     grid: dict                      # key -> list of values (numbers, or lists for theta_*)
@@ -51,6 +52,7 @@ class Sweep:
 
 
 def load_sweep(path) -> Sweep:
+    """Read and check a sweep file (docs/user-guide/problems.md); errors name the field."""
     path = Path(path)
     d = read_toml(path, "sweep")
 
@@ -65,7 +67,7 @@ def load_sweep(path) -> Sweep:
     sweep = Sweep(path, (path.parent / d["problem"]).resolve(), {})
     try:
         problem = load_problem(sweep.problem_path)
-        model = read(problem.model_path)
+        model = read(problem.task.model)
     except ModelFileError as exc:
         fail("problem", str(exc))
     for key, values in d["grid"].items():
@@ -78,13 +80,13 @@ def load_sweep(path) -> Sweep:
                 fail(f"grid.{key}[{i}]", f"expected {'a list of ' + str(model.n) + ' numbers' if vector else 'a number'}, got {v!r}")
         if key not in SWEEPABLE:
             try:
-                check_against_model(dataclasses.replace(problem, parameters={key: 1.0}), model)
+                check_against_model(problem.replace(parameters={key: 1.0}), model)
             except ModelFileError:
-                fail(f"grid.{key}", f"neither a parameter of {problem.model_path.name} nor a sweepable problem "
+                fail(f"grid.{key}", f"neither a parameter of {problem.task.model.name} nor a sweepable problem "
                      f"field ({', '.join(SWEEPABLE)})")
             if key.endswith(".gear_ratio") and min(values) <= 0:
                 fail(f"grid.{key}", f"a gear ratio is positive, got {min(values)!r}")
-            if key in problem.design:
+            if key in problem.task.design:
                 fail(f"grid.{key}", "is a design variable of the problem; it cannot also be swept")
         sweep.grid[key] = values
     return sweep
@@ -99,7 +101,7 @@ def point_problem(problem, point: dict):
     params = {k: float(v) for k, v in point.items() if k not in SWEEPABLE}
     fields = {k: (np.asarray(v, float) if isinstance(v, list) else float(v)) for k, v in point.items() if k in SWEEPABLE}
     # one thread per point unless the problem file asks: the workers (one per core) are the parallelism
-    return dataclasses.replace(problem, parameters=params, rounds=0, threads=problem.threads or 1, **fields)
+    return problem.replace(parameters=params, rounds=0, threads=problem.solver.threads or 1, **fields)
 
 
 def solve_point(problem_path: str, names: list, point: dict, index: int) -> dict:
@@ -123,7 +125,7 @@ def solve_point(problem_path: str, names: list, point: dict, index: int) -> dict
 def _nominal(problem, names) -> dict:
     from rscasadi.model.modelfile import read
     from rscasadi.model.parameters import value
-    model = read(problem.model_path)
+    model = read(problem.task.model)
     return {k: value(model, k) for k in names}
 
 
@@ -178,7 +180,7 @@ def run(sweep_file, out, scheduler: str | None = None, workers: int | None = Non
     t0 = time.perf_counter()                  # points per second: from the first task on
     if todo:
         base = load_problem(sweep.problem_path)
-        if base.compiled:                   # compile the shared NLP once, here, before the tasks
+        if base.transcription.compiled:                   # compile the shared NLP once, here, before the tasks
             log("compiling the shared NLP (model parameters as its inputs) ...")
             solve_once(point_problem(base, {**_nominal(base, names), **todo[0][1]}), print_level=0, log=log)
         cluster = None

@@ -45,33 +45,35 @@ from rscasadi.ocp.problem import Problem
 
 
 class Transcription:
+    """The problem transcribed by direct collocation on N intervals: the NLP as start, stage and
+    end pieces, its variables' layout, bounds and parameters, and its unpacking."""
     def __init__(self, problem: Problem, arm: Arm, N: int | None = None):
         self.p, self.model = problem, arm.model
-        self.n, self.N = arm.n, N or problem.intervals
-        self.design, self.fixed = list(problem.design), list(problem.parameters)
+        self.n, self.N = arm.n, N or problem.transcription.intervals
+        self.design, self.fixed = list(problem.task.design), list(problem.task.parameters)
         free = self.design + self.fixed
         self.arm = Arm(arm.model, free=free) if free else arm
         # joints whose gear ratio is designed or swept: their motor speed limit mu dphi is the
         # model's, so dphi's limit becomes a constraint row instead of a bound
         self.geared = [j for j, jt in enumerate(arm.model.joints) if f"{jt.name}.gear_ratio" in free]
         n = self.n
-        c = np.array([0.0, 0.5, 1.0]) if problem.method == "hermite-simpson" else \
-            np.array(ca.collocation_points(problem.degree, problem.method))
+        c = np.array([0.0, 0.5, 1.0]) if problem.transcription.method == "hermite-simpson" else \
+            np.array(ca.collocation_points(problem.transcription.degree, problem.transcription.method))
         self.A, self.b = butcher(c)
         self.fractions, self.m = c, len(c)
         self.interior = [j for j in range(self.m) if 0.0 < c[j] < 1.0]
-        self.nT = 1 if problem.objective == "min_time" else 0
+        self.nT = 1 if problem.task.objective == "min_time" else 0
         self.nz = self.nT + len(self.design)                                 # carried constants
         self.nx = 4 * n + self.nz
         self.nu_lifted = n + 2 * n * self.m
         # condensed: the accelerations are solved for inside the NLP's functions (condensing.py)
-        self.condensed = problem.condense
+        self.condensed = problem.transcription.condense
         self.nu = n if self.condensed else self.nu_lifted
         # condensed, the collocation equations are solved exactly, so both forms give the same
         # NLP; the inverse dynamics' derivatives are the cheaper (Hessian 17 807 SX instructions
         # with the projections, 26 332 through the forward dynamics; n = 3)
-        self.dynamics = "implicit" if self.condensed else problem.dynamics
-        self.tracking = problem.objective == "tracking"
+        self.dynamics = "implicit" if self.condensed else problem.transcription.dynamics
+        self.tracking = problem.task.objective == "tracking"
         self.acc_scale = self._acceleration_scale()
         self.calls = None                    # a Calls recorder while the stage's derivatives are built
         self.kernel = None                   # the condensing kernel (condensing.Condensed), if condensed
@@ -122,7 +124,7 @@ class Transcription:
         """The accelerations are variables a = s * a_scaled, s per coordinate about the largest
         acceleration the torque and deflection limits can cause, so that every variable is O(1)
         (unscaled, the implicit form took 149 iterations where the explicit one took 18)."""
-        theta = self.p.theta_start if self.p.theta_start is not None else np.zeros(self.n)
+        theta = self.p.task.theta_start if self.p.task.theta_start is not None else np.zeros(self.n)
         M = np.array(Arm(self.model).mass_matrix()(theta, theta))
         tau = np.array([jt.limits.get("tau", 1.0) for jt in self.model.joints]) * self.model.column("gear_ratio")
         k_psi = np.array([jt.k1 * jt.limits.get("psi", 0.1) for jt in self.model.joints])
@@ -187,9 +189,9 @@ class Transcription:
 
         def pieces(stage):
             x_next, path, effort = stage(x, u, w, dur, pfix)
-            if self.p.objective == "min_time":
+            if self.p.task.objective == "min_time":
                 f = ew * effort
-            elif self.p.objective == "min_effort":
+            elif self.p.task.objective == "min_effort":
                 f = effort
             else:
                 f = dur * w * ca.sumsqr(x1[:n] - ref) / ca.fmax(ew, 1e-12) + effort
@@ -218,7 +220,7 @@ class Transcription:
             f = ca.SX(0)
         else:
             rows = [self.rest_residual(x, theta, pf)]
-            f = scale * x[4 * n] if self.p.objective == "min_time" else ca.SX(0)
+            f = scale * x[4 * n] if self.p.task.objective == "min_time" else ca.SX(0)
         return ca.Function("end_piece" if end else "start_piece", [x, theta, pfix, scale], [ca.vertcat(*rows), f],
                            ["z", "theta", "p_fixed", "scale"], ["rows", "f"])
 
@@ -301,8 +303,8 @@ class Transcription:
                 lo_q[j], hi_q[j] = jt.limits["theta"]
             if "dphi" in jt.limits and j not in self.geared:             # geared: a row (_geared_speeds)
                 lo_q[3 * n + j], hi_q[3 * n + j] = -jt.limits["dphi"], jt.limits["dphi"]
-        lo_z = ([1e-3] if self.nT else []) + [b[0] for b in self.p.design.values()]
-        hi_z = ([max_duration] if self.nT else []) + [b[1] for b in self.p.design.values()]
+        lo_z = ([1e-3] if self.nT else []) + [b[0] for b in self.p.task.design.values()]
+        hi_z = ([max_duration] if self.nT else []) + [b[1] for b in self.p.task.design.values()]
         tau_max = np.array([jt.limits.get("tau", np.inf) for jt in jts])
         lo_u = np.concatenate([-tau_max, np.full(self.nu - n, -np.inf)])
         hi_u = np.concatenate([tau_max, np.full(self.nu - n, np.inf)])

@@ -1,0 +1,130 @@
+"""A solved optimal-control problem: the record `solution.json` holds, and what to do with it.
+
+`Solution` is that record (a dict: `sol["theta"]`, as written to JSON) with its main fields as
+numpy attributes (`sol.t`, `sol.theta`, `sol.tau`, ...) and `verify()` (the replay on the
+complete model), `plot(directory)`, `to_json(path)`; `Solution.from_json(path)` reads one back.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from rscasadi.dynamics.arm import Arm
+from rscasadi.files import write_json
+from rscasadi.model.modelfile import read
+from rscasadi.model.parameters import with_values
+from rscasadi.sim.simulation import simulate_held
+from rscasadi.sim.trajectory import load_trajectory
+
+STATE = ("theta", "phi", "dtheta", "dphi")
+
+
+class Solution(dict):
+    """The record of a solve (the keys of solution.json, docs/user-guide/problems.md)."""
+
+    def _array(self, key):
+        return np.asarray(self[key], float)
+
+    t = property(lambda self: self._array("t"), doc="the mesh's times (s)")
+    theta = property(lambda self: self._array("theta"), doc="link angles at the mesh (n x N+1, rad)")
+    phi = property(lambda self: self._array("phi"), doc="motor angles at the slow side (n x N+1, rad)")
+    dtheta = property(lambda self: self._array("dtheta"), doc="link speeds (rad/s)")
+    dphi = property(lambda self: self._array("dphi"), doc="motor speeds at the slow side (rad/s)")
+    tau = property(lambda self: self._array("tau"), doc="motor torques, held on each interval (n x N+1, N m)")
+    success = property(lambda self: bool(self["success"]), doc="solved and, after a solve(), verified")
+    status = property(lambda self: self["status"], doc="the solver's return status")
+    objective = property(lambda self: float(self["objective"]), doc="the objective's value")
+    design = property(lambda self: dict(self.get("design", {})), doc="the designed parameters' values")
+
+    @classmethod
+    def from_json(cls, path) -> "Solution":
+        """A solution.json read back."""
+        return cls(json.loads(Path(path).read_text()))
+
+    def arm(self) -> Arm:
+        """The arm the torques are for: the model file with the swept and designed parameters."""
+        return solution_arm(self)
+
+    def verify(self, substeps: int = 20, tol: float = 1e-10) -> dict:
+        """The torques replayed on the complete model (see `verify`)."""
+        return verify(self, substeps, tol)
+
+    def to_json(self, path):
+        """Write the record as JSON (whole or not at all; no NaN)."""
+        write_json(path, dict(self), indent=1)
+
+    def plot(self, directory):
+        """Write solution.png and solution.pdf into `directory`: angles, deflections, torques,
+        speeds, with the limits dotted."""
+        plot_solution(self, self.arm(), Path(directory))
+
+
+def solution_arm(solution: dict) -> Arm:
+    """The arm the solution is for: the model file with its swept and designed parameters."""
+    return Arm(with_values(read(solution["model"]), {**solution.get("parameters", {}), **solution.get("design", {})}))
+
+
+def verify(solution: dict, substeps: int = 20, tol: float = 1e-10) -> dict:
+    """Replay the torques on the complete model with CVODES, on a grid `substeps` times finer than
+    the collocation grid; report the final-state error and the largest limit violation anywhere."""
+    arm = solution_arm(solution)
+    n, t, tau = arm.n, np.asarray(solution["t"]), np.asarray(solution["tau"])
+    x0 = np.concatenate([np.asarray(solution[k])[:, 0] for k in ("theta", "phi", "dtheta", "dphi")])
+    sim = simulate_held(arm, x0, t, tau, substeps, tol)
+    per_interval = _violations(arm, sim).reshape(-1)[1:].reshape(len(t) - 1, substeps).max(axis=1)
+    report = {"max_limit_violation": max(float(per_interval.max()), 0.0), "substeps": substeps}
+    if solution.get("target_state") is not None:
+        err = np.abs(sim["x"][:, -1] - np.asarray(solution["target_state"]))
+        report["final_angle_error"] = float(np.max(err[:2 * n]))
+        report["final_speed_error"] = float(np.max(err[2 * n:]))
+    if solution.get("trajectory"):                                     # between the nodes too
+        ref = load_trajectory(solution["trajectory"])(sim["t"])[0]
+        report["tracking_error"] = float(np.max(np.abs(sim["theta"] - ref)))
+    report["max_collocation_deviation"] = float(np.max(np.abs(sim["theta"][:, ::substeps] - np.asarray(solution["theta"]))))
+    report["interval_violation"] = per_interval.tolist()
+    return report
+
+
+def _violations(arm: Arm, sim) -> np.ndarray:
+    """Largest limit violation at each replay sample, relative to each limit (<= 0: within)."""
+    v = np.full(len(sim["t"]), -np.inf)
+    for j, jt in enumerate(arm.model.joints):
+        lim = jt.limits
+        for key in ("psi", "dphi"):
+            if key in lim:
+                v = np.maximum(v, (np.abs(sim[key][j]) - lim[key]) / lim[key])
+        if "theta" in lim:
+            lo, hi = lim["theta"]
+            v = np.maximum(v, np.maximum(lo - sim["theta"][j], sim["theta"][j] - hi) / (hi - lo))
+    return v
+
+
+def plot_solution(sol: dict, arm: Arm, out: Path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    t = np.asarray(sol["t"])
+    th, ph, dph, tau = (np.asarray(sol[k]) for k in ("theta", "phi", "dphi", "tau"))
+    panels = [("theta", th, "link angle theta (rad)", "theta"), ("psi", ph - th, "SEA deflection psi (rad)", "psi"),
+              ("tau", tau, "motor torque tau (N m)", "tau"), ("dphi", dph, "slow-side speed dphi (rad/s)", "dphi")]
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
+    for ax, (key, data, label, lim) in zip(axes.ravel(), panels):
+        for j, jt in enumerate(arm.model.joints):
+            line = ax.step(t, data[j], where="post", label=jt.name)[0] if key == "tau" else ax.plot(t, data[j], label=jt.name)[0]
+            bound = jt.limits.get(lim)
+            if bound is not None:
+                lo, hi = bound if isinstance(bound, tuple) else (-bound, bound)
+                for b in (lo, hi):
+                    ax.axhline(b, color=line.get_color(), ls=":", lw=1)
+        ax.set(ylabel=label)
+    for ax in axes[1]:
+        ax.set(xlabel="t (s)")
+    axes[0, 0].legend(fontsize=8)
+    fig.suptitle(f"{Path(sol['model']).name}: {sol['status']}, {sol['intervals']} intervals, "
+                 f"success {sol['success']} (dotted: limits)")
+    fig.tight_layout()
+    for ext in ("png", "pdf"):
+        fig.savefig(out / f"solution.{ext}", dpi=120)
+    plt.close(fig)

@@ -1,0 +1,93 @@
+"""Problems as Python objects: a Problem built in parts equals the one its TOML file gives, is
+checked by the same rules (errors name the field), changes by field name, and its Solution
+round-trips through JSON and replays to the same verification."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from rscasadi.model.modelfile import ModelFileError
+from rscasadi.mpc import MPCProblem, load_mpc_problem
+from rscasadi.ocp import (Problem, Solution, SolverOptions, Task, TranscriptionOptions, Verification, load_problem,
+                          solve_once, verify)
+
+from conftest import ROOT, problem
+
+PROBLEMS = ROOT / "problems"
+
+
+def test_a_problem_in_python_equals_its_file():
+    built = Problem(Task(PROBLEMS / "arm3.toml", "min_effort", duration=1.5, theta_start=[0.0, 0.3, -0.5],
+                         theta_end=[0.8, 0.9, -1.2]),
+                    TranscriptionOptions(method="radau", degree=3, intervals=100, dynamics="explicit"),
+                    SolverOptions(), Verification()).check()
+    read = load_problem(PROBLEMS / "ocp_min_effort.toml")
+    assert read.path is not None and built.path is None
+    for part in ("transcription", "solver", "verification"):
+        assert getattr(built, part) == getattr(read, part)
+    a, b = dataclasses.asdict(built.task), dataclasses.asdict(read.task)
+    for key in a:
+        assert np.array_equal(a[key], b[key]) if isinstance(a[key], np.ndarray) else a[key] == b[key], key
+
+
+@pytest.mark.parametrize("change,field", [
+    ({"objective": "fastest"}, "objective"),
+    ({"intervals": 1}, "transcription.intervals"),
+    ({"degree": 2.5}, "transcription.degree"),
+    ({"method": "euler"}, "transcription.method"),
+    ({"hessian": "limited-memory"}, "solver.hessian"),          # fatrop needs the exact Hessian
+    ({"solver": "snopt"}, "solver.name"),
+    ({"compiled": False}, "transcription.condense"),             # the kernel is C
+    ({"duration": -1.0}, "duration"),
+    ({"limit_tol": float("nan")}, "verification.limit_tol"),
+    ({"theta_end": None}, "theta_end"),
+    ({"design": {"elbow_pitch.sea.k1": (3000.0, 300.0)}}, "design.elbow_pitch.sea.k1"),
+])
+def test_the_objects_are_checked_by_the_files_rules(change, field):
+    changed = load_problem(PROBLEMS / "ocp_min_effort.toml").replace(**change)
+    with pytest.raises(ModelFileError, match=rf"ocp_min_effort.toml: field '{field}'"):
+        changed.check()
+    with pytest.raises(ModelFileError, match=rf"<Problem>: field '{field}'"):
+        changed.replace(path=None).check()
+
+
+def test_replace_by_name_and_by_part():
+    base = load_problem(PROBLEMS / "ocp_min_time.toml")
+    changed = base.replace(intervals=40, solver="ipopt", limit_tol=1e-2, theta_end=[0.1, 0.2, 0.3])
+    assert changed.transcription.intervals == 40 and changed.solver.name == "ipopt"
+    assert changed.verification.limit_tol == 1e-2 and changed.task.theta_end.tolist() == [0.1, 0.2, 0.3]
+    assert base.transcription.intervals == 100 and base.solver.name == "fatrop"       # a copy
+    assert base.replace(solver=SolverOptions(name="ipopt", hessian="limited-memory")).solver.hessian == "limited-memory"
+    with pytest.raises(TypeError, match="no field 'colour'"):
+        base.replace(colour="red")
+
+
+def test_the_removed_barrier_rule_is_refused_by_name(pitch_arm):
+    assert load_problem(problem(pitch_arm, "mono.toml", solver={"barrier": "monotone"})).solver.name == "fatrop"
+    with pytest.raises(ModelFileError, match=r"field 'solver.barrier'.*adaptive rule was removed"):
+        load_problem(problem(pitch_arm, "adaptive.toml", solver={"barrier": "adaptive"}))
+
+
+def test_a_solution_round_trips_and_replays_alike(pitch_arm, tmp_path):
+    p = load_problem(problem(pitch_arm, "sol.toml", transcription={"intervals": 12})).replace(solver="ipopt")
+    sol = solve_once(p, print_level=0, log=lambda m: None)
+    assert isinstance(sol, Solution) and sol.success
+    assert sol.theta.shape == (1, 13) and sol.tau.shape == (1, 13) and sol.t[-1] == pytest.approx(1.0)
+    sol.to_json(tmp_path / "solution.json")
+    back = Solution.from_json(tmp_path / "solution.json")
+    assert np.array_equal(back.theta, sol.theta) and back.status == sol.status
+    assert back.verify() == verify(sol)
+    back.plot(tmp_path)
+    assert (tmp_path / "solution.png").stat().st_size > 10_000
+
+
+def test_an_mpc_problem_in_python_equals_its_file():
+    read = load_mpc_problem(PROBLEMS / "mpc_arm3.toml")
+    built = MPCProblem(read.model, read.trajectory, sample_time=read.sample_time, horizon=read.horizon,
+                       interval=read.interval, substeps=read.substeps, sqp_iterations=read.sqp_iterations,
+                       qp_iterations=read.qp_iterations, weights=dict(read.weights)).check()
+    assert dataclasses.replace(built, path=read.path) == read
+    with pytest.raises(ModelFileError, match=r"<MPCProblem>: field 'horizon'"):
+        dataclasses.replace(built, horizon=0).check()
+    with pytest.raises(ModelFileError, match=r"<MPCProblem>: field 'weights.speed'"):
+        MPCProblem(read.model, weights={"speed": 1.0}).check()
