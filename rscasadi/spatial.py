@@ -31,6 +31,7 @@ def skew(v):
 
 
 def rot_z(q):
+    """The rotation about z by q (a joint's motion about its own axis)."""
     c, s = ca.cos(q), ca.sin(q)
     return ca.vertcat(ca.horzcat(c, -s, 0), ca.horzcat(s, c, 0), ca.horzcat(0, 0, 1))
 

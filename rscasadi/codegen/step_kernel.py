@@ -1,4 +1,4 @@
-"""The step Jacobian as a structured C kernel (issue 11, item 4), for arms past the straight-line
+"""The step Jacobian as a structured C kernel, for arms past the straight-line
 SX route (generate.step_functions' implicit-function branch: n >= 5 for the reference arm's joints).
 
 The mathematics is step_functions' exactly: RK4's four stages, dk_i = [S_i; B_i] with

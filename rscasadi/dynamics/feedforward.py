@@ -36,6 +36,9 @@ def _spring(arm, parametric):
 
 
 def feedforward_functions(arm, reduced: bool = False, parametric: bool = False) -> tuple[ca.Function, ca.Function]:
+    """(init, step): the paper's feedforward cascade as CasADi Functions, one sample per call of
+    `step` (the spring law integrated by the trapezoidal rule); `init` gives the first sample's
+    torque and state from theta, dtheta, ddtheta at rest."""
     n = arm.n
     inv = (arm.reduced_inverse_dynamics if reduced else arm.inverse_dynamics)(parametric)
     p, c = _spring(arm, parametric)

@@ -297,6 +297,8 @@ def hand_picked(arm: Arm, period: float, amplitude: float = 0.5) -> Trajectory:
 
 def run(model_file, out, period: float = 10.0, harmonics: int = 5, rate: float = 1000.0, starts: int = STARTS,
         log=print) -> dict:
+    """`rscasadi excite`: design and check an excitation trajectory for `model_file` and write it,
+    its exact feedforward and its figures into `out` (whole or not at all); returns its summary."""
     arm = load(model_file)
     with fresh_directory(out, "excitation.json") as tmp:       # checked writable before the design
         traj, ff, use, info = design(arm, period, harmonics, starts=starts, rate=rate, log=log)

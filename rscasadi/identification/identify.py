@@ -97,6 +97,8 @@ def sea_modes_hz(arm: Arm, theta) -> np.ndarray:
 
 
 def cutoff_hz(arm: Arm, log: Log) -> tuple[float, str]:
+    """The filter cut-off for this arm and log, and why: twice the highest SEA mode at the log's
+    mean pose, at least 20 Hz, at most half the Nyquist frequency."""
     modes = sea_modes_hz(arm, np.mean(log.theta, axis=1))
     nyquist = 0.5 / log.dt
     fc = min(max(20.0, CUTOFF_FACTOR * modes.max()), 0.5 * nyquist)
@@ -109,6 +111,8 @@ def cutoff_hz(arm: Arm, log: Log) -> tuple[float, str]:
 
 @dataclass
 class Signals:
+    """A log low-passed (zero-phase), its speeds and accelerations by finite differences of the
+    filtered angles, the torques filtered alike; edges dropped, decimated (`prepare`)."""
     theta: np.ndarray
     phi: np.ndarray
     dtheta: np.ndarray
@@ -155,6 +159,7 @@ class Rows:
 
 
 def rows(arm: Arm, sig: Signals, unknowns: Unknowns, reduced: bool = False) -> Rows:
+    """The regression rows of one filtered log: Y th = [tau; T] for every sample and joint."""
     n, count = arm.n, sig.t.size
     Yf = regressor(arm, reduced=reduced).map(count)
     Y = np.array(Yf(*sig.state())[0]).reshape(2 * n, count, -1) @ unknowns.E        # (2n, count, m)
@@ -185,6 +190,7 @@ def check_moving(rows_: Rows, arm: Arm, path) -> None:
 
 
 def combine(parts: list[Rows]) -> Rows:
+    """The rows of several logs stacked into one regression."""
     return Rows(np.vstack([r.A for r in parts]), np.concatenate([r.y for r in parts]),
                 np.concatenate([r.block for r in parts]), parts[0].labels, np.concatenate([r.t for r in parts]))
 
@@ -193,6 +199,7 @@ def combine(parts: list[Rows]) -> Rows:
 
 @dataclass
 class LeastSquares:
+    """The weighted least-squares estimate of the base parameters and its covariance."""
     base: BaseParameters
     beta: np.ndarray
     info: np.ndarray            # Fisher information of beta (inverse covariance)
@@ -332,6 +339,7 @@ def prior_scale(unknowns: Unknowns, th_nominal) -> np.ndarray:
 # ----------------------------------------------------------------------------- the model
 
 def identified_model(arm: Arm, unknowns: Unknowns, th: np.ndarray) -> ArmModel:
+    """The model file's arm with the identified parameters `th` in place of the nominal ones."""
     import dataclasses
     p = unknowns.E @ th
     joints = []
@@ -358,6 +366,8 @@ def predict(rows_: Rows, th: np.ndarray) -> dict:
 
 @dataclass
 class Identification:
+    """An identification: the unknowns, the least-squares estimate, the physically consistent
+    parameters `th` and the nominal ones."""
     unknowns: Unknowns
     ls: LeastSquares
     th: np.ndarray
@@ -417,6 +427,8 @@ def reflected_inertia(unknowns: Unknowns, model: ArmModel, j: int) -> np.ndarray
 
 
 def report(ident: Identification, arm: Arm, validation: dict | None, log_files: list) -> dict:
+    """The identification's report (report.json): base parameters with their standard deviations,
+    the physical fit, the held-out validation if any, and the logs used."""
     std = ident.std()
     u = ident.unknowns
     base = [{"combination": line.split(" = ", 1)[1], "estimate": float(b), "std": float(np.sqrt(ident.ls.cov[i, i]))}
@@ -444,6 +456,7 @@ def report(ident: Identification, arm: Arm, validation: dict | None, log_files: 
 
 
 def plot(out: Path, rows_: Rows, th: np.ndarray, title: str):
+    """Measured against predicted torques of every joint, written to `out`.png."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -465,6 +478,8 @@ def plot(out: Path, rows_: Rows, th: np.ndarray, title: str):
 
 
 def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, reduced=False, log=print) -> dict:
+    """`rscasadi identify`: fit the model to the logs, check it on a held-out log if given, and
+    write the identified model file, its report and figures into `out`; returns (report, ident)."""
     check_writable(out)
     arm = load(model_file)
     logs = [read_log(f, arm.n) for f in log_files]

@@ -22,6 +22,8 @@ class LogError(ModelFileError):
 
 @dataclass
 class Log:
+    """A log (docs/user-guide/logs.md): time, link and motor angles, motor torques, and SEA
+    torques if a torque sensor was logged; arrays are (n, N)."""
     path: str
     t: np.ndarray
     theta: np.ndarray          # (n, N)
@@ -39,11 +41,13 @@ class Log:
 
 
 def header(n: int, torque_sensor: bool = False) -> list[str]:
+    """The columns of a log of an n-joint arm: t, theta_j, phi_j, tau_j [, T_j]."""
     cols = ["t"] + [f"{q}_{j}" for q in ("theta", "phi", "tau") for j in range(1, n + 1)]
     return cols + ([f"T_{j}" for j in range(1, n + 1)] if torque_sensor else [])
 
 
 def write_log(path, log: Log):
+    """Write `log` as CSV with the header `header` gives."""
     n = log.n
     data = [log.t, *log.theta, *log.phi, *log.tau] + ([*log.T] if log.T is not None else [])
     rows = np.vstack(data).T

@@ -70,6 +70,7 @@ def to_toml(doc: dict) -> str:
 
 
 def body_document(body: Body) -> dict:
+    """A body as the model file writes it: mass, com, inertia (Ixx, Iyy, Izz, Ixy, Ixz, Iyz)."""
     I = body.inertia
     return {"mass": float(body.mass), "com": [float(c) for c in body.com],
             "inertia": [float(I[0, 0]), float(I[1, 1]), float(I[2, 2]), float(I[0, 1]), float(I[0, 2]), float(I[1, 2])]}

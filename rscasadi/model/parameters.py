@@ -59,6 +59,7 @@ def spatial_from_parameters(v):
 
 
 def names(model: ArmModel) -> list[str]:
+    """The names of the parameter vector p, in its order (docs/user-guide/model.md section 7)."""
     out = []
     for jt in model.joints:
         out += [f"{jt.name}.{body}.{q}" for body in BODIES for q in INERTIAL]
@@ -67,6 +68,7 @@ def names(model: ArmModel) -> list[str]:
 
 
 def nominal(model: ArmModel) -> np.ndarray:
+    """The model's values of the parameter vector p."""
     out = []
     for jt in model.joints:
         out += [body_parameters(getattr(jt, body)) for body in BODIES]

@@ -65,6 +65,9 @@ class Body:
 
 @dataclass(frozen=True)
 class Joint:
+    """One joint: its placement and axis (origin_xyz, origin_rpy, R), its actuator (gear ratio, SEA
+    spring k1, k3 and damping d, gear losses b, c, eps, limits) and its three bodies (link, slow
+    rotor, fast rotor)."""
     name: str
     origin_xyz: np.ndarray   # J_j origin in the parent frame
     origin_rpy: np.ndarray

@@ -161,7 +161,7 @@ def box_qp(H, g, lo, hi, iterations: int):
     QP scaled to O(1) first.  Fixed work and no allocation in C.  On this MPC's cold steps to far
     poses it reaches qpOASES' solution to 3e-9 in 15 iterations (tests/test_mpc.py).
     Why not a generated solver: CasADi's qrqp returned bound-violating 'successes' on these QPs
-    (casadi issue 3141), DAQP's generated C allocates in every call, and projected Newton without
+    (CasADi issue #3141), DAQP's generated C allocates in every call, and projected Newton without
     a line search cycles (with one it stalls at this conditioning, ~1e8)."""
     m = g.shape[0]
     c = ca.mmax(ca.fabs(g)) + ca.mmax(ca.diag(H))

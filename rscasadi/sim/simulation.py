@@ -91,6 +91,7 @@ def held_interval(arm: Arm, tol: float = 1e-10) -> ca.Function:
 
 
 def trajectory_record(arm: Arm, t, X) -> dict:
+    """A simulated run as a record: t, theta, phi, dtheta, dphi, psi and the energy at each sample."""
     n = arm.n
     theta, phi, dtheta, dphi = (X[i * n:(i + 1) * n] for i in range(4))
     E = np.array(arm.energy().map(X.shape[1])(theta, phi, dtheta, dphi)).ravel()

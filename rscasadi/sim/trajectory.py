@@ -37,6 +37,8 @@ KEYS = {"bump": {"kind", "model", "period", "duration", "start", "amplitude"},
 
 
 def bump(t, period, start, amplitude):
+    """theta(t) = start + amplitude (1 - cos(2 pi t / period))^2 / 4: at rest with zero
+    acceleration and jerk at t = 0 and t = period."""
     w = 2 * np.pi / period
     return ca.DM(start) + ca.DM(amplitude) * (1 - ca.cos(w * t)) ** 2 / 4
 
@@ -53,6 +55,8 @@ def fourier(t, period, offset, a, b):
 
 @dataclass
 class Trajectory:
+    """An expected link trajectory (bump or Fourier): called at times t it gives theta and its first four
+    derivatives (each n x len(t))."""
     model_path: Path
     period: float
     duration: float
@@ -105,6 +109,7 @@ def _numbers(path, key, v, shape_hint):
 
 
 def load_trajectory(path) -> Trajectory:
+    """Read and check a trajectory file (docs/user-guide/problems.md); errors name the field."""
     path = Path(path)
     data = read_toml(path, "trajectory")
     kind = data.get("kind", "bump")

@@ -1,0 +1,109 @@
+"""The documentation works: the site builds strictly, every tutorial's script runs and does what
+its tutorial says, the README is short and starts with the commands CI runs, every public
+function and class of the API reference has a docstring, and nothing speaks of how it was made."""
+import ast
+import importlib.util
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def example(name):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "examples" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_site_builds_strictly(tmp_path):
+    run = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-q", "-d", str(tmp_path / "site")],
+                         cwd=ROOT, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr[-3000:]
+    page = (tmp_path / "site" / "reference" / "ocp" / "index.html").read_text()
+    assert "class Problem" in page.replace("<span", " ").replace("</span>", "") or "Problem" in page
+    assert "load_problem" in page                                     # mkdocstrings rendered the API
+    bench = (tmp_path / "site" / "benchmarks" / "index.html").read_text()
+    assert "results/bench_ocp.md" in bench and "commit" in bench     # gathered from results/
+
+
+def test_the_readme_starts_with_what_ci_runs():
+    readme = (ROOT / "README.md").read_text().splitlines()
+    assert len(readme) < 150
+    commands = [line for line in readme[:12] if line.startswith("python3 -m pip")]
+    assert len(commands) == 2 and "reproduce --out results" in commands[0]
+    test_command = commands[1].split("#")[0].strip()
+    assert test_command in (ROOT / ".ci" / "run").read_text()
+
+
+def test_every_tutorial_has_its_example():
+    for page in sorted((ROOT / "docs" / "tutorials").glob("*.md")):
+        named = re.findall(r"`examples/(\w+\.py)`", page.read_text())
+        assert named and all((ROOT / "examples" / n).exists() for n in named), page.name
+
+
+REFERENCE_PAGES = sorted((ROOT / "docs" / "reference").glob("*.md"))
+
+
+@pytest.mark.parametrize("page", REFERENCE_PAGES, ids=lambda p: p.stem)
+def test_every_public_name_is_documented(page):
+    missing = []
+    for module in re.findall(r"^::: ([\w.]+)", page.read_text(), re.M):
+        path = ROOT / Path(*module.split(".")).with_suffix(".py")
+        tree = ast.parse(path.read_text())
+        if not ast.get_docstring(tree):
+            missing.append(module)
+        for node in tree.body:
+            if isinstance(node, (ast.FunctionDef, ast.ClassDef)) and not node.name.startswith("_") \
+                    and not ast.get_docstring(node):
+                missing.append(f"{module}.{node.name}")
+    assert not missing, "no docstring: " + ", ".join(missing)
+
+
+HISTORY = re.compile(r"this session|previous session|session [0-9]+|a session earlier|earlier round|this round|"
+                     r"slow day|normal day|fast day|an hour earlier|on an hour|yesterday|issue [0-9]+", re.I)
+
+
+def test_nothing_speaks_of_how_it_was_made():
+    files = [ROOT / "README.md", ROOT / "CONTRIBUTING.md", *(ROOT / "docs").rglob("*.md"),
+             *(ROOT / "rscasadi").rglob("*.py"), *(ROOT / "rscasadi").rglob("*.c"), *(ROOT / "examples").glob("*")]
+    found = [f"{f.relative_to(ROOT)}: {m.group(0)}" for f in files if f.is_file()
+             for m in HISTORY.finditer(f.read_text(errors="replace"))]
+    assert not found, "\n".join(found)
+
+
+# the tutorials' scripts, at short settings
+
+def test_urdf_example_round_trips(tmp_path):
+    assert example("urdf_arm").main(["--out", str(tmp_path)]) < 1e-9
+
+
+def test_codegen_example_runs_the_c_controller(tmp_path):
+    err, stdout = example("codegen_controller").main(["--out", str(tmp_path), "--opt=-O1", "--seconds", "0.5"])
+    assert err < 1e-9
+    last = stdout.strip().splitlines()[-1]
+    assert float(re.search(r"= ([-+0-9.e]+) rad", last).group(1)) < 0.05, last    # the feedforward loop tracks
+
+
+def test_optimal_control_example_is_verified(tmp_path):
+    sol = example("optimal_control").main(["--out", str(tmp_path), "--intervals", "30"])
+    assert sol.success and sol["verification"]["passed"]
+    assert np.allclose(sol.theta[:, -1], [0.8, 0.9, -1.2], atol=1e-4)
+    assert (tmp_path / "solution.json").exists() and (tmp_path / "solution.png").exists()
+
+
+def test_mpc_example_beats_pd(tmp_path):
+    res = example("mpc_controller").main(["--out", str(tmp_path), "--seconds", "0.3", "--opt=-O1"])
+    assert res["MPC (C)"]["max_error"] < res["feedforward + PD"]["max_error"]
+    assert res["MPC (C)"]["max_limit_violation"] == 0.0
+
+
+def test_identification_example_predicts_held_out_torques(tmp_path):
+    worst = example("identification").main(["--out", str(tmp_path), "--period", "8", "--harmonics", "4"])
+    assert worst < 0.05
+    assert (tmp_path / "identified" / "model.toml").exists()
