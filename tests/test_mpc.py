@@ -146,10 +146,10 @@ def test_sqp_mode_reaches_a_far_target_pose_within_the_limits(tmp_path, arm3):
 
 
 def test_the_documented_problem_file_is_the_shipped_one(tmp_path):
-    """docs/user-guide/problems.md shows the MPC problem file: every field it names is read, and its
+    """docs/user-guide/mpc.md shows the MPC problem file: every field it names is read, and its
     values are those of problems/mpc_arm3.toml."""
     import dataclasses
-    doc = (ROOT / "docs" / "user-guide" / "problems.md").read_text()
+    doc = (ROOT / "docs" / "user-guide" / "mpc.md").read_text()
     block = doc.split("**MPC problem**", 1)[1].split("```toml\n", 1)[1].split("```", 1)[0]
     path = tmp_path / "documented.toml"
     path.write_text(block.replace('"arm3.toml"', f'"{(ROOT / "problems" / "arm3.toml").as_posix()}"')

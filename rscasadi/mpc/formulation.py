@@ -15,7 +15,7 @@ dtheta_ref_k|^2 + w_tau |tau_k|^2, and a penalty w_limits (|c| - 0.9 c_max)^2 on
 deflection psi and the slow-side speed dphi beyond 90 % of their limits (Gauss-Newton on the
 part active at the linearisation point); the motor torques are hard bounds.
 
-Problem file and C interface: docs/user-guide/problems.md (`problems/mpc_arm3.toml` is an example).
+Problem file and C interface: docs/user-guide/mpc.md (`problems/mpc_arm3.toml` is an example).
 
 Generated (DIR): `mpc_rti.c` (CasADi: mpc_rti(x, reference, X, U) -> tau, X_next, U_next and
 mpc_hold(x) -> X, U), `rscasadi_mpc.c` and `rscasadi_mpc.h` (the controller: static

@@ -63,7 +63,7 @@ class MPCProblem:
 
 
 def load_mpc_problem(path) -> MPCProblem:
-    """Read and check an MPC problem file (docs/user-guide/problems.md); errors name the field."""
+    """Read and check an MPC problem file (docs/user-guide/mpc.md); errors name the field."""
     path = Path(path)
     d = read_toml(path, "MPC problem")
     fail = field_checker(path, d, TOP)

@@ -11,8 +11,8 @@ Each J_i, H_i is an SX Jacobian/Hessian with numeric seeds (CasADi colours the p
 the seeds into straight-line code); the placement is a gather of nonzeros (a sum where Hessian
 blocks overlap).  Why: CasADi differentiates a *mapped* stage by directional derivatives with
 symbolic seeds (fwd25_stage, fwd15_adj1_stage), which cannot simplify: at N = 100 (minimum
-effort, Radau 3, same machine and day) nlp_jac_g took 4.1 ms and nlp_hess_l 5.6 ms per call that
-way, 0.8 and 2.0 ms assembled, and they had been half of a fatrop solve.
+effort, Radau 3, one machine) nlp_jac_g takes 4.1 ms and nlp_hess_l 5.6 ms per call that way,
+against 0.8 and 2.0 ms assembled; that way they would be half of a fatrop solve.
 
 A piece whose model calls were recorded (Calls) is differentiated by the chain rule through them
 instead: AD of the piece around the calls, and each call's own Jacobian and Hessian at its

@@ -95,7 +95,8 @@ def _sx_functions(prefix: str, d1: ca.Function, f1: ca.Function, d2: ca.Function
         # right-hand side, its kept part (plus G_w' nu, in C) the condensed Lagrangian's gradient
         "adjoint": ca.Function(prefix + "adjoint", [z, *args, lam_r, lam_f],
                                [ca.densify(ca.mtimes(J_r.T, lam_r) + lam_f * gf)], opts),
-        # the Hessian alone: its gradient through the model calls had been 17 % of it
+        # the Hessian alone (the gradient comes from the adjoint: through the model calls it
+        # would cost 17 % of this function)
         "second": ca.Function(prefix + "second", [z, *args, lam, lam_f, S], [Hc], opts),
     }
     return fns, rk, scols, args

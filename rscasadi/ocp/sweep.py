@@ -52,7 +52,7 @@ class Sweep:
 
 
 def load_sweep(path) -> Sweep:
-    """Read and check a sweep file (docs/user-guide/problems.md); errors name the field."""
+    """Read and check a sweep file (docs/user-guide/sweeps.md); errors name the field."""
     path = Path(path)
     d = read_toml(path, "sweep")
 
