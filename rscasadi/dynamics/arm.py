@@ -4,7 +4,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from rscasadi.dynamics import recursions as rec
+from rscasadi.dynamics import kinematics, recursions as rec
+from rscasadi.model.checks import identifier
 from rscasadi.model.modelfile import ArmModel, read
 from rscasadi.model.parameters import Physics, gear_ratios, names as parameter_names, nominal as parameter_nominal
 
@@ -62,11 +63,12 @@ class Arm:
     def _symbols(self, *names):
         return [ca.SX.sym(name, self.n) for name in names]
 
-    def _function(self, name, ins, outs, build, parametric=False):
-        """The Function `name` built once: build(phys, *inputs); the parametric twin adds p."""
-        key = (name, parametric)
+    def _function(self, name, ins, outs, build, parametric=False, key=None):
+        """The Function `name` built once: build(phys, *inputs); the parametric twin adds p.
+        Inputs named f_* are wrenches (6 x 1), the others (n x 1)."""
+        key = (name, parametric) if key is None else (key, parametric)
         if key not in self._functions:
-            args = self._symbols(*ins)
+            args = [ca.SX.sym(i, 6) if i.startswith("f_") else ca.SX.sym(i, self.n) for i in ins]
             if parametric:
                 p = ca.SX.sym("p", self.n_p)
                 self._functions[key] = ca.Function(name, args + [p], build(self._physics_of(p), *args),
@@ -89,41 +91,119 @@ class Arm:
         segs = self._segments(reduced, phys)
         return segs, rec.kinematics(segs, *x)
 
-    def _inverse(self, reduced, parametric=False):
-        def build(phys, theta, phi, dtheta, dphi, ddtheta, ddphi):
+    def _inverse(self, reduced, parametric=False, external=()):
+        frames, wrench_names = self._external(external)
+
+        def build(phys, theta, phi, dtheta, dphi, ddtheta, ddphi, *f):
             x = (theta, phi, dtheta, dphi)
             segs, kin = self._kin(reduced, phys, x)
             T, Qi_phi = rec.inverse_dynamics(segs, kin, ddtheta, ddphi, phys.gravity)        # eq. (26)
+            T = T - kinematics.external_forces(self.model, frames, theta, f)                # the wrenches help
             tau = -(Qi_phi + self.sea_torque(*x, phys=phys) + self.gear_loss(dphi, phys)) \
                 / phys.columns["gear_ratio"]                                                  # eq. (22)
             return [tau, T]
-        name = "reduced_inverse_dynamics" if reduced else "inverse_dynamics"
-        return self._function(name, STATE + ["ddtheta", "ddphi"], ["tau", "T"], build, parametric)
+        name = ("reduced_inverse_dynamics" if reduced else "inverse_dynamics") + ("_external" if external else "")
+        return self._function(name, STATE + ["ddtheta", "ddphi"] + wrench_names, ["tau", "T"], build, parametric,
+                              key=(name, tuple(external)))
 
-    def _forward(self, reduced, parametric=False):
-        def build(phys, theta, phi, dtheta, dphi, tau):
+    def _forward(self, reduced, parametric=False, external=()):
+        frames, wrench_names = self._external(external)
+
+        def build(phys, theta, phi, dtheta, dphi, tau, *f):
             x = (theta, phi, dtheta, dphi)
             segs, kin = self._kin(reduced, phys, x)
-            return list(rec.forward_dynamics(segs, kin, self.sea_torque(*x, phys=phys), self._phi_force(phys, x, tau),
-                                             phys.gravity))
-        name = "reduced_forward_dynamics" if reduced else "forward_dynamics"
-        return self._function(name, STATE + ["tau"], ["ddtheta", "ddphi"], build, parametric)
+            Qtheta = self.sea_torque(*x, phys=phys) + kinematics.external_forces(self.model, frames, theta, f)
+            return list(rec.forward_dynamics(segs, kin, Qtheta, self._phi_force(phys, x, tau), phys.gravity))
+        name = ("reduced_forward_dynamics" if reduced else "forward_dynamics") + ("_external" if external else "")
+        return self._function(name, STATE + ["tau"] + wrench_names, ["ddtheta", "ddphi"], build, parametric,
+                              key=(name, tuple(external)))
+
+    def _external(self, external) -> tuple:
+        """The frames named in `external` and their wrench inputs' names (f_<frame>)."""
+        frames = [self.model.frame(name) for name in external]
+        names = [f"f_{identifier(name)}" for name in external]
+        if len(set(names)) != len(names):
+            raise ValueError(f"external: the frames {list(external)} are not distinct as C identifiers")
+        return frames, names
 
     # -- public Functions -------------------------------------------------------------------
-    def inverse_dynamics(self, parametric: bool = False) -> ca.Function:
-        """theta, phi, dtheta, dphi, ddtheta, ddphi -> tau (eq. 22), T (eq. 26)."""
-        return self._inverse(False, parametric)
+    def inverse_dynamics(self, parametric: bool = False, external=()) -> ca.Function:
+        """theta, phi, dtheta, dphi, ddtheta, ddphi -> tau (eq. 22), T (eq. 26).  `external`: frame
+        names; one more input f_<frame> each, the wrench [force; moment] (6 x 1, world axes) that
+        the environment applies at the frame's origin (the links feel J^T f, J local_world_aligned)."""
+        return self._inverse(False, parametric, tuple(external))
 
-    def forward_dynamics(self, parametric: bool = False) -> ca.Function:
-        """theta, phi, dtheta, dphi, tau -> ddtheta, ddphi: the complete model, one O(n) sweep."""
-        return self._forward(False, parametric)
+    def forward_dynamics(self, parametric: bool = False, external=()) -> ca.Function:
+        """theta, phi, dtheta, dphi, tau -> ddtheta, ddphi: the complete model, one O(n) sweep.
+        `external`: as for `inverse_dynamics`, a wrench input per named frame."""
+        return self._forward(False, parametric, tuple(external))
 
-    def reduced_inverse_dynamics(self, parametric: bool = False) -> ca.Function:
+    def reduced_inverse_dynamics(self, parametric: bool = False, external=()) -> ca.Function:
         """The DLR/Spong reduced model: M_tt ddtheta + C dtheta + g = T; B ddphi + T + T_B2 = -mu tau."""
-        return self._inverse(True, parametric)
+        return self._inverse(True, parametric, tuple(external))
 
-    def reduced_forward_dynamics(self, parametric: bool = False) -> ca.Function:
-        return self._forward(True, parametric)
+    def reduced_forward_dynamics(self, parametric: bool = False, external=()) -> ca.Function:
+        """The DLR/Spong reduced model solved for ddtheta, ddphi (wrench inputs as `forward_dynamics`)."""
+        return self._forward(True, parametric, tuple(external))
+
+    # -- frames and kinematics (docs/user-guide/frames.md) -----------------------------------
+    def frames(self) -> list:
+        """The names of the arm's frames: its links' and the model file's [frames]."""
+        return [f.name for f in self.model.frames]
+
+    def _kinematic(self, name, frame, ins, outs, build, parametric, reference=None):
+        """A kinematic Function of one frame, named name_<frame>[_<reference>] (C identifiers)."""
+        fr = self.model.frame(frame)
+        if reference is not None and reference not in kinematics.REFERENCES:
+            raise ValueError(f"reference {reference!r}: choose one of {', '.join(kinematics.REFERENCES)}")
+        full = f"{name}_{identifier(frame)}" + (f"_{reference}" if reference else "")
+        return self._function(full, ins, outs, lambda phys, *a: build(fr, *a), parametric, key=(full, frame))
+
+    def frame_placement(self, frame: str, parametric: bool = False) -> ca.Function:
+        """theta -> R (3 x 3), p (3 x 1): the frame in the world (base) frame."""
+        return self._kinematic("frame_placement", frame, ["theta"], ["R", "p"],
+                               lambda fr, theta: list(kinematics.frame_pose(self.model, fr, theta)), parametric)
+
+    def frame_jacobian(self, frame: str, reference: str = "local_world_aligned", parametric: bool = False) -> ca.Function:
+        """theta -> J (6 x n, rows linear then angular) in `reference`: local_world_aligned,
+        local or world, as Pinocchio's ReferenceFrame (docs/user-guide/frames.md)."""
+        return self._kinematic("frame_jacobian", frame, ["theta"], ["J"],
+                               lambda fr, theta: [kinematics.frame_jacobian(self.model, fr, theta, reference)],
+                               parametric, reference)
+
+    def frame_velocity(self, frame: str, reference: str = "local_world_aligned", parametric: bool = False) -> ca.Function:
+        """theta, dtheta -> v (6 x 1, [linear; angular]) in `reference`."""
+        return self._kinematic("frame_velocity", frame, ["theta", "dtheta"], ["v"],
+                               lambda fr, theta, dtheta: [kinematics.frame_jacobian(self.model, fr, theta, reference)
+                                                          @ dtheta], parametric, reference)
+
+    def frame_acceleration(self, frame: str, reference: str = "local_world_aligned",
+                           parametric: bool = False) -> ca.Function:
+        """theta, dtheta, ddtheta -> a (6 x 1): the classical acceleration in `reference`
+        (Pinocchio's getFrameClassicalAcceleration)."""
+        return self._kinematic("frame_acceleration", frame, ["theta", "dtheta", "ddtheta"], ["a"],
+                               lambda fr, *x: [kinematics.frame_classical_acceleration(self.model, fr, *x, reference)],
+                               parametric, reference)
+
+    def frame_jacobian_dot_times_v(self, frame: str, parametric: bool = False) -> ca.Function:
+        """theta, dtheta -> dJ/dt dtheta (6 x 1) of the local_world_aligned Jacobian."""
+        return self._kinematic("frame_jacobian_dot_times_v", frame, ["theta", "dtheta"], ["dJv"],
+                               lambda fr, theta, dtheta: [kinematics.jacobian_dot_times_v(self.model, fr, theta,
+                                                                                          dtheta)], parametric)
+
+    def center_of_mass(self, parametric: bool = False) -> ca.Function:
+        """theta, phi -> c (3 x 1): the centre of mass of every moving body, links and rotors (the
+        fixed base excluded, as Pinocchio's).  phi matters only for an unbalanced rotor."""
+        def build(phys, theta, phi):
+            return [kinematics.center_of_mass(self._segments(False, phys), theta, phi)]
+        return self._function("center_of_mass", ["theta", "phi"], ["c"], build, parametric)
+
+    def center_of_mass_jacobian(self, parametric: bool = False) -> ca.Function:
+        """theta, phi -> Jc (3 x 2n) = dc/d(theta, phi) (the phi block is zero for balanced rotors)."""
+        def build(phys, theta, phi):
+            c = kinematics.center_of_mass(self._segments(False, phys), theta, phi)
+            return [ca.jacobian(c, ca.vertcat(theta, phi))]
+        return self._function("center_of_mass_jacobian", ["theta", "phi"], ["Jc"], build, parametric)
 
     def joint_forward_dynamics(self, parametric: bool = False) -> ca.Function:
         """Paper eq. (23), flexible-joint forward dynamics:

@@ -7,7 +7,7 @@ import tomllib
 
 import numpy as np
 
-from rscasadi.model.types import (BODY_KEYS, GEAR_LOSS_KEYS, LIMIT_KEYS, SEA_KEYS, Body, ModelFileError,
+from rscasadi.model.types import (BASE, BODY_KEYS, GEAR_LOSS_KEYS, LIMIT_KEYS, SEA_KEYS, Body, ModelFileError,
                                   inertia_problem)
 
 class _Ctx:
@@ -82,7 +82,8 @@ def actuator(ctx, t: dict, names) -> dict:
     if not isinstance(name, str) or not name.strip():
         ctx.fail("name", f"expected a non-empty string, got {name!r}")
     if name in names:
-        ctx.fail("name", f"duplicate joint name {name!r}")
+        ctx.fail("name", f"duplicate joint name {name!r}" if name != BASE else
+                 f"{BASE!r} names the base frame (and its joint would name its link's frame)")
     sea = _table(ctx, "sea", t["sea"], SEA_KEYS, ("k1",))
     loss = _table(ctx, "gear_loss", t.get("gear_loss", {}), GEAR_LOSS_KEYS)
     lim_raw = _table(ctx, "limits", t.get("limits", {}), LIMIT_KEYS)
@@ -128,3 +129,14 @@ def read_toml(path, kind: str = "model") -> dict:
         raise ModelFileError(f"{path}: cannot read {kind} file: {exc.strerror}") from exc
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ModelFileError(f"{path}: not valid TOML: {exc}") from exc
+
+
+def identifier(name: str, what: str = "frame") -> str:
+    """`name` as a C identifier (letters, digits and _; not starting with a digit; at most 48
+    characters), its other characters mapped to _; a name that maps to nothing usable is refused."""
+    import re
+    ident = re.sub(r"[^A-Za-z0-9_]", "_", str(name))
+    if not ident.strip("_") or ident[0].isdigit() or len(ident) > 48:
+        raise ValueError(f"{what} name {name!r} cannot be made a C identifier (letters, digits and _, "
+                         "not starting with a digit, at most 48 characters)")
+    return ident

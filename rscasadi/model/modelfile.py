@@ -5,13 +5,15 @@ Every rule is enforced with a `ModelFileError` that names the file, the joint an
 """
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 
 from rscasadi.model.checks import (ACTUATOR_KEYS, _body, _Ctx, _number, _table, _vector,  # noqa: F401
                                    actuator, field_checker, joint_context, read_toml)
-from rscasadi.model.types import (BODIES, BODY_KEYS, DEFAULT_GRAVITY, JOINT_KEYS, TOP_KEYS, ArmModel,  # noqa: F401
+from rscasadi.model.frames import frames_document, link_frames, user_frames
+from rscasadi.model.types import (BASE, BODIES, BODY_KEYS, DEFAULT_GRAVITY, JOINT_KEYS, TOP_KEYS, ArmModel,  # noqa: F401
                                   Body, Joint, ModelFileError, inertia_problem, rpy_matrix, rpy_of)
 
 def _joint(path, idx, raw, names) -> Joint:
@@ -38,8 +40,9 @@ def parse(data: dict, path: str = "<memory>") -> ArmModel:
         ctx.fail("joints", "expected at least one [[joints]] table")
     joints = []
     for idx, raw in enumerate(raw_joints):
-        joints.append(_joint(path, idx, raw, {jt.name for jt in joints}))
-    return ArmModel(data["name"], gravity, tuple(joints), path)
+        joints.append(_joint(path, idx, raw, {jt.name for jt in joints} | {BASE}))
+    model = ArmModel(data["name"], gravity, tuple(joints), path)
+    return dataclasses.replace(model, frames=user_frames(ctx, data.get("frames"), link_frames(model)))
 
 
 def read(path) -> ArmModel:
@@ -89,4 +92,6 @@ def document(model: ArmModel) -> dict:
                        "sea": {"k1": jt.k1, "k3": jt.k3, "d": jt.d},
                        "gear_loss": {"b": jt.b, "c": jt.c, "eps": jt.eps}, **({"limits": limits} if limits else {}),
                        **{b: body_document(getattr(jt, b)) for b in BODIES}})
-    return {"name": model.name, "gravity": [float(g) for g in model.gravity], "joints": joints}
+    frames = frames_document(model)
+    return {"name": model.name, "gravity": [float(g) for g in model.gravity], **({"frames": frames} if frames else {}),
+            "joints": joints}

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
-TOP_KEYS = {"name", "gravity", "joints"}
+TOP_KEYS = {"name", "gravity", "joints", "frames"}
 JOINT_KEYS = {"name", "origin_xyz", "origin_rpy", "gear_ratio", "sea", "gear_loss", "limits",
               "link", "slow_rotor", "fast_rotor"}
 BODY_KEYS = {"mass", "com", "inertia"}
@@ -101,13 +101,38 @@ class Joint:
 
 
 @dataclass(frozen=True)
+class Frame:
+    """A named frame fixed to a body: `body` 0 is the base (the world frame), body j >= 1 the link
+    moved by joint j - 1 (base to tip, in its frame L whose z is that joint's axis).  `R` and `p`
+    are the frame's rotation and origin in the body's frame.  `user`: from the model file's
+    [frames] table (written back by `document`), else a link's own frame."""
+    name: str
+    body: int
+    R: np.ndarray
+    p: np.ndarray
+    user: bool = False
+
+
+BASE = "base"          # the base frame's name in a link-list model (a URDF's is its root link)
+
+
+@dataclass(frozen=True)
 class ArmModel:
-    """The constant description of an n-joint FS-SEA arm; joints base to tip."""
+    """The constant description of an n-joint FS-SEA arm; joints base to tip; `frames` by name
+    (docs/user-guide/frames.md)."""
     name: str
     gravity: np.ndarray
     joints: tuple
     path: str = "<memory>"
     extra: dict = field(default_factory=dict, compare=False)
+    frames: tuple = field(default=(), compare=False)
+
+    def frame(self, name: str) -> Frame:
+        """The frame called `name`, or a KeyError listing the frames there are."""
+        for f in self.frames:
+            if f.name == name:
+                return f
+        raise KeyError(f"{self.path}: no frame {name!r} (frames: {', '.join(f.name for f in self.frames)})")
 
     @property
     def n(self) -> int:

@@ -15,9 +15,10 @@ from scipy.spatial.transform import Rotation
 
 from rscasadi.spatial import spatial_inertia, transform_inertia
 from rscasadi.model.checks import ACTUATOR_KEYS, _Ctx, _number, _table, _vector, actuator, joint_context
-from rscasadi.model.types import DEFAULT_GRAVITY, ArmModel, Body, Joint, ModelFileError, inertia_problem, rpy_of
+from rscasadi.model.frames import user_frames
+from rscasadi.model.types import DEFAULT_GRAVITY, ArmModel, Body, Frame, Joint, ModelFileError, inertia_problem, rpy_of
 
-URDF_TOP_KEYS = {"name", "urdf", "tip", "locked", "gravity", "joints"}
+URDF_TOP_KEYS = {"name", "urdf", "tip", "locked", "gravity", "joints", "frames"}
 MOVING = ("revolute", "continuous")
 
 
@@ -136,7 +137,7 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
     if [jt.name for jt in chain] != order:
         ctx.fail("joints", f"[[joints]] must list the chain's moving joints base to tip: "
                            f"{[jt.name for jt in chain]}, got {order}")
-    joints, R_prev = [], np.eye(3)
+    joints, R_prev, axes = [], np.eye(3), [np.eye(3)]
     for j, ujoint in enumerate(chain):
         idx, act = actuators[ujoint.name]
         jctx = joint_context(path, idx, {"name": ujoint.name})
@@ -164,9 +165,14 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
                             link=link,
                             limits=limits, origin_R=R_J, **act))
         R_prev = R_a
+        axes.append(R_a)
     extra = {"urdf": str(urdf_path), "tip_link": tip_body, "locked": dict(locked),
              "links": [b["links"] for b in bodies]}
-    return ArmModel(data["name"], gravity, tuple(joints), path, extra)
+    # each URDF link's frame on its chain body: L_j = L_urdf R_a, so a pose T in L_urdf is R_a^T T in L_j
+    frames = tuple(Frame(name, b, axes[b].T @ T[:3, :3], axes[b].T @ T[:3, 3])
+                   for b, body in enumerate(bodies) for name, T in zip(body["links"], body["T_links"]))
+    return ArmModel(data["name"], gravity, tuple(joints), path, extra,
+                    frames=user_frames(ctx, data.get("frames"), frames))
 
 
 def _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuators, tip, ctx):
@@ -186,13 +192,14 @@ def _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuator
         ctx.fail("urdf", f"{urdf_path}: expected one root link, found {roots}")
     if tip is not None and (not isinstance(tip, str) or tip not in links_by_name):
         ctx.fail("tip", f"no link {tip!r} in {urdf_path}")
-    bodies = [{"M": np.zeros((6, 6)), "links": [], "T_joint": None}]
+    bodies = [{"M": np.zeros((6, 6)), "links": [], "T_joint": None, "T_links": []}]
     chain = []
     tip_body = None
     stack = [(roots[0], 0, np.eye(4))]                        # (link, chain body, transform body frame -> link)
     while stack:
         link_name, b, T = stack.pop()
         bodies[b]["links"].append(link_name)
+        bodies[b]["T_links"].append(T)
         if link_name == tip:
             tip_body = b
         if b > 0:
@@ -219,7 +226,7 @@ def _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuator
                                  f"lock one branch")
             bodies[b]["T_joint"], bodies[b]["next"] = T @ origin, jt.name
             chain.append(jt)
-            bodies.append({"M": np.zeros((6, 6)), "links": [], "T_joint": None})
+            bodies.append({"M": np.zeros((6, 6)), "links": [], "T_joint": None, "T_links": []})
             stack.append((jt.child, len(bodies) - 1, np.eye(4)))
     if not chain:
         ctx.fail("joints", f"{urdf_path} has no moving joint to actuate")

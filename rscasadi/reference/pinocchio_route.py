@@ -96,6 +96,7 @@ def _axis(jmodel) -> np.ndarray:
     for letter, axis in (("X", [1.0, 0, 0]), ("Y", [0, 1.0, 0]), ("Z", [0, 0, 1.0])):
         if short in (f"JointModelR{letter}", f"JointModelRUB{letter}"):
             return np.array(axis)
-    if hasattr(jmodel, "axis"):
-        return np.asarray(jmodel.axis, float)
+    specific = jmodel.extract() if hasattr(jmodel, "extract") else jmodel
+    if hasattr(specific, "axis"):
+        return np.asarray(specific.axis, float)
     raise ValueError(f"not a revolute joint: {short}")

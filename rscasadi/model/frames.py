@@ -1,0 +1,79 @@
+"""Frames of an arm: each link's own frame, and user frames from the model file's [frames] table
+placed on a parent frame (xyz, and rpy as in URDF):
+
+    [frames]
+    tool = { parent = "panda_link8", xyz = [0.0, 0.0, 0.1034], rpy = [0.0, 0.0, -0.785398] }
+
+A link-list model's frames are `base` (the world frame) and one per joint, named as the joint,
+on the link it moves (that link's frame, whose z is the joint's axis).  A URDF-based model's are
+the URDF's links, each where the URDF places its link frame, those merged into a parent link by
+a fixed or locked joint too.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from rscasadi.model.checks import _table, _vector
+from rscasadi.model.types import BASE, Frame, rpy_matrix, rpy_of
+
+FRAME_KEYS = {"parent", "xyz", "rpy"}
+
+
+def link_frames(model) -> tuple:
+    """`base` and a frame per joint, on the link it moves (a link-list model's own frames)."""
+    return (Frame(BASE, 0, np.eye(3), np.zeros(3)),) + tuple(
+        Frame(jt.name, j + 1, np.eye(3), np.zeros(3)) for j, jt in enumerate(model.joints))
+
+
+def user_frames(ctx, raw, frames: tuple) -> tuple:
+    """`frames` and the [frames] table's, each placed on its parent (which may be a user frame
+    given before or after it); errors name the file and the field."""
+    if raw is None:
+        return frames
+    table = _table(ctx, "frames", raw, set(raw))
+    known = {f.name: f for f in frames}
+    pending = {}
+    for name, entry in table.items():
+        fld = f"frames.{name}"
+        if name in known:
+            ctx.fail(fld, f"a frame {name!r} exists already (a link's frame)")
+        t = _table(ctx, fld, entry, FRAME_KEYS, ("parent",))
+        if not isinstance(t["parent"], str):
+            ctx.fail(f"{fld}.parent", f"expected the name of a frame, got {t['parent']!r}")
+        xyz = _vector(ctx, f"{fld}.xyz", t.get("xyz", [0.0, 0.0, 0.0]), 3)
+        rpy = _vector(ctx, f"{fld}.rpy", t.get("rpy", [0.0, 0.0, 0.0]), 3)
+        pending[name] = (t["parent"], xyz, rpy_matrix(rpy))
+    out = dict(known)
+    while pending:
+        ready = [name for name, (parent, *_) in pending.items() if parent in out]
+        if not ready:
+            name, (parent, *_) = next(iter(pending.items()))
+            problem = ("parents form a cycle" if parent in pending
+                       else f"no frame {parent!r} (frames: {', '.join(out)})")
+            ctx.fail(f"frames.{name}.parent", problem)
+        for name in ready:
+            parent, xyz, R = pending.pop(name)
+            f = out[parent]
+            out[name] = Frame(name, f.body, f.R @ R, f.p + f.R @ xyz, user=True)
+    return tuple(out.values())
+
+
+def frames_document(model) -> dict:
+    """The [frames] table of the link-list form of `model`: every frame that is not one of that
+    form's own (base and the joints' names), placed on its body's own frame; so a URDF-based
+    model written as a link list keeps its URDF links' frames."""
+    own = {f.name: f for f in link_frames(model)}
+    doc = {}
+    for f in model.frames:
+        if f.name in own:
+            mine = own[f.name]
+            if f.body != mine.body or not (np.allclose(f.R, mine.R, atol=1e-12) and np.allclose(f.p, mine.p, atol=1e-12)):
+                raise ValueError(f"{model.path}: frame {f.name!r} would take the place of the link-list form's own "
+                                 "frame of that name")
+            continue
+        rpy = rpy_of(f.R)
+        if rpy is None:
+            raise ValueError(f"{model.path}: frame {f.name!r}: its rotation has no exact roll-pitch-yaw")
+        parent = BASE if f.body == 0 else model.joints[f.body - 1].name
+        doc[f.name] = {"parent": parent, "xyz": [float(v) for v in f.p], "rpy": [float(v) for v in rpy]}
+    return doc

@@ -1,0 +1,219 @@
+"""Frames, kinematics and external wrenches against outside references: Pinocchio parsing the
+same URDF (Panda, UR5, the reference arm's URDF), the Lagrangian oracle, finite differences and
+the energy balance; and the [frames] table's refusals."""
+import casadi as ca
+import numpy as np
+import pytest
+
+import rscasadi
+from rscasadi import ModelFileError
+from rscasadi.model.modelfile import document, to_toml
+from rscasadi.reference.pinocchio_route import PinocchioRoute
+
+from conftest import ROOT, dm, random_state
+from lagrange import Lagrange
+from test_urdf import old_doc, reference_urdf, urdf_form_doc  # noqa: F401  (old_doc: a fixture)
+
+pin = pytest.importorskip("pinocchio")
+REFS = {"local_world_aligned": pin.LOCAL_WORLD_ALIGNED, "local": pin.LOCAL, "world": pin.WORLD}
+
+
+@pytest.fixture(scope="module")
+def arm3_urdf(tmp_path_factory, old_doc):  # noqa: F811
+    d = tmp_path_factory.mktemp("arm3_urdf")
+    arm3 = rscasadi.load(ROOT / "problems" / "arm3.toml")
+    (d / "arm3.urdf").write_text(reference_urdf(arm3.model))
+    (d / "arm3_urdf.toml").write_text(to_toml(urdf_form_doc(old_doc, "arm3.urdf")))
+    return rscasadi.load(d / "arm3_urdf.toml")
+
+
+@pytest.fixture(scope="module", params=["panda", "ur5", "arm3_urdf"])
+def urdf_arm(request):
+    if request.param == "arm3_urdf":
+        return request.getfixturevalue("arm3_urdf")
+    return rscasadi.load(ROOT / "problems" / f"{request.param}_sea.toml")
+
+
+class PinocchioURDF:
+    """Pinocchio's own model of the URDF, the locked joints held at their values."""
+
+    def __init__(self, model):
+        full = pin.buildModelFromUrdf(model.extra["urdf"])
+        q0, locks = pin.neutral(full), []
+        for name, value in model.extra["locked"].items():
+            jid = full.getJointId(name)
+            locks.append(jid)
+            q0[full.joints[jid].idx_q] = value
+        self.model = pin.buildReducedModel(full, locks, q0) if locks else full
+        assert [self.model.names[i] for i in range(1, self.model.njoints)] == [jt.name for jt in model.joints]
+        self.data = self.model.createData()
+
+    def q(self, theta):
+        q = pin.neutral(self.model)
+        for i, th in enumerate(theta):
+            jm = self.model.joints[i + 1]
+            q[jm.idx_q:jm.idx_q + jm.nq] = [np.cos(th), np.sin(th)] if jm.nq == 2 else [th]
+        return q
+
+
+def test_frames_are_the_urdf_links(urdf_arm):
+    pm = PinocchioURDF(urdf_arm.model).model
+    links = {pm.frames[i].name for i in range(pm.nframes) if pm.frames[i].type == pin.FrameType.BODY}
+    assert set(urdf_arm.frames()) == links                       # merged and locked links included
+
+
+def test_kinematics_equal_pinocchio_on_the_same_urdf(urdf_arm):
+    ref, arm, rng = PinocchioURDF(urdf_arm.model), urdf_arm, np.random.default_rng(3)
+    pm, data, n = ref.model, ref.data, urdf_arm.n
+    for _ in range(3):
+        th, dth, ddth = rng.uniform(-2, 2, n), rng.normal(size=n), rng.normal(size=n)
+        q = ref.q(th)
+        pin.forwardKinematics(pm, data, q, dth, ddth)
+        pin.updateFramePlacements(pm, data)
+        pin.computeJointJacobians(pm, data, q)
+        pin.computeJointJacobiansTimeVariation(pm, data, q, dth)
+        for name in arm.frames():
+            fid = pm.getFrameId(name)
+            R, p = (np.array(v) for v in arm.frame_placement(name)(th))
+            assert np.allclose(R, data.oMf[fid].rotation, atol=1e-9) and np.allclose(p.ravel(), data.oMf[fid].translation, atol=1e-9), name
+            for ref_name, rf in REFS.items():
+                J = np.array(arm.frame_jacobian(name, ref_name)(th))
+                assert np.allclose(J, pin.getFrameJacobian(pm, data, fid, rf), atol=1e-9), (name, ref_name)
+                v = dm(arm.frame_velocity(name, ref_name)(th, dth))
+                assert np.allclose(v, pin.getFrameVelocity(pm, data, fid, rf).vector, atol=1e-9), (name, ref_name)
+                a = dm(arm.frame_acceleration(name, ref_name)(th, dth, ddth))
+                a_pin = pin.getFrameClassicalAcceleration(pm, data, fid, rf).vector
+                assert np.allclose(a, a_pin, atol=1e-8 * max(1.0, np.abs(a_pin).max())), (name, ref_name)
+            dJ = pin.getFrameJacobianTimeVariation(pm, data, fid, pin.LOCAL_WORLD_ALIGNED)
+            assert np.allclose(dm(arm.frame_jacobian_dot_times_v(name)(th, dth)), dJ @ dth, atol=1e-9), name
+
+
+def test_center_of_mass_equals_pinocchio_with_the_rotors(request):
+    """Links and rotors as bodies of a Pinocchio tree (unbalanced rotors on the random arms, so
+    phi matters there)."""
+    rng = np.random.default_rng(4)
+    arms = [request.getfixturevalue("arm3")] + request.getfixturevalue("random_arms")
+    routes = [PinocchioRoute(a.model) for a in arms]
+    routes += [PinocchioRoute.from_urdf(rscasadi.load(ROOT / "problems" / "panda_sea.toml").model)]
+    arms += [rscasadi.load(ROOT / "problems" / "panda_sea.toml")]
+    for arm, route in zip(arms, routes):
+        th, ph = random_state(rng, arm.n)[:2]
+        q_tree = route.G @ np.r_[th, ph]
+        c_pin = pin.centerOfMass(route.model, route.data, q_tree)
+        assert np.allclose(dm(arm.center_of_mass()(th, ph)), c_pin, atol=1e-12)
+        Jc_pin = pin.jacobianCenterOfMass(route.model, route.data, q_tree) @ route.G
+        assert np.allclose(np.array(arm.center_of_mass_jacobian()(th, ph)), Jc_pin, atol=1e-10)
+
+
+def test_jacobian_is_the_derivative_of_the_placement(random_arms):
+    """Finite differences of p and of R (angular: vee(dR R^T)) on random arms with user frames."""
+    rng = np.random.default_rng(6)
+    for arm in random_arms:
+        frame = arm.frames()[-1]
+        th, h = rng.uniform(-2, 2, arm.n), 1e-6
+        J = np.array(arm.frame_jacobian(frame)(th))
+        place = arm.frame_placement(frame)
+        for j in range(arm.n):
+            e = np.zeros(arm.n)
+            e[j] = h
+            (Rp, pp), (Rm, pm) = [(np.array(v) for v in place(th + s * e)) for s in (1, -1)]
+            assert np.allclose((pp - pm).ravel() / (2 * h), J[:3, j], atol=1e-7)
+            W = (Rp - Rm) / (2 * h) @ np.array(place(th)[0]).T
+            assert np.allclose([W[2, 1], W[0, 2], W[1, 0]], J[3:, j], atol=1e-7)
+
+
+def test_wrench_dynamics_equal_pinocchio_and_lagrange(urdf_arm, arm3):
+    """Forward and inverse dynamics with a wrench at a frame: Pinocchio's J^T f on the link
+    coordinates with its tree of links and rotors; the Lagrangian oracle on the reference arm."""
+    rng, arm = np.random.default_rng(7), urdf_arm
+    frame = arm.frames()[-1]
+    ref, route = PinocchioURDF(arm.model), PinocchioRoute.from_urdf(arm.model)
+    fd, inv = arm.forward_dynamics(external=[frame]), arm.inverse_dynamics(external=[frame])
+    for _ in range(2):
+        x, tau, f = random_state(rng, arm.n), rng.normal(size=arm.n), rng.normal(size=6) * 5
+        q = ref.q(x[0])
+        J = pin.computeFrameJacobian(ref.model, ref.data, q, ref.model.getFrameId(frame), pin.LOCAL_WORLD_ALIGNED)
+        M, c = route.mass_bias(*x)
+        k = {a: arm.model.column(a) for a in ("k1", "k3", "d", "b", "c", "eps", "gear_ratio")}
+        psi, dpsi = x[1] - x[0], x[3] - x[2]
+        T = k["k1"] * psi + k["k3"] * psi ** 3 + k["d"] * dpsi
+        TB2 = k["b"] * x[3] + k["c"] * np.tanh(x[3] / k["eps"])
+        ddq = np.linalg.solve(M, np.r_[T + J.T @ f, -T - TB2 - k["gear_ratio"] * tau] - c)
+        ours = np.concatenate([dm(v) for v in fd(*x, tau, f)])
+        assert np.allclose(ours, ddq, atol=1e-9 * max(1.0, np.abs(ddq).max()))
+        tau_back, T_back = (dm(v) for v in inv(*x, ddq[:arm.n], ddq[arm.n:], f))
+        assert np.allclose(tau_back, tau, atol=1e-8) and np.allclose(T_back, T, atol=1e-8)
+    # the Lagrangian oracle, a wrench at the reference arm's last link frame shifted off its origin
+    doc = document(arm3.model)
+    doc["frames"] = {"probe": {"parent": "elbow_pitch", "xyz": [0.2, 0.03, -0.05], "rpy": [0.3, 0.1, 0.0]}}
+    probe_arm = rscasadi.Arm(rscasadi.model.modelfile.parse(doc, "probe.toml"))
+    lag, fr = Lagrange(probe_arm.model), probe_arm.model.frame("probe")
+    x, tau, f = random_state(rng, 3), rng.normal(size=3), rng.normal(size=6) * 5
+    Qw = dm(lag.wrench_force(fr.body, fr.p)(np.r_[x[0], x[1]], f))
+    expected = np.concatenate(lag.forward_with_wrench(*x, tau, Qw))
+    ours = np.concatenate([dm(v) for v in probe_arm.forward_dynamics(external=["probe"])(*x, tau, f)])
+    assert np.allclose(ours, expected, atol=1e-9 * np.abs(expected).max())
+
+
+def test_power_balance_with_a_wrench(random_arms):
+    """dE/dt = motor power + wrench power (f . v of the frame) - losses, on random arms."""
+    rng = np.random.default_rng(8)
+    for arm in random_arms[2:5]:
+        n, frame = arm.n, arm.frames()[-1]
+        th, ph, dth, dph, tau = (ca.SX.sym(s, n) for s in ("th", "ph", "dth", "dph", "tau"))
+        f = ca.SX.sym("f", 6)
+        ddth, ddph = arm.forward_dynamics(external=[frame])(th, ph, dth, dph, tau, f)
+        E = arm.energy()(th, ph, dth, dph)
+        dE = ca.jtimes(E, ca.vertcat(th, ph, dth, dph), ca.vertcat(dth, dph, ddth, ddph))
+        d, mu = ca.DM(arm.model.column("d")), ca.DM(arm.model.column("gear_ratio"))
+        v = arm.frame_velocity(frame)(th, dth)
+        power = ca.sum1(-d * (dph - dth) ** 2 - arm.gear_loss(dph) * dph - mu * tau * dph) + ca.dot(f, v)
+        F = ca.Function("F", [th, ph, dth, dph, tau, f], [dE, power])
+        x = random_state(rng, n)
+        lhs, rhs = (float(val) for val in F(*x, rng.normal(size=n), rng.normal(size=6) * 10))
+        assert abs(lhs - rhs) <= 1e-9 * max(abs(rhs), 1.0)
+
+
+@pytest.mark.parametrize("frames,field,words", [
+    ({"tool": {"parent": "nowhere"}}, "frames.tool.parent", "no frame 'nowhere'"),
+    ({"tool": {"parent": "elbow_pitch", "xyz": [0.0, 0.1]}}, "frames.tool.xyz", "list of 3"),
+    ({"tool": {"parent": "elbow_pitch", "colour": 1}}, "frames.tool.colour", "unknown key"),
+    ({"elbow_pitch": {"parent": "base"}}, "frames.elbow_pitch", "exists already"),
+    ({"a": {"parent": "b"}, "b": {"parent": "a"}}, "frames.a.parent", "cycle"),
+])
+def test_bad_frames_are_refused_by_name(arm3, tmp_path, frames, field, words):
+    doc = document(arm3.model)
+    doc["frames"] = frames
+    path = tmp_path / "framed.toml"
+    path.write_text(to_toml(doc))
+    with pytest.raises(ModelFileError, match=rf"framed.toml: field '{field}'.*{words}"):
+        rscasadi.load(path)
+
+
+def test_user_frames_chain_and_round_trip(arm3, tmp_path):
+    doc = document(arm3.model)
+    doc["frames"] = {"tip": {"parent": "flange", "xyz": [0.0, 0.0, 0.05]},
+                     "flange": {"parent": "elbow_pitch", "xyz": [0.3, 0.0, 0.0], "rpy": [0.0, 1.5707963267948966, 0.0]}}
+    path = tmp_path / "framed.toml"
+    path.write_text(to_toml(doc))
+    arm = rscasadi.load(path)
+    th = np.array([0.3, -0.4, 0.9])
+    R_f, p_f = (np.array(v) for v in arm.frame_placement("flange")(th))
+    _, p_t = (np.array(v) for v in arm.frame_placement("tip")(th))
+    assert np.allclose(p_t, p_f + R_f @ [[0.0], [0.0], [0.05]])     # the child placed on its parent
+    again = tmp_path / "again.toml"
+    again.write_text(to_toml(document(arm.model)))
+    twin = rscasadi.load(again)
+    for name in arm.frames():
+        assert np.allclose(np.array(twin.frame_placement(name)(th)[1]), np.array(arm.frame_placement(name)(th)[1]))
+
+
+def test_a_urdf_arm_written_as_a_link_list_keeps_its_frames(tmp_path):
+    panda = rscasadi.load(ROOT / "problems" / "panda_sea.toml")
+    path = tmp_path / "panda_list.toml"
+    path.write_text(to_toml(document(panda.model)))
+    twin = rscasadi.load(path)
+    th = np.linspace(-1, 1, 7)
+    for name in panda.frames():
+        a, b = panda.frame_placement(name)(th), twin.frame_placement(name)(th)
+        assert all(np.allclose(np.array(u), np.array(v), atol=1e-12) for u, v in zip(a, b)), name
