@@ -37,6 +37,14 @@ def positive(kind, zero: bool = False, least=None):
     return parse
 
 
+def names_list(text: str) -> list:
+    """A comma-separated list of names, none empty."""
+    names = [t.strip() for t in text.split(",")]
+    if not all(names):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of names")
+    return names
+
+
 def opt_flag(text: str) -> str:
     """An optimisation flag for the C compiler: -O0..-O3, -Os, -Og, -Oz or -Ofast, nothing else."""
     if text not in ("-O0", "-O1", "-O2", "-O3", "-Os", "-Og", "-Oz", "-Ofast"):
@@ -104,7 +112,8 @@ def cmd_codegen(args):
     from rscasadi.codegen import generate
     t0 = time.perf_counter()
     manifest = generate(args.model, args.out, prefix=args.prefix, opt=args.opt,
-                        log=lambda msg: print(msg, flush=True), parametric=args.parametric, native=args.native)
+                        log=lambda msg: print(msg, flush=True), parametric=args.parametric, native=args.native,
+                        frames=args.frames, external=args.external)
     for name, info in manifest["functions"].items():
         print(f"  {info['symbol']:40s} n_instructions {info['n_instructions']}")
     for name, why in manifest["omitted"].items():
@@ -142,6 +151,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--native", action="store_true",
                    help="compile for this machine's processor (-march=native, fused multiply-adds): the step "
                         "Jacobian's kernel ~20 %% faster; the sources stay portable C99")
+    p.add_argument("--frames", type=names_list, default=[],
+                   help="comma-separated frames whose placement, Jacobians, velocity and dJ*v (and the centre of "
+                        "mass) the library gets")
+    p.add_argument("--external", type=names_list, default=[],
+                   help="comma-separated frames at which the dynamics take a wrench [force; moment] "
+                        "(forward_dynamics_external, inverse_dynamics_external)")
     p.set_defaults(func=cmd_codegen)
     p = sub.add_parser("paper", help="reproduce the paper's simulation (Figs. 5-11), the cascade study and sweeps")
     p.add_argument("--trajectory", default=str(TRAJECTORY), help="expected-trajectory file (names its model)")

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import rscasadi
+from rscasadi.cli import main
 from rscasadi.codegen import CodegenError, functions, generate
 from rscasadi.files import OutputError
 from rscasadi.reference.numeric import Numeric
@@ -308,3 +309,74 @@ def test_structured_step_jacobian_equals_ad_of_the_step(n):
         ref = np.array(ad(x, tau))
         got = np.hstack([np.array(v) for v in step_jac(x, tau, h)])
         assert np.max(np.abs(got - ref)) < 1e-12 * np.max(np.abs(ref))
+
+
+# ----------------------------------------------------------------------------- task space in C
+
+@pytest.fixture(scope="module")
+def frames_built(tmp_path_factory, private_cache):
+    """The reference arm with a tool frame, generated with --frames tool,elbow_pitch --external tool."""
+    from rscasadi.model.modelfile import document
+    d = tmp_path_factory.mktemp("frames")
+    doc = document(rscasadi.load(REFERENCE).model)
+    doc["frames"] = {"tool": {"parent": "elbow_pitch", "xyz": [0.3, 0.0, 0.02], "rpy": [0.0, 0.4, 0.1]}}
+    path = write_arm(d, doc, "arm3_tool.toml")
+    assert main(["codegen", str(path), "--out", str(d / "gen"), "--opt=-O1", "--frames", "tool,elbow_pitch",
+                 "--external", "tool"]) in (0, None)
+    return rscasadi.load(path), d / "gen"
+
+
+def test_frame_functions_in_c_equal_the_symbolic_ones(frames_built):
+    arm, out = frames_built
+    lib, rng = rscasadi.load_compiled(out), np.random.default_rng(9)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["frames"] == {"tool": "tool", "elbow_pitch": "elbow_pitch"}
+    x, tau, f = [rng.normal(size=3) for _ in range(4)], rng.normal(size=3), rng.normal(size=6)
+    pairs = [(lib["frame_placement_tool"](x[0]), arm.frame_placement("tool")(x[0])),
+             (lib["frame_jacobian_elbow_pitch_local"](x[0]), arm.frame_jacobian("elbow_pitch", "local")(x[0])),
+             (lib["frame_velocity_tool_local_world_aligned"](x[0], x[2]), arm.frame_velocity("tool")(x[0], x[2])),
+             (lib["frame_jacobian_dot_times_v_tool"](x[0], x[2]), arm.frame_jacobian_dot_times_v("tool")(x[0], x[2])),
+             (lib["center_of_mass"](x[0], x[1]), arm.center_of_mass()(x[0], x[1])),
+             (lib["forward_dynamics_external"](*x, tau, f), arm.forward_dynamics(external=["tool"])(*x, tau, f)),
+             (lib["inverse_dynamics_external"](*x, tau, tau, f), arm.inverse_dynamics(external=["tool"])(*x, tau, tau, f))]
+    for got, want in pairs:
+        got, want = (got,) if not isinstance(got, tuple) else got, (want,) if not isinstance(want, tuple) else want
+        for g, w in zip(got, want):
+            assert rel(np.array(g), np.array(w)) < 1e-12
+
+
+@pytest.mark.skipif(cc() is None, reason="no C compiler")
+def test_frame_functions_in_c_two_threads_werror_and_valgrind(frames_built, tmp_path):
+    arm, out = frames_built
+    exe = tmp_path / "frames"
+    subprocess.run([cc(), "-std=c99", "-O1", "-g", "-Wall", "-Wextra", "-Werror", "-pthread", f"-I{out}",
+                    str(HERE / "c" / "frames.c"), f"-L{out}", "-lrscasadi_arm", f"-Wl,-rpath,{out}", "-lm",
+                    "-o", str(exe)], check=True)
+    run = subprocess.run([str(exe)], capture_output=True, text=True)
+    assert run.returncode == 0 and "identical" in run.stdout, run.stdout + run.stderr
+    values = np.array(run.stdout.splitlines()[0].split(), float)          # thread 0's inputs, in C
+    x = np.array([0.1 * (i + 1) for i in range(12)])
+    R, p = (np.array(v) for v in arm.frame_placement("tool")(x[:3]))
+    assert np.allclose(values[:9], R.ravel(order="F"), atol=1e-14) and np.allclose(values[9:12], p.ravel(), atol=1e-14)
+    if shutil.which("valgrind"):
+        subprocess.run([cc(), "-std=c99", "-O1", "-g", "-pthread", "-DREPEAT=2", f"-I{out}", str(HERE / "c" / "frames.c"),
+                        f"-L{out}", "-lrscasadi_arm", f"-Wl,-rpath,{out}", "-lm", "-o", str(exe)], check=True)
+        run = subprocess.run(["valgrind", "--error-exitcode=3", "--quiet", str(exe)], capture_output=True, text=True)
+        assert run.returncode == 0 and "identical" in run.stdout, run.stderr
+
+
+def test_frame_names_reach_c_only_as_identifiers(tmp_path, capsys):
+    from rscasadi.model.modelfile import document
+    doc = document(rscasadi.load(REFERENCE).model)
+    doc["frames"] = {'tool"; system("id"); /*': {"parent": "elbow_pitch"}, "tool-1": {"parent": "elbow_pitch"},
+                     "tool_1": {"parent": "elbow_pitch"}, "9lives": {"parent": "base"}}
+    path = write_arm(tmp_path, doc, "hostile.toml")
+    manifest = generate(path, tmp_path / "ok", opt="-O1", log=lambda m: None, frames=['tool"; system("id"); /*'])
+    header = (tmp_path / "ok" / manifest["header"]).read_text()
+    assert "frame_placement_tool_system_id(" in header and "system(\"" not in header
+    for frames, words in ((["tool-1", "tool_1"], "not distinct"), (["9lives"], "C identifier"), (["nope"], "no frame")):
+        with pytest.raises(rscasadi.CodegenError, match=words):
+            generate(path, tmp_path / "bad", opt="-O1", log=lambda m: None, frames=frames)
+        assert not (tmp_path / "bad").exists()
+    assert main(["codegen", str(path), "--out", str(tmp_path / "cli"), "--external", "nope"]) == 2
+    assert "--external" in capsys.readouterr().err

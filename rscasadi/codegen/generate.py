@@ -17,6 +17,8 @@ import casadi as ca
 
 from rscasadi.dynamics.feedforward import feedforward_functions
 from rscasadi.dynamics.arm import Arm, load
+from rscasadi.dynamics.kinematics import REFERENCES
+from rscasadi.model.checks import identifier
 from rscasadi.files import OutputError, fresh_directory, write_json
 from rscasadi.codegen.step_kernel import kernel_source
 from rscasadi.native.build import OPT_LEVELS, BuildError, cached_library, compiler, native_flags
@@ -122,11 +124,51 @@ def forward_dynamics_jacobian(arm: Arm, parametric: bool = False, name: str = "f
     return _renamed(fd, name, lambda *ins: [_ad_jacobian(fd, ins, parametric)], ["jacobian"])
 
 
-def functions(arm: Arm, prefix: str = "", parametric: bool = False) -> tuple[dict, dict]:
+def frame_functions(arm: Arm, frames=(), external=(), parametric: bool = False) -> dict:
+    """The task-space Functions by public name: per frame its placement, its Jacobian in the
+    three references, its velocity and dJ/dt dtheta (local_world_aligned), the centre of mass;
+    with `external`, the dynamics taking a wrench at each of those frames."""
+    fns = {}
+    for frame in frames:
+        fs = [arm.frame_placement(frame, parametric),
+              *[arm.frame_jacobian(frame, ref, parametric) for ref in REFERENCES],
+              arm.frame_velocity(frame, "local_world_aligned", parametric),
+              arm.frame_jacobian_dot_times_v(frame, parametric)]
+        fns.update({f.name(): f for f in fs})
+    if frames:
+        fns["center_of_mass"] = arm.center_of_mass(parametric)
+    if external:
+        fns["forward_dynamics_external"] = arm.forward_dynamics(parametric, external)
+        fns["inverse_dynamics_external"] = arm.inverse_dynamics(parametric, external)
+    return fns
+
+
+def check_frames(arm: Arm, frames, external):
+    """Every frame named exists (the error names the option and the frame) and maps to a C
+    identifier that no other frame maps to."""
+    for option, names in (("--frames", frames), ("--external", external)):
+        for name in names:
+            if name not in arm.frames():
+                raise CodegenError(f"{option}: {arm.model.path} has no frame {name!r} "
+                                   f"(frames: {', '.join(arm.frames())})")
+            try:
+                identifier(name)
+            except ValueError as exc:
+                raise CodegenError(f"{option}: {exc}") from None
+    idents = [identifier(name) for name in set(frames) | set(external)]
+    if len(set(idents)) != len(idents):
+        raise CodegenError(f"--frames/--external: {sorted(set(frames) | set(external))} are not distinct "
+                           "as C identifiers")
+
+
+def functions(arm: Arm, prefix: str = "", parametric: bool = False, frames=(), external=()) -> tuple[dict, dict]:
     """The Functions to generate, by their public name; and those omitted, with the reason.
-    parametric: every Function takes the parameter vector p as its last input."""
+    parametric: every Function takes the parameter vector p as its last input; frames, external:
+    the task-space Functions (frame_functions)."""
     p = f"{prefix}_" if prefix else ""
     fns, omitted = {}, {}
+    for name, f in frame_functions(arm, frames, external, parametric).items():
+        fns[name] = _renamed(f, p + name)
     for name in ("forward_dynamics", "inverse_dynamics", "energy"):
         fns[name] = _renamed(getattr(arm, name)(parametric), p + name)
     for name in ("reduced_forward_dynamics", "reduced_inverse_dynamics"):
@@ -159,17 +201,21 @@ def _io(f: ca.Function, out: bool):
 
 
 def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print, parametric: bool = False,
-             native: bool = False) -> dict:
+             native: bool = False, frames=(), external=()) -> dict:
     """Write C sources, one header, one shared library and manifest.json into `out`.
     parametric: every function takes the parameter vector p (manifest "parameters") last, so
     one library serves every arm with the same joints, axes, gear ratios and eps.
-    native: compile for this machine's processor (native_flags()); the sources stay portable C99."""
+    native: compile for this machine's processor (native_flags()); the sources stay portable C99.
+    frames, external: frame names whose kinematics, and at which wrenches, the library gets
+    (frame_functions); a frame's name enters C only as a C identifier (model.checks.identifier)."""
     prefix = prefix or ""
     if prefix and not IDENTIFIER.match(prefix):
         raise CodegenError(f"prefix {prefix!r} is not a C identifier ([A-Za-z_][A-Za-z0-9_]*, at most 63)")
     if opt not in OPT_LEVELS:
         raise CodegenError(f"optimisation flag {opt!r} not one of {' '.join(OPT_LEVELS)}")
     arm = model if isinstance(model, Arm) else load(model)
+    frames, external = list(frames), list(external)
+    check_frames(arm, frames, external)
     out = Path(out).resolve()
     try:
         cc = compiler()
@@ -177,7 +223,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
         raise CodegenError(str(exc)) from None
     flags = [opt, "-std=c99"] + (native_flags() if native else [])
     with fresh_directory(out, "manifest.json") as tmp:
-        fns, omitted = functions(arm, prefix, parametric)
+        fns, omitted = functions(arm, prefix, parametric, frames, external)
         header_gen = ca.CodeGenerator(HEADER.removesuffix(".h"), {"with_header": True})
         sources = []
         kernels = {}                                # name -> (point Function, C body, declarations)
@@ -219,6 +265,9 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
                               "the four points at once)" for name in kernels},
             "omitted": omitted,
             "parametric": parametric,
+            "frames": {name: identifier(name) for name in frames},
+            "external": {"frames": external, "wrench": "[force; moment] at the frame's origin, world axes"}
+                        if external else None,
             "parameters": ({"names": arm.parameters()[0], "nominal": arm.parameters()[1].tolist()}
                            if parametric else None),
             "prefix": prefix,

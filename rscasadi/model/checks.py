@@ -132,11 +132,12 @@ def read_toml(path, kind: str = "model") -> dict:
 
 
 def identifier(name: str, what: str = "frame") -> str:
-    """`name` as a C identifier (letters, digits and _; not starting with a digit; at most 48
-    characters), its other characters mapped to _; a name that maps to nothing usable is refused."""
+    """`name` as a C identifier that CasADi accepts in a Function's name: each run of characters
+    other than letters and digits becomes one _, none at either end; it must start with a letter
+    and have at most 48 characters, else it is refused."""
     import re
-    ident = re.sub(r"[^A-Za-z0-9_]", "_", str(name))
-    if not ident.strip("_") or ident[0].isdigit() or len(ident) > 48:
-        raise ValueError(f"{what} name {name!r} cannot be made a C identifier (letters, digits and _, "
-                         "not starting with a digit, at most 48 characters)")
+    ident = re.sub(r"[^A-Za-z0-9]+", "_", str(name)).strip("_")
+    if not ident or not ident[0].isalpha() or len(ident) > 48:
+        raise ValueError(f"{what} name {name!r} cannot be made a C identifier (letters, digits and single _, "
+                         "starting with a letter, at most 48 characters)")
     return ident

@@ -6,6 +6,7 @@ Every rule is enforced with a `ModelFileError` that names the file, the joint an
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 
 import numpy as np
@@ -52,23 +53,29 @@ def read(path) -> ArmModel:
 
 # ----------------------------------------------------------------------------- writing
 
+def _toml_key(k: str) -> str:
+    """A bare key if it is one (letters, digits, _ and -), else a quoted one."""
+    return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else _toml_value(k)
+
+
 def _toml_value(v) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+        escaped = "".join(c if c.isprintable() and c not in '"\\' else f"\\u{ord(c):04x}" for c in v)
+        return '"' + escaped + '"'
     if isinstance(v, (list, tuple, np.ndarray)):
         return "[" + ", ".join(_toml_value(x) for x in v) + "]"
     if isinstance(v, dict):
-        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
+        return "{ " + ", ".join(f"{_toml_key(k)} = {_toml_value(x)}" for k, x in v.items()) + " }"
     return repr(float(v))
 
 
 def to_toml(doc: dict) -> str:
     """TOML text of a model document (top-level scalars and arrays, [[joints]] of inline tables)."""
-    lines = [f"{k} = {_toml_value(v)}" for k, v in doc.items() if k != "joints" or not v]
+    lines = [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in doc.items() if k != "joints" or not v]
     for jt in doc.get("joints", []):
-        lines += ["", "[[joints]]"] + [f"{k} = {_toml_value(v)}" for k, v in jt.items()]
+        lines += ["", "[[joints]]"] + [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in jt.items()]
     return "\n".join(lines) + "\n"
 
 
