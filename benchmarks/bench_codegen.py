@@ -1,4 +1,4 @@
-"""Benchmark of the generated C (issue 3): ns per call from a C harness (the median of 3
+"""Benchmark of the generated C: ns per call from a C harness (the median of 3
 harness processes, each the median of 15 batches, -O3), the same calls through casadi.external
 and the numerical core, the Pinocchio route (if `pin` is installed), n_instructions, and generate-and-compile time,
 for the reference arm and n = 6, 12.
@@ -33,7 +33,7 @@ SIZES = (3, 6, 12)
 TARGETS = {"forward_dynamics": 250, "inverse_dynamics": 150, "forward_dynamics_jacobian": 2000}
 
 
-NORMAL_DAY_FD12_NS = 976           # results/bench_codegen.md of commit 131eeec (the README's tables)
+USUAL_FD12_NS = 976      # n = 12 forward dynamics in C at this VM's usual speed (docs/tutorials/codegen.md tables)
 
 
 HARNESS_ROUNDS = 3
@@ -111,13 +111,13 @@ def main():
         checks.append(f"n = 12 forward dynamics: C {fd12[3]:.0f} ns vs Pinocchio route (from Python) "
                       f"{fd12[6] / 1e3:.1f} us: {fd12[6] / fd12[3]:.0f}x")
     checks.append(f"n = 12 forward dynamics: C {fd12[3]:.0f} ns vs the 20 us quoted for Pinocchio's C++ "
-                  f"route in the issue: {20000 / fd12[3]:.0f}x (target >= 5x): "
+                  f"route (Featherstone-style CRBA + projection): {20000 / fd12[3]:.0f}x (target >= 5x): "
                   + ("met" if 20000 / fd12[3] >= 5 else "MISSED"))
-    # the VM's speed drifts up to 2.5x between days: this run's n = 12 forward dynamics (SX code like
-    # the kernel's stage points) against the README's normal day says how fast the machine is today
-    day = fd12[3] / NORMAL_DAY_FD12_NS
-    checks.append(f"machine speed: n = 12 forward dynamics {fd12[3]:.0f} ns against {NORMAL_DAY_FD12_NS} ns on the "
-                  f"README's normal day ({day:.2f}x); step_jacobian n = 12 scaled by it (an estimate, not the "
+    # a shared VM's speed drifts up to 2.5x: this run's n = 12 forward dynamics (SX code like the
+    # kernel's stage points) against its usual figure says how fast the machine ran during this run
+    day = fd12[3] / USUAL_FD12_NS
+    checks.append(f"machine speed: n = 12 forward dynamics {fd12[3]:.0f} ns against {USUAL_FD12_NS} ns at its usual "
+                  f"speed ({day:.2f}x); step_jacobian n = 12 scaled by it (an estimate, not the "
                   f"verdict): {sj[12] / day:.0f} ns")
     checks.append(f"Panda (7 joints, URDF) generate+compile of all functions: {panda['compile_s']:.1f} s "
                   f"(target < 30 s): " + ("met" if panda["compile_s"] < 30 else "MISSED"))

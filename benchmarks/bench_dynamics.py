@@ -1,4 +1,4 @@
-"""Benchmark of the symbolic dynamics (issue 2): time per call in-process (casadi.Function
+"""Benchmark of the symbolic dynamics: time per call in-process (casadi.Function
 from Python) and of the numerical core, for n = 3 (reference arm), 6, 12, 24; symbolic
 size (n_instructions) of the recursive forward dynamics against the mass-matrix route.
 

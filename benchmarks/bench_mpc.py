@@ -1,4 +1,4 @@
-"""Benchmark of the generated NMPC (issue 11), in one run:
+"""Benchmark of the generated NMPC, in one run:
 
 1. the closed-loop studies over the whole trajectory, quantised encoders: the model's controllers
    (feedforward, feedforward + PD, the C MPC) on a plant with a 20 % heavier tip, and the

@@ -74,8 +74,7 @@ SOLVERS = ("ipopt", "fatrop", "fatrop (CasADi plugin)", "ipopt (monotone barrier
            "ipopt (LOQO oracle)")
 CORES = available_cores()
 # IPOPT with fatrop's barrier rule (Fiacco-McCormick, from fatrop's first mu): the evidence of where
-# fatrop's extra iterations come from (fatrop 1.1.8 ships no adaptive barrier; ours, [solver] barrier =
-# "adaptive", takes more iterations here, README "Why not 5x")
+# fatrop's extra iterations come from (fatrop 1.1.8 ships no adaptive barrier; docs/design/condensing.md)
 MONOTONE = {"mu_strategy": "monotone", "mu_init": 1e-2}
 # IPOPT's adaptive rule with its other two oracles (its default, "ipopt", asks the quality function,
 # which needs an affine and a centring direction per iteration): which adaptive rule would save
@@ -177,9 +176,9 @@ def main():
           f"({os.environ['RSCASADI_NLP_OPT']}), exact",
           "Hessians, the same tolerance (1e-8) for both solvers; solve = wall time of the solver call, median",
           "of 5 at N = 100.  condensed: each interval's accelerations solved inside the NLP's functions (a C",
-          "kernel; README, 'Optimal control'), the solver sees (x_k, tau_k); lifted: they are NLP variables.  fatrop's split:",
+          "kernel; docs/design/condensing.md), the solver sees (x_k, tau_k); lifted: they are NLP variables.  fatrop's split:",
           "its search-direction time (its Riccati linear algebra) and its function evaluations.  fatrop: through",
-          "its own C interface, stage by stage (README, same section), its solver built in the setup (once per",
+          "its own C interface, stage by stage (same page), its solver built in the setup (once per",
           "layout of the bounds, as an nlpsol is built before its calls) and the pieces' derivatives placed",
           "unscattered; fatrop (CasADi plugin): casadi.nlpsol on the same",
           "compiled NLP (same iterates).  threads: the NLP's loops over the intervals (OpenMP; the same",

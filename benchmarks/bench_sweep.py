@@ -1,4 +1,4 @@
-"""Benchmark of `rscasadi sweep` (issue 10): points per second on a local Dask cluster of 1 and 2
+"""Benchmark of `rscasadi sweep`: points per second on a local Dask cluster of 1 and 2
 workers, for the 12 minimum-time problems of problems/sweep_spring_stiffness.toml.  The shared
 NLP is compiled before the clock starts (and cached); the 2-worker run's table and figure are
 kept in results/sweep/.

@@ -217,3 +217,35 @@ def test_a_urdf_arm_written_as_a_link_list_keeps_its_frames(tmp_path):
     for name in panda.frames():
         a, b = panda.frame_placement(name)(th), twin.frame_placement(name)(th)
         assert all(np.allclose(np.array(u), np.array(v), atol=1e-12) for u, v in zip(a, b)), name
+
+
+def test_inverse_kinematics_reaches_the_closest_pose_within_the_limits():
+    """Poses of random configurations of the Panda: reached (checked by Pinocchio), within the
+    limits, and no farther from the guess than the configuration that made the pose."""
+    arm = rscasadi.load(ROOT / "problems" / "panda_sea.toml")
+    ref, rng = PinocchioURDF(arm.model), np.random.default_rng(10)
+    lo, hi = (np.array([jt.limits["theta"][i] for jt in arm.model.joints]) for i in (0, 1))
+    fid = ref.model.getFrameId("panda_hand_tcp")
+    for _ in range(4):
+        true = rng.uniform(lo + 0.2, hi - 0.2)
+        guess = np.clip(true + rng.normal(size=7) * 0.2, lo, hi)
+        R, p = (np.array(v) for v in arm.frame_placement("panda_hand_tcp")(true))
+        for target_R in (R, None):
+            res = rscasadi.inverse_kinematics(arm, "panda_hand_tcp", target_R, p.ravel(), guess)
+            assert res["success"], res["status"]
+            pin.framesForwardKinematics(ref.model, ref.data, ref.q(res["theta"]))
+            placed = ref.data.oMf[fid]
+            assert np.allclose(placed.translation, p.ravel(), atol=1e-6)
+            if target_R is not None:
+                assert np.allclose(placed.rotation, R, atol=1e-6)
+            assert np.all(res["theta"] >= lo - 1e-9) and np.all(res["theta"] <= hi + 1e-9)
+            assert np.linalg.norm(res["theta"] - guess) <= np.linalg.norm(true - guess) + 1e-6
+
+
+def test_inverse_kinematics_reports_an_unreachable_pose():
+    arm = rscasadi.load(ROOT / "problems" / "panda_sea.toml")
+    res = rscasadi.inverse_kinematics(arm, "panda_hand_tcp", None, [2.0, 0.0, 0.5])       # 2 m away: too far
+    assert not res["success"] and res["position_error"] > 0.5 and "nfeasible" in res["status"]
+    R_flip = np.diag([1.0, -1.0, -1.0])                  # reachable position, the tool upside down at the base
+    res = rscasadi.inverse_kinematics(arm, "panda_link1", R_flip, [0.0, 0.0, 0.333])
+    assert not res["success"]

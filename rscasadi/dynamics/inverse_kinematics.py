@@ -1,0 +1,63 @@
+"""Inverse kinematics: the configuration closest to a guess that puts a frame at a pose, within
+the joint limits, solved by IPOPT through casadi.nlpsol:
+
+    min |theta - theta_guess|^2   s.t.  p(theta) = p,  skew(R^T R(theta)) = 0,  tr(R^T R(theta)) >= 1,
+                                        theta_lo <= theta <= theta_hi
+
+(the trace condition keeps the rotation error below 90 degrees, away from the half-turns whose
+skew part also vanishes).  Position only when no R is given.  The answer is checked on the
+model afterwards; a pose that is not reached within the tolerances is reported as a failure,
+never returned as a success.
+"""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+
+def _vee(S):
+    return ca.vertcat(S[2, 1], S[0, 2], S[1, 0])
+
+
+def inverse_kinematics(arm, frame: str, R=None, p=None, theta_guess=None, position_tol: float = 1e-6,
+                       angle_tol: float = 1e-6, max_iter: int = 200) -> dict:
+    """The configuration closest to `theta_guess` (default: the middle of the limits, else zero)
+    that puts `frame` at rotation `R` (3x3, or None: position only) and origin `p` (3), within
+    the joint limits.  Returns {theta, success, status, position_error, angle_error,
+    iterations}; success only if the pose is reached within `position_tol` (m) and `angle_tol`
+    (rad) and the limits hold."""
+    if p is None:
+        raise ValueError("inverse_kinematics: the target position p is required")
+    n = arm.n
+    lo = np.array([jt.limits.get("theta", (-np.inf, np.inf))[0] for jt in arm.model.joints], float)
+    hi = np.array([jt.limits.get("theta", (-np.inf, np.inf))[1] for jt in arm.model.joints], float)
+    if theta_guess is None:
+        theta_guess = np.where(np.isfinite(lo) & np.isfinite(hi), (lo + hi) / 2, 0.0)
+    guess = np.clip(np.asarray(theta_guess, float).ravel(), lo, hi)
+    p_t = np.asarray(p, float).ravel()
+    theta = ca.SX.sym("theta", n)
+    R_f, p_f = arm.frame_placement(frame)(theta)
+    g, lbg, ubg = [p_f - p_t], [0.0] * 3, [0.0] * 3
+    if R is not None:
+        R_t = ca.DM(np.asarray(R, float))
+        E = R_t.T @ R_f                                              # the rotation error
+        g += [_vee(E - E.T) / 2, ca.trace(E)]
+        lbg += [0.0] * 3 + [1.0]
+        ubg += [0.0] * 3 + [3.0]
+    nlp = {"x": theta, "f": ca.sumsqr(theta - guess), "g": ca.vertcat(*g)}
+    solver = ca.nlpsol("inverse_kinematics", "ipopt", nlp,
+                       {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": max_iter,
+                        "ipopt.tol": 1e-12, "ipopt.constr_viol_tol": 1e-10})
+    res = solver(x0=guess, lbx=lo, ubx=hi, lbg=lbg, ubg=ubg)
+    stats = solver.stats()
+    th = np.array(res["x"]).ravel()
+    R_got, p_got = (np.array(v) for v in arm.frame_placement(frame)(th))
+    position_error = float(np.linalg.norm(p_got.ravel() - p_t))
+    angle_error = 0.0
+    if R is not None:
+        c = (np.trace(np.asarray(R, float).T @ R_got) - 1) / 2
+        angle_error = float(np.arccos(np.clip(c, -1.0, 1.0)))
+    within = bool(np.all(th >= lo - 1e-9) and np.all(th <= hi + 1e-9))
+    reached = position_error <= position_tol and angle_error <= angle_tol
+    return {"theta": th, "success": bool(reached and within), "status": stats["return_status"],
+            "position_error": position_error, "angle_error": angle_error, "iterations": int(stats["iter_count"])}
