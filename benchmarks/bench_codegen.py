@@ -151,7 +151,16 @@ def main():
            "generate + compile (s) | Pinocchio crba + rnea (ns) |", "|---|---|---|---|---|---|",
            f"| {panda['forward_dynamics']:.0f} | {panda['inverse_dynamics']:.0f} | "
            f"{panda['forward_dynamics_jacobian']:.0f} | {panda['step']:.0f} | {panda['compile_s']:.1f} | "
-           f"{panda.get('pin_ns', float('nan')):.0f} |"]
+           f"{panda.get('pin_ns', float('nan')):.0f} |",
+           "", f"Task space at `{TOOL}` (C, `--frames {TOOL} --external {TOOL}`), against Pinocchio on its own "
+           "model of the URDF (its C++ through the Python bindings, call overhead included):", "",
+           "| function | C (ns) | Pinocchio (ns) |", "|---|---|---|",
+           f"| frame placement | {panda[f'frame_placement_{TOOL}']:.0f} | "
+           f"{panda.get('pin_placement_ns', float('nan')):.0f} (framesForwardKinematics) |",
+           f"| frame Jacobian, local_world_aligned | {panda[f'frame_jacobian_{TOOL}_local_world_aligned']:.0f} | "
+           f"{panda.get('pin_jacobian_ns', float('nan')):.0f} (computeFrameJacobian) |",
+           f"| forward dynamics | {panda['forward_dynamics']:.0f} | |",
+           f"| forward dynamics with a wrench at {TOOL} | {panda['forward_dynamics_external']:.0f} | |"]
     md += ["", "## Targets", ""] + [f"- {c}" for c in checks]
     fig, ax = plt.subplots(figsize=(7, 4))
     for name in ("forward_dynamics", "inverse_dynamics", "forward_dynamics_jacobian", "step", "step_jacobian"):
@@ -180,15 +189,31 @@ def mx_route_ns(arm, work: Path, harness: Path) -> float:
     return float(run.stdout.split()[1])
 
 
+TOOL = "panda_hand_tcp"
+
+
+def _urdf_and_locks(model):
+    """Pinocchio's model of the URDF, the joints to lock and the configuration that locks them."""
+    import pinocchio as pin
+    full = pin.buildModelFromUrdf(model.extra["urdf"])
+    q0, locks = pin.neutral(full), []
+    for name, value in model.extra["locked"].items():
+        jid = full.getJointId(name)
+        locks.append(jid)
+        q0[full.joints[jid].idx_q] = value
+    return full, locks, q0
+
+
 def panda_row(work: Path, harness: Path) -> dict:
     """The 7-joint Panda from its URDF: C time per call of the main functions, generate + compile
     time, and Pinocchio's own crba + rnea on the same 21-body tree (parsed from the same URDF)."""
     arm = rscasadi.load(ROOT / "problems" / "panda_sea.toml")
     out = work / "panda"
     t0 = time.perf_counter()
-    manifest = generate(arm, out, log=lambda m: None, native=True)
+    manifest = generate(arm, out, log=lambda m: None, native=True, frames=[TOOL], external=[TOOL])
     row = {"compile_s": time.perf_counter() - t0}
-    names = ["forward_dynamics", "inverse_dynamics", "forward_dynamics_jacobian", "step"]
+    names = ["forward_dynamics", "inverse_dynamics", "forward_dynamics_jacobian", "step", f"frame_placement_{TOOL}",
+             f"frame_jacobian_{TOOL}_local_world_aligned", "forward_dynamics_external"]
     run = subprocess.run([str(harness), str(out / manifest["library"])] + names, capture_output=True, text=True,
                          check=True)
     row.update({line.split()[0]: float(line.split()[1]) for line in run.stdout.splitlines()})
@@ -199,6 +224,13 @@ def panda_row(work: Path, harness: Path) -> dict:
         a = np.zeros(route.model.nv)
         row["pin_ns"] = 1e9 * (per_call(pin.crba, route.model, route.data, q, repeat=5, min_time=0.2)
                                + per_call(pin.rnea, route.model, route.data, q, v, a, repeat=5, min_time=0.2))
+        # the frame's placement and Jacobian on Pinocchio's own model of the URDF (the link tree)
+        links = pin.buildReducedModel(*_urdf_and_locks(arm.model))
+        data, fid = links.createData(), links.getFrameId(TOOL)
+        qf = pin.neutral(links)
+        row["pin_placement_ns"] = 1e9 * per_call(pin.framesForwardKinematics, links, data, qf, repeat=5, min_time=0.2)
+        row["pin_jacobian_ns"] = 1e9 * per_call(pin.computeFrameJacobian, links, data, qf, fid,
+                                                pin.LOCAL_WORLD_ALIGNED, repeat=5, min_time=0.2)
     print("Panda: " + ", ".join(f"{k} {v:.1f}" for k, v in row.items()), flush=True)
     return row
 

@@ -128,6 +128,11 @@ def cmd_excite(args):
 
 
 def cmd_identify(args):
+    if args.only == "payload":
+        from rscasadi.identification.payload import run as run_payload
+        run_payload(args.model, args.logs, args.out, validate=args.validate, cutoff=args.cutoff,
+                    log=lambda msg: print(msg, flush=True))
+        return
     from rscasadi.identification.identify import run
     run(args.model, args.logs, args.out, validate=args.validate, cutoff=args.cutoff, explain=args.explain,
         reduced=args.reduced, log=lambda msg: print(msg, flush=True))
@@ -204,6 +209,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cutoff", type=positive(float), default=None, help="filter cut-off (Hz); default 2x the highest SEA mode")
     p.add_argument("--explain", action="store_true", help="print the base parameters as combinations of physical ones")
     p.add_argument("--reduced", action="store_true", help="identify the DLR/Spong reduced model instead (ablation)")
+    p.add_argument("--only", choices=["payload"], default=None,
+                   help="identify only the model file's [payload], everything else held at the file's values")
     p.set_defaults(func=cmd_identify)
     p = sub.add_parser("reproduce", help="the main job: everything the project reproduces, into --out")
     p.add_argument("--out", default="results")

@@ -108,3 +108,20 @@ def test_identification_example_predicts_held_out_torques(tmp_path):
     worst = example("identification").main(["--out", str(tmp_path), "--period", "8", "--harmonics", "4"])
     assert worst < 0.05
     assert (tmp_path / "identified" / "model.toml").exists()
+
+
+def test_task_space_example_holds_the_push():
+    out = example("task_space").main([])
+    J, f = out["J"], np.array([0.0, 0.0, 20.0, 0.0, 0.0, 0.0])
+    assert np.allclose(out["T_free"] - out["T"], J.T @ f) and out["ik"]["success"]
+
+
+def test_the_readme_api_lines_run(tmp_path, monkeypatch):
+    """The README's ten API lines, as a user pastes them (from the repository's directory)."""
+    readme = (ROOT / "README.md").read_text()
+    code = readme.split("## The API in ten lines", 1)[1].split("```python\n", 1)[1].split("```", 1)[0]
+    code = code.replace('"out/ocp"', repr(str(tmp_path / "ocp")))
+    monkeypatch.chdir(ROOT)
+    scope = {}
+    exec(compile(code, "README.md", "exec"), scope)                   # noqa: S102 (the README's own lines)
+    assert scope["sol"]["success"] and np.asarray(scope["p"]).shape == (3, 1)

@@ -32,7 +32,7 @@ import scipy.signal
 from rscasadi.dynamics.arm import Arm, load
 from rscasadi.files import CheckError, check_writable, fresh_directory, write_json
 from rscasadi.model.modelfile import BODIES, ArmModel, document, to_toml
-from rscasadi.model.parameters import INERTIAL, PER_JOINT, body_from_parameters, n_linear
+from rscasadi.model.parameters import INERTIAL, PER_JOINT, body_from_parameters, n_linear, payload_slice
 from rscasadi.identification.logs import Log, LogError, read_log
 from rscasadi.identification.regressor import BaseParameters, base_of, random_samples, regressor, spring_regressor, stacked
 
@@ -76,6 +76,9 @@ class Unknowns:
                         add(f"{jt.name}.{body}.{q}", [first + r], ("link" if body == "link" else "body", j, body))
             for r, a in enumerate(("sea.k1", "sea.k3", "sea.d", "gear_loss.b", "gear_loss.c")):
                 add(f"{jt.name}.{a}", [base + 30 + r], ("actuator", j, a))
+        held = payload_slice(model)
+        for r, q in enumerate(INERTIAL[:held.stop - held.start]):             # a payload: its ten, as a link's
+            add(f"payload.{q}", [held.start + r], ("body", model.n, "payload"))
         return Unknowns(names, np.array(cols).T, kinds)
 
     def from_p(self, p_lin) -> np.ndarray:
@@ -292,13 +295,14 @@ def physical_fit(arm: Arm, unknowns: Unknowns, ls: LeastSquares, th_nominal: np.
     p = unknowns.E @ cp.multiply(scale, x)
     p_nom = unknowns.E @ th_nominal
     cons = []
+    firsts = [j * PER_JOINT + 10 * i for j in range(model.n) for i in range(len(BODIES))]
+    firsts += [payload_slice(model).start] if model.payload is not None else []
+    for first in firsts:
+        J = cp.bmat(_pseudo_inertia([p[first + k] for k in range(10)]))
+        d = np.sqrt(np.maximum(np.diag(np.array(_pseudo_inertia(list(p_nom[first:first + 10])))), 1e-300))
+        Dinv = np.diag(1.0 / d)                          # congruence: each body's J on the scale of its nominal
+        cons.append(Dinv @ J @ Dinv - FIT_MARGIN * np.eye(4) >> 0)
     for j, jt in enumerate(model.joints):
-        for i in range(len(BODIES)):
-            first = j * PER_JOINT + 10 * i
-            J = cp.bmat(_pseudo_inertia([p[first + k] for k in range(10)]))
-            d = np.sqrt(np.maximum(np.diag(np.array(_pseudo_inertia(list(p_nom[first:first + 10])))), 1e-300))
-            Dinv = np.diag(1.0 / d)                      # congruence: each body's J on the scale of its nominal
-            cons.append(Dinv @ J @ Dinv - FIT_MARGIN * np.eye(4) >> 0)
         for attr in ("sea.k1", "sea.k3", "sea.d", "gear_loss.b", "gear_loss.c"):
             k = unknowns.names.index(f"{jt.name}.{attr}")
             cons.append(x[k] >= (1e-3 if attr == "sea.k1" else 0.0))
@@ -349,7 +353,10 @@ def identified_model(arm: Arm, unknowns: Unknowns, th: np.ndarray) -> ArmModel:
         k1, k3, d, b, c = p[base + 30: base + 35]
         joints.append(dataclasses.replace(jt, k1=float(k1), k3=float(k3), d=float(d), b=float(b), c=float(c),
                                           **bodies))
-    return dataclasses.replace(arm.model, joints=tuple(joints), name=arm.model.name + "-identified")
+    held = arm.model.payload
+    if held is not None:
+        held = dataclasses.replace(held, body=body_from_parameters(p[payload_slice(arm.model)]))
+    return dataclasses.replace(arm.model, joints=tuple(joints), payload=held, name=arm.model.name + "-identified")
 
 
 def predict(rows_: Rows, th: np.ndarray) -> dict:

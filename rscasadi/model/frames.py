@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from rscasadi.model.checks import _table, _vector
-from rscasadi.model.types import BASE, Frame, rpy_matrix, rpy_of
+from rscasadi.model.checks import _body, _table, _vector
+from rscasadi.model.types import BASE, BODY_KEYS, Frame, Payload, rpy_matrix, rpy_of
 
 FRAME_KEYS = {"parent", "xyz", "rpy"}
 
@@ -77,3 +77,27 @@ def frames_document(model) -> dict:
         parent = BASE if f.body == 0 else model.joints[f.body - 1].name
         doc[f.name] = {"parent": parent, "xyz": [float(v) for v in f.p], "rpy": [float(v) for v in rpy]}
     return doc
+
+
+def payload(ctx, raw, frames: tuple) -> Payload | None:
+    """The [payload] table: `frame` (a frame on a moving link) and the body's mass, com and
+    inertia (about the com) in that frame, as a link's."""
+    if raw is None:
+        return None
+    t = _table(ctx, "payload", raw, BODY_KEYS | {"frame"}, ("frame",) + tuple(sorted(BODY_KEYS)))
+    known = {f.name: f for f in frames}
+    if not isinstance(t["frame"], str) or t["frame"] not in known:
+        ctx.fail("payload.frame", f"no frame {t['frame']!r} (frames: {', '.join(known)})")
+    if known[t["frame"]].body == 0:
+        ctx.fail("payload.frame", f"frame {t['frame']!r} is on the fixed base: a payload rides on a moving link")
+    return Payload(t["frame"], _body(ctx, "payload", {k: t[k] for k in BODY_KEYS}))
+
+
+def payload_document(model) -> dict | None:
+    """The [payload] table of `model`, or None."""
+    if model.payload is None:
+        return None
+    b = model.payload.body
+    I = b.inertia
+    return {"frame": model.payload.frame, "mass": float(b.mass), "com": [float(c) for c in b.com],
+            "inertia": [float(I[0, 0]), float(I[1, 1]), float(I[2, 2]), float(I[0, 1]), float(I[0, 2]), float(I[1, 2])]}

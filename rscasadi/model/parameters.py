@@ -7,6 +7,8 @@ The parameter vector p of an arm, in this order:
   and the inertia about the body-frame origin (`Ixx, Iyy, Izz, Ixy, Ixz, Iyz`), all in the
   body's own frame (docs/user-guide/model.md section 2);
 - then its actuator: `sea.k1, sea.k3, sea.d, gear_loss.b, gear_loss.c`;
+- if the model holds a payload, its ten inertial parameters in its frame (`payload.mass`,
+  `payload.mx`, ..., `payload.Iyz`);
 - last, `gravity.x, gravity.y, gravity.z`.
 
 Names are dotted: "elbow_pitch.link.mass", "elbow_pitch.fast_rotor.Izz", "elbow_pitch.sea.k1".
@@ -26,7 +28,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from rscasadi.spatial import spatial_inertia
+from rscasadi.spatial import Xup, spatial_inertia
 from rscasadi.model.modelfile import BODIES, ArmModel, Body
 
 INERTIAL = ("mass", "mx", "my", "mz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
@@ -64,6 +66,8 @@ def names(model: ArmModel) -> list[str]:
     for jt in model.joints:
         out += [f"{jt.name}.{body}.{q}" for body in BODIES for q in INERTIAL]
         out += [f"{jt.name}.{a}" for a in ACTUATOR]
+    if model.payload is not None:
+        out += [f"payload.{q}" for q in INERTIAL]
     return out + list(GRAVITY)
 
 
@@ -73,7 +77,29 @@ def nominal(model: ArmModel) -> np.ndarray:
     for jt in model.joints:
         out += [body_parameters(getattr(jt, body)) for body in BODIES]
         out.append([getattr(jt, a) for a in ACTUATOR_ATTR])
+    if model.payload is not None:
+        out.append(body_parameters(model.payload.body))
     return np.concatenate(out + [model.gravity])
+
+
+def payload_slice(model: ArmModel) -> slice:
+    """Where the payload's ten parameters are in p (an empty slice without a payload)."""
+    start = model.n * PER_JOINT
+    return slice(start, start + (10 if model.payload is not None else 0))
+
+
+def _with_payload(model: ArmModel, inertias: list, M_payload):
+    """The link that holds the payload gets its spatial inertia, moved from its frame to the link's."""
+    if model.payload is None:
+        return inertias
+    frame = model.frame(model.payload.frame)
+    X = Xup(ca.DM(frame.R), frame.p)
+    link = inertias[frame.body - 1]
+    M = X.T @ M_payload @ X
+    link["link"] = (ca.DM(link["link"]) + M) if isinstance(M, ca.DM) else link["link"] + M
+    if isinstance(link["link"], ca.DM):
+        link["link"] = np.array(link["link"])
+    return inertias
 
 
 def designable(model: ArmModel) -> list[str]:
@@ -121,7 +147,7 @@ def value(model: ArmModel, name: str) -> float:
 
 def n_linear(model: ArmModel) -> int:
     """Length of p_lin, the leading part of p that inverse dynamics is linear in."""
-    return model.n * PER_JOINT
+    return payload_slice(model).stop
 
 
 @dataclass
@@ -139,7 +165,8 @@ class Physics:
     def constant(model: ArmModel) -> "Physics":
         cols = {a: ca.DM(model.column(a)) for a in ACTUATOR_ATTR + ("eps", "gear_ratio")}
         inertias = [{b: spatial_inertia(getattr(jt, b)) for b in BODIES} for jt in model.joints]
-        return Physics(inertias, cols, np.asarray(model.gravity, float), False)
+        held = ca.DM(spatial_inertia(model.payload.body)) if model.payload is not None else None
+        return Physics(_with_payload(model, inertias, held), cols, np.asarray(model.gravity, float), False)
 
     @staticmethod
     def of(model: ArmModel, p) -> "Physics":
@@ -152,7 +179,10 @@ class Physics:
             act.append(p[base + 30: base + PER_JOINT])
         cols = {a: ca.vertcat(*[act[j][i] for j in range(n)]) for i, a in enumerate(ACTUATOR_ATTR)}
         cols.update({a: ca.DM(model.column(a)) for a in ("eps", "gear_ratio")})
-        return Physics(inertias, cols, p[n * PER_JOINT: n * PER_JOINT + 3], True)
+        held = payload_slice(model)
+        inertias = _with_payload(model, inertias, spatial_from_parameters(p[held.start:held.stop])
+                                 if model.payload is not None else None)
+        return Physics(inertias, cols, p[held.stop: held.stop + 3], True)
 
     def rotor_inertia(self, j: int):
         """B_j = Izz_O(S_j) + mu_j^2 Izz_O(F_j)."""
@@ -168,7 +198,9 @@ class Physics:
         all_names, values = names(model), nominal(model)
         idx = {k: all_names.index(name) for k, name in enumerate(free) if _gear_joint(model, name) is None}
         S = ca.MX if isinstance(p, ca.MX) else ca.SX
-        cheap = all(i >= model.n * PER_JOINT or i % PER_JOINT >= len(BODIES) * len(INERTIAL) for i in idx.values())
+        n_lin = n_linear(model)
+        cheap = all(i >= n_lin or (i < model.n * PER_JOINT and i % PER_JOINT >= len(BODIES) * len(INERTIAL))
+                    for i in idx.values())
         if not cheap:
             entries = [S(v) for v in values]
             for k, i in idx.items():
@@ -177,10 +209,10 @@ class Physics:
         else:
             phys = Physics.constant(model)
             for k, i in idx.items():
-                if i >= model.n * PER_JOINT:
+                if i >= n_lin:
                     g = [S(float(v)) for v in np.array(phys.gravity).ravel()] if not isinstance(
                         phys.gravity, (ca.SX, ca.MX)) else ca.vertsplit(phys.gravity)
-                    g[i - model.n * PER_JOINT] = p[k]
+                    g[i - n_lin] = p[k]
                     phys.gravity = ca.vertcat(*g)
                 else:
                     j, a = divmod(i, PER_JOINT)
@@ -227,4 +259,8 @@ def with_values(model: ArmModel, values: dict) -> ArmModel:
         mu = gears.get(j, jt.gear_ratio)
         joints.append(dataclasses.replace(jt, **changed, **{a: float(v) for a, v in act.items()},
                                           gear_ratio=mu, limits=geared_limits(jt.limits, jt.gear_ratio, mu)))
-    return dataclasses.replace(model, joints=tuple(joints), gravity=p[model.n * PER_JOINT:].copy())
+    held = payload_slice(model)
+    payload = model.payload
+    if payload is not None and any(name.startswith("payload.") for name in values):
+        payload = dataclasses.replace(payload, body=body_from_parameters(p[held]))
+    return dataclasses.replace(model, joints=tuple(joints), payload=payload, gravity=p[held.stop:].copy())

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
-TOP_KEYS = {"name", "gravity", "joints", "frames"}
+TOP_KEYS = {"name", "gravity", "joints", "frames", "payload"}
 JOINT_KEYS = {"name", "origin_xyz", "origin_rpy", "gear_ratio", "sea", "gear_loss", "limits",
               "link", "slow_rotor", "fast_rotor"}
 BODY_KEYS = {"mass", "com", "inertia"}
@@ -117,6 +117,13 @@ BASE = "base"          # the base frame's name in a link-list model (a URDF's is
 
 
 @dataclass(frozen=True)
+class Payload:
+    """A rigid body held at a frame (a tool, a load): its inertial parameters in that frame."""
+    frame: str
+    body: Body
+
+
+@dataclass(frozen=True)
 class ArmModel:
     """The constant description of an n-joint FS-SEA arm; joints base to tip; `frames` by name
     (docs/user-guide/frames.md)."""
@@ -126,6 +133,7 @@ class ArmModel:
     path: str = "<memory>"
     extra: dict = field(default_factory=dict, compare=False)
     frames: tuple = field(default=(), compare=False)
+    payload: Payload | None = None
 
     def frame(self, name: str) -> Frame:
         """The frame called `name`, or a KeyError listing the frames there are."""

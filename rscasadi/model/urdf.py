@@ -15,10 +15,10 @@ from scipy.spatial.transform import Rotation
 
 from rscasadi.spatial import spatial_inertia, transform_inertia
 from rscasadi.model.checks import ACTUATOR_KEYS, _Ctx, _number, _table, _vector, actuator, joint_context
-from rscasadi.model.frames import user_frames
+from rscasadi.model.frames import payload, user_frames
 from rscasadi.model.types import DEFAULT_GRAVITY, ArmModel, Body, Frame, Joint, ModelFileError, inertia_problem, rpy_of
 
-URDF_TOP_KEYS = {"name", "urdf", "tip", "locked", "gravity", "joints", "frames"}
+URDF_TOP_KEYS = {"name", "urdf", "tip", "locked", "gravity", "joints", "frames", "payload"}
 MOVING = ("revolute", "continuous")
 
 
@@ -171,8 +171,9 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
     # each URDF link's frame on its chain body: L_j = L_urdf R_a, so a pose T in L_urdf is R_a^T T in L_j
     frames = tuple(Frame(name, b, axes[b].T @ T[:3, :3], axes[b].T @ T[:3, 3])
                    for b, body in enumerate(bodies) for name, T in zip(body["links"], body["T_links"]))
-    return ArmModel(data["name"], gravity, tuple(joints), path, extra,
-                    frames=user_frames(ctx, data.get("frames"), frames))
+    frames = user_frames(ctx, data.get("frames"), frames)
+    return ArmModel(data["name"], gravity, tuple(joints), path, extra, frames=frames,
+                    payload=payload(ctx, data.get("payload"), frames))
 
 
 def _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuators, tip, ctx):

@@ -36,6 +36,10 @@ class PinocchioRoute:
                 self.model.appendBodyToJoint(jid, inertia, pin.SE3.Identity())
                 G[jid - 1, col] = gear
             parent = jid                                   # the link carries the next joint
+            held = model.payload
+            if held is not None and model.frame(held.frame).body == j + 1:   # a payload on this link
+                f = model.frame(held.frame)
+                self.model.appendBodyToJoint(jid, _inertia(held.body, np.eye(3)), pin.SE3(R_a @ f.R, R_a @ f.p))
         self.G, self.data = G, self.model.createData()
         self._cols = {a: model.column(a) for a in ("k1", "k3", "d", "b", "c", "eps", "gear_ratio")}
 
