@@ -97,8 +97,8 @@ class Arm:
         def build(phys, theta, phi, dtheta, dphi, ddtheta, ddphi, *f):
             x = (theta, phi, dtheta, dphi)
             segs, kin = self._kin(reduced, phys, x)
-            T, Qi_phi = rec.inverse_dynamics(segs, kin, ddtheta, ddphi, phys.gravity)        # eq. (26)
-            T = T - kinematics.external_forces(self.model, frames, theta, f)                # the wrenches help
+            f_ext = kinematics.link_wrenches(self.model, frames, theta, f) if f else None
+            T, Qi_phi = rec.inverse_dynamics(segs, kin, ddtheta, ddphi, phys.gravity, f_ext)  # eq. (26)
             tau = -(Qi_phi + self.sea_torque(*x, phys=phys) + self.gear_loss(dphi, phys)) \
                 / phys.columns["gear_ratio"]                                                  # eq. (22)
             return [tau, T]
@@ -112,8 +112,9 @@ class Arm:
         def build(phys, theta, phi, dtheta, dphi, tau, *f):
             x = (theta, phi, dtheta, dphi)
             segs, kin = self._kin(reduced, phys, x)
-            Qtheta = self.sea_torque(*x, phys=phys) + kinematics.external_forces(self.model, frames, theta, f)
-            return list(rec.forward_dynamics(segs, kin, Qtheta, self._phi_force(phys, x, tau), phys.gravity))
+            f_ext = kinematics.link_wrenches(self.model, frames, theta, f) if f else None
+            return list(rec.forward_dynamics(segs, kin, self.sea_torque(*x, phys=phys), self._phi_force(phys, x, tau),
+                                             phys.gravity, f_ext))
         name = ("reduced_forward_dynamics" if reduced else "forward_dynamics") + ("_external" if external else "")
         return self._function(name, STATE + ["tau"] + wrench_names, ["ddtheta", "ddphi"], build, parametric,
                               key=(name, tuple(external)))

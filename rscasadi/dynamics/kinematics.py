@@ -98,10 +98,17 @@ def center_of_mass(segs, theta, phi):
     return moment / mass
 
 
-def external_forces(model, frames: list, theta, wrenches: list):
-    """The generalized forces on theta of wrenches [force; moment] (world axes) applied at the
-    frames' origins: sum_i J_i^T f_i with J_i in local_world_aligned."""
-    Q = ca.DM.zeros(model.n)
+def link_wrenches(model, frames: list, theta, wrenches: list) -> list:
+    """Per link (n), the spatial force [moment about the link frame's origin; force], in link
+    axes, of wrenches [force; moment] (world axes) applied at the frames' origins (zero where
+    none is; a wrench on the fixed base moves nothing)."""
+    poses = body_poses(model, theta)
+    out = [ca.DM.zeros(6) for _ in model.joints]
     for frame, f in zip(frames, wrenches):
-        Q += frame_jacobian(model, frame, theta).T @ f
-    return Q
+        if frame.body == 0:
+            continue
+        R_b = poses[frame.body][0]
+        force = R_b.T @ f[:3]
+        moment = R_b.T @ f[3:] + ca.cross(ca.DM(frame.p), force)
+        out[frame.body - 1] = out[frame.body - 1] + ca.vertcat(moment, force)
+    return out

@@ -94,14 +94,17 @@ def rotor_force(M, V, alpha):
     return M @ alpha + gyroscopic(M, V[:3])
 
 
-def inverse_dynamics(segs, kin, ddtheta, ddphi, gravity):
-    """Eqs. (2), (3), (25), (26): T = theta rows of M ddq + c; Qphi = phi rows (rotor inertia)."""
+def inverse_dynamics(segs, kin, ddtheta, ddphi, gravity, f_ext=None):
+    """Eqs. (2), (3), (25), (26): T = theta rows of M ddq + c; Qphi = phi rows (rotor inertia).
+    f_ext: per link the spatial force the environment applies to it (link frame), or None."""
     n = len(segs)
     alpha, alpha_r = accelerations(segs, kin, ddtheta, ddphi, gravity)
     T, Qphi = [None] * n, [None] * n
     f_child = ca.DM.zeros(6)                       # force of the outboard joint on link j
     for j in reversed(range(n)):
         f = rotor_force(segs[j].M, kin[j].V, alpha[j]) + f_child        # eq. (25)
+        if f_ext is not None:
+            f = f - f_ext[j]                                           # the environment's share
         T[j] = f[2]                                                    # eq. (26): T_k = H^T f_k
         rotor_f = [rotor_force(M, Vr, ar) for (_, M, _, Vr, _), ar in zip(kin[j].leaves, alpha_r[j])]
         Qphi[j] = segs[j].B_spin * ddphi[j] + sum((gear * fr[2] for (gear, *_), fr in zip(kin[j].leaves, rotor_f)), 0)
@@ -133,14 +136,17 @@ def project(P, z, torque):
     return G, eps / D, P - G @ P[2, :], z + G * eps                # nu, P+ = (1 - G H^T) P, z+ = z + G eps
 
 
-def forward_dynamics(segs, kin, Qtheta, Qphi, gravity):
-    """The complete model solved in one O(n) sweep: eqs. (4)-(6) with each rotor pair a leaf (eq. 23)."""
+def forward_dynamics(segs, kin, Qtheta, Qphi, gravity, f_ext=None):
+    """The complete model solved in one O(n) sweep: eqs. (4)-(6) with each rotor pair a leaf (eq. 23).
+    f_ext: per link the spatial force the environment applies to it (link frame), or None."""
     n = len(segs)
     P_c, z_c = [ca.DM.zeros(6, 6)] * n, [ca.DM.zeros(6)] * n     # what children hand to link j
     G, nu, leaf = [None] * n, [None] * n, [None] * n
     for j in reversed(range(n)):                                   # paper k = 1..n
         P = segs[j].M + P_c[j]                                     # eq. (4)
         z = P @ kin[j].a + gyroscopic(segs[j].M, kin[j].V[:3]) + z_c[j]   # eq. (5)
+        if f_ext is not None:
+            z = z - f_ext[j]                                           # the bias less the applied force
         G[j], nu[j], P_plus, z_plus = project(P, z, Qtheta[j])
         leaf[j] = leaf_articulated(segs[j], kin[j], Qphi[j])
         if j > 0:
