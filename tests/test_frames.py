@@ -249,3 +249,27 @@ def test_inverse_kinematics_reports_an_unreachable_pose():
     R_flip = np.diag([1.0, -1.0, -1.0])                  # reachable position, the tool upside down at the base
     res = rscasadi.inverse_kinematics(arm, "panda_link1", R_flip, [0.0, 0.0, 0.333])
     assert not res["success"]
+
+
+def test_parametric_twins_and_the_reduced_model_take_frames_too(arm3):
+    """Each kinematic Function's parametric twin equals it at the nominal p (the centre of mass
+    moves with the masses); the reduced model takes a wrench as the complete one does."""
+    th, dth, p = np.array([0.2, -0.5, 0.9]), np.array([0.3, 0.1, -0.4]), arm3.parameters()[1]
+    for const, param, args in ((arm3.frame_placement("elbow_pitch"), arm3.frame_placement("elbow_pitch", True), [th]),
+                               (arm3.frame_jacobian("elbow_pitch", "world"),
+                                arm3.frame_jacobian("elbow_pitch", "world", True), [th]),
+                               (arm3.frame_acceleration("elbow_pitch"), arm3.frame_acceleration("elbow_pitch", "local_world_aligned", True),
+                                [th, dth, dth]),
+                               (arm3.center_of_mass(), arm3.center_of_mass(True), [th, th])):
+        for a, b in zip(const(*args) if const.n_out() > 1 else [const(*args)],
+                        param(*args, p) if param.n_out() > 1 else [param(*args, p)]):
+            assert np.allclose(np.array(a), np.array(b), atol=1e-14)
+    heavier = p.copy()
+    heavier[arm3.parameters()[0].index("elbow_pitch.link.mass")] *= 2
+    assert not np.allclose(np.array(arm3.center_of_mass(True)(th, th, heavier)), np.array(arm3.center_of_mass()(th, th)))
+    x, tau, f = [th, th + 0.01, dth, dth], np.array([0.1, -0.2, 0.05]), np.array([1.0, -2.0, 3.0, 0.1, 0.2, -0.3])
+    J = np.array(arm3.frame_jacobian("elbow_pitch")(th))
+    red, red_f = arm3.reduced_forward_dynamics(), arm3.reduced_forward_dynamics(external=["elbow_pitch"])
+    M = np.array(arm3.mass_matrix(reduced=True)(th, th + 0.01))
+    dd = np.concatenate([dm(v) for v in red_f(*x, tau, f)]) - np.concatenate([dm(v) for v in red(*x, tau)])
+    assert np.allclose(M @ dd, np.r_[J.T @ f, np.zeros(3)], atol=1e-9)      # the wrench's share: M^-1 [J^T f; 0]

@@ -161,8 +161,8 @@ class Arm:
         return self._function(full, ins, outs, lambda phys, *a: build(fr, *a), parametric, key=(full, frame))
 
     def frame_placement(self, frame: str, parametric: bool = False) -> ca.Function:
-        """theta -> R (3 x 3), p (3 x 1): the frame in the world (base) frame."""
-        return self._kinematic("frame_placement", frame, ["theta"], ["R", "p"],
+        """theta -> rotation R (3 x 3), translation p (3 x 1): the frame in the world (base) frame."""
+        return self._kinematic("frame_placement", frame, ["theta"], ["rotation", "translation"],
                                lambda fr, theta: list(kinematics.frame_pose(self.model, fr, theta)), parametric)
 
     def frame_jacobian(self, frame: str, reference: str = "local_world_aligned", parametric: bool = False) -> ca.Function:
