@@ -17,7 +17,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from common import chain_arm, per_call, write_results  # noqa: E402
+from common import stamp, chain_arm, per_call, write_results  # noqa: E402
 import rscasadi  # noqa: E402
 from rscasadi.codegen import generate  # noqa: E402
 from rscasadi.reference.numeric import Numeric  # noqa: E402
@@ -131,7 +131,7 @@ def main():
 
     header = "n,function,n_instructions,c_ns,casadi_external_ns,numeric_core_ns,pinocchio_route_ns\n"
     csv = header + "".join(f"{n},{name},{ni},{c:.1f},{e:.0f},{nu:.0f},{p:.0f}\n" for n, name, ni, c, e, nu, p in rows)
-    md = ["# Generated C: time per call", "",
+    md = ["# Generated C: time per call", "", stamp(), "",
           "Measured by `python benchmarks/bench_codegen.py` on this machine (2 cores): C harness",
           "`benchmarks/harness.c`, the median of 3 processes run after all compiles, each the median of 15",
           "batches; library at -O3 with `--native` (-march=native",

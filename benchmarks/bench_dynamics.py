@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from common import chain_arm, mass_matrix_forward_dynamics, per_call, write_results  # noqa: E402
+from common import stamp, chain_arm, mass_matrix_forward_dynamics, per_call, write_results  # noqa: E402
 from rscasadi.reference.numeric import Numeric  # noqa: E402
 
 SIZES = (3, 6, 12, 24)
@@ -44,7 +44,7 @@ def main():
 
     csv = "n,function,n_instructions,casadi_us,numeric_us\n" + "".join(
         f"{n},{name},{ni},{tc:.2f},{tn:.2f}\n" for n, name, ni, tc, tn in rows)
-    md = ["# Symbolic dynamics: time per call in-process and symbolic size", "",
+    md = ["# Symbolic dynamics: time per call in-process and symbolic size", "", stamp(), "",
           "Measured by `python benchmarks/bench_dynamics.py` (median of 5 batches, 2-core machine).",
           "casadi = the SX Function called from Python (dominated by call overhead);",
           "numeric = the numpy numerical core (`rscasadi.reference.numeric`).", "",

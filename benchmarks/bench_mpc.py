@@ -14,7 +14,7 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from common import RESULTS, ROOT  # noqa: E402
+from common import stamp, RESULTS, ROOT  # noqa: E402
 from rscasadi.codegen import generate  # noqa: E402
 from rscasadi.mpc import generate_mpc, load_mpc_problem, reach_pose, study  # noqa: E402
 from rscasadi.dynamics.arm import load  # noqa: E402
@@ -72,7 +72,7 @@ def main():
         lines[mode] = [line for line in out if line.startswith("#")]
         print(f"example ({mode}):", *lines[mode])
     tip = res["heavier_tip"]
-    md = ["# Nonlinear MPC in C", "",
+    md = ["# Nonlinear MPC in C", "", stamp(), "",
           f"`python benchmarks/bench_mpc.py` on this 2-core machine: `problems/mpc_arm3.toml` (multiple shooting, "
           f"N = {p.horizon} intervals of {p.interval * 1e3:g} ms, {p.substeps} RK4 steps each, real-time iteration, "
           f"{p.qp_iterations} interior-point iterations of the condensed QP), the paper's trajectory (2 s) at 1 kHz, "

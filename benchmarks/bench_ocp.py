@@ -33,7 +33,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from common import ROOT, write_results  # noqa: E402
+from common import stamp, ROOT, write_results  # noqa: E402
 from rscasadi.native.parallel import available_cores  # noqa: E402
 from rscasadi.ocp.fatrop.blasfeo import ENV as BLASFEO_ENV, WHEEL  # noqa: E402
 import rscasadi.ocp.solving as solving  # noqa: E402
@@ -171,7 +171,7 @@ def main():
         raise SystemExit(f"{BLASFEO_ENV}={WHEEL}: the benchmark runs the wheel's kernels in a child anyway; "
                          f"unset it, or give an optimised BLASFEO")
     rows = solver_rows()
-    md = ["# Optimal control: fatrop against IPOPT, refinement, co-design", "",
+    md = ["# Optimal control: fatrop against IPOPT, refinement, co-design", "", stamp(), "",
           f"`python benchmarks/bench_ocp.py` on this 2-core machine; Radau degree 3, compiled NLP and kernel "
           f"({os.environ['RSCASADI_NLP_OPT']}), exact",
           "Hessians, the same tolerance (1e-8) for both solvers; solve = wall time of the solver call, median",

@@ -9,7 +9,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from common import RESULTS, ROOT  # noqa: E402
+from common import stamp, RESULTS, ROOT  # noqa: E402
 from rscasadi.ocp.sweep import run  # noqa: E402
 
 
@@ -26,7 +26,7 @@ def main():
             shutil.rmtree(RESULTS / "sweep", ignore_errors=True)
             shutil.copytree(tmp / "s", RESULTS / "sweep")
         shutil.rmtree(tmp, ignore_errors=True)
-    md = ["# Sweeps on Dask", "", "`python benchmarks/bench_sweep.py`: the 12 minimum-time problems of",
+    md = ["# Sweeps on Dask", "", stamp(), "", "`python benchmarks/bench_sweep.py`: the 12 minimum-time problems of",
           "`problems/sweep_spring_stiffness.toml` (elbow x shoulder-pitch spring stiffness), one compiled",
           "NLP shared by all points (compiled before the clock starts), a local cluster on this 2-core machine.", "",
           "| workers | points per second |", "|---|---|"] + [f"| {w} | {r:.2f} |" for w, r in rates.items()]

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rscasadi import __version__
+from rscasadi import __version__, interrupt
 from rscasadi.files import CheckError, OutputError, write_json
 from rscasadi.model.modelfile import ModelFileError
 from rscasadi.studies.reproduce import PROBLEMS, TRAJECTORY
@@ -221,6 +221,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
+    interrupt.install()                     # Ctrl-C inside a solver stops the command, not just the solver
     try:
         code = args.func(args)
     except (ModelFileError, OutputError, CheckError, ValueError) as exc:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import casadi as ca
 import numpy as np
+from rscasadi.interrupt import raise_if_interrupted
 
 
 def _vee(S):
@@ -50,6 +51,7 @@ def inverse_kinematics(arm, frame: str, R=None, p=None, theta_guess=None, positi
                         "ipopt.tol": 1e-12, "ipopt.constr_viol_tol": 1e-10})
     res = solver(x0=guess, lbx=lo, ubx=hi, lbg=lbg, ubg=ubg)
     stats = solver.stats()
+    raise_if_interrupted(stats)
     th = np.array(res["x"]).ravel()
     R_got, p_got = (np.array(v) for v in arm.frame_placement(frame)(th))
     position_error = float(np.linalg.norm(p_got.ravel() - p_t))

@@ -37,6 +37,7 @@ from rscasadi.files import CheckError, fresh_directory, write_json
 from rscasadi.model.parameters import n_linear
 from rscasadi.identification.identify import Unknowns, prior_scale, structural_base
 from rscasadi.identification.regressor import regressor, spring_regressor
+from rscasadi.interrupt import raise_if_interrupted
 
 TORQUE_NOISE = 0.005
 MAX_CONDITION = 1e5  # a design above this is refused (a hand-picked bump on every joint: ~1e9)
@@ -194,6 +195,7 @@ def design(arm: Arm, period: float = 10.0, harmonics: int = 5, margin: float = 0
     for seed in range(1, starts + 1):
         res = solver(x0=_start(arm, K, seed), **bounds)
         stats = solver.stats()
+        raise_if_interrupted(stats)
         w = np.array(res["x"]).ravel()
         a = w[:n * K].reshape(n, K, order="F")
         b = w[n * K:2 * n * K].reshape(n, K, order="F")

@@ -29,6 +29,7 @@ from rscasadi.ocp.problem import Problem, check_against_model, load_problem
 from rscasadi.ocp.solvers import direct, make_solver
 from rscasadi.ocp.solution import Solution, solution_arm, verify
 from rscasadi.ocp.transcription import Transcription
+from rscasadi.interrupt import raise_if_interrupted
 
 
 WARM = {"ipopt": {"mu_strategy": "monotone", "mu_init": 1e-6, "bound_push": 1e-8, "bound_frac": 1e-8},
@@ -114,6 +115,7 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
     res = solver(x0=w0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, p=scaled)
     solve_time = time.perf_counter() - t0
     stats = solver.stats()
+    raise_if_interrupted(stats)
     out = tr.unpack(np.array(res["x"]))
     n, T = arm.n, out["T"] if out["T"] is not None else problem.task.duration
     t = T * np.concatenate([[0.0], np.cumsum(w)])
