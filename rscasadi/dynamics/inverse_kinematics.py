@@ -5,7 +5,9 @@ the joint limits, solved by IPOPT through casadi.nlpsol:
                                         theta_lo <= theta <= theta_hi
 
 (the trace condition keeps the rotation error below 90 degrees, away from the half-turns whose
-skew part also vanishes).  Position only when no R is given.  The answer is checked on the
+skew part also vanishes).  Position only when no R is given.  An arm with fewer joints than
+the pose has conditions (3, or 6 with R) reaches such a pose, if at all, at isolated
+configurations: there the least squares of the pose error are minimised instead.  The answer is checked on the
 model afterwards; a pose that is not reached within the tolerances is reported as a failure,
 never returned as a success.
 """
@@ -45,7 +47,15 @@ def inverse_kinematics(arm, frame: str, R=None, p=None, theta_guess=None, positi
         g += [_vee(E - E.T) / 2, ca.trace(E)]
         lbg += [0.0] * 3 + [1.0]
         ubg += [0.0] * 3 + [3.0]
-    nlp = {"x": theta, "f": ca.sumsqr(theta - guess), "g": ca.vertcat(*g)}
+    if len(lbg) - (1 if R is not None else 0) > n:
+        # fewer joints than pose conditions: the pose, where reachable, is isolated; the least
+        # squares of its error finds it (and says how far it stays where it is not)
+        err = [p_f - p_t] + ([ca.vec(R_f - ca.DM(np.asarray(R, float)))] if R is not None else [])
+        nlp = {"x": theta, "f": ca.sumsqr(ca.vertcat(*err)) + 1e-12 * ca.sumsqr(theta - guess)}
+        g, lbg, ubg = [], [], []
+    else:
+        nlp = {"x": theta, "f": ca.sumsqr(theta - guess)}
+    nlp["g"] = ca.vertcat(*g)
     solver = ca.nlpsol("inverse_kinematics", "ipopt", nlp,
                        {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": max_iter,
                         "ipopt.tol": 1e-12, "ipopt.constr_viol_tol": 1e-10})

@@ -75,7 +75,8 @@ INTERFACES = ("direct", "casadi")
 BARRIERS = ("monotone",)                     # fatrop's barrier rule (docs/design/condensing.md)
 HESSIANS = ("exact", "limited-memory")
 TOP = {"model", "objective", "theta_start", "theta_end", "duration", "max_duration", "trajectory",
-       "effort_weight", "transcription", "verification", "solver", "refinement", "design"}
+       "effort_weight", "transcription", "verification", "solver", "refinement", "design", "goal"}
+GOAL_KEYS = {"frame", "position", "rpy", "tolerance"}
 TABLES = {"transcription": {"method", "degree", "intervals", "dynamics", "compiled", "condense"},
           "verification": {"final_angle_tol", "final_speed_tol", "tracking_tol", "limit_tol"},
           "refinement": {"rounds"},
@@ -85,11 +86,28 @@ SWEEPABLE = ("theta_start", "theta_end", "duration", "max_duration", "effort_wei
 
 
 @dataclass
+class Goal:
+    """Where a frame must end, at rest: its origin at `position` (m, world) and, if `R` is given,
+    its rotation R; the configuration is the solver's choice within the joint limits.  The
+    replay must reach it within `position_tol` (m) and `angle_tol` (rad)."""
+    frame: str
+    position: np.ndarray
+    R: np.ndarray | None = None
+    position_tol: float = 1e-3
+    angle_tol: float = 1e-2
+
+    def __post_init__(self):
+        self.position = np.asarray(self.position, float).ravel()
+        self.R = None if self.R is None else np.asarray(self.R, float)
+
+
+@dataclass
 class Task:
     """What the arm must do.  `model`: the model file; `objective`: min_time | min_effort |
     tracking; `duration` (s): fixed, or min_time's first guess; the rest poses `theta_start`,
-    `theta_end` (not for tracking) or the `trajectory` file to track; `design`: parameter name
-    -> (lower, upper), chosen by the optimiser; `parameters`: name -> value, set (sweeps)."""
+    `theta_end` (not for tracking) or the `trajectory` file to track; `goal`: a `Goal` for a
+    frame instead of theta_end; `design`: parameter name -> (lower, upper), chosen by the
+    optimiser; `parameters`: name -> value, set (sweeps)."""
     model: Path
     objective: str
     duration: float
@@ -100,6 +118,7 @@ class Task:
     effort_weight: float = 1e-3                     # min_time, tracking: weight of the integral of tau^2
     design: dict = field(default_factory=dict)
     parameters: dict = field(default_factory=dict)
+    goal: Goal | None = None
 
     def __post_init__(self):
         self.model = Path(self.model)
@@ -193,12 +212,25 @@ class Problem:
         if t.objective == "tracking":
             if t.trajectory is None:
                 fail("trajectory", "missing required field (objective tracking)")
+            if t.goal is not None:
+                fail("goal", "a tracking problem follows its trajectory: no goal")
         else:
-            for key in ("theta_start", "theta_end"):
+            if t.goal is not None and t.theta_end is not None:
+                fail("goal", "give theta_end or a goal, not both")
+            for key in ("theta_start",) + (("theta_end",) if t.goal is None else ()):
                 if getattr(t, key) is None:
-                    fail(key, f"missing required field (objective {t.objective})")
+                    fail(key, f"missing required field (objective {t.objective})"
+                         + (" (or a [goal])" if key == "theta_end" else ""))
                 if np.size(getattr(t, key)) == 0 or not np.all(np.isfinite(getattr(t, key))):
                     fail(key, f"expected a list of finite numbers, got {getattr(t, key)!r}")
+        if t.goal is not None:
+            g = t.goal
+            if g.position.shape != (3,) or not np.all(np.isfinite(g.position)):
+                fail("goal.position", f"expected 3 finite numbers, got {g.position!r}")
+            if g.R is not None and (g.R.shape != (3, 3) or not np.allclose(g.R.T @ g.R, np.eye(3), atol=1e-9)):
+                fail("goal.rpy", "not a rotation")
+            for key in ("position_tol", "angle_tol"):
+                _number(fail, f"goal.tolerance.{key.split('_')[0]}", getattr(g, key), True)
         for name, bounds in t.design.items():
             if len(bounds) != 2 or not bounds[0] < bounds[1]:
                 fail(f"design.{name}", f"expected [lower, upper] with lower < upper, got {bounds!r}")
@@ -253,6 +285,8 @@ def load_problem(path) -> Problem:
             fail(key, f"expected the path of a file, got {d[key]!r}")
     task = {"model": (path.parent / str(d["model"])).resolve(), "objective": d["objective"],
             "duration": _number(fail, "duration", d["duration"], True)}
+    if "goal" in d and not isinstance(d["goal"], dict):
+        fail("goal", "expected a table")
     if "trajectory" in d and d["objective"] == "tracking":
         task["trajectory"] = (path.parent / str(d["trajectory"])).resolve()
     for key in ("theta_start", "theta_end"):
@@ -265,6 +299,8 @@ def load_problem(path) -> Problem:
         task["max_duration"] = _number(fail, "max_duration", d["max_duration"], True)
     if "effort_weight" in d:
         task["effort_weight"] = _number(fail, "effort_weight", d["effort_weight"], False)
+    if "goal" in d:
+        task["goal"] = _goal(fail, table("goal"))
     design = {}
     for name, bounds in table("design").items():
         if (not isinstance(bounds, list) or len(bounds) != 2
@@ -284,10 +320,38 @@ def load_problem(path) -> Problem:
                    Verification(**verification), path=path).check()
 
 
+def _goal(fail, t: dict) -> Goal:
+    """The [goal] table: frame, position, optional rpy (URDF convention) and tolerance."""
+    from rscasadi.model.types import rpy_matrix
+    for key in t:
+        if key not in GOAL_KEYS:
+            fail(f"goal.{key}", f"unknown key (allowed: {', '.join(sorted(GOAL_KEYS))})")
+    for key in ("frame", "position"):
+        if key not in t:
+            fail(f"goal.{key}", "missing required field")
+    if not isinstance(t["frame"], str):
+        fail("goal.frame", f"expected the name of a frame, got {t['frame']!r}")
+    vec = {}
+    for key in ("position", "rpy"):
+        if key in t:
+            v = t[key]
+            if not isinstance(v, list) or len(v) != 3:
+                fail(f"goal.{key}", f"expected a list of 3 numbers, got {v!r}")
+            vec[key] = np.array([_number(fail, f"goal.{key}[{i}]", x, False) for i, x in enumerate(v)])
+    tol = t.get("tolerance", {})
+    if not isinstance(tol, dict) or set(tol) - {"position", "angle"}:
+        fail("goal.tolerance", f"expected {{ position = m, angle = rad }}, got {tol!r}")
+    return Goal(t["frame"], vec["position"], rpy_matrix(vec["rpy"]) if "rpy" in vec else None,
+                **{f"{k}_tol": _number(fail, f"goal.tolerance.{k}", v, True) for k, v in tol.items()})
+
+
 def check_against_model(problem: Problem, model):
     """The problem's poses and parameter names fit the arm (errors name the problem file)."""
     from rscasadi.model.parameters import check_names
     t = problem.task
+    if t.goal is not None and t.goal.frame not in [f.name for f in model.frames]:
+        raise ModelFileError(f"{problem.path}: field 'goal.frame': {model.path} has no frame {t.goal.frame!r} "
+                             f"(frames: {', '.join(f.name for f in model.frames)})")
     for key in ("theta_start", "theta_end"):
         v = getattr(t, key)
         if v is not None and len(v) != model.n:
@@ -297,6 +361,10 @@ def check_against_model(problem: Problem, model):
         check_names(model, t.parameters, f"{problem.path}: parameters")
     except ValueError as exc:
         raise ModelFileError(str(exc)) from None
+    if t.goal is not None and (3 if t.goal.R is None else 6) > model.n:
+        raise ModelFileError(f"{problem.path}: field 'goal': {'a position' if t.goal.R is None else 'a pose'} is "
+                             f"{3 if t.goal.R is None else 6} conditions, more than the {model.n} joints can meet "
+                             "in general" + ("; give the position alone (no rpy)" if model.n >= 3 else ""))
     for name, (lo, _) in t.design.items():
         if name.endswith(".gear_ratio") and lo <= 0:
             raise ModelFileError(f"{problem.path}: field 'design.{name}': a gear ratio stays positive "

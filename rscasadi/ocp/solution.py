@@ -82,6 +82,13 @@ def verify(solution: dict, substeps: int = 20, tol: float = 1e-10) -> dict:
     if solution.get("trajectory"):                                     # between the nodes too
         ref = load_trajectory(solution["trajectory"])(sim["t"])[0]
         report["tracking_error"] = float(np.max(np.abs(sim["theta"] - ref)))
+    if solution.get("goal"):                                           # the replay's end at the goal
+        g = solution["goal"]
+        R, p = (np.array(v) for v in arm.frame_placement(g["frame"])(sim["theta"][:, -1]))
+        report["goal_position_error"] = float(np.linalg.norm(p.ravel() - np.asarray(g["position"])))
+        if g["R"] is not None:
+            c = (np.trace(np.asarray(g["R"]).T @ R) - 1) / 2
+            report["goal_angle_error"] = float(np.arccos(np.clip(c, -1.0, 1.0)))
     report["max_collocation_deviation"] = float(np.max(np.abs(sim["theta"][:, ::substeps] - np.asarray(solution["theta"]))))
     report["interval_violation"] = per_interval.tolist()
     return report

@@ -20,7 +20,7 @@ import numpy as np
 from rscasadi.native.build import compiler
 from rscasadi.native.parallel import available_cores, openmp_flags, set_threads
 from rscasadi.dynamics.arm import Arm
-from rscasadi.model.modelfile import document, read, to_toml
+from rscasadi.model.modelfile import ModelFileError, document, read, to_toml
 from rscasadi.model.parameters import value, with_values
 from rscasadi.dynamics.statics import rest_state  # noqa: F401  (exported by rscasadi.ocp)
 from rscasadi.sim.simulation import held_interval
@@ -87,10 +87,13 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
     arm = Arm(with_values(base, problem.task.parameters))              # the plant for guesses and replay
     w = np.full(problem.transcription.intervals, 1.0 / problem.transcription.intervals) if w is None else np.asarray(w, float)
     tr = Transcription(problem, Arm(base), N=len(w))
+    goal = problem.task.goal
+    if goal is not None and problem.task.theta_end is None:        # the guess's end: inverse kinematics
+        problem = problem.replace(theta_end=goal_configuration(arm, goal, problem.task.theta_start, problem.path))
     t_guess = (warm["t"][-1] if warm else problem.task.duration) * np.concatenate([[0.0], np.cumsum(w)])
     ref = _reference(problem, t_guess)[:, 1:] if tr.tracking else None
     theta_start = _reference(problem, t_guess[:1])[:, 0] if tr.tracking else problem.task.theta_start
-    P = tr.parameters(theta_start, problem.task.theta_end, problem.task.duration, problem.task.effort_weight, w, ref,
+    P = tr.parameters(theta_start, None if goal is not None else problem.task.theta_end, problem.task.duration, problem.task.effort_weight, w, ref,
                       list(problem.task.parameters.values()))
     t0 = time.perf_counter()                       # setup: the NLP, its kernel and library (cached)
     nlp, lbg, ubg = tr.nlp(log)
@@ -122,8 +125,9 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
     Xs, U = out["Xs"], out["U"]
     design = dict(zip(problem.task.design, out["design"].tolist()))
     target = None
-    if not tr.tracking:
-        target = rest_state(Arm(with_values(base, {**problem.task.parameters, **design})), problem.task.theta_end).tolist()
+    if not tr.tracking:                            # at rest at theta_end, or where the solver ended (a goal)
+        theta_end = problem.task.theta_end if goal is None else Xs[:n, -1]
+        target = rest_state(Arm(with_values(base, {**problem.task.parameters, **design})), theta_end).tolist()
     return Solution({"model": str(problem.task.model), "solver": problem.solver.name,
             "interface": ("direct" if direct(problem) else "casadi") if problem.solver.name == "fatrop" else None,
             "blasfeo": stats.get("blasfeo"),          # fatrop's linear algebra library (direct interface)
@@ -135,7 +139,10 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
             "tau": np.hstack([U, U[:, -1:]]).tolist(), "tau_interpolation": "constant",
             "design": design, "parameters": dict(problem.task.parameters), "target_state": target,
             "trajectory": None if problem.task.trajectory is None else str(problem.task.trajectory),
-            "theta_reference": None if ref is None else _reference(problem, t).tolist()})
+            "theta_reference": None if ref is None else _reference(problem, t).tolist(),
+            "goal": None if goal is None else {"frame": goal.frame, "position": goal.position.tolist(),
+                                               "R": None if goal.R is None else goal.R.tolist(),
+                                               "position_tol": goal.position_tol, "angle_tol": goal.angle_tol}})
 
 
 # fatrop 1.1.8's return flags (IpSolverReturnFlag, include/fatrop/ip_algorithm/ip_algorithm.hpp in
@@ -162,10 +169,25 @@ def _success(stats: dict) -> bool:
     return bool(stats["success"]) or ("fatrop" in stats and stats["fatrop"]["return_flag"] == 2)
 
 
+def goal_configuration(arm: Arm, goal, theta_guess, where) -> np.ndarray:
+    """A configuration at the goal within the joint limits (inverse kinematics from the start),
+    for the initial guess; the solver then chooses its own.  Unreachable: an error naming it."""
+    from rscasadi.dynamics.inverse_kinematics import inverse_kinematics
+    res = inverse_kinematics(arm, goal.frame, goal.R, goal.position, theta_guess)
+    where = where if where is not None else "<Problem>"
+    if not res["success"]:
+        raise ModelFileError(f"{where}: field 'goal': frame {goal.frame!r} cannot reach it within the joint limits "
+                             f"(inverse kinematics: {res['status']}, {res['position_error']:.3g} m, "
+                             f"{res['angle_error']:.3g} rad away)")
+    return res["theta"]
+
+
 def checks(problem: Problem, report: dict) -> list:
     """The verification's failures, as readable strings (empty: passed)."""
     tols = {"final_angle_error": problem.verification.final_angle_tol, "final_speed_error": problem.verification.final_speed_tol,
             "tracking_error": problem.verification.tracking_tol, "max_limit_violation": problem.verification.limit_tol}
+    if problem.task.goal is not None:
+        tols.update(goal_position_error=problem.task.goal.position_tol, goal_angle_error=problem.task.goal.angle_tol)
     return [f"{k} {report[k]:.2e} > {tol:g}" for k, tol in tols.items() if k in report and report[k] > tol]
 
 

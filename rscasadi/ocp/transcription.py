@@ -74,6 +74,7 @@ class Transcription:
         # with the projections, 26 332 through the forward dynamics; n = 3)
         self.dynamics = "implicit" if self.condensed else problem.transcription.dynamics
         self.tracking = problem.task.objective == "tracking"
+        self.goal = problem.task.goal
         self.acc_scale = self._acceleration_scale()
         self.calls = None                    # a Calls recorder while the stage's derivatives are built
         self.kernel = None                   # the condensing kernel (condensing.Condensed), if condensed
@@ -98,12 +99,39 @@ class Transcription:
         return ca.vertcat(T_id - self.arm.sea_torque(*q, phys=phys), phys.columns["gear_ratio"] * (u - tau_id))
 
     def rest_residual(self, x, theta, pf):
-        """At rest at theta in the SEA's static equilibrium: theta, speeds 0, T_K(psi) = gravity torque."""
+        """At rest at theta in the SEA's static equilibrium: theta, speeds 0, T_K(psi) = gravity torque;
+        theta None: at rest wherever the arm is."""
         n, q = self.n, ca.vertsplit(x[:4 * self.n], self.n)
         z = ca.DM.zeros(n)
         T_g = self._call("inverse_dynamics", q[0], q[1], z, z, z, z, pf=pf)[1]
         phys = self.arm.physics if pf is None else self.arm._physics_of(pf)
-        return ca.vertcat(q[0] - theta, q[2], q[3], self.arm.sea_torque(q[0], q[1], z, z, phys=phys) - T_g)
+        rows = [q[2], q[3], self.arm.sea_torque(q[0], q[1], z, z, phys=phys) - T_g]
+        return ca.vertcat(*([] if theta is None else [q[0] - theta]), *rows)
+
+    def goal_rows(self, theta, goal):
+        """The goal frame at its pose: p - p_goal (3); with a rotation, the skew part of
+        R_goal^T R (3) and its trace (>= 1: within 90 degrees, away from the half-turns).
+        goal: the NLP parameter [p_goal; vec(R_goal)]."""
+        R, p = self.arm.frame_placement(self.goal.frame)(theta)
+        rows = [p - goal[:3]]
+        if self.goal.R is not None:
+            E = ca.reshape(goal[3:12], 3, 3).T @ R
+            rows += [ca.vertcat(E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]) / 2, ca.trace(E)]
+        return rows
+
+    def _end_bounds(self):
+        """Bounds of the end piece's rows: at rest (and at theta_end, or at the goal), then the
+        SEA deflection and the geared joints' motor speeds."""
+        n = self.n
+        psi_max, dphi_max = self._limit("psi"), self._limit("dphi")[self.geared]
+        if self.tracking:
+            rest_lo = rest_hi = np.zeros(0)
+        elif self.goal is None:
+            rest_lo = rest_hi = np.zeros(4 * n)
+        else:
+            rest_lo = np.r_[np.zeros(3 * n + 3), [0.0, 0.0, 0.0, 1.0] if self.goal.R is not None else []]
+            rest_hi = np.r_[np.zeros(3 * n + 3), [0.0, 0.0, 0.0, 3.0] if self.goal.R is not None else []]
+        return np.r_[rest_lo, -psi_max, -dphi_max], np.r_[rest_hi, psi_max, dphi_max]
 
     def _pf(self, design, p_fixed):
         """The free parameters' values, in the order of Arm(free=design + fixed); None if none."""
@@ -169,7 +197,8 @@ class Transcription:
     def parameter_layout(self):
         n, N = self.n, self.N
         sizes = [("theta_start", n), ("theta_end", n), ("duration", 1), ("effort_weight", 1), ("scale", 1),
-                 ("w", N), ("theta_ref", n * N if self.tracking else 0), ("p_fixed", len(self.fixed))]
+                 ("w", N), ("theta_ref", n * N if self.tracking else 0), ("p_fixed", len(self.fixed)),
+                 ("goal", 12 if self.goal is not None else 0)]
         out, i = {}, 0
         for key, size in sizes:
             out[key] = slice(i, i + size)
@@ -209,14 +238,17 @@ class Transcription:
 
     def _boundary_piece(self, end: bool) -> ca.Function:
         """The start (at rest at theta_start; T is the min-time objective) or the end (at rest at
-        theta_end unless tracking; the SEA deflection within its limit) of x_0 or x_N."""
+        theta_end, or at rest with the goal frame at its pose, unless tracking; the SEA
+        deflection within its limit) of x_0 or x_N.  `theta`: theta_start, theta_end or the goal."""
         n = self.n
-        x, theta = ca.SX.sym("x", self.nx), ca.SX.sym("theta", n)
+        goal_end = end and self.goal is not None
+        x, theta = ca.SX.sym("x", self.nx), ca.SX.sym("theta", 12 if goal_end else n)
         pfix, scale = ca.SX.sym("p_fixed", len(self.fixed)), ca.SX.sym("scale")
         pf = self._pf(x[4 * n + self.nT:] if self.design else None, pfix)
         if end:
-            rows = ([] if self.tracking else [self.rest_residual(x, theta, pf)]) + [x[n:2 * n] - x[:n],
-                                                                                   self._geared_speeds(x[3 * n:4 * n], pf)]
+            rest = [] if self.tracking else [self.rest_residual(x, None if goal_end else theta, pf)]
+            rest += self.goal_rows(x[:n], theta) if goal_end else []
+            rows = rest + [x[n:2 * n] - x[:n], self._geared_speeds(x[3 * n:4 * n], pf)]
             f = ca.SX(0)
         else:
             rows = [self.rest_residual(x, theta, pf)]
@@ -245,7 +277,8 @@ class Transcription:
         stride = nx + self.nu
         w = ca.MX.sym("w", N * stride + nx)                                 # stage by stage
         r = nx + self._n_path()                                             # a stage's rows
-        n_end = (0 if self.tracking else 4 * n) + n + len(self.geared)
+        end_lo, end_hi = self._end_bounds()
+        n_end = len(end_lo)
         stage_rows = np.vstack([np.arange(r)] + [r + 4 * n + (k - 1) * r + np.arange(r) for k in range(1, N)])
         n_g = r + 4 * n + (N - 1) * r + n_end
         stage_args = [ca.reshape(par["w"], 1, N), par["duration"], par["p_fixed"], par["effort_weight"], par["scale"]]
@@ -262,13 +295,11 @@ class Transcription:
             Piece(self._boundary_piece(False), np.arange(nx)[None, :], r + np.arange(4 * n)[None, :],
                   [par["theta_start"], par["p_fixed"], par["scale"]]),
             Piece(self._boundary_piece(True), N * stride + np.arange(nx)[None, :], n_g - n_end + np.arange(n_end)[None, :],
-                  [par["theta_end"], par["p_fixed"], par["scale"]])]
+                  [par["goal"] if self.goal is not None else par["theta_end"], par["p_fixed"], par["scale"]])]
         g, f = constraints_and_objective(self.pieces, w, n_g)
         stage_lo, stage_hi = self._path_bounds()
-        psi_max, dphi_max = self._limit("psi"), self._limit("dphi")[self.geared]
-        rest = [] if self.tracking else [np.zeros(4 * n)]
-        lbg = np.concatenate([stage_lo, np.zeros(4 * n), np.tile(stage_lo, N - 1), *rest, -psi_max, -dphi_max])
-        ubg = np.concatenate([stage_hi, np.zeros(4 * n), np.tile(stage_hi, N - 1), *rest, psi_max, dphi_max])
+        lbg = np.concatenate([stage_lo, np.zeros(4 * n), np.tile(stage_lo, N - 1), end_lo])
+        ubg = np.concatenate([stage_hi, np.zeros(4 * n), np.tile(stage_hi, N - 1), end_hi])
         return {"x": w, "f": f, "g": g, "p": P}, lbg, ubg
 
     def _limit(self, key):
@@ -290,7 +321,7 @@ class Transcription:
         n, N = self.n, self.N
         n_path = self._n_path()
         ng = [n_path + 4 * n] + [n_path] * (N - 1)
-        ng.append((0 if self.tracking else 4 * n) + n + len(self.geared))
+        ng.append(len(self._end_bounds()[0]))
         return {"structure_detection": "manual", "N": N, "nx": [self.nx] * (N + 1),
                 "nu": [self.nu] * N + [0], "ng": ng}
 
@@ -314,11 +345,14 @@ class Transcription:
         return lb, ub
 
     def parameters(self, theta_start, theta_end, duration, effort_weight, w, theta_ref=None, p_fixed=(), scale=1.0):
+        """The NLP's parameter vector (the goal's pose, if any, from the problem)."""
         layout, n_par = self.parameter_layout()
         P = np.zeros(n_par)
+        goal = None if self.goal is None else np.r_[self.goal.position,
+                                                    (self.goal.R if self.goal.R is not None else np.eye(3)).ravel("F")]
         for key, value in (("theta_start", theta_start), ("theta_end", theta_end), ("duration", duration),
                            ("effort_weight", effort_weight), ("scale", scale), ("w", w),
-                           ("theta_ref", theta_ref), ("p_fixed", p_fixed)):
+                           ("theta_ref", theta_ref), ("p_fixed", p_fixed), ("goal", goal)):
             if value is not None and layout[key].stop > layout[key].start:
                 P[layout[key]] = np.ravel(value, order="F")
         return P
