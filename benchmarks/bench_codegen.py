@@ -192,18 +192,6 @@ def mx_route_ns(arm, work: Path, harness: Path) -> float:
 TOOL = "panda_hand_tcp"
 
 
-def _urdf_and_locks(model):
-    """Pinocchio's model of the URDF, the joints to lock and the configuration that locks them."""
-    import pinocchio as pin
-    full = pin.buildModelFromUrdf(model.extra["urdf"])
-    q0, locks = pin.neutral(full), []
-    for name, value in model.extra["locked"].items():
-        jid = full.getJointId(name)
-        locks.append(jid)
-        q0[full.joints[jid].idx_q] = value
-    return full, locks, q0
-
-
 def panda_row(work: Path, harness: Path) -> dict:
     """The 7-joint Panda from its URDF: C time per call of the main functions, generate + compile
     time, and Pinocchio's own crba + rnea on the same 21-body tree (parsed from the same URDF)."""
@@ -225,7 +213,8 @@ def panda_row(work: Path, harness: Path) -> dict:
         row["pin_ns"] = 1e9 * (per_call(pin.crba, route.model, route.data, q, repeat=5, min_time=0.2)
                                + per_call(pin.rnea, route.model, route.data, q, v, a, repeat=5, min_time=0.2))
         # the frame's placement and Jacobian on Pinocchio's own model of the URDF (the link tree)
-        links = pin.buildReducedModel(*_urdf_and_locks(arm.model))
+        from rscasadi.reference.pinocchio_route import urdf_model
+        links = urdf_model(arm.model)
         data, fid = links.createData(), links.getFrameId(TOOL)
         qf = pin.neutral(links)
         row["pin_placement_ns"] = 1e9 * per_call(pin.framesForwardKinematics, links, data, qf, repeat=5, min_time=0.2)

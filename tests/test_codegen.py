@@ -349,8 +349,8 @@ def test_frame_functions_in_c_equal_the_symbolic_ones(frames_built):
 def test_frame_functions_in_c_two_threads_werror_and_valgrind(frames_built, tmp_path):
     arm, out = frames_built
     exe = tmp_path / "frames"
-    subprocess.run([cc(), "-std=c99", "-O1", "-g", "-Wall", "-Wextra", "-Werror", "-pthread", f"-I{out}",
-                    str(HERE / "c" / "frames.c"), f"-L{out}", "-lrscasadi_arm", f"-Wl,-rpath,{out}", "-lm",
+    subprocess.run([cc(), "-std=c99", "-O1", "-g", "-Wall", "-Wextra", "-Werror", "-pthread", "-DFRAMES", f"-I{out}",
+                    str(HERE / "c" / "threads.c"), f"-L{out}", "-lrscasadi_arm", f"-Wl,-rpath,{out}", "-lm",
                     "-o", str(exe)], check=True)
     run = subprocess.run([str(exe)], capture_output=True, text=True)
     assert run.returncode == 0 and "identical" in run.stdout, run.stdout + run.stderr
@@ -359,7 +359,8 @@ def test_frame_functions_in_c_two_threads_werror_and_valgrind(frames_built, tmp_
     R, p = (np.array(v) for v in arm.frame_placement("tool")(x[:3]))
     assert np.allclose(values[:9], R.ravel(order="F"), atol=1e-14) and np.allclose(values[9:12], p.ravel(), atol=1e-14)
     if shutil.which("valgrind"):
-        subprocess.run([cc(), "-std=c99", "-O1", "-g", "-pthread", "-DREPEAT=2", f"-I{out}", str(HERE / "c" / "frames.c"),
+        subprocess.run([cc(), "-std=c99", "-O1", "-g", "-pthread", "-DREPEAT=2", "-DFRAMES", f"-I{out}",
+                        str(HERE / "c" / "threads.c"),
                         f"-L{out}", "-lrscasadi_arm", f"-Wl,-rpath,{out}", "-lm", "-o", str(exe)], check=True)
         run = subprocess.run(["valgrind", "--error-exitcode=3", "--quiet", str(exe)], capture_output=True, text=True)
         assert run.returncode == 0 and "identical" in run.stdout, run.stderr

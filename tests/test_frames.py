@@ -8,7 +8,7 @@ import pytest
 import rscasadi
 from rscasadi import ModelFileError
 from rscasadi.model.modelfile import document, to_toml
-from rscasadi.reference.pinocchio_route import PinocchioRoute
+from rscasadi.reference.pinocchio_route import PinocchioRoute, configuration, urdf_model
 
 from conftest import ROOT, dm, random_state
 from lagrange import Lagrange
@@ -38,22 +38,12 @@ class PinocchioURDF:
     """Pinocchio's own model of the URDF, the locked joints held at their values."""
 
     def __init__(self, model):
-        full = pin.buildModelFromUrdf(model.extra["urdf"])
-        q0, locks = pin.neutral(full), []
-        for name, value in model.extra["locked"].items():
-            jid = full.getJointId(name)
-            locks.append(jid)
-            q0[full.joints[jid].idx_q] = value
-        self.model = pin.buildReducedModel(full, locks, q0) if locks else full
+        self.model = urdf_model(model)
         assert [self.model.names[i] for i in range(1, self.model.njoints)] == [jt.name for jt in model.joints]
         self.data = self.model.createData()
 
     def q(self, theta):
-        q = pin.neutral(self.model)
-        for i, th in enumerate(theta):
-            jm = self.model.joints[i + 1]
-            q[jm.idx_q:jm.idx_q + jm.nq] = [np.cos(th), np.sin(th)] if jm.nq == 2 else [th]
-        return q
+        return configuration(self.model, theta)
 
 
 def test_frames_are_the_urdf_links(urdf_arm):

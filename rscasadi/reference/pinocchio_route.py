@@ -47,19 +47,7 @@ class PinocchioRoute:
     def from_urdf(cls, model):
         """The link tree from Pinocchio's own URDF parser (fixed links merged, locked joints
         removed by buildReducedModel at their locked values); rotors from our model file."""
-        extra = model.extra
-        full = pin.buildModelFromUrdf(extra["urdf"])
-        q0 = pin.neutral(full)
-        lock_ids = []
-        for name, value in extra["locked"].items():
-            jid = full.getJointId(name)
-            lock_ids.append(jid)
-            jm = full.joints[jid]
-            if jm.nq == 2:
-                q0[jm.idx_q:jm.idx_q + 2] = [np.cos(value), np.sin(value)]
-            else:
-                q0[jm.idx_q] = value
-        reduced = pin.buildReducedModel(full, lock_ids, q0) if lock_ids else full
+        reduced = urdf_model(model)
         names = [reduced.names[i] for i in range(1, reduced.njoints)]
         if names != [jt.name for jt in model.joints]:
             raise ValueError(f"Pinocchio's chain {names} differs from the model's joints")
@@ -87,6 +75,31 @@ class PinocchioRoute:
         ddq = np.linalg.solve(L.T, np.linalg.solve(L, np.r_[T, -T - TB2 - k["gear_ratio"] * tau] - c))
         n = self.arm_model.n
         return ddq[:n], ddq[n:]
+
+
+def urdf_model(model) -> "pin.Model":
+    """Pinocchio's own model of a URDF-based model's URDF, the locked joints removed at their
+    locked values (buildReducedModel): the links only, its frames the URDF's links."""
+    full = pin.buildModelFromUrdf(model.extra["urdf"])
+    q0, lock_ids = pin.neutral(full), []
+    for name, value in model.extra["locked"].items():
+        jid = full.getJointId(name)
+        lock_ids.append(jid)
+        jm = full.joints[jid]
+        if jm.nq == 2:
+            q0[jm.idx_q:jm.idx_q + 2] = [np.cos(value), np.sin(value)]
+        else:
+            q0[jm.idx_q] = value
+    return pin.buildReducedModel(full, lock_ids, q0) if lock_ids else full
+
+
+def configuration(pin_model, theta) -> np.ndarray:
+    """Pinocchio's q of joint angles theta (a continuous joint takes (cos, sin))."""
+    q = pin.neutral(pin_model)
+    for i, th in enumerate(theta):
+        jm = pin_model.joints[i + 1]
+        q[jm.idx_q:jm.idx_q + jm.nq] = [np.cos(th), np.sin(th)] if jm.nq == 2 else [th]
+    return q
 
 
 def _inertia(body, R):
