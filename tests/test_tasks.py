@@ -1,5 +1,7 @@
 """Tasks stated for a frame: a Cartesian goal in the OCP, reached at rest in a configuration the
 solver chooses, checked on the replay; every [goal] field refused by name."""
+import re
+
 import numpy as np
 import pytest
 
@@ -87,3 +89,90 @@ def test_goals_the_arm_cannot_meet_are_refused_before_solving(tool_arm):
         solve(base.replace(goal=Goal("tool", [3.0, 0.0, 0.4])), print_level=0, log=lambda m: None)
     with pytest.raises(ModelFileError, match="field 'goal'.*theta_end or a goal, not both"):
         base.replace(theta_end=[0.1, 0.2, 0.3]).check()
+
+
+# ----------------------------------------------------------------------------- obstacles
+
+@pytest.fixture(scope="module")
+def capsule_arm(tmp_path_factory):
+    d = tmp_path_factory.mktemp("capsules")
+    doc = document(rscasadi.load(REFERENCE).model)
+    doc["frames"] = {"tool": {"parent": "elbow_pitch", "xyz": [0.3, 0.0, 0.0]}}
+    doc["collision"] = {"margin": 0.01, "tip": "tool", "links": {"shoulder_pitch": 0.04, "elbow_pitch": 0.03}}
+    (d / "arm3_capsules.toml").write_text(to_toml(doc))
+    return d / "arm3_capsules.toml"
+
+
+def test_minimum_time_around_an_obstacle_keeps_its_margin(capsule_arm, tmp_path):
+    """A sphere where the tool would pass halfway on the straight line between the poses: the
+    replay, sampled between the nodes, keeps the margin (exact distances of the capsules)."""
+    from rscasadi.dynamics.collision import exact_clearance
+    from rscasadi.ocp.problem import Obstacle
+    arm = rscasadi.load(capsule_arm)
+    th0, th1 = np.array([0.0, 0.3, -0.5]), np.array([0.8, 0.9, -1.2])
+    obstacle = Obstacle("sphere", np.array(arm.frame_placement("tool")((th0 + th1) / 2)[1]).ravel(), 0.05)
+    gap = exact_clearance(arm.model, [obstacle])
+    assert float(gap((th0 + th1) / 2)) < -0.05                          # the straight line runs into it
+    sol = solve(Problem(Task(capsule_arm, "min_time", duration=1.0, theta_start=th0, theta_end=th1,
+                             obstacles=(obstacle,)), TranscriptionOptions(intervals=40)),
+                print_level=0, log=lambda m: None)
+    assert sol.success and sol["verification"]["passed"]
+    assert 0.0 <= sol["verification"]["min_clearance"] < 0.01          # it passes close, outside the margin
+    assert all(float(gap(th)) >= -1e-9 for th in sol.theta.T)         # at the nodes too, exactly
+
+
+def test_the_box_distance_is_conservative_and_close():
+    """The optimiser's smooth distance to a box never exceeds the exact one outside the box and
+    is <= 0 inside (so a positive clearance for the optimiser is a true one), and is within a
+    millimetre of the exact one outside."""
+    from rscasadi.dynamics import collision as C
+    from rscasadi.ocp.problem import Obstacle
+    box = Obstacle("box", [0.5, 0.0, -0.01], size=[1.0, 1.0, 0.02])
+    rng = np.random.default_rng(1)
+    import casadi as ca
+    p = ca.SX.sym("p", 3)
+    smooth = ca.Function("s", [p], [C._sphere_distance(p, 0.0, box)])
+    exact = ca.Function("e", [p], [C._exact_distance(p, box)])
+    for point in rng.uniform([-0.5, -1.0, -0.3], [1.5, 1.0, 0.4], (200, 3)):
+        s, e = float(smooth(point)), float(exact(point))
+        assert s <= max(e, 0.0) + 1e-12
+        if e > 0.002:
+            assert e - s < 1e-3
+
+
+@pytest.mark.parametrize("collision,field,words", [
+    ({"links": {"nowhere": 0.05}, "tip": "tool"}, "collision.links.nowhere", "no frame"),
+    ({"links": {"base": 0.05}}, "collision.links.base", "fixed base"),
+    ({"links": {"elbow_pitch": -0.05}, "tip": "tool"}, "collision.links.elbow_pitch", "> 0"),
+    ({"links": {"elbow_pitch": 0.05}}, "collision.tip", "needs the frame"),
+    ({"links": {"shoulder_pitch": 0.05}, "margin": -1.0}, "collision.margin", ">= 0"),
+])
+def test_bad_collision_geometry_is_refused_by_name(tmp_path, collision, field, words):
+    doc = document(rscasadi.load(REFERENCE).model)
+    doc["frames"] = {"tool": {"parent": "elbow_pitch", "xyz": [0.3, 0.0, 0.0]}}
+    doc["collision"] = collision
+    (tmp_path / "bad_collision.toml").write_text(to_toml(doc))
+    with pytest.raises(ModelFileError, match=rf"bad_collision.toml: field '{field}'.*{words}"):
+        rscasadi.load(tmp_path / "bad_collision.toml")
+
+
+@pytest.mark.parametrize("obstacles,field,words", [
+    ('[[obstacles]]\ncone = { center = [0, 0, 0] }\n', "obstacles[0]", "sphere = "),
+    ('[[obstacles]]\nsphere = { center = [0, 0, 0] }\n', "obstacles[0].sphere", "the keys"),
+    ('[[obstacles]]\nsphere = { center = [0, 0], radius = 0.1 }\n', "obstacles[0].sphere.center", "3 numbers"),
+    ('[[obstacles]]\nbox = { center = [0, 0, 0], size = [1, -1, 1] }\n', "obstacles[0].box.size[1]", "positive"),
+])
+def test_bad_obstacles_are_refused_by_name(tool_arm, obstacles, field, words):
+    path = tool_arm / "bad_obstacles.toml"
+    path.write_text('model = "arm3_tool.toml"\nobjective = "min_time"\ntheta_start = [0.0, 0.3, -0.5]\n'
+                    'theta_end = [0.8, 0.9, -1.2]\nduration = 1.0\n' + obstacles)
+    with pytest.raises(ModelFileError, match=rf"bad_obstacles.toml: field .{re.escape(field)}.*{words}"):
+        load_problem(path)
+
+
+def test_obstacles_need_the_arms_capsules(tool_arm):
+    from rscasadi.ocp.problem import Obstacle
+    problem = Problem(Task(tool_arm / "arm3_tool.toml", "min_time", duration=1.0, theta_start=[0.0, 0.3, -0.5],
+                           theta_end=[0.8, 0.9, -1.2], obstacles=(Obstacle("sphere", [0.3, 0.2, 0.4], 0.05),)))
+    with pytest.raises(ModelFileError, match="field 'obstacles'.*no \\[collision\\] table"):
+        solve(problem, print_level=0, log=lambda m: None)

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from rscasadi.model.checks import _body, _table, _vector
-from rscasadi.model.types import BASE, BODY_KEYS, Frame, Payload, rpy_matrix, rpy_of
+from rscasadi.model.checks import _body, _number, _table, _vector
+from rscasadi.model.types import BASE, BODY_KEYS, Capsule, Collision, Frame, Payload, rpy_matrix, rpy_of
 
 FRAME_KEYS = {"parent", "xyz", "rpy"}
 
@@ -101,3 +101,49 @@ def payload_document(model) -> dict | None:
     I = b.inertia
     return {"frame": model.payload.frame, "mass": float(b.mass), "com": [float(c) for c in b.com],
             "inertia": [float(I[0, 0]), float(I[1, 1]), float(I[2, 2]), float(I[0, 1]), float(I[0, 2]), float(I[1, 2])]}
+
+
+COLLISION_KEYS = {"margin", "tip", "links"}
+
+
+def collision(ctx, raw, joints, frames: tuple, default_tip: str | None) -> Collision | None:
+    """The [collision] table: `links` (a frame name -> the capsule radius of the link that
+    carries it), `margin` (m), `tip` (the frame where the last link's capsule ends).  A link's
+    capsule runs from its joint's origin to the next joint's origin (the last link's to `tip`)."""
+    if raw is None:
+        return None
+    t = _table(ctx, "collision", raw, COLLISION_KEYS, ("links",))
+    known = {f.name: f for f in frames}
+    n = len(joints)
+    margin = _number(ctx, "collision.margin", t.get("margin", 0.0), nonneg=True)
+    tip = t.get("tip", default_tip)
+    links = _table(ctx, "collision.links", t["links"], set(t["links"]))
+    capsules = []
+    for name, radius in links.items():
+        fld = f"collision.links.{name}"
+        if name not in known:
+            ctx.fail(fld, f"no frame {name!r} (frames: {', '.join(known)})")
+        body = known[name].body
+        if body == 0:
+            ctx.fail(fld, f"{name!r} is on the fixed base, which does not move")
+        r = _number(ctx, fld, radius, positive=True)
+        if body < n:
+            end = np.asarray(joints[body].origin_xyz, float)               # the next joint's origin
+        else:
+            if tip is None or tip not in known:
+                ctx.fail("collision.tip", f"the last link's capsule needs the frame where it ends, got {tip!r}")
+            if known[tip].body != n:
+                ctx.fail("collision.tip", f"frame {tip!r} is not on the last link")
+            end = np.asarray(known[tip].p, float)
+        if any(c.body == body for c in capsules):
+            ctx.fail(fld, "another frame of the same link has a capsule already")
+        capsules.append(Capsule(name, body, np.zeros(3), end, r))
+    return Collision(margin, tuple(capsules), tip)
+
+
+def collision_document(model) -> dict | None:
+    """The [collision] table of `model`, or None."""
+    c = model.collision
+    if c is None:
+        return None
+    return {"margin": c.margin, **({"tip": c.tip} if c.tip else {}), "links": {k.link: k.radius for k in c.capsules}}

@@ -13,7 +13,8 @@ import numpy as np
 
 from rscasadi.model.checks import (ACTUATOR_KEYS, _body, _Ctx, _number, _table, _vector,  # noqa: F401
                                    actuator, field_checker, joint_context, read_toml)
-from rscasadi.model.frames import frames_document, link_frames, payload, payload_document, user_frames
+from rscasadi.model.frames import (collision, collision_document, frames_document, link_frames, payload,
+                                   payload_document, user_frames)
 from rscasadi.model.types import (BASE, BODIES, BODY_KEYS, DEFAULT_GRAVITY, JOINT_KEYS, TOP_KEYS, ArmModel,  # noqa: F401
                                   Body, Joint, ModelFileError, inertia_problem, rpy_matrix, rpy_of)
 
@@ -44,7 +45,8 @@ def parse(data: dict, path: str = "<memory>") -> ArmModel:
         joints.append(_joint(path, idx, raw, {jt.name for jt in joints} | {BASE}))
     model = ArmModel(data["name"], gravity, tuple(joints), path)
     frames = user_frames(ctx, data.get("frames"), link_frames(model))
-    return dataclasses.replace(model, frames=frames, payload=payload(ctx, data.get("payload"), frames))
+    return dataclasses.replace(model, frames=frames, payload=payload(ctx, data.get("payload"), frames),
+                               collision=collision(ctx, data.get("collision"), model.joints, frames, None))
 
 
 def read(path) -> ArmModel:
@@ -100,6 +102,6 @@ def document(model: ArmModel) -> dict:
                        "sea": {"k1": jt.k1, "k3": jt.k3, "d": jt.d},
                        "gear_loss": {"b": jt.b, "c": jt.c, "eps": jt.eps}, **({"limits": limits} if limits else {}),
                        **{b: body_document(getattr(jt, b)) for b in BODIES}})
-    frames, held = frames_document(model), payload_document(model)
+    frames, held, shape = frames_document(model), payload_document(model), collision_document(model)
     return {"name": model.name, "gravity": [float(g) for g in model.gravity], **({"frames": frames} if frames else {}),
-            **({"payload": held} if held else {}), "joints": joints}
+            **({"payload": held} if held else {}), **({"collision": shape} if shape else {}), "joints": joints}

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
-TOP_KEYS = {"name", "gravity", "joints", "frames", "payload"}
+TOP_KEYS = {"name", "gravity", "joints", "frames", "payload", "collision"}
 JOINT_KEYS = {"name", "origin_xyz", "origin_rpy", "gear_ratio", "sea", "gear_loss", "limits",
               "link", "slow_rotor", "fast_rotor"}
 BODY_KEYS = {"mass", "com", "inertia"}
@@ -117,6 +117,25 @@ BASE = "base"          # the base frame's name in a link-list model (a URDF's is
 
 
 @dataclass(frozen=True)
+class Capsule:
+    """A link's collision geometry: the segment from `a` to `b` (in the frame of `body`) swept by
+    a sphere of `radius`."""
+    link: str
+    body: int
+    a: np.ndarray
+    b: np.ndarray
+    radius: float
+
+
+@dataclass(frozen=True)
+class Collision:
+    """The arm's collision geometry: capsules, and the clearance `margin` (m) every obstacle must keep."""
+    margin: float
+    capsules: tuple
+    tip: str
+
+
+@dataclass(frozen=True)
 class Payload:
     """A rigid body held at a frame (a tool, a load): its inertial parameters in that frame."""
     frame: str
@@ -134,6 +153,7 @@ class ArmModel:
     extra: dict = field(default_factory=dict, compare=False)
     frames: tuple = field(default=(), compare=False)
     payload: Payload | None = None
+    collision: Collision | None = field(default=None, compare=False)
 
     def frame(self, name: str) -> Frame:
         """The frame called `name`, or a KeyError listing the frames there are."""

@@ -15,10 +15,10 @@ from scipy.spatial.transform import Rotation
 
 from rscasadi.spatial import spatial_inertia, transform_inertia
 from rscasadi.model.checks import ACTUATOR_KEYS, _Ctx, _number, _table, _vector, actuator, joint_context
-from rscasadi.model.frames import payload, user_frames
+from rscasadi.model.frames import collision, payload, user_frames
 from rscasadi.model.types import DEFAULT_GRAVITY, ArmModel, Body, Frame, Joint, ModelFileError, inertia_problem, rpy_of
 
-URDF_TOP_KEYS = {"name", "urdf", "tip", "locked", "gravity", "joints", "frames", "payload"}
+URDF_TOP_KEYS = {"name", "urdf", "tip", "locked", "gravity", "joints", "frames", "payload", "collision"}
 MOVING = ("revolute", "continuous")
 
 
@@ -172,8 +172,10 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
     frames = tuple(Frame(name, b, axes[b].T @ T[:3, :3], axes[b].T @ T[:3, 3])
                    for b, body in enumerate(bodies) for name, T in zip(body["links"], body["T_links"]))
     frames = user_frames(ctx, data.get("frames"), frames)
+    tip_link = data.get("tip") or next((lk for lk in reversed(bodies[-1]["links"])), None)
     return ArmModel(data["name"], gravity, tuple(joints), path, extra, frames=frames,
-                    payload=payload(ctx, data.get("payload"), frames))
+                    payload=payload(ctx, data.get("payload"), frames),
+                    collision=collision(ctx, data.get("collision"), joints, frames, tip_link))
 
 
 def _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuators, tip, ctx):

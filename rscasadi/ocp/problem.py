@@ -75,10 +75,10 @@ INTERFACES = ("direct", "casadi")
 BARRIERS = ("monotone",)                     # fatrop's barrier rule (docs/design/condensing.md)
 HESSIANS = ("exact", "limited-memory")
 TOP = {"model", "objective", "theta_start", "theta_end", "duration", "max_duration", "trajectory",
-       "effort_weight", "transcription", "verification", "solver", "refinement", "design", "goal"}
+       "effort_weight", "transcription", "verification", "solver", "refinement", "design", "goal", "obstacles"}
 GOAL_KEYS = {"frame", "position", "rpy", "tolerance"}
 TABLES = {"transcription": {"method", "degree", "intervals", "dynamics", "compiled", "condense"},
-          "verification": {"final_angle_tol", "final_speed_tol", "tracking_tol", "limit_tol"},
+          "verification": {"final_angle_tol", "final_speed_tol", "tracking_tol", "limit_tol", "clearance_tol"},
           "refinement": {"rounds"},
           "solver": {"name", "hessian", "interface", "threads", "barrier"}}
 # problem fields a sweep may vary without rebuilding the NLP (they are its parameters or bounds)
@@ -102,6 +102,20 @@ class Goal:
 
 
 @dataclass
+class Obstacle:
+    """A sphere (`center`, `radius`) or an axis-aligned box (`center`, `size`), in the world
+    frame (m); the arm's capsules ([collision] of the model file) must keep their margin from it."""
+    kind: str
+    center: np.ndarray
+    radius: float = 0.0
+    size: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.center = np.asarray(self.center, float).ravel()
+        self.size = None if self.size is None else np.asarray(self.size, float).ravel()
+
+
+@dataclass
 class Task:
     """What the arm must do.  `model`: the model file; `objective`: min_time | min_effort |
     tracking; `duration` (s): fixed, or min_time's first guess; the rest poses `theta_start`,
@@ -119,6 +133,7 @@ class Task:
     design: dict = field(default_factory=dict)
     parameters: dict = field(default_factory=dict)
     goal: Goal | None = None
+    obstacles: tuple = ()
 
     def __post_init__(self):
         self.model = Path(self.model)
@@ -162,6 +177,7 @@ class Verification:
     final_speed_tol: float = 1e-3
     tracking_tol: float = 1e-3
     limit_tol: float = 1e-3
+    clearance_tol: float = 1e-4                     # m: how far into an obstacle's margin the replay may go
     rounds: int = 4
 
 
@@ -223,6 +239,16 @@ class Problem:
                          + (" (or a [goal])" if key == "theta_end" else ""))
                 if np.size(getattr(t, key)) == 0 or not np.all(np.isfinite(getattr(t, key))):
                     fail(key, f"expected a list of finite numbers, got {getattr(t, key)!r}")
+        for i, ob in enumerate(t.obstacles):
+            fld = f"obstacles[{i}].{ob.kind}"
+            if ob.kind not in ("sphere", "box"):
+                fail(f"obstacles[{i}]", f"expected a sphere or a box, got {ob.kind!r}")
+            if ob.center.shape != (3,) or not np.all(np.isfinite(ob.center)):
+                fail(f"{fld}.center", f"expected 3 finite numbers, got {ob.center!r}")
+            if ob.kind == "sphere":
+                _number(fail, f"{fld}.radius", ob.radius, True)
+            elif ob.size is None or ob.size.shape != (3,) or not np.all(np.isfinite(ob.size)) or np.any(ob.size <= 0):
+                fail(f"{fld}.size", f"expected 3 positive numbers, got {ob.size!r}")
         if t.goal is not None:
             g = t.goal
             if g.position.shape != (3,) or not np.all(np.isfinite(g.position)):
@@ -247,7 +273,7 @@ class Problem:
         for fld in ("compiled", "condense"):
             if not isinstance(getattr(tr, fld), bool):
                 fail(f"transcription.{fld}", f"must be true or false, got {getattr(tr, fld)!r}")
-        for fld in ("final_angle_tol", "final_speed_tol", "tracking_tol", "limit_tol"):
+        for fld in ("final_angle_tol", "final_speed_tol", "tracking_tol", "limit_tol", "clearance_tol"):
             _number(fail, f"verification.{fld}", getattr(v, fld), True)
         if s.hessian != "exact" and s.name == "fatrop":
             fail("solver.hessian", "fatrop needs the exact Hessian; use name = \"ipopt\" for limited-memory")
@@ -301,6 +327,8 @@ def load_problem(path) -> Problem:
         task["effort_weight"] = _number(fail, "effort_weight", d["effort_weight"], False)
     if "goal" in d:
         task["goal"] = _goal(fail, table("goal"))
+    if "obstacles" in d:
+        task["obstacles"] = _obstacles(fail, d["obstacles"])
     design = {}
     for name, bounds in table("design").items():
         if (not isinstance(bounds, list) or len(bounds) != 2
@@ -345,10 +373,38 @@ def _goal(fail, t: dict) -> Goal:
                 **{f"{k}_tol": _number(fail, f"goal.tolerance.{k}", v, True) for k, v in tol.items()})
 
 
+def _obstacles(fail, raw) -> tuple:
+    """[[obstacles]]: each a sphere = { center, radius } or a box = { center, size }."""
+    if not isinstance(raw, list):
+        fail("obstacles", "expected [[obstacles]] tables")
+    out = []
+    for i, entry in enumerate(raw):
+        if not isinstance(entry, dict) or len(entry) != 1 or next(iter(entry)) not in ("sphere", "box"):
+            fail(f"obstacles[{i}]", f"expected sphere = {{ center, radius }} or box = {{ center, size }}, got {entry!r}")
+        kind, t = next(iter(entry.items()))
+        need = {"center", "radius"} if kind == "sphere" else {"center", "size"}
+        if not isinstance(t, dict) or set(t) != need:
+            fail(f"obstacles[{i}].{kind}", f"expected the keys {', '.join(sorted(need))}, got {t!r}")
+        vec = {}
+        for key in ("center", "size"):
+            if key in t:
+                v = t[key]
+                if not isinstance(v, list) or len(v) != 3:
+                    fail(f"obstacles[{i}].{kind}.{key}", f"expected a list of 3 numbers, got {v!r}")
+                vec[key] = np.array([_number(fail, f"obstacles[{i}].{kind}.{key}[{k}]", x, key == "size")
+                                     for k, x in enumerate(v)])
+        radius = _number(fail, f"obstacles[{i}].{kind}.radius", t["radius"], True) if kind == "sphere" else 0.0
+        out.append(Obstacle(kind, vec["center"], radius, vec.get("size")))
+    return tuple(out)
+
+
 def check_against_model(problem: Problem, model):
     """The problem's poses and parameter names fit the arm (errors name the problem file)."""
     from rscasadi.model.parameters import check_names
     t = problem.task
+    if t.obstacles and model.collision is None:
+        raise ModelFileError(f"{problem.path}: field 'obstacles': {model.path} has no [collision] table "
+                             "(the capsules of the links that must keep clear)")
     if t.goal is not None and t.goal.frame not in [f.name for f in model.frames]:
         raise ModelFileError(f"{problem.path}: field 'goal.frame': {model.path} has no frame {t.goal.frame!r} "
                              f"(frames: {', '.join(f.name for f in model.frames)})")

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from rscasadi.dynamics.arm import Arm
+from rscasadi.dynamics.collision import exact_clearance
 from rscasadi.files import write_json
 from rscasadi.model.modelfile import read
 from rscasadi.model.parameters import with_values
@@ -89,6 +90,12 @@ def verify(solution: dict, substeps: int = 20, tol: float = 1e-10) -> dict:
         if g["R"] is not None:
             c = (np.trace(np.asarray(g["R"]).T @ R) - 1) / 2
             report["goal_angle_error"] = float(np.arccos(np.clip(c, -1.0, 1.0)))
+    if solution.get("obstacles"):                                      # clear of them, between the nodes too
+        from rscasadi.ocp.problem import Obstacle
+        obstacles = [Obstacle(o["kind"], o["center"], o["radius"], o["size"]) for o in solution["obstacles"]]
+        gap = np.array(exact_clearance(arm.model, obstacles).map(sim["theta"].shape[1])(sim["theta"])).ravel()
+        report["min_clearance"] = float(gap.min())
+        report["interval_clearance"] = gap[1:].reshape(len(t) - 1, substeps).min(axis=1).tolist()
     report["max_collocation_deviation"] = float(np.max(np.abs(sim["theta"][:, ::substeps] - np.asarray(solution["theta"]))))
     report["interval_violation"] = per_interval.tolist()
     return report

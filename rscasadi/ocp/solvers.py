@@ -87,4 +87,4 @@ def _stand_in(nlp: dict, pieces: list) -> dict:
     stage structure), and nothing to differentiate."""
     x, P, n_g = nlp["x"], nlp["p"], nlp["g"].numel()
     pattern = assembled(pieces, x, ca.MX.sym("lam_f"), ca.MX.sym("lam_g", n_g), n_g)["jac_g"].sparsity()
-    return {"x": x, "p": P, "f": ca.sumsqr(x) + ca.sum1(P), "g": ca.mtimes(ca.DM(pattern, 1.0), x)}
+    return {"x": x, "p": P, "f": ca.sumsqr(x) + ca.sum1(P), "g": ca.densify(ca.mtimes(ca.DM(pattern, 1.0), x))}

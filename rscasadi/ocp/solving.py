@@ -140,6 +140,8 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
             "design": design, "parameters": dict(problem.task.parameters), "target_state": target,
             "trajectory": None if problem.task.trajectory is None else str(problem.task.trajectory),
             "theta_reference": None if ref is None else _reference(problem, t).tolist(),
+            "obstacles": [{"kind": o.kind, "center": o.center.tolist(), "radius": o.radius,
+                           "size": None if o.size is None else o.size.tolist()} for o in problem.task.obstacles],
             "goal": None if goal is None else {"frame": goal.frame, "position": goal.position.tolist(),
                                                "R": None if goal.R is None else goal.R.tolist(),
                                                "position_tol": goal.position_tol, "angle_tol": goal.angle_tol}})
@@ -188,7 +190,10 @@ def checks(problem: Problem, report: dict) -> list:
             "tracking_error": problem.verification.tracking_tol, "max_limit_violation": problem.verification.limit_tol}
     if problem.task.goal is not None:
         tols.update(goal_position_error=problem.task.goal.position_tol, goal_angle_error=problem.task.goal.angle_tol)
-    return [f"{k} {report[k]:.2e} > {tol:g}" for k, tol in tols.items() if k in report and report[k] > tol]
+    failed = [f"{k} {report[k]:.2e} > {tol:g}" for k, tol in tols.items() if k in report and report[k] > tol]
+    if report.get("min_clearance", np.inf) < -problem.verification.clearance_tol:
+        failed.append(f"min_clearance {report['min_clearance']:.2e} m < -{problem.verification.clearance_tol:g}")
+    return failed
 
 
 def local_errors(problem: Problem, solution: dict) -> np.ndarray:
@@ -215,6 +220,8 @@ def refined_mesh(problem: Problem, solution: dict, report: dict) -> np.ndarray:
     split = np.zeros(len(w), bool)
     split[order[:max(count, 1)]] = True
     split |= np.asarray(report["interval_violation"]) > problem.verification.limit_tol
+    if "interval_clearance" in report:
+        split |= np.asarray(report["interval_clearance"]) < -problem.verification.clearance_tol
     return np.concatenate([[wk / 2, wk / 2] if s else [wk] for wk, s in zip(w, split)])
 
 
@@ -264,6 +271,7 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
         log(f"refining: {sol['intervals']} -> {len(w)} intervals where the local error is largest")
     report["passed"] = not failed
     report.pop("interval_violation")
+    report.pop("interval_clearance", None)
     sol["verification"], sol["rounds"] = report, rounds
     sol["solver_success"], sol["success"] = sol["success"], bool(sol["success"] and not failed)
     if nominal is not None:

@@ -38,6 +38,7 @@ import casadi as ca
 import numpy as np
 
 from rscasadi.dynamics.arm import Arm
+from rscasadi.dynamics.collision import clearances
 from rscasadi.model.parameters import gear_ratios
 from rscasadi.ocp.assembly import Calls, Piece, chain_rule_derivatives, constraints_and_objective
 from rscasadi.ocp.condensing import Condensed, condense
@@ -75,6 +76,9 @@ class Transcription:
         self.dynamics = "implicit" if self.condensed else problem.transcription.dynamics
         self.tracking = problem.task.objective == "tracking"
         self.goal = problem.task.goal
+        th = ca.SX.sym("theta", n)
+        self.clear = (ca.Function("clearance", [th], [clearances(arm.model, problem.task.obstacles, th)])
+                      if problem.task.obstacles else None)
         self.acc_scale = self._acceleration_scale()
         self.calls = None                    # a Calls recorder while the stage's derivatives are built
         self.kernel = None                   # the condensing kernel (condensing.Condensed), if condensed
@@ -131,7 +135,8 @@ class Transcription:
         else:
             rest_lo = np.r_[np.zeros(3 * n + 3), [0.0, 0.0, 0.0, 1.0] if self.goal.R is not None else []]
             rest_hi = np.r_[np.zeros(3 * n + 3), [0.0, 0.0, 0.0, 3.0] if self.goal.R is not None else []]
-        return np.r_[rest_lo, -psi_max, -dphi_max], np.r_[rest_hi, psi_max, dphi_max]
+        c = self.clear.size1_out(0) if self.clear is not None else 0
+        return np.r_[rest_lo, -psi_max, -dphi_max, np.zeros(c)], np.r_[rest_hi, psi_max, dphi_max, np.full(c, np.inf)]
 
     def _pf(self, design, p_fixed):
         """The free parameters' values, in the order of Arm(free=design + fixed); None if none."""
@@ -191,6 +196,8 @@ class Transcription:
         limits = [q[n:] - q[:n], self._geared_speeds(v[n:], pf)]               # psi (geared dphi) at x_k
         for j in self.interior:                                                 # theta, psi, dphi inside
             limits += [Q[j][:n], Q[j][n:] - Q[j][:n], speed * V[j][n:]]
+        if self.clear is not None:                                              # clear of the obstacles
+            limits += [self.clear(q[:n])] + [self.clear(Q[j][:n]) for j in self.interior]
         return [ca.vertcat(x_end, z), ca.vertcat(*dynamics, *limits), h * ca.sumsqr(tau)]
 
     # -- the NLP ----------------------------------------------------------------------------
@@ -249,6 +256,7 @@ class Transcription:
             rest = [] if self.tracking else [self.rest_residual(x, None if goal_end else theta, pf)]
             rest += self.goal_rows(x[:n], theta) if goal_end else []
             rows = rest + [x[n:2 * n] - x[:n], self._geared_speeds(x[3 * n:4 * n], pf)]
+            rows += [self.clear(x[:n])] if self.clear is not None else []
             f = ca.SX(0)
         else:
             rows = [self.rest_residual(x, theta, pf)]
@@ -314,6 +322,9 @@ class Transcription:
         eq = np.zeros(self.nx + (0 if self.condensed else 2 * n * self.m))
         lo = [eq, -psi, -dphi[self.geared]] + [np.r_[lo_th, -psi, -dphi]] * len(self.interior)
         hi = [eq, psi, dphi[self.geared]] + [np.r_[hi_th, psi, dphi]] * len(self.interior)
+        if self.clear is not None:                                     # clearance >= 0 at x_k and inside
+            c = self.clear.size1_out(0) * (1 + len(self.interior))
+            lo, hi = lo + [np.zeros(c)], hi + [np.full(c, np.inf)]
         return np.concatenate(lo), np.concatenate(hi)
 
     def structure(self) -> dict:

@@ -1,0 +1,83 @@
+"""Clearance between the arm's capsules and obstacles (spheres, axis-aligned boxes).
+
+For the optimiser, smooth and conservative: each capsule is covered by spheres centred along
+its segment, spaced s <= r and of radius sqrt(r^2 + (s/2)^2) (the union contains the capsule);
+a sphere's distance to an obstacle sphere is |p - c| - R, to a box the norm of softplus(|p - c|
+- h) per axis less its largest excess over max(., 0): never more than the true distance outside
+the box and <= 0 inside, so a clearance the optimiser sees as positive is a true one.
+For the verification, exact up to sampling: the segment sampled every r / 8, each point's
+exact distance to the obstacle less r.
+"""
+from __future__ import annotations
+
+import math
+
+import casadi as ca
+import numpy as np
+
+from rscasadi.dynamics.kinematics import body_poses
+
+BETA_PER_M = 2000.0          # softplus sharpness (1/m): it overestimates max(x, 0) by at most 0.35 mm
+
+
+def _softplus(x, beta):
+    return ca.log1p(ca.exp(-ca.fabs(beta * x))) / beta + ca.fmax(x, 0)
+
+
+def covering_spheres(capsule) -> tuple[np.ndarray, float]:
+    """Centres (k x 3, in the capsule's body frame) and radius of spheres whose union holds it."""
+    a, b, r = np.asarray(capsule.a, float), np.asarray(capsule.b, float), capsule.radius
+    k = max(2, math.ceil(np.linalg.norm(b - a) / r) + 1)
+    s = np.linalg.norm(b - a) / (k - 1)
+    return np.linspace(a, b, k), math.sqrt(r ** 2 + (s / 2) ** 2)
+
+
+def _sphere_distance(p, rho, obstacle):
+    """Smooth, conservative distance between a sphere (centre p, radius rho) and an obstacle."""
+    c = ca.DM(obstacle.center)
+    if obstacle.kind == "sphere":
+        return ca.norm_2(p - c) - obstacle.radius - rho
+    h, beta = ca.DM(np.asarray(obstacle.size, float) / 2), BETA_PER_M
+    q = ca.sqrt((p - c) ** 2 + 1e-12) - h                                 # |p - c| - h, smooth at the faces
+    return ca.norm_2(_softplus(q, beta)) - math.sqrt(3) * (math.log(2) / beta + 1e-6) - rho
+
+
+def clearances(model, obstacles, theta):
+    """Every covering sphere's smooth clearance to every obstacle, less the margin (>= 0: clear)."""
+    if model.collision is None or not obstacles:
+        return ca.DM.zeros(0)
+    poses = body_poses(model, theta)
+    rows = []
+    for capsule in model.collision.capsules:
+        R, o = poses[capsule.body]
+        centres, rho = covering_spheres(capsule)
+        for centre in centres:
+            p = o + R @ ca.DM(centre)
+            rows += [_sphere_distance(p, rho, obstacle) - model.collision.margin for obstacle in obstacles]
+    return ca.vertcat(*rows)
+
+
+def _exact_distance(point, obstacle):
+    """Exact signed distance of a point to an obstacle (fmax and fmin: for evaluation, not for
+    the optimiser)."""
+    c = ca.DM(obstacle.center)
+    if obstacle.kind == "sphere":
+        return ca.norm_2(point - c) - obstacle.radius
+    q = ca.fabs(point - c) - ca.DM(np.asarray(obstacle.size, float) / 2)
+    return ca.norm_2(ca.fmax(q, 0)) + ca.fmin(ca.mmax(q), 0)
+
+
+def exact_clearance(model, obstacles) -> ca.Function:
+    """theta -> the smallest distance between the capsules and the obstacles, less the margin
+    (each segment sampled every r / 8): what the verification checks at every replay sample."""
+    theta = ca.SX.sym("theta", model.n)
+    if model.collision is None or not obstacles:
+        return ca.Function("exact_clearance", [theta], [ca.SX(np.inf)])
+    poses = body_poses(model, theta)
+    gaps = []
+    for capsule in model.collision.capsules:
+        R, o = poses[capsule.body]
+        k = max(2, math.ceil(8 * np.linalg.norm(np.asarray(capsule.b) - capsule.a) / capsule.radius) + 1)
+        for point in np.linspace(capsule.a, capsule.b, k):
+            gaps += [_exact_distance(o + R @ ca.DM(point), obstacle) - capsule.radius for obstacle in obstacles]
+    return ca.Function("exact_clearance", [theta], [ca.mmin(ca.vertcat(*gaps)) - model.collision.margin])
