@@ -176,3 +176,36 @@ def test_obstacles_need_the_arms_capsules(tool_arm):
                            theta_end=[0.8, 0.9, -1.2], obstacles=(Obstacle("sphere", [0.3, 0.2, 0.4], 0.05),)))
     with pytest.raises(ModelFileError, match="field 'obstacles'.*no \\[collision\\] table"):
         solve(problem, print_level=0, log=lambda m: None)
+
+
+# ----------------------------------------------------------------------------- payload in the task
+
+def test_carrying_a_payload_costs_effort_and_is_verified_with_it(tool_arm, tmp_path):
+    """The same minimum-effort task with 1.5 kg at the tool (the problem sets it, the model has
+    none): more effort, and the replay (which must use the payload) verifies it."""
+    base = ('model = "arm3_tool.toml"\nobjective = "min_effort"\ntheta_start = [0.0, 0.3, -0.5]\n'
+            'theta_end = [0.8, 0.9, -1.2]\nduration = 1.5\n[transcription]\nintervals = 40\n')
+    (tool_arm / "bare.toml").write_text(base)
+    (tool_arm / "laden.toml").write_text(base.replace("duration = 1.5\n", 'duration = 1.5\npayload = { frame = "tool", '
+                                                      'mass = 1.5, com = [0.0, 0.0, 0.02], inertia = [1e-3, 1e-3, '
+                                                      '1e-3, 0.0, 0.0, 0.0] }\n'))
+    bare, laden = (run(tool_arm / f"{k}.toml", tmp_path / k, print_level=0, log=lambda m: None) for k in ("bare", "laden"))
+    assert bare.success and laden.success
+    assert laden.objective > 1.2 * bare.objective
+    from rscasadi.ocp import Solution, verify
+    again = Solution.from_json(tmp_path / "laden" / "solution.json")
+    assert again["payload"]["mass"] == 1.5 and verify(again)["final_angle_error"] < 1e-4
+    unladen = dict(again, payload=None)                                # the same torques without it miss
+    assert verify(unladen)["final_angle_error"] > 1e-3
+
+
+@pytest.mark.parametrize("payload,field", [('{ mass = 1.0 }', "payload"),
+                                           ('{ frame = "base", mass = 1.0, com = [0, 0, 0], inertia = [1, 1, 1, 0, 0, 0] }',
+                                            "payload.frame"),
+                                           ('{ colour = 1 }', "payload")])
+def test_a_bad_task_payload_is_refused_by_name(tool_arm, payload, field):
+    path = tool_arm / "bad_payload_task.toml"
+    path.write_text('model = "arm3_tool.toml"\nobjective = "min_time"\ntheta_start = [0.0, 0.3, -0.5]\n'
+                    f'theta_end = [0.8, 0.9, -1.2]\nduration = 1.0\npayload = {payload}\n')
+    with pytest.raises(ModelFileError, match=rf"bad_payload_task.toml: field '{re.escape(field)}'"):
+        solve(load_problem(path), print_level=0, log=lambda m: None)

@@ -147,3 +147,32 @@ def collision_document(model) -> dict | None:
     if c is None:
         return None
     return {"margin": c.margin, **({"tip": c.tip} if c.tip else {}), "links": {k.link: k.radius for k in c.capsules}}
+
+
+def holding(model, frame=None, mass=None, com=None, inertia=None):
+    """`model` with its payload set or changed: fields not given keep the model's payload's (a
+    model without one needs them all); `inertia` as in a model file (Ixx, Iyy, Izz, Ixy, Ixz,
+    Iyz, about the com).  A ValueError names the field."""
+    import dataclasses
+
+    from rscasadi.model.types import Body, inertia_problem
+    old = model.payload
+    if old is None and None in (frame, mass, com, inertia):
+        raise ValueError(f"payload: {model.path} holds none, so give frame, mass, com and inertia")
+    frame = old.frame if frame is None else frame
+    known = {f.name: f for f in model.frames}
+    if frame not in known or known[frame].body == 0:
+        raise ValueError(f"payload.frame: no frame {frame!r} on a moving link of {model.path}")
+    mass = old.body.mass if mass is None else float(mass)
+    if not np.isfinite(mass) or mass <= 0:
+        raise ValueError(f"payload.mass: must be > 0, got {mass!r}")
+    com = old.body.com if com is None else np.asarray(com, float)
+    if inertia is None:
+        I = old.body.inertia
+    else:
+        ixx, iyy, izz, ixy, ixz, iyz = (float(v) for v in inertia)
+        I = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+    problem = inertia_problem(I)
+    if com.shape != (3,) or not np.all(np.isfinite(com)) or problem:
+        raise ValueError(f"payload: {'com is not 3 finite numbers' if not problem else 'inertia ' + problem}")
+    return dataclasses.replace(model, payload=Payload(frame, Body(mass, com, I)))

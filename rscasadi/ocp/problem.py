@@ -75,7 +75,9 @@ INTERFACES = ("direct", "casadi")
 BARRIERS = ("monotone",)                     # fatrop's barrier rule (docs/design/condensing.md)
 HESSIANS = ("exact", "limited-memory")
 TOP = {"model", "objective", "theta_start", "theta_end", "duration", "max_duration", "trajectory",
-       "effort_weight", "transcription", "verification", "solver", "refinement", "design", "goal", "obstacles"}
+       "effort_weight", "transcription", "verification", "solver", "refinement", "design", "goal", "obstacles",
+       "payload"}
+PAYLOAD_KEYS = {"frame", "mass", "com", "inertia"}
 GOAL_KEYS = {"frame", "position", "rpy", "tolerance"}
 TABLES = {"transcription": {"method", "degree", "intervals", "dynamics", "compiled", "condense"},
           "verification": {"final_angle_tol", "final_speed_tol", "tracking_tol", "limit_tol", "clearance_tol"},
@@ -134,6 +136,7 @@ class Task:
     parameters: dict = field(default_factory=dict)
     goal: Goal | None = None
     obstacles: tuple = ()
+    payload: dict | None = None                     # frame, mass, com, inertia: the model's payload set or changed
 
     def __post_init__(self):
         self.model = Path(self.model)
@@ -329,6 +332,11 @@ def load_problem(path) -> Problem:
         task["goal"] = _goal(fail, table("goal"))
     if "obstacles" in d:
         task["obstacles"] = _obstacles(fail, d["obstacles"])
+    if "payload" in d:
+        held = d["payload"]
+        if not isinstance(held, dict) or not held or set(held) - PAYLOAD_KEYS:
+            fail("payload", f"expected a table of {', '.join(sorted(PAYLOAD_KEYS))}, got {held!r}")
+        task["payload"] = dict(held)
     design = {}
     for name, bounds in table("design").items():
         if (not isinstance(bounds, list) or len(bounds) != 2
@@ -402,6 +410,13 @@ def check_against_model(problem: Problem, model):
     """The problem's poses and parameter names fit the arm (errors name the problem file)."""
     from rscasadi.model.parameters import check_names
     t = problem.task
+    if t.payload is not None:
+        from rscasadi.model.frames import holding
+        try:
+            holding(model, **t.payload)
+        except (ValueError, TypeError) as exc:
+            raise ModelFileError(f"{problem.path}: field '{str(exc).split(':')[0]}': "
+                                 f"{str(exc).split(':', 1)[-1].strip()}") from None
     if t.obstacles and model.collision is None:
         raise ModelFileError(f"{problem.path}: field 'obstacles': {model.path} has no [collision] table "
                              "(the capsules of the links that must keep clear)")

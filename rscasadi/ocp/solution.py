@@ -14,6 +14,7 @@ import numpy as np
 from rscasadi.dynamics.arm import Arm
 from rscasadi.dynamics.collision import exact_clearance
 from rscasadi.files import write_json
+from rscasadi.model.frames import holding
 from rscasadi.model.modelfile import read
 from rscasadi.model.parameters import with_values
 from rscasadi.sim.simulation import simulate_held
@@ -63,8 +64,12 @@ class Solution(dict):
 
 
 def solution_arm(solution: dict) -> Arm:
-    """The arm the solution is for: the model file with its swept and designed parameters."""
-    return Arm(with_values(read(solution["model"]), {**solution.get("parameters", {}), **solution.get("design", {})}))
+    """The arm the solution is for: the model file with the task's payload and its swept and
+    designed parameters."""
+    model = read(solution["model"])
+    if solution.get("payload"):
+        model = holding(model, **solution["payload"])
+    return Arm(with_values(model, {**solution.get("parameters", {}), **solution.get("design", {})}))
 
 
 def verify(solution: dict, substeps: int = 20, tol: float = 1e-10) -> dict:
