@@ -99,6 +99,20 @@ def cmd_mpc(args):
         print(f"wrote {out / 'closed_loop.json'} and closed_loop.png")
 
 
+def cmd_view(args):
+    from rscasadi.view import scene_of, write_gif, write_html
+    for target in [args.out] + ([args.gif] if args.gif else []):
+        parent = Path(target).resolve().parent
+        if not parent.is_dir():
+            raise OutputError(f"{target}: the directory {parent} does not exist")
+    scene = scene_of(args.result, model=args.model)
+    write_html(scene, Path(args.out))
+    print(f"wrote {args.out} ({len(scene.times)} frames over {scene.times[-1]:.3f} s)")
+    if args.gif:
+        write_gif(scene, Path(args.gif))
+        print(f"wrote {args.gif}")
+
+
 def cmd_reproduce(args):
     from rscasadi.studies.reproduce import run
     summary = run(args.out, log=lambda msg: print(msg, flush=True))
@@ -212,6 +226,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--only", choices=["payload"], default=None,
                    help="identify only the model file's [payload], everything else held at the file's values")
     p.set_defaults(func=cmd_identify)
+    p = sub.add_parser("view", help="a solution.json or a model file as a 3D animation in one HTML file (offline)")
+    p.add_argument("result", help="a solution.json (rscasadi ocp) or a model file")
+    p.add_argument("--out", required=True, help="the HTML file to write (open it as view.html#t=0.35 for 0.35 s)")
+    p.add_argument("--gif", default=None, help="also an animated GIF, for documents")
+    p.add_argument("--model", default=None, help="draw this model file instead of the solution's")
+    p.set_defaults(func=cmd_view)
     p = sub.add_parser("reproduce", help="the main job: everything the project reproduces, into --out")
     p.add_argument("--out", default="results")
     p.set_defaults(func=cmd_reproduce)

@@ -58,6 +58,11 @@ def run(out, log=print) -> list:
             sol = run_ocp(PROBLEMS / f"ocp_{name}.toml", out / "ocp" / name, log=log, print_level=0)
             if not sol["success"]:
                 raise PartFailed(f"not solved and verified ({sol['status']})")
+            if name == "min_effort":                      # the motion to watch: view.html, and a GIF
+                from rscasadi.view import scene_of, write_gif, write_html
+                scene = scene_of(out / "ocp" / name / "solution.json")
+                write_html(scene, out / "ocp" / name / "view.html")
+                write_gif(scene, out / "ocp" / name / "view.gif")
             return f"{out / 'ocp' / name}/: objective {sol['objective']:.6g}, verified"
         return work
 

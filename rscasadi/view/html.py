@@ -1,0 +1,156 @@
+"""A scene as one self-contained HTML file, drawn by MeshCat's viewer (three.js; its script is
+inlined from the meshcat package, so the page opens offline, without a server).
+
+The scene is sent to the viewer as MeshCat's own commands (set_object, set_transform,
+set_animation, msgpack-encoded, as meshcat's server would send them); its GUI has the
+animation's play button and time slider.  `view.html#t=0.35` opens the arm at 0.35 s.
+"""
+from __future__ import annotations
+
+import base64
+import json
+from pathlib import Path
+
+import numpy as np
+
+ARM = ("meshcat", "arm")
+COLOURS = {"link": 0xB0B8C8, "rotor": 0x3060C0, "path": 0x20A020, "goal": 0x20C040, "obstacle": 0xC07030,
+           "payload": 0xD0A020, "broken": 0xE02020}
+
+
+def _path(*parts):
+    from meshcat.path import Path as MeshcatPath
+    return MeshcatPath(ARM + tuple(parts))
+
+
+def _packed(command) -> str:
+    import umsgpack
+    return base64.b64encode(umsgpack.packb(command.lower())).decode()
+
+
+def _align_y(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """4x4 placing MeshCat's cylinder (its axis y, centred) on the segment a-b."""
+    d = b - a
+    length = np.linalg.norm(d)
+    y = d / length if length > 1e-12 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(y, [0.0, 0.0, 1.0])
+    x = x / np.linalg.norm(x) if np.linalg.norm(x) > 1e-9 else np.array([1.0, 0.0, 0.0])
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([x, y, np.cross(x, y)])
+    T[:3, 3] = (a + b) / 2
+    return T
+
+
+def commands(scene) -> list:
+    """MeshCat commands that build and animate the scene."""
+    import meshcat.geometry as g
+    from meshcat.animation import Animation
+    from meshcat.commands import SetAnimation, SetObject, SetTransform
+    out = []
+
+    def put(geometry, colour, path, T=None, opacity=1.0):
+        material = g.MeshLambertMaterial(color=colour, opacity=opacity, transparent=opacity < 1.0)
+        out.append(SetObject(geometry, material, path))
+        if T is not None:
+            out.append(SetTransform(T, path))
+
+    for body, capsules in scene.links.items():
+        for i, (a, b, r) in enumerate(capsules):
+            length = float(np.linalg.norm(b - a))
+            put(g.Cylinder(max(length, 1e-4), r), COLOURS["link"], _path(f"body{body}", f"rod{i}"), _align_y(a, b))
+            for k, end in enumerate((a, b)):
+                T = np.eye(4)
+                T[:3, 3] = end
+                put(g.Sphere(r), COLOURS["link"], _path(f"body{body}", f"rod{i}", f"end{k}"),
+                    np.linalg.inv(_align_y(a, b)) @ T)
+    for j, (parent, T) in enumerate(scene.rotors):
+        axis = T @ np.array([[0.0, 0.0, -0.03, 1.0], [0.0, 0.0, 0.03, 1.0]]).T
+        put(g.Cylinder(0.06, 0.045), COLOURS["rotor"], _path(f"body{parent}", f"rotor{j}"),
+            _align_y(axis[:3, 0], axis[:3, 1]), opacity=0.8)
+    if scene.payload is not None:
+        body, T, size = scene.payload
+        put(g.Box([size, size, size]), COLOURS["payload"], _path(f"body{body}", "payload"), T)
+    if scene.path is not None and len(scene.path) > 1:
+        out.append(SetObject(g.Line(g.PointsGeometry(scene.path.T), g.LineBasicMaterial(color=COLOURS["path"])),
+                             path=_path("world", "tool_path")))
+    if scene.goal is not None:
+        T = np.eye(4)
+        T[:3, 3] = scene.goal
+        put(g.Sphere(0.015), COLOURS["goal"], _path("world", "goal"), T)
+    for i, ob in enumerate(scene.obstacles):
+        T = np.eye(4)
+        T[:3, 3] = ob["center"]
+        shape = g.Sphere(ob["radius"]) if ob["kind"] == "sphere" else g.Box(ob["size"])
+        put(shape, COLOURS["obstacle"], _path("world", f"obstacle{i}"), T, opacity=0.6)
+    # a red marker at the base, shown (scaled up) in the frames where a limit or clearance is broken
+    put(g.Sphere(0.03), COLOURS["broken"], _path("world", "broken"), np.diag([1e-6, 1e-6, 1e-6, 1.0]))
+    for body in range(scene.poses.shape[1]):
+        out.append(SetTransform(scene.poses[0, body], _path(f"body{body}")))
+    if len(scene.times) > 1:
+        anim = Animation(default_framerate=1.0 / (scene.times[1] - scene.times[0]))
+        frames = _Frames(_path())
+        for k in range(len(scene.times)):
+            frame = anim.at_frame(frames, k)
+            for body in range(scene.poses.shape[1]):
+                frame[f"body{body}"].set_transform(scene.poses[k, body])
+            s = 1.0 if scene.broken[k] else 1e-6
+            frame["world"]["broken"].set_property("scale", "vector3", [s, s, s])
+        out.append(SetAnimation(anim, play=False))
+    return out
+
+
+class _Frames:
+    """What Animation.at_frame needs of a visualiser: its path."""
+
+    def __init__(self, path):
+        self.path = path
+
+
+PAGE = """<!DOCTYPE html>
+<html><head><meta charset="utf-8"><title>{title}</title>
+<style>body {{ margin: 0; }} #meshcat-pane {{ width: 100vw; height: 100vh; overflow: hidden; }}
+#clock {{ position: absolute; left: 12px; bottom: 10px; font: 14px sans-serif; color: #222; }}</style></head>
+<body><div id="meshcat-pane"></div><div id="clock"></div>
+<script>{viewer}</script>
+<script>
+var viewer = new MeshCat.Viewer(document.getElementById("meshcat-pane"));
+function run(b64) {{
+  var raw = atob(b64), bytes = new Uint8Array(raw.length);
+  for (var i = 0; i < raw.length; ++i) bytes[i] = raw.charCodeAt(i);
+  viewer.handle_command_bytearray(bytes);
+}}
+{commands}
+viewer.set_property(["Background"], "top_color", [1.0, 1.0, 1.0]);
+viewer.set_property(["Background"], "bottom_color", [0.85, 0.88, 0.92]);
+viewer.set_property(["Cameras", "default", "rotated", "<object>"], "position", {camera});
+function at_hash() {{
+  var m = /t=([0-9.eE+-]+)/.exec(location.hash);
+  var t = m ? parseFloat(m[1]) : 0.0;
+  if (viewer.animator.actions.length) {{          // actions take effect once played: play, hold, seek
+    viewer.animator.play(); viewer.animator.pause(); viewer.animator.seek(t); viewer.animator.display_progress(t);
+  }}
+  document.getElementById("clock").textContent = "{title}, t = " + t.toFixed(3) + " s of {duration:.3f} s";
+}}
+window.addEventListener("hashchange", at_hash);
+at_hash();
+</script></body></html>
+"""
+
+
+def write_html(scene, out: Path):
+    """The scene as one HTML file at `out` (written whole)."""
+    import meshcat
+    from rscasadi.files import write_text
+    viewer = (Path(meshcat.__file__).parent / "viewer" / "dist" / "main.min.js").read_text()
+    calls = "\n".join(f'run("{_packed(c)}");' for c in commands(scene))
+    title = "".join(ch for ch in scene.title if ch.isalnum() or ch in "._- ")
+    write_text(out, PAGE.format(title=title, viewer=viewer, commands=calls, duration=float(scene.times[-1]),
+                                camera=json.dumps(camera(scene))))
+
+
+def camera(scene) -> list:
+    """The camera in MeshCat's rotated frame (y up): looking at the arm from the front, right and
+    above, far enough to see its reach."""
+    reach = max(float(np.max(np.linalg.norm(scene.poses[:, :, :3, 3], axis=2))), 0.3)
+    x, y, z = 1.6 * reach, -1.6 * reach, 1.1 * reach                     # world: front right, above
+    return [x, z, -y]

@@ -1,0 +1,136 @@
+"""What `rscasadi view` draws, as plain geometry: the arm's links (their capsules, or a rod from
+each joint to the next), its rotors at the joints, the tool path, a goal, obstacles and the
+payload, and for every frame of the animation each link's pose and whether a limit or a
+clearance is broken."""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from rscasadi.dynamics.arm import Arm, load
+from rscasadi.dynamics.collision import exact_clearance
+from rscasadi.dynamics.kinematics import body_poses, frame_pose
+from rscasadi.model.types import ModelFileError
+
+FPS = 30
+
+
+@dataclass
+class Scene:
+    """Everything to draw: `links` per body (1..n) a list of capsules (a, b in the body frame,
+    radius), `rotors` per joint (its origin and axis in its parent body's frame), `poses` per
+    animation frame per body (4x4 in the world), `broken` per frame (a limit or clearance),
+    `path` (k x 3 tool positions), `goal`, `obstacles`, `payload` (body, 4x4 in it, size)."""
+    title: str
+    times: np.ndarray
+    poses: np.ndarray                          # (frames, n + 1, 4, 4)
+    links: dict
+    rotors: list
+    broken: np.ndarray
+    path: np.ndarray | None = None
+    goal: np.ndarray | None = None
+    obstacles: list = field(default_factory=list)
+    payload: tuple | None = None
+
+
+def _homogeneous(R, p) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = np.asarray(R, float), np.asarray(p, float).ravel()
+    return T
+
+
+def _links(arm: Arm) -> dict:
+    """Per body its capsules: the model's collision capsules, else a rod from the joint to the
+    next joint (the last link: to its farthest frame), 2.5 cm thick."""
+    model = arm.model
+    shapes = {b: [] for b in range(1, model.n + 1)}
+    if model.collision is not None:
+        for c in model.collision.capsules:
+            shapes[c.body].append((np.asarray(c.a, float), np.asarray(c.b, float), c.radius))
+    for b in range(1, model.n + 1):
+        if shapes[b]:
+            continue
+        if b < model.n:
+            end = np.asarray(model.joints[b].origin_xyz, float)
+        else:
+            ends = [np.asarray(f.p, float) for f in model.frames if f.body == b]
+            ends.append(2 * np.asarray(model.joints[-1].link.com, float))     # or as far again as its centre
+            end = max(ends, key=np.linalg.norm)
+        shapes[b].append((np.zeros(3), end, 0.025))
+    return shapes
+
+
+def _rotors(arm: Arm) -> list:
+    """Per joint: (parent body, 4x4 of the joint frame in it): the rotors sit at the joint."""
+    return [(j, _homogeneous(jt.R, jt.origin_xyz)) for j, jt in enumerate(arm.model.joints)]
+
+
+def _poses(arm: Arm, thetas: np.ndarray) -> np.ndarray:
+    """(frames, n + 1, 4, 4): every body's pose at every frame."""
+    import casadi as ca
+    th = ca.SX.sym("theta", arm.n)
+    parts = body_poses(arm.model, th)
+    f = ca.Function("poses", [th], [ca.vertcat(*[ca.vec(ca.horzcat(R, o)) for R, o in parts])])
+    out = np.array(f.map(thetas.shape[1])(thetas)).T.reshape(thetas.shape[1], arm.n + 1, 4, 3)
+    T = np.zeros((thetas.shape[1], arm.n + 1, 4, 4))
+    T[:, :, :3, :] = out.transpose(0, 1, 3, 2)
+    T[:, :, 3, 3] = 1.0
+    return T
+
+
+def scene_of(path, model=None) -> Scene:
+    """The scene of a solution.json, or of a model file alone (the arm at theta = 0)."""
+    path = Path(path)
+    text = path.read_text() if path.suffix == ".json" else None
+    if text is None:
+        arm = load(path)
+        thetas, times, data = np.zeros((arm.n, 1)), np.zeros(1), {}
+    else:
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ModelFileError(f"{path}: not a solution.json ({exc})") from None
+        if not isinstance(data, dict) or not {"t", "theta", "model"} <= set(data):
+            raise ModelFileError(f"{path}: not a solution.json (no t, theta, model)")
+        from rscasadi.ocp.solution import solution_arm
+        arm = Arm(load(model).model) if model is not None else solution_arm(data)
+        t, theta = np.asarray(data["t"], float), np.asarray(data["theta"], float)
+        times = np.arange(0.0, t[-1] + 1e-9, 1.0 / FPS)
+        thetas = np.vstack([np.interp(times, t, row) for row in theta])
+    scene = Scene(f"{path.parent.name}/{path.name}" if text is not None else path.name, times, _poses(arm, thetas), _links(arm), _rotors(arm),
+                  _broken(arm, thetas, data))
+    if data:                                            # the tool's path: the goal's frame, else the arm's tip
+        goal = data.get("goal")
+        if goal:
+            import casadi as ca
+            th = ca.SX.sym("theta", arm.n)
+            place = ca.Function("p", [th], [frame_pose(arm.model, arm.model.frame(goal["frame"]), th)[1]])
+            scene.path = np.array(place.map(thetas.shape[1])(thetas)).T
+            scene.goal = np.asarray(goal["position"], float)
+        else:
+            tip = np.r_[scene.links[arm.n][-1][1], 1.0]
+            scene.path = (scene.poses[:, arm.n] @ tip)[:, :3]
+    scene.obstacles = list(data.get("obstacles") or []) if data else []
+    if arm.model.payload is not None:
+        f = arm.model.frame(arm.model.payload.frame)
+        body = arm.model.payload.body
+        scene.payload = (f.body, _homogeneous(f.R, f.p + f.R @ body.com), float(np.cbrt(body.mass / 2700.0)))
+    return scene
+
+
+def _broken(arm: Arm, thetas: np.ndarray, data: dict) -> np.ndarray:
+    """Per frame: a joint beyond its angle limit, or a clearance short (obstacles of the solution)."""
+    broken = np.zeros(thetas.shape[1], bool)
+    for j, jt in enumerate(arm.model.joints):
+        if "theta" in jt.limits:
+            lo, hi = jt.limits["theta"]
+            broken |= (thetas[j] < lo - 1e-9) | (thetas[j] > hi + 1e-9)
+    if data and data.get("obstacles") and arm.model.collision is not None:
+        from rscasadi.ocp.problem import Obstacle
+        obstacles = [Obstacle(o["kind"], o["center"], o["radius"], o["size"]) for o in data["obstacles"]]
+        gap = np.array(exact_clearance(arm.model, obstacles).map(thetas.shape[1])(thetas)).ravel()
+        broken |= gap < -1e-4
+    return broken

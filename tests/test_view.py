@@ -1,0 +1,71 @@
+"""`rscasadi view`: one self-contained HTML file that draws and animates the arm, checked in a
+real browser (headless Chromium: the arm is drawn, and it has moved between two times given in
+the URL), a GIF, and a model file alone."""
+import os
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from rscasadi.cli import main
+
+from conftest import ROOT
+
+SOLUTION = ROOT / "results" / "ocp" / "min_effort" / "solution.json"
+
+
+@pytest.fixture(scope="session")
+def chromium():
+    """Chromium, installed from Debian's packages in CI when it is missing (root, apt)."""
+    found = shutil.which("chromium") or shutil.which("chromium-browser")
+    if found is None and os.environ.get("CI") and hasattr(os, "geteuid") and os.geteuid() == 0 \
+            and shutil.which("apt-get"):
+        env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
+        subprocess.run(["apt-get", "update", "-qq"], env=env, capture_output=True, timeout=600)
+        subprocess.run(["apt-get", "install", "-y", "-qq", "chromium"], env=env, capture_output=True, timeout=900)
+        found = shutil.which("chromium")
+    if found is None:
+        pytest.skip("no Chromium to open the page in (Debian: apt-get install chromium)")
+    return found
+
+
+def screenshot(browser, page, t, out):
+    subprocess.run([browser, "--headless=new", "--no-sandbox", "--disable-gpu", "--use-gl=swiftshader",
+                    "--enable-unsafe-swiftshader", "--window-size=800,600", "--virtual-time-budget=4000",
+                    f"--screenshot={out}", f"file://{page}#t={t}"], capture_output=True, timeout=120, check=True)
+    import matplotlib.image
+    return matplotlib.image.imread(out)[:, :, :3]
+
+
+def rotor_pixels(img):
+    """Pixels of the rotors' blue."""
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    return (b > r + 0.25) & (b > g + 0.1)
+
+
+def test_the_page_draws_the_arm_moving_offline(chromium, tmp_path, capsys):
+    page = tmp_path / "view.html"
+    assert main(["view", str(SOLUTION), "--out", str(page), "--gif", str(tmp_path / "view.gif")]) in (0, None)
+    html = page.read_text()
+    assert "http://" not in html.split("<script>", 2)[2][:2000] and "<script src" not in html   # nothing fetched
+    assert (tmp_path / "view.gif").read_bytes()[:6] in (b"GIF89a", b"GIF87a")
+    start = screenshot(chromium, page, 0.0, tmp_path / "start.png")
+    middle = screenshot(chromium, page, 0.75, tmp_path / "middle.png")
+    assert rotor_pixels(start).sum() > 200 and rotor_pixels(middle).sum() > 200        # the arm is drawn
+    moved = np.abs(start - middle).max(axis=2) > 0.1
+    assert moved.sum() > 500                                                           # ... and it moved
+
+
+def test_a_model_file_alone(chromium, tmp_path):
+    page = tmp_path / "model.html"
+    assert main(["view", str(ROOT / "problems" / "panda_sea.toml"), "--out", str(page)]) in (0, None)
+    assert rotor_pixels(screenshot(chromium, page, 0.0, tmp_path / "panda.png")).sum() > 200
+
+
+def test_view_refuses_what_it_cannot_draw(tmp_path, capsys):
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"theta": []}')
+    assert main(["view", str(bad), "--out", str(tmp_path / "x.html")]) == 2
+    assert "not a solution.json" in capsys.readouterr().err and not (tmp_path / "x.html").exists()
+    assert main(["view", str(SOLUTION), "--out", str(tmp_path / "no" / "such" / "x.html")]) == 2
