@@ -244,16 +244,19 @@ def main(argv=None):
     interrupt.install()                     # Ctrl-C inside a solver stops the command, not just the solver
     try:
         code = args.func(args)
-    except (ModelFileError, OutputError, CheckError, ValueError) as exc:
-        print(f"rscasadi: error: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:                  # a path, permission or disk problem of the user's
-        where = f"{exc.filename}: " if exc.filename else ""
-        print(f"rscasadi: error: {where}{exc.strerror or exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("rscasadi: interrupted; nothing half-written was kept", file=sys.stderr)
-        return 130
+    except BaseException as exc:
+        # an interrupt can surface as another exception when it lands inside a C extension
+        if isinstance(exc, KeyboardInterrupt) or interrupt.happened():
+            print("rscasadi: interrupted; nothing half-written was kept", file=sys.stderr)
+            return 130
+        if isinstance(exc, (ModelFileError, OutputError, CheckError, ValueError)):
+            print(f"rscasadi: error: {exc}", file=sys.stderr)
+            return 2
+        if isinstance(exc, OSError):        # a path, permission or disk problem of the user's
+            where = f"{exc.filename}: " if exc.filename else ""
+            print(f"rscasadi: error: {where}{exc.strerror or exc}", file=sys.stderr)
+            return 2
+        raise
     return code or 0
 
 

@@ -21,6 +21,11 @@ def install():
         signal.signal(signal.SIGINT, _handler)
 
 
+def happened() -> bool:
+    """Whether Ctrl-C came since `install()` (and was not yet raised by raise_if_interrupted)."""
+    return _state["interrupted"]
+
+
 def raise_if_interrupted(stats: dict):
     """KeyboardInterrupt if the solve that produced `stats` was stopped by the user."""
     if _state["interrupted"] or stats.get("return_status") == "User_Requested_Stop":

@@ -22,6 +22,7 @@
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -311,7 +312,9 @@ def physical_fit(arm: Arm, unknowns: Unknowns, ls: LeastSquares, th_nominal: np.
     data = W @ ls.base.P @ np.diag(scale)
     cost = cp.sum_squares(data @ x - W @ ls.beta) + cp.sum_squares((x - th_nominal / scale) / PRIOR)
     problem = cp.Problem(cp.Minimize(cost), cons)
-    problem.solve(solver=cp.CLARABEL)
+    with warnings.catch_warnings():         # cvxpy warns of reduced accuracy; the status below says it
+        warnings.simplefilter("ignore", UserWarning)
+        problem.solve(solver=cp.CLARABEL)
     if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or x.value is None:
         raise CheckError(f"the physically consistent fit failed: Clarabel reports {problem.status}")
     status = "converged" if problem.status == cp.OPTIMAL else "converged (to Clarabel's reduced tolerances)"

@@ -17,6 +17,7 @@ directions held near the model file's guess.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 
@@ -104,7 +105,9 @@ def _physical(base, beta, info, guess) -> tuple[np.ndarray, str]:
     data = W @ base.P @ np.diag(scale)
     cost = cp.sum_squares(data @ x - W @ beta) + PRIOR * cp.sum_squares(x - guess / scale)
     problem = cp.Problem(cp.Minimize(cost), [J >> 1e-9 * np.eye(4)])
-    problem.solve(solver=cp.CLARABEL)
+    with warnings.catch_warnings():         # cvxpy warns of reduced accuracy; the status below says it
+        warnings.simplefilter("ignore", UserWarning)
+        problem.solve(solver=cp.CLARABEL)
     if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or x.value is None:
         raise CheckError(f"the payload's physically consistent fit failed: Clarabel reports {problem.status}")
     return scale * np.asarray(x.value), ("converged" if problem.status == cp.OPTIMAL
