@@ -356,6 +356,13 @@ def load_problem(path) -> Problem:
                    Verification(**verification), path=path).check()
 
 
+def _vector3(fail, fld, v, positive: bool = False) -> np.ndarray:
+    """Three numbers (positive ones if asked), or an error naming the field and the entry."""
+    if not isinstance(v, list) or len(v) != 3:
+        fail(fld, f"expected a list of 3 numbers, got {v!r}")
+    return np.array([_number(fail, f"{fld}[{i}]", x, positive) for i, x in enumerate(v)])
+
+
 def _goal(fail, t: dict) -> Goal:
     """The [goal] table: frame, position, optional rpy (URDF convention) and tolerance."""
     from rscasadi.model.types import rpy_matrix
@@ -367,13 +374,7 @@ def _goal(fail, t: dict) -> Goal:
             fail(f"goal.{key}", "missing required field")
     if not isinstance(t["frame"], str):
         fail("goal.frame", f"expected the name of a frame, got {t['frame']!r}")
-    vec = {}
-    for key in ("position", "rpy"):
-        if key in t:
-            v = t[key]
-            if not isinstance(v, list) or len(v) != 3:
-                fail(f"goal.{key}", f"expected a list of 3 numbers, got {v!r}")
-            vec[key] = np.array([_number(fail, f"goal.{key}[{i}]", x, False) for i, x in enumerate(v)])
+    vec = {key: _vector3(fail, f"goal.{key}", t[key]) for key in ("position", "rpy") if key in t}
     tol = t.get("tolerance", {})
     if not isinstance(tol, dict) or set(tol) - {"position", "angle"}:
         fail("goal.tolerance", f"expected {{ position = m, angle = rad }}, got {tol!r}")
@@ -393,14 +394,8 @@ def _obstacles(fail, raw) -> tuple:
         need = {"center", "radius"} if kind == "sphere" else {"center", "size"}
         if not isinstance(t, dict) or set(t) != need:
             fail(f"obstacles[{i}].{kind}", f"expected the keys {', '.join(sorted(need))}, got {t!r}")
-        vec = {}
-        for key in ("center", "size"):
-            if key in t:
-                v = t[key]
-                if not isinstance(v, list) or len(v) != 3:
-                    fail(f"obstacles[{i}].{kind}.{key}", f"expected a list of 3 numbers, got {v!r}")
-                vec[key] = np.array([_number(fail, f"obstacles[{i}].{kind}.{key}[{k}]", x, key == "size")
-                                     for k, x in enumerate(v)])
+        vec = {key: _vector3(fail, f"obstacles[{i}].{kind}.{key}", t[key], positive=key == "size")
+               for key in ("center", "size") if key in t}
         radius = _number(fail, f"obstacles[{i}].{kind}.radius", t["radius"], True) if kind == "sphere" else 0.0
         out.append(Obstacle(kind, vec["center"], radius, vec.get("size")))
     return tuple(out)
