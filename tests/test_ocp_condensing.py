@@ -60,6 +60,24 @@ def _instance_args(piece, P, P_sym, k):
     ("ocp_min_time", {"method": "legendre"}),
 ])
 def test_kernel_equals_casadi_rootfinder_and_its_ad(name, over):
+    _kernel_equals_reference(name, over)
+
+
+def test_a_kernel_left_warm_by_another_problem_still_solves_right():
+    """The kernel's per-interval warm starts live in the library, shared by every problem of the
+    same shape in a process: after another minimum-time problem (other poses and duration) has
+    solved on it, with no reset, a warm start far from the new point must not land on one of
+    collocation's spurious roots (accelerations 1e5 times too large)."""
+    from rscasadi.ocp import Problem, Task, TranscriptionOptions, Verification
+    from rscasadi.ocp.problem import Goal
+    other = Problem(Task(REFERENCE.parent / "arm3_tool.toml", "min_time", duration=1.0, theta_start=[0.0, 0.3, -0.5],
+                         goal=Goal("tool", [0.351, 0.392, 0.536])),                # the same arm, a goal for its tool
+                    TranscriptionOptions(intervals=40), verification=Verification(rounds=0))
+    assert solve_once(other, print_level=0, log=lambda m: None)["success"]
+    _kernel_equals_reference("ocp_min_time", {})
+
+
+def _kernel_equals_reference(name, over):
     base, arm, lifted, (nlp_l, *_), cond, (nlp_c, *_) = _pair(name, **over)
     n, nx, nul, na = lifted.n, lifted.nx, lifted.nu_lifted, 2 * lifted.n * lifted.m
     keep = list(np.r_[np.arange(nx + n), nx + nul + np.arange(nx)])

@@ -37,6 +37,9 @@ from rscasadi.native.build import cached_library, casadi_c, native_flags
 
 NEWTON_MAX_ITER = 50
 NEWTON_STEP_TOL = 1e-10         # relative: after such a step Newton's error is ~1e-20
+SPURIOUS = 1e3                  # a warm-started root with a scaled acceleration beyond this is a
+                                # spurious one (collocation's G(y) = 0 has roots with huge
+                                # accelerations): solved again from y = 0
 
 
 @dataclass
@@ -122,7 +125,7 @@ def _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols) -> str:
              f"#define NK {nk}\n#define NY {ny}\n#define NS {ns}\n#define NR {nr}\n#define NROWS {nrows}\n"
              f"#define NZ {fns['lin'].size1_in(0)}\n#define NA {na}\n#define NKEY {nk + sum(arg_nnz)}\n"
              f"#define SZ_ARG {sz['arg']}\n#define SZ_RES {sz['res']}\n#define SZ_IW {sz['iw'] + 1}\n#define SZ_W {sz['w'] + 1}\n"
-             f"#define MAXIT {NEWTON_MAX_ITER}\n#define STEPTOL {NEWTON_STEP_TOL!r}\n"
+             f"#define MAXIT {NEWTON_MAX_ITER}\n#define STEPTOL {NEWTON_STEP_TOL!r}\n#define SPURIOUS {SPURIOUS!r}\n"
              f"#define P(name) {prefix}##name\n",
              _int_array("KEEP", keep), _int_array("ELIM", elim), _int_array("RKEEP", rk), _int_array("GROWS", grows),
              _int_array("ARGNNZ", arg_nnz), _int_array("SCOLS", scols),
@@ -305,6 +308,13 @@ static int newton(entry_t* e, const casadi_real* w, const casadi_real** args) {
   return 1;
 }
 
+/* Whether a root has a scaled acceleration no motion within the limits could have. */
+static int spurious(const entry_t* e) {
+  int i;
+  for (i = 0; i < NY; ++i) if (fabs(e->y[i]) > SPURIOUS) return 1;
+  return 0;
+}
+
 /* The entry of interval k with y solved from G(y; w) = 0 at (w, args), or 0 if Newton failed.
    Start: the last solution moved along its sensitivity S (first order in the change of w); if
    Newton fails from there (a far jump of w), once more from y = 0 with fresh factors. */
@@ -326,7 +336,7 @@ static entry_t* solved(const casadi_real* w, const casadi_real** args, long k) {
     for (j = 0; j < NS; ++j) for (i = 0; i < NY; ++i) e->y[i] += e->S[i + j * NY] * dw[j];
   }
   e->valid = e->derived = 0;
-  if (newton(e, w, args)) {
+  if (newton(e, w, args) || (!cold && spurious(e))) {              /* from y = 0, with fresh factors */
     memset(e->y, 0, sizeof e->y);
     e->factored = 0;
     if (cold || newton(e, w, args)) { e->seen = 0; return 0; }
@@ -424,7 +434,7 @@ def condense(d1: ca.Function, f1: ca.Function, d2: ca.Function, keep, elim, grow
     kernel is generated, compiled (cached by the hash of its source) and loaded."""
     keep, elim, grows = (list(map(int, v)) for v in (keep, elim, grows))
     prefix = "rsc" + _fingerprint(d1.serialize(), f1.serialize(), d2.serialize(), keep, elim, grows,
-                                  NEWTON_MAX_ITER, NEWTON_STEP_TOL) + "_"
+                                  NEWTON_MAX_ITER, NEWTON_STEP_TOL, SPURIOUS) + "_"
     fns, rk, scols, args = _sx_functions(prefix, d1, f1, d2, keep, elim, grows)
     library = _compiled(prefix, fns, _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols), log, opt)
     ext = {name: ca.external(prefix + "ext_" + name, library) for name in ("rows", "first", "objective", "second", "newton")}
