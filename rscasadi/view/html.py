@@ -143,7 +143,7 @@ def write_html(scene, out: Path):
     from rscasadi.files import write_text
     viewer = (Path(meshcat.__file__).parent / "viewer" / "dist" / "main.min.js").read_text()
     calls = "\n".join(f'run("{_packed(c)}");' for c in commands(scene))
-    title = "".join(ch for ch in scene.title if ch.isalnum() or ch in "._- ")
+    title = "".join(ch for ch in scene.title if ch.isalnum() or ch in "._-/ ")
     write_text(out, PAGE.format(title=title, viewer=viewer, commands=calls, duration=float(scene.times[-1]),
                                 camera=json.dumps(camera(scene))))
 
