@@ -209,3 +209,52 @@ def test_a_bad_task_payload_is_refused_by_name(tool_arm, payload, field):
                     f'theta_end = [0.8, 0.9, -1.2]\nduration = 1.0\npayload = {payload}\n')
     with pytest.raises(ModelFileError, match=rf"bad_payload_task.toml: field '{re.escape(field)}'"):
         solve(load_problem(path), print_level=0, log=lambda m: None)
+
+
+# ----------------------------------------------------------------------------- a path for the tool
+
+def test_the_tool_follows_a_path_at_its_speed(tmp_path):
+    """A polyline through three points at a mean 0.2 m/s, rest to rest: the replay keeps the tool
+    within the path's tolerance at every sample (between the nodes too), fatrop and IPOPT alike."""
+    arm = rscasadi.load(ROOT / "problems" / "arm3_tool.toml")
+    th0 = np.array([0.0, 0.3, -0.5])
+    p0 = np.array(arm.frame_placement("tool")(th0)[1]).ravel()
+    points = [[float(v) for v in q] for q in (p0, p0 + [-0.1, 0.1, 0.0], p0 + [-0.15, 0.1, 0.1])]
+    path = tmp_path / "path.toml"
+    path.write_text(f'model = "{(ROOT / "problems" / "arm3_tool.toml").as_posix()}"\nobjective = "min_effort"\n'
+                    f"theta_start = {th0.tolist()}\n[path]\nframe = \"tool\"\npoints = {points}\nspeed = 0.2\n"
+                    "tolerance = 1e-3\n[transcription]\nintervals = 30\n")
+    problem = load_problem(path)
+    assert problem.task.duration == pytest.approx(problem.task.path.length / 0.2)
+    results = {}
+    for solver in ("fatrop", "ipopt"):
+        sol = solve(problem.replace(solver=solver), print_level=0, log=lambda m: None)
+        assert sol.success and sol["verification"]["path_error"] <= 1e-3, sol["verification"]
+        results[solver] = sol["verification"]["path_error"]
+    assert results["fatrop"] == pytest.approx(results["ipopt"], rel=1e-6)
+    end = np.array(arm.frame_placement("tool")(sol.theta[:, -1])[1]).ravel()
+    assert np.linalg.norm(end - points[-1]) < 1e-6 and np.max(np.abs(sol.dtheta[:, -1])) < 1e-6
+
+
+@pytest.mark.parametrize("extra,field,words", [
+    ('theta_end = [0.8, 0.9, -1.2]\n', "path", "no theta_end"),
+    ('duration = 1.0\n', "duration", "leave it out"),
+    ('', "path.speed", "missing"),
+])
+def test_a_bad_path_is_refused_by_name(tmp_path, extra, field, words):
+    speed = "" if field == "path.speed" else "speed = 0.2\n"
+    path = tmp_path / "bad_path.toml"
+    path.write_text(f'model = "{(ROOT / "problems" / "arm3_tool.toml").as_posix()}"\nobjective = "min_effort"\n'
+                    f'theta_start = [0.0, 0.3, -0.5]\n{extra}[path]\nframe = "tool"\n'
+                    f"points = [[0.6, 0.0, 0.4], [0.5, 0.1, 0.4]]\n{speed}")
+    with pytest.raises(ModelFileError, match=rf"bad_path.toml: field '{re.escape(field)}'.*{words}"):
+        load_problem(path)
+
+
+def test_a_start_off_the_path_is_refused(tmp_path):
+    from rscasadi.ocp.problem import ToolPath
+    path = ToolPath("tool", [[0.5, 0.2, 0.4], [0.45, 0.2, 0.45]], speed=0.2)
+    problem = Problem(Task(ROOT / "problems" / "arm3_tool.toml", "min_effort", duration=path.duration,
+                           theta_start=[0.0, 0.3, -0.5], path=path))
+    with pytest.raises(ModelFileError, match=r"field 'path.points\[0\]': theta_start puts 'tool'"):
+        solve(problem, print_level=0, log=lambda m: None)

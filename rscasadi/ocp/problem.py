@@ -76,7 +76,8 @@ BARRIERS = ("monotone",)                     # fatrop's barrier rule (docs/desig
 HESSIANS = ("exact", "limited-memory")
 TOP = {"model", "objective", "theta_start", "theta_end", "duration", "max_duration", "trajectory",
        "effort_weight", "transcription", "verification", "solver", "refinement", "design", "goal", "obstacles",
-       "payload"}
+       "payload", "path"}
+PATH_KEYS = {"frame", "points", "speed", "tolerance"}
 PAYLOAD_KEYS = {"frame", "mass", "com", "inertia"}
 GOAL_KEYS = {"frame", "position", "rpy", "tolerance"}
 TABLES = {"transcription": {"method", "degree", "intervals", "dynamics", "compiled", "condense"},
@@ -101,6 +102,35 @@ class Goal:
     def __post_init__(self):
         self.position = np.asarray(self.position, float).ravel()
         self.R = None if self.R is None else np.asarray(self.R, float)
+
+
+@dataclass
+class ToolPath:
+    """A polyline (k x 3 points, world, m) that a frame follows at a mean `speed` (m/s), from rest
+    to rest: its arc length s(t) = L (tau - sin(2 pi tau) / 2 pi), tau = t / T, T = L / speed.
+    The replay must stay within `tolerance` (m) of it."""
+    frame: str
+    points: np.ndarray
+    speed: float
+    tolerance: float = 1e-3
+
+    def __post_init__(self):
+        self.points = np.asarray(self.points, float).reshape(-1, 3)
+
+    @property
+    def length(self) -> float:
+        return float(np.sum(np.linalg.norm(np.diff(self.points, axis=0), axis=1)))
+
+    @property
+    def duration(self) -> float:
+        return self.length / self.speed
+
+    def __call__(self, t) -> np.ndarray:
+        """The frame's target positions at the times t (len(t) x 3)."""
+        tau = np.clip(np.asarray(t, float) / self.duration, 0.0, 1.0)
+        s = self.length * (tau - np.sin(2 * np.pi * tau) / (2 * np.pi))
+        cum = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(self.points, axis=0), axis=1))]
+        return np.column_stack([np.interp(s, cum, self.points[:, i]) for i in range(3)])
 
 
 @dataclass
@@ -137,6 +167,7 @@ class Task:
     goal: Goal | None = None
     obstacles: tuple = ()
     payload: dict | None = None                     # frame, mass, com, inertia: the model's payload set or changed
+    path: ToolPath | None = None
 
     def __post_init__(self):
         self.model = Path(self.model)
@@ -236,7 +267,7 @@ class Problem:
         else:
             if t.goal is not None and t.theta_end is not None:
                 fail("goal", "give theta_end or a goal, not both")
-            for key in ("theta_start",) + (("theta_end",) if t.goal is None else ()):
+            for key in ("theta_start",) + (("theta_end",) if t.goal is None and t.path is None else ()):
                 if getattr(t, key) is None:
                     fail(key, f"missing required field (objective {t.objective})"
                          + (" (or a [goal])" if key == "theta_end" else ""))
@@ -252,6 +283,18 @@ class Problem:
                 _number(fail, f"{fld}.radius", ob.radius, True)
             elif ob.size is None or ob.size.shape != (3,) or not np.all(np.isfinite(ob.size)) or np.any(ob.size <= 0):
                 fail(f"{fld}.size", f"expected 3 positive numbers, got {ob.size!r}")
+        if t.path is not None:
+            pa = t.path
+            if t.objective != "min_effort":
+                fail("path", "a path with a speed fixes the timing: objective min_effort")
+            if t.goal is not None or t.theta_end is not None:
+                fail("path", "the path's end is where the arm ends: no theta_end or goal")
+            if pa.points.shape[0] < 2 or not np.all(np.isfinite(pa.points)) or pa.length <= 0:
+                fail("path.points", "expected at least two distinct points of 3 numbers")
+            _number(fail, "path.speed", pa.speed, True)
+            _number(fail, "path.tolerance", pa.tolerance, True)
+            if abs(t.duration - pa.duration) > 1e-9 * pa.duration:
+                fail("duration", f"the path's length and speed make it {pa.duration:.6g} s (leave duration out)")
         if t.goal is not None:
             g = t.goal
             if g.position.shape != (3,) or not np.all(np.isfinite(g.position)):
@@ -306,14 +349,18 @@ def load_problem(path) -> Problem:
                 fail(f"{name}.{key}", f"unknown key (allowed: {', '.join(sorted(TABLES[name]))})")
         return t
 
-    for key in ("model", "objective", "duration"):
+    for key in ("model", "objective") + (("duration",) if "path" not in d else ()):
         if key not in d:
             fail(key, "missing required field")
+    if "path" in d and "duration" in d:
+        fail("duration", "a path's length and speed set the duration: leave it out")
+    tool_path = _tool_path(fail, table("path")) if "path" in d else None
     for key in ("model", "trajectory"):
         if key in d and (not isinstance(d[key], str) or not d[key].strip()):
             fail(key, f"expected the path of a file, got {d[key]!r}")
     task = {"model": (path.parent / str(d["model"])).resolve(), "objective": d["objective"],
-            "duration": _number(fail, "duration", d["duration"], True)}
+            "duration": _number(fail, "duration", d["duration"], True) if tool_path is None else tool_path.duration,
+            "path": tool_path}
     if "goal" in d and not isinstance(d["goal"], dict):
         fail("goal", "expected a table")
     if "trajectory" in d and d["objective"] == "tracking":
@@ -361,6 +408,23 @@ def _vector3(fail, fld, v, positive: bool = False) -> np.ndarray:
     if not isinstance(v, list) or len(v) != 3:
         fail(fld, f"expected a list of 3 numbers, got {v!r}")
     return np.array([_number(fail, f"{fld}[{i}]", x, positive) for i, x in enumerate(v)])
+
+
+def _tool_path(fail, t: dict) -> ToolPath:
+    """The [path] table: frame, points (a polyline), speed (m/s), tolerance (m)."""
+    for key in t:
+        if key not in PATH_KEYS:
+            fail(f"path.{key}", f"unknown key (allowed: {', '.join(sorted(PATH_KEYS))})")
+    for key in ("frame", "points", "speed"):
+        if key not in t:
+            fail(f"path.{key}", "missing required field")
+    if not isinstance(t["frame"], str):
+        fail("path.frame", f"expected the name of a frame, got {t['frame']!r}")
+    if not isinstance(t["points"], list) or len(t["points"]) < 2:
+        fail("path.points", f"expected a list of at least two points, got {t['points']!r}")
+    points = np.array([_vector3(fail, f"path.points[{i}]", v) for i, v in enumerate(t["points"])])
+    return ToolPath(t["frame"], points, _number(fail, "path.speed", t["speed"], True),
+                    _number(fail, "path.tolerance", t.get("tolerance", 1e-3), True))
 
 
 def _goal(fail, t: dict) -> Goal:
@@ -427,6 +491,8 @@ def check_against_model(problem: Problem, model):
         check_names(model, t.parameters, f"{problem.path}: parameters")
     except ValueError as exc:
         raise ModelFileError(str(exc)) from None
+    if t.path is not None and t.path.frame not in [f.name for f in model.frames]:
+        raise ModelFileError(f"{problem.path}: field 'path.frame': {model.path} has no frame {t.path.frame!r}")
     if t.goal is not None and (3 if t.goal.R is None else 6) > model.n:
         raise ModelFileError(f"{problem.path}: field 'goal': {'a position' if t.goal.R is None else 'a pose'} is "
                              f"{3 if t.goal.R is None else 6} conditions, more than the {model.n} joints can meet "

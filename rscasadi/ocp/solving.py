@@ -26,7 +26,7 @@ from rscasadi.model.parameters import value, with_values
 from rscasadi.dynamics.statics import rest_state  # noqa: F401  (exported by rscasadi.ocp)
 from rscasadi.sim.simulation import held_interval
 from rscasadi.sim.trajectory import load_trajectory
-from rscasadi.ocp.problem import Problem, check_against_model, load_problem
+from rscasadi.ocp.problem import Goal, Problem, check_against_model, load_problem
 from rscasadi.ocp.solvers import direct, make_solver
 from rscasadi.ocp.solution import Solution, solution_arm, verify
 from rscasadi.ocp.transcription import Transcription
@@ -90,7 +90,13 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
     arm = Arm(with_values(base, problem.task.parameters))              # the plant for guesses and replay
     w = np.full(problem.transcription.intervals, 1.0 / problem.transcription.intervals) if w is None else np.asarray(w, float)
     tr = Transcription(problem, Arm(base), N=len(w))
-    goal = problem.task.goal
+    path = problem.task.path
+    goal = problem.task.goal if path is None else Goal(path.frame, path.points[-1], position_tol=path.tolerance)
+    if path is not None:                                            # the start must be on the path
+        on = np.array(arm.frame_placement(path.frame)(problem.task.theta_start)[1]).ravel()
+        if np.linalg.norm(on - path.points[0]) > path.tolerance:
+            raise ModelFileError(f"{problem.path}: field 'path.points[0]': theta_start puts {path.frame!r} at "
+                                 f"{np.round(on, 4).tolist()}, {np.linalg.norm(on - path.points[0]):.3g} m from it")
     if goal is not None and problem.task.theta_end is None:        # the guess's end: inverse kinematics
         problem = problem.replace(theta_end=goal_configuration(arm, goal, problem.task.theta_start, problem.path))
     t_guess = (warm["t"][-1] if warm else problem.task.duration) * np.concatenate([[0.0], np.cumsum(w)])
@@ -144,6 +150,8 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
             "trajectory": None if problem.task.trajectory is None else str(problem.task.trajectory),
             "theta_reference": None if ref is None else _reference(problem, t).tolist(),
             "payload": problem.task.payload,
+            "path": None if path is None else {"frame": path.frame, "points": path.points.tolist(), "speed": path.speed,
+                                               "tolerance": path.tolerance},
             "obstacles": [{"kind": o.kind, "center": o.center.tolist(), "radius": o.radius,
                            "size": None if o.size is None else o.size.tolist()} for o in problem.task.obstacles],
             "goal": None if goal is None else {"frame": goal.frame, "position": goal.position.tolist(),
@@ -194,6 +202,8 @@ def checks(problem: Problem, report: dict) -> list:
             "tracking_error": problem.verification.tracking_tol, "max_limit_violation": problem.verification.limit_tol}
     if problem.task.goal is not None:
         tols.update(goal_position_error=problem.task.goal.position_tol, goal_angle_error=problem.task.goal.angle_tol)
+    if problem.task.path is not None:
+        tols.update(path_error=problem.task.path.tolerance)
     failed = [f"{k} {report[k]:.2e} > {tol:g}" for k, tol in tols.items() if k in report and report[k] > tol]
     if report.get("min_clearance", np.inf) < -problem.verification.clearance_tol:
         failed.append(f"min_clearance {report['min_clearance']:.2e} m < -{problem.verification.clearance_tol:g}")
@@ -226,6 +236,8 @@ def refined_mesh(problem: Problem, solution: dict, report: dict) -> np.ndarray:
     split |= np.asarray(report["interval_violation"]) > problem.verification.limit_tol
     if "interval_clearance" in report:
         split |= np.asarray(report["interval_clearance"]) < -problem.verification.clearance_tol
+    if "interval_path_error" in report:
+        split |= np.asarray(report["interval_path_error"]) > problem.task.path.tolerance
     return np.concatenate([[wk / 2, wk / 2] if s else [wk] for wk, s in zip(w, split)])
 
 
@@ -276,6 +288,7 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
     report["passed"] = not failed
     report.pop("interval_violation")
     report.pop("interval_clearance", None)
+    report.pop("interval_path_error", None)
     sol["verification"], sol["rounds"] = report, rounds
     sol["solver_success"], sol["success"] = sol["success"], bool(sol["success"] and not failed)
     if nominal is not None:

@@ -42,7 +42,7 @@ from rscasadi.dynamics.collision import clearances
 from rscasadi.model.parameters import gear_ratios
 from rscasadi.ocp.assembly import Calls, Piece, chain_rule_derivatives, constraints_and_objective
 from rscasadi.ocp.condensing import Condensed, condense
-from rscasadi.ocp.problem import Problem
+from rscasadi.ocp.problem import Goal, Problem
 
 
 class Transcription:
@@ -75,7 +75,8 @@ class Transcription:
         # with the projections, 26 332 through the forward dynamics; n = 3)
         self.dynamics = "implicit" if self.condensed else problem.transcription.dynamics
         self.tracking = problem.task.objective == "tracking"
-        self.goal = problem.task.goal
+        self.tool_path = problem.task.path                  # its frame's position pinned at every node
+        self.goal = problem.task.goal if self.tool_path is None else Goal(self.tool_path.frame, self.tool_path.points[-1])
         th = ca.SX.sym("theta", n)
         self.clear = (ca.Function("clearance", [th], [clearances(arm.model, problem.task.obstacles, th)])
                       if problem.task.obstacles else None)
@@ -205,7 +206,7 @@ class Transcription:
         n, N = self.n, self.N
         sizes = [("theta_start", n), ("theta_end", n), ("duration", 1), ("effort_weight", 1), ("scale", 1),
                  ("w", N), ("theta_ref", n * N if self.tracking else 0), ("p_fixed", len(self.fixed)),
-                 ("goal", 12 if self.goal is not None else 0)]
+                 ("goal", 12 if self.goal is not None else 0), ("path_target", 3 * N if self.tool_path else 0)]
         out, i = {}, 0
         for key, size in sizes:
             out[key] = slice(i, i + size)
@@ -221,7 +222,8 @@ class Transcription:
         x, u, x1 = z[:nx], z[nx:nx + nu], z[nx + nu:]
         w, dur, pfix = ca.SX.sym("w"), ca.SX.sym("duration"), ca.SX.sym("p_fixed", len(self.fixed))
         ew, scale, ref = ca.SX.sym("effort_weight"), ca.SX.sym("scale"), ca.SX.sym("theta_ref", n)
-        args = [w, dur, pfix, ew, scale] + ([ref] if self.tracking else [])
+        target = ca.SX.sym("path_target", 3)                 # where the path's frame is at x_k's time
+        args = [w, dur, pfix, ew, scale] + ([ref] if self.tracking else []) + ([target] if self.tool_path else [])
 
         def pieces(stage):
             x_next, path, effort = stage(x, u, w, dur, pfix)
@@ -231,11 +233,14 @@ class Transcription:
                 f = effort
             else:
                 f = dur * w * ca.sumsqr(x1[:n] - ref) / ca.fmax(ew, 1e-12) + effort
-            return ca.vertcat(x1 - x_next, path), scale * f
+            # fatrop's stage k may constrain x_k and u_k only: the path holds at x_k (the first
+            # stage's rows are left free: theta_start is on the path), and the end's is the goal
+            on_path = [self.arm.frame_placement(self.tool_path.frame)(x[:n])[1] - target] if self.tool_path else []
+            return ca.vertcat(x1 - x_next, path, *on_path), scale * f
 
         fn = ca.Function("stage_piece", [z, *args], list(pieces(self.stage)),
-                         ["z", "w", "duration", "p_fixed", "effort_weight", "scale"] + (["theta_ref"] if self.tracking else []),
-                         ["rows", "f"])
+                         ["z", "w", "duration", "p_fixed", "effort_weight", "scale"] + (["theta_ref"] if self.tracking else [])
+                         + (["path_target"] if self.tool_path else []), ["rows", "f"])
         self.calls = Calls()
         try:
             rows, f = pieces(self._stage)
@@ -265,8 +270,8 @@ class Transcription:
                            ["z", "theta", "p_fixed", "scale"], ["rows", "f"])
 
     def _n_path(self):
-        """A stage's path rows (without the dynamics rows when condensed)."""
-        return self.stage.size1_out(1) - (2 * self.n * self.m if self.condensed else 0)
+        """A stage's path rows (without the dynamics rows when condensed), and the path's frame's 3."""
+        return self.stage.size1_out(1) - (2 * self.n * self.m if self.condensed else 0) + (3 if self.tool_path else 0)
 
     def _condensed(self, derivatives, log) -> Condensed:
         """The stage piece with its accelerations eliminated (condensing.py): kept z = (x_k, tau_k,
@@ -292,6 +297,8 @@ class Transcription:
         stage_args = [ca.reshape(par["w"], 1, N), par["duration"], par["p_fixed"], par["effort_weight"], par["scale"]]
         if self.tracking:
             stage_args.append(ca.reshape(par["theta_ref"], n, N))
+        if self.tool_path:
+            stage_args.append(ca.reshape(par["path_target"], 3, N))
         stage, derivatives = self._stage_piece()
         if self.condensed:
             self.kernel = self._condensed(derivatives, log)
@@ -306,8 +313,11 @@ class Transcription:
                   [par["goal"] if self.goal is not None else par["theta_end"], par["p_fixed"], par["scale"]])]
         g, f = constraints_and_objective(self.pieces, w, n_g)
         stage_lo, stage_hi = self._path_bounds()
-        lbg = np.concatenate([stage_lo, np.zeros(4 * n), np.tile(stage_lo, N - 1), end_lo])
-        ubg = np.concatenate([stage_hi, np.zeros(4 * n), np.tile(stage_hi, N - 1), end_hi])
+        first_lo, first_hi = stage_lo.copy(), stage_hi.copy()
+        if self.tool_path:                                  # the start is theta_start: on the path already
+            first_lo[-3:], first_hi[-3:] = -np.inf, np.inf
+        lbg = np.concatenate([first_lo, np.zeros(4 * n), np.tile(stage_lo, N - 1), end_lo])
+        ubg = np.concatenate([first_hi, np.zeros(4 * n), np.tile(stage_hi, N - 1), end_hi])
         return {"x": w, "f": f, "g": g, "p": P}, lbg, ubg
 
     def _limit(self, key):
@@ -325,6 +335,9 @@ class Transcription:
         if self.clear is not None:                                     # clearance >= 0 at x_k and inside
             c = self.clear.size1_out(0) * (1 + len(self.interior))
             lo, hi = lo + [np.zeros(c)], hi + [np.full(c, np.inf)]
+        if self.tool_path:           # near the path at x_k: a box of half the tolerance (an equality
+            b = 0.5 * self.tool_path.tolerance / np.sqrt(3)           # would over-determine a 3-joint arm)
+            lo, hi = lo + [np.full(3, -b)], hi + [np.full(3, b)]
         return np.concatenate(lo), np.concatenate(hi)
 
     def structure(self) -> dict:
@@ -356,14 +369,16 @@ class Transcription:
         return lb, ub
 
     def parameters(self, theta_start, theta_end, duration, effort_weight, w, theta_ref=None, p_fixed=(), scale=1.0):
-        """The NLP's parameter vector (the goal's pose, if any, from the problem)."""
+        """The NLP's parameter vector (the goal's pose and the path's targets, if any, from the problem)."""
         layout, n_par = self.parameter_layout()
         P = np.zeros(n_par)
         goal = None if self.goal is None else np.r_[self.goal.position,
                                                     (self.goal.R if self.goal.R is not None else np.eye(3)).ravel("F")]
         for key, value in (("theta_start", theta_start), ("theta_end", theta_end), ("duration", duration),
                            ("effort_weight", effort_weight), ("scale", scale), ("w", w),
-                           ("theta_ref", theta_ref), ("p_fixed", p_fixed), ("goal", goal)):
+                           ("theta_ref", theta_ref), ("p_fixed", p_fixed), ("goal", goal),
+                           ("path_target", None if self.tool_path is None else
+                            self.tool_path(duration * np.r_[0.0, np.cumsum(w)[:-1]]).T)):
             if value is not None and layout[key].stop > layout[key].start:
                 P[layout[key]] = np.ravel(value, order="F")
         return P

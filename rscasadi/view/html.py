@@ -73,6 +73,9 @@ def commands(scene) -> list:
     if scene.path is not None and len(scene.path) > 1:
         out.append(SetObject(g.Line(g.PointsGeometry(scene.path.T), g.LineBasicMaterial(color=COLOURS["path"])),
                              path=_path("world", "tool_path")))
+    if scene.target is not None:
+        out.append(SetObject(g.Line(g.PointsGeometry(scene.target.T), g.LineBasicMaterial(color=COLOURS["goal"])),
+                             path=_path("world", "target_path")))
     if scene.goal is not None:
         T = np.eye(4)
         T[:3, 3] = scene.goal

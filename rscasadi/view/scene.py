@@ -34,6 +34,7 @@ class Scene:
     goal: np.ndarray | None = None
     obstacles: list = field(default_factory=list)
     payload: tuple | None = None
+    target: np.ndarray | None = None
 
 
 def _homogeneous(R, p) -> np.ndarray:
@@ -114,6 +115,8 @@ def scene_of(path, model=None) -> Scene:
             tip = np.r_[scene.links[arm.n][-1][1], 1.0]
             scene.path = (scene.poses[:, arm.n] @ tip)[:, :3]
     scene.obstacles = list(data.get("obstacles") or []) if data else []
+    if data and data.get("path"):                       # the path asked for, beside the one flown
+        scene.target = np.asarray(data["path"]["points"], float)
     if arm.model.payload is not None:
         f = arm.model.frame(arm.model.payload.frame)
         body = arm.model.payload.body
