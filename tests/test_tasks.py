@@ -258,3 +258,22 @@ def test_a_start_off_the_path_is_refused(tmp_path):
                            theta_start=[0.0, 0.3, -0.5], path=path))
     with pytest.raises(ModelFileError, match=r"field 'path.points\[0\]': theta_start puts 'tool'"):
         solve(problem, print_level=0, log=lambda m: None)
+
+
+def test_a_problem_may_give_the_arm_its_collision_geometry(tool_arm, capsule_arm):
+    """The same obstacle task with the capsules given by the problem instead of the model file:
+    the same clearance; without any, refused; a bad one refused naming the problem file."""
+    from rscasadi.ocp.problem import Obstacle
+    arm = rscasadi.load(capsule_arm)
+    th0, th1 = np.array([0.0, 0.3, -0.5]), np.array([0.8, 0.9, -1.2])
+    obstacle = Obstacle("sphere", np.array(arm.frame_placement("tool")((th0 + th1) / 2)[1]).ravel(), 0.05)
+    shape = {"margin": 0.01, "tip": "tool", "links": {"shoulder_pitch": 0.04, "elbow_pitch": 0.03}}
+    task = dict(objective="min_time", duration=1.0, theta_start=th0, theta_end=th1, obstacles=(obstacle,))
+    given = solve(Problem(Task(tool_arm / "arm3_tool.toml", collision=shape, **task), TranscriptionOptions(intervals=40)),
+                  print_level=0, log=lambda m: None)
+    assert given.success and given["collision"] == shape
+    from rscasadi.ocp import verify
+    assert verify(given)["min_clearance"] == pytest.approx(given["verification"]["min_clearance"])
+    with pytest.raises(ModelFileError, match=r"<Problem>: field 'collision.links.nowhere'"):
+        solve(Problem(Task(tool_arm / "arm3_tool.toml", collision={"links": {"nowhere": 0.1}}, **task)),
+              print_level=0, log=lambda m: None)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rscasadi.model.checks import _body, _number, _table, _vector
+from rscasadi.model.checks import _body, _Ctx, _number, _table, _vector
 from rscasadi.model.types import BASE, BODY_KEYS, Capsule, Collision, Frame, Payload, rpy_matrix, rpy_of
 
 FRAME_KEYS = {"parent", "xyz", "rpy"}
@@ -176,3 +176,11 @@ def holding(model, frame=None, mass=None, com=None, inertia=None):
     if com.shape != (3,) or not np.all(np.isfinite(com)) or problem:
         raise ValueError(f"payload: {'com is not 3 finite numbers' if not problem else 'inertia ' + problem}")
     return dataclasses.replace(model, payload=Payload(frame, Body(mass, com, I)))
+
+
+def with_collision(model, raw: dict, where):
+    """`model` with its [collision] table replaced by `raw` (as a problem file may give it); errors
+    name `where` and the field."""
+    import dataclasses
+    tip = model.collision.tip if model.collision is not None else model.extra.get("tip_link_name")
+    return dataclasses.replace(model, collision=collision(_Ctx(where), raw, model.joints, model.frames, tip))

@@ -173,6 +173,7 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
                    for b, body in enumerate(bodies) for name, T in zip(body["links"], body["T_links"]))
     frames = user_frames(ctx, data.get("frames"), frames)
     tip_link = data.get("tip") or next((lk for lk in reversed(bodies[-1]["links"])), None)
+    extra["tip_link_name"] = tip_link                          # where the last link's capsule ends by default
     return ArmModel(data["name"], gravity, tuple(joints), path, extra, frames=frames,
                     payload=payload(ctx, data.get("payload"), frames),
                     collision=collision(ctx, data.get("collision"), joints, frames, tip_link))

@@ -76,7 +76,7 @@ BARRIERS = ("monotone",)                     # fatrop's barrier rule (docs/desig
 HESSIANS = ("exact", "limited-memory")
 TOP = {"model", "objective", "theta_start", "theta_end", "duration", "max_duration", "trajectory",
        "effort_weight", "transcription", "verification", "solver", "refinement", "design", "goal", "obstacles",
-       "payload", "path"}
+       "payload", "path", "collision"}
 PATH_KEYS = {"frame", "points", "speed", "tolerance"}
 PAYLOAD_KEYS = {"frame", "mass", "com", "inertia"}
 GOAL_KEYS = {"frame", "position", "rpy", "tolerance"}
@@ -168,6 +168,7 @@ class Task:
     obstacles: tuple = ()
     payload: dict | None = None                     # frame, mass, com, inertia: the model's payload set or changed
     path: ToolPath | None = None
+    collision: dict | None = None                   # the model's [collision] replaced for this task
 
     def __post_init__(self):
         self.model = Path(self.model)
@@ -379,6 +380,10 @@ def load_problem(path) -> Problem:
         task["goal"] = _goal(fail, table("goal"))
     if "obstacles" in d:
         task["obstacles"] = _obstacles(fail, d["obstacles"])
+    if "collision" in d:
+        if not isinstance(d["collision"], dict):
+            fail("collision", f"expected a table like the model file's [collision], got {d['collision']!r}")
+        task["collision"] = dict(d["collision"])
     if "payload" in d:
         held = d["payload"]
         if not isinstance(held, dict) or not held or set(held) - PAYLOAD_KEYS:
@@ -476,6 +481,9 @@ def check_against_model(problem: Problem, model):
         except (ValueError, TypeError) as exc:
             raise ModelFileError(f"{problem.path}: field '{str(exc).split(':')[0]}': "
                                  f"{str(exc).split(':', 1)[-1].strip()}") from None
+    if t.collision is not None:
+        from rscasadi.model.frames import with_collision
+        model = with_collision(model, t.collision, problem.path if problem.path is not None else "<Problem>")
     if t.obstacles and model.collision is None:
         raise ModelFileError(f"{problem.path}: field 'obstacles': {model.path} has no [collision] table "
                              "(the capsules of the links that must keep clear)")

@@ -14,7 +14,7 @@ import numpy as np
 from rscasadi.dynamics.arm import Arm
 from rscasadi.dynamics.collision import exact_clearance
 from rscasadi.files import write_json
-from rscasadi.model.frames import holding
+from rscasadi.model.frames import holding, with_collision
 from rscasadi.model.modelfile import read
 from rscasadi.model.parameters import with_values
 from rscasadi.sim.simulation import simulate_held
@@ -69,6 +69,8 @@ def solution_arm(solution: dict) -> Arm:
     model = read(solution["model"])
     if solution.get("payload"):
         model = holding(model, **solution["payload"])
+    if solution.get("collision") is not None:
+        model = with_collision(model, solution["collision"], solution["model"])
     return Arm(with_values(model, {**solution.get("parameters", {}), **solution.get("design", {})}))
 
 

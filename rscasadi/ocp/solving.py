@@ -20,7 +20,7 @@ import numpy as np
 from rscasadi.native.build import compiler
 from rscasadi.native.parallel import available_cores, openmp_flags, set_threads
 from rscasadi.dynamics.arm import Arm
-from rscasadi.model.frames import holding
+from rscasadi.model.frames import holding, with_collision
 from rscasadi.model.modelfile import ModelFileError, document, read, to_toml
 from rscasadi.model.parameters import value, with_values
 from rscasadi.dynamics.statics import rest_state  # noqa: F401  (exported by rscasadi.ocp)
@@ -87,6 +87,8 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
     check_against_model(problem, base)
     if problem.task.payload:                                      # the task's payload on the model's arm
         base = holding(base, **problem.task.payload)
+    if problem.task.collision is not None:                        # and the task's collision geometry
+        base = with_collision(base, problem.task.collision, problem.path)
     arm = Arm(with_values(base, problem.task.parameters))              # the plant for guesses and replay
     w = np.full(problem.transcription.intervals, 1.0 / problem.transcription.intervals) if w is None else np.asarray(w, float)
     tr = Transcription(problem, Arm(base), N=len(w))
@@ -149,7 +151,7 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
             "design": design, "parameters": dict(problem.task.parameters), "target_state": target,
             "trajectory": None if problem.task.trajectory is None else str(problem.task.trajectory),
             "theta_reference": None if ref is None else _reference(problem, t).tolist(),
-            "payload": problem.task.payload,
+            "payload": problem.task.payload, "collision": problem.task.collision,
             "path": None if path is None else {"frame": path.frame, "points": path.points.tolist(), "speed": path.speed,
                                                "tolerance": path.tolerance},
             "obstacles": [{"kind": o.kind, "center": o.center.tolist(), "radius": o.radius,
