@@ -112,6 +112,11 @@ def test_mpc_beats_feedforward_and_pd_under_mismatch(tmp_path):
     assert mpc["max_limit_violation"] == 0.0
     assert mpc["max_error"] < pd["max_error"] / 3            # the full 2 s run: 13x (bench_mpc)
     assert res["feedforward"]["max_error"] > pd["max_error"]  # no feedback: the heavier tip drifts
+    assert np.array(mpc["theta"]).shape == (3, len(mpc["t"])) and mpc["t"][-1] == pytest.approx(0.4)
+    assert main(["view", str(out / "closed_loop.json"), "--out", str(tmp_path / "mpc.html")]) in (0, None)
+    from rscasadi.view import scene_of                       # the MPC's own run, drawn
+    scene = scene_of(out / "closed_loop.json")
+    assert scene.times[-1] == pytest.approx(0.4, abs=1 / 30) and np.ptp(scene.poses[:, 3, :3, 3], axis=0).max() > 0.01
 
 
 def test_mpc_of_the_identified_model_on_the_true_arm(identified, synthetic, tmp_path):

@@ -97,7 +97,7 @@ def closed_loop(problem, mpc_dir, duration: float | None = None, tip_factor: flo
     for name in ("feedforward", "feedforward + PD", "MPC (C)"):
         x = ff["x0"].copy()
         meas_prev = np.concatenate([np.round(x[:n] / q_link) * q_link, np.round(x[n:2 * n] / q_motor) * q_motor])
-        errors, violation, times = [], 0.0, []
+        errors, violation, times, thetas = [], 0.0, [], [x[:n].copy()]
         if name == "MPC (C)":
             mpc.init(x)
         for k in range(K):
@@ -117,6 +117,7 @@ def closed_loop(problem, mpc_dir, duration: float | None = None, tip_factor: flo
                     tau -= (kp * (ff["phi"][:, k] - meas[n:]) + kd * (ff["dphi"][:, k] - speeds[n:])) / mu
             tau = np.clip(tau, -limits["tau"], limits["tau"])
             x = np.array(advance(x, tau)).ravel()
+            thetas.append(x[:n].copy())
             errors.append(np.max(np.abs(x[:n] - ff["theta_d"][:, k + 1])))
             violation = max(violation, float(np.max(np.abs(x[n:2 * n] - x[:n]) / limits["psi"] - 1)),
                             float(np.max(np.abs(x[3 * n:]) / limits["dphi"] - 1)))
@@ -128,6 +129,10 @@ def closed_loop(problem, mpc_dir, duration: float | None = None, tip_factor: flo
                          "max_limit_violation": max(violation, 0.0)}
         if times:
             results[name].update(step_median_s=float(np.median(times)), step_worst_s=float(np.max(times)))
+        if name == "MPC (C)":                           # its motion, every 10 ms, for rscasadi view
+            every = max(1, int(round(0.01 / dt)))
+            results[name].update(model=str(p.model if model is None else model), t=t[::every].tolist(),
+                                 theta=np.array(thetas).T[:, ::every].tolist())
         log(f"{name:18s} max error {e.max():.2e} rad, RMS {results[name]['rms_error']:.2e} rad, "
             f"limit violation {max(violation, 0.0):.1e}"
             + (f", step median {np.median(times) * 1e6:.0f} us, worst {np.max(times) * 1e6:.0f} us" if times else ""))

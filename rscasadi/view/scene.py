@@ -94,8 +94,14 @@ def scene_of(path, model=None) -> Scene:
             data = json.loads(text)
         except json.JSONDecodeError as exc:
             raise ModelFileError(f"{path}: not a solution.json ({exc})") from None
+        if isinstance(data, dict) and not {"t", "theta"} <= set(data):     # an MPC closed_loop.json: its MPC's run
+            cases = [data] + [case for case in data.values() if isinstance(case, dict)]   # one plant, or several
+            runs = [case["MPC (C)"] for case in cases
+                    if isinstance(case.get("MPC (C)"), dict) and "theta" in case["MPC (C)"]]
+            if runs:
+                data = {"t": runs[0]["t"], "theta": runs[0]["theta"], "model": runs[0]["model"]}
         if not isinstance(data, dict) or not {"t", "theta", "model"} <= set(data):
-            raise ModelFileError(f"{path}: not a solution.json (no t, theta, model)")
+            raise ModelFileError(f"{path}: not a solution.json or closed_loop.json (no t, theta, model)")
         from rscasadi.ocp.solution import solution_arm
         arm = Arm(load(model).model) if model is not None else solution_arm(data)
         t, theta = np.asarray(data["t"], float), np.asarray(data["theta"], float)
