@@ -34,9 +34,9 @@ def body_poses(model, theta) -> list:
     return poses
 
 
-def frame_pose(model, frame, theta) -> tuple:
-    """The frame's rotation and origin in the world frame."""
-    R_b, o_b = body_poses(model, theta)[frame.body]
+def frame_pose(model, frame, theta, poses=None) -> tuple:
+    """The frame's rotation and origin in the world frame (`poses`: body_poses, if at hand)."""
+    R_b, o_b = (poses or body_poses(model, theta))[frame.body]
     return R_b @ ca.DM(frame.R), o_b + R_b @ ca.DM(frame.p)
 
 
@@ -44,11 +44,16 @@ def frame_jacobian(model, frame, theta, reference: str = "local_world_aligned"):
     """J (6 x n, [linear; angular]) with [v; w] = J dtheta in `reference` (module docstring).
     The angular column of joint j is its axis in the world (the z of its link's frame) when the
     frame rides on that link or beyond, else zero; the linear part is dp/dtheta."""
+    R, p, J = _placement_and_jacobian(model, frame, theta)
+    return _expressed(reference, R, p, J[:3, :], J[3:, :])
+
+
+def _placement_and_jacobian(model, frame, theta) -> tuple:
+    """R, p and the local_world_aligned J of a frame, from one chain of body poses."""
     poses = body_poses(model, theta)
-    R, p = frame_pose(model, frame, theta)
+    R, p = frame_pose(model, frame, theta, poses)
     Jw = ca.horzcat(*[poses[j + 1][0][:, 2] if j < frame.body else ca.DM.zeros(3) for j in range(model.n)])
-    Jv = ca.jacobian(p, theta)
-    return _expressed(reference, R, p, Jv, Jw)
+    return R, p, ca.vertcat(ca.jacobian(p, theta), Jw)
 
 
 def _expressed(reference, R, p, lin, ang):
@@ -64,8 +69,7 @@ def _expressed(reference, R, p, lin, ang):
 
 def frame_classical_acceleration(model, frame, theta, dtheta, ddtheta, reference: str = "local_world_aligned"):
     """[linear; angular] classical acceleration in `reference` (module docstring)."""
-    R, p = frame_pose(model, frame, theta)
-    J = frame_jacobian(model, frame, theta)                             # local_world_aligned
+    R, p, J = _placement_and_jacobian(model, frame, theta)              # J: local_world_aligned
     v = J @ dtheta
     a = J @ ddtheta + ca.jtimes(v, theta, dtheta)                        # J ddtheta + dJ dtheta
     if reference == "world":
