@@ -11,6 +11,8 @@ from rscasadi.model.modelfile import document, to_toml
 from rscasadi.ocp import (Problem, SolverOptions, Task, TranscriptionOptions, Verification, load_problem, run,
                           solve)
 from rscasadi.ocp.problem import Goal
+from rscasadi.ocp.solution import solution_arm
+from rscasadi.sim.simulation import simulate_held
 
 from conftest import REFERENCE, ROOT
 
@@ -236,17 +238,88 @@ def test_the_tool_follows_a_path_at_its_speed(tmp_path):
     assert np.linalg.norm(end - points[-1]) < 1e-6 and np.max(np.abs(sol.dtheta[:, -1])) < 1e-6
 
 
-@pytest.mark.parametrize("extra,field,words", [
-    ('theta_end = [0.8, 0.9, -1.2]\n', "path", "no theta_end"),
-    ('duration = 1.0\n', "duration", "leave it out"),
-    ('', "path.speed", "missing"),
+def _path_problem(tmp_path, objective, geometry, extra=""):
+    th0 = [0.0, 0.3, -0.5]
+    timing = "duration = 1.0\n" if objective == "min_time" else ""
+    speed = "speed = 0.2\n" if objective == "min_effort" else ""
+    path = tmp_path / f"{objective}.toml"
+    path.write_text(f'model = "{(ROOT / "problems" / "arm3_tool.toml").as_posix()}"\nobjective = "{objective}"\n'
+                    f"{timing}theta_start = {th0}\n[path]\nframe = \"tool\"\n{geometry}{speed}tolerance = 1e-3\n{extra}"
+                    "[transcription]\nintervals = 40\n")
+    return load_problem(path)
+
+
+def _limits_used(arm, sol) -> float:
+    """The largest |tau|, |psi|, |dphi| along the solution relative to its limit."""
+    lim = {k: np.array([jt.limits[k] for jt in arm.model.joints]) for k in ("tau", "psi", "dphi")}
+    used = [np.abs(sol.tau) / lim["tau"][:, None], np.abs(sol.phi - sol.theta) / lim["psi"][:, None],
+            np.abs(sol.dphi) / lim["dphi"][:, None]]
+    return max(float(u.max()) for u in used)
+
+
+def test_minimum_time_along_a_polyline(tmp_path):
+    """The path fixed, its timing free: the replay stays within the tolerance of the polyline
+    (its distance measured here by dense sampling), the tool ends at the last point at rest, a
+    limit binds (the time is minimal), and the timed path at 0.2 m/s takes longer."""
+    arm = rscasadi.load(ROOT / "problems" / "arm3_tool.toml")
+    p0 = np.array(arm.frame_placement("tool")(np.array([0.0, 0.3, -0.5]))[1]).ravel()
+    corners = np.array([p0, p0 + [-0.1, 0.1, 0.0], p0 + [-0.15, 0.1, 0.1]])
+    problem = _path_problem(tmp_path, "min_time", f"points = {corners.tolist()}\n")
+    sol = solve(problem, print_level=0, log=lambda m: None)
+    assert sol.success and sol["verification"]["path_error"] <= 1e-3, sol["verification"]
+    dense = np.vstack([a + np.linspace(0, 1, 2000)[:, None] * (b - a) for a, b in zip(corners[:-1], corners[1:])])
+    replay = simulate_held(solution_arm(sol), np.concatenate([sol.theta[:, 0], sol.phi[:, 0],
+                                        sol.dtheta[:, 0], sol.dphi[:, 0]]), sol.t, sol.tau, 10, 1e-10)
+    tool = np.array(arm.frame_placement("tool").map(replay["theta"].shape[1])(replay["theta"])[1]).T
+    assert np.max(np.min(np.linalg.norm(tool[:, None] - dense[None], axis=2), axis=1)) < 1e-3 + 1e-4
+    assert np.linalg.norm(tool[-1] - corners[-1]) < 1e-4 and np.max(np.abs(sol.dtheta[:, -1])) < 1e-6
+    assert _limits_used(arm, sol) > 0.99
+    assert sol.t[-1] < problem.task.path.length / 0.2 / 2
+
+
+@pytest.mark.parametrize("objective", ["min_effort", "min_time"])
+def test_once_round_a_circle(tmp_path, objective):
+    """A circle of 8 cm in the horizontal plane from where the tool starts: the replay's tool stays
+    within the tolerance of the circle (distance from the centre's axis and the plane) and goes
+    round it once (its angle about the centre unwrapped)."""
+    arm = rscasadi.load(ROOT / "problems" / "arm3_tool.toml")
+    p0 = np.array(arm.frame_placement("tool")(np.array([0.0, 0.3, -0.5]))[1]).ravel()
+    centre = p0 + [-0.08, 0.0, 0.0]
+    problem = _path_problem(tmp_path, objective, f"circle = {{ center = {centre.tolist()}, radius = 0.08, "
+                                                 "normal = [0.0, 0.0, 1.0] }\n")
+    sol = solve(problem, print_level=0, log=lambda m: None)
+    assert sol.success and sol["verification"]["path_error"] <= 1e-3, sol["verification"]
+    replay = simulate_held(solution_arm(sol), np.concatenate([sol.theta[:, 0], sol.phi[:, 0],
+                                        sol.dtheta[:, 0], sol.dphi[:, 0]]), sol.t, sol.tau, 10, 1e-10)
+    d = np.array(arm.frame_placement("tool").map(replay["theta"].shape[1])(replay["theta"])[1]).T - centre
+    assert np.max(np.hypot(np.hypot(d[:, 0], d[:, 1]) - 0.08, d[:, 2])) < 1e-3 + 1e-4
+    turned = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    assert abs(turned[-1] - turned[0]) == pytest.approx(2 * np.pi, abs=0.02)
+    if objective == "min_time":
+        assert _limits_used(arm, sol) > 0.99 and sol.t[-1] < 2 * np.pi * 0.08 / 0.2
+
+
+POLYLINE = "points = [[0.6, 0.0, 0.4], [0.5, 0.1, 0.4]]\n"
+
+
+@pytest.mark.parametrize("objective,top,inside,field,words", [
+    ("min_effort", "theta_end = [0.8, 0.9, -1.2]\n", POLYLINE + "speed = 0.2\n", "path", "no theta_end"),
+    ("min_effort", "duration = 1.0\n", POLYLINE + "speed = 0.2\n", "duration", "leave it out"),
+    ("min_effort", "", POLYLINE, "path.speed", "missing"),
+    ("min_time", "duration = 1.0\n", POLYLINE + "speed = 0.2\n", "path.speed", "no speed"),
+    ("min_time", "", POLYLINE, "duration", "the guess of min_time"),
+    ("min_effort", "", POLYLINE + "circle = { center = [0.5, 0.0, 0.4], radius = 0.1, normal = [0, 0, 1] }\n",
+     "path", "one of them"),
+    ("min_effort", "", "circle = { center = [0.5, 0.0, 0.4], normal = [0, 0, 1] }\nspeed = 0.2\n",
+     "path.circle", "center, radius, normal"),
+    ("min_effort", "", "circle = { center = [0.5, 0.0, 0.4], radius = 0.1, normal = [0, 0, 0] }\nspeed = 0.2\n",
+     "path.circle.normal", "not be"),
+    ("tracking", 'trajectory = "trajectory_arm3.toml"\n', POLYLINE + "speed = 0.2\n", "path", "min_effort"),
 ])
-def test_a_bad_path_is_refused_by_name(tmp_path, extra, field, words):
-    speed = "" if field == "path.speed" else "speed = 0.2\n"
+def test_a_bad_path_is_refused_by_name(tmp_path, objective, top, inside, field, words):
     path = tmp_path / "bad_path.toml"
-    path.write_text(f'model = "{(ROOT / "problems" / "arm3_tool.toml").as_posix()}"\nobjective = "min_effort"\n'
-                    f'theta_start = [0.0, 0.3, -0.5]\n{extra}[path]\nframe = "tool"\n'
-                    f"points = [[0.6, 0.0, 0.4], [0.5, 0.1, 0.4]]\n{speed}")
+    path.write_text(f'model = "{(ROOT / "problems" / "arm3_tool.toml").as_posix()}"\nobjective = "{objective}"\n'
+                    f'theta_start = [0.0, 0.3, -0.5]\n{top}[path]\nframe = "tool"\n{inside}')
     with pytest.raises(ModelFileError, match=rf"bad_path.toml: field '{re.escape(field)}'.*{words}"):
         load_problem(path)
 

@@ -73,3 +73,33 @@ def inverse_kinematics(arm, frame: str, R=None, p=None, theta_guess=None, positi
     reached = position_error <= position_tol and angle_error <= angle_tol
     return {"theta": th, "success": bool(reached and within), "status": stats["return_status"],
             "position_error": position_error, "angle_error": angle_error, "iterations": int(stats["iter_count"])}
+
+
+def inverse_kinematics_along(arm, frame: str, points, theta_start, position_tol: float = 1e-6) -> dict:
+    """Configurations putting `frame`'s origin at each of `points` (k x 3) in turn, each the one
+    closest to the one before (from `theta_start`) within the joint limits: a path's
+    configurations, continuous where the path is.  One IPOPT solver, its target and guess as
+    parameters.  Returns {theta (n x k), success, position_error (the largest), index (the first
+    point missed, or None)}."""
+    n = arm.n
+    lo = np.array([jt.limits.get("theta", (-np.inf, np.inf))[0] for jt in arm.model.joints], float)
+    hi = np.array([jt.limits.get("theta", (-np.inf, np.inf))[1] for jt in arm.model.joints], float)
+    theta, target, near = ca.SX.sym("theta", n), ca.SX.sym("p", 3), ca.SX.sym("near", n)
+    p_f = arm.frame_placement(frame)(theta)[1]
+    solver = ca.nlpsol("inverse_kinematics_along", "ipopt",
+                       {"x": theta, "p": ca.vertcat(target, near), "f": ca.sumsqr(theta - near), "g": p_f - target},
+                       {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 100,
+                        "ipopt.tol": 1e-12, "ipopt.constr_viol_tol": 1e-10})
+    place = arm.frame_placement(frame)
+    th = np.clip(np.asarray(theta_start, float).ravel(), lo, hi)
+    out, worst = [], 0.0
+    for i, p in enumerate(np.asarray(points, float).reshape(-1, 3)):
+        res = solver(x0=th, p=np.r_[p, th], lbx=lo, ubx=hi, lbg=0.0, ubg=0.0)
+        raise_if_interrupted(solver.stats())
+        th = np.array(res["x"]).ravel()
+        err = float(np.linalg.norm(np.array(place(th)[1]).ravel() - p))
+        worst = max(worst, err)
+        if err > position_tol:
+            return {"theta": np.array(out).T, "success": False, "position_error": err, "index": i}
+        out.append(th)
+    return {"theta": np.array(out).T, "success": True, "position_error": worst, "index": None}

@@ -66,6 +66,7 @@ import numpy as np
 
 from rscasadi.model.checks import field_checker, read_toml
 from rscasadi.model.types import ModelFileError
+from rscasadi.ocp.toolpath import ToolPath
 
 OBJECTIVES = ("min_time", "min_effort", "tracking")
 METHODS = ("radau", "legendre", "hermite-simpson")
@@ -77,7 +78,8 @@ HESSIANS = ("exact", "limited-memory")
 TOP = {"model", "objective", "theta_start", "theta_end", "duration", "max_duration", "trajectory",
        "effort_weight", "transcription", "verification", "solver", "refinement", "design", "goal", "obstacles",
        "payload", "path", "collision"}
-PATH_KEYS = {"frame", "points", "speed", "tolerance"}
+PATH_KEYS = {"frame", "points", "circle", "speed", "tolerance"}
+CIRCLE_KEYS = {"center", "radius", "normal", "turns"}
 PAYLOAD_KEYS = {"frame", "mass", "com", "inertia"}
 GOAL_KEYS = {"frame", "position", "rpy", "tolerance"}
 TABLES = {"transcription": {"method", "degree", "intervals", "dynamics", "compiled", "condense"},
@@ -102,35 +104,6 @@ class Goal:
     def __post_init__(self):
         self.position = np.asarray(self.position, float).ravel()
         self.R = None if self.R is None else np.asarray(self.R, float)
-
-
-@dataclass
-class ToolPath:
-    """A polyline (k x 3 points, world, m) that a frame follows at a mean `speed` (m/s), from rest
-    to rest: its arc length s(t) = L (tau - sin(2 pi tau) / 2 pi), tau = t / T, T = L / speed.
-    The replay must stay within `tolerance` (m) of it."""
-    frame: str
-    points: np.ndarray
-    speed: float
-    tolerance: float = 1e-3
-
-    def __post_init__(self):
-        self.points = np.asarray(self.points, float).reshape(-1, 3)
-
-    @property
-    def length(self) -> float:
-        return float(np.sum(np.linalg.norm(np.diff(self.points, axis=0), axis=1)))
-
-    @property
-    def duration(self) -> float:
-        return self.length / self.speed
-
-    def __call__(self, t) -> np.ndarray:
-        """The frame's target positions at the times t (len(t) x 3)."""
-        tau = np.clip(np.asarray(t, float) / self.duration, 0.0, 1.0)
-        s = self.length * (tau - np.sin(2 * np.pi * tau) / (2 * np.pi))
-        cum = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(self.points, axis=0), axis=1))]
-        return np.column_stack([np.interp(s, cum, self.points[:, i]) for i in range(3)])
 
 
 @dataclass
@@ -219,7 +192,8 @@ class Verification:
 PARTS = {"task": Task, "transcription": TranscriptionOptions, "solver": SolverOptions, "verification": Verification}
 # a field's flat name (as sweeps and `Problem.replace` use it) -> (part, attribute)
 FIELDS = {**{f.name: (part, f.name) for part, cls in PARTS.items() for f in dataclasses.fields(cls)},
-          "solver": ("solver", "name")}
+          "solver": ("solver", "name"), "tool_path": ("task", "path")}
+del FIELDS["path"]                           # `path` names the problem's file; the task's is `tool_path`
 
 
 @dataclass
@@ -234,7 +208,8 @@ class Problem:
 
     def replace(self, **changes) -> "Problem":
         """A copy with fields changed by their names (`intervals=200`, `solver="ipopt"`,
-        `theta_end=...`); a part may also be replaced whole (`solver=SolverOptions(...)`)."""
+        `theta_end=...`, `tool_path=...` for the task's path, `path=` for the file's); a part may
+        also be replaced whole (`solver=SolverOptions(...)`)."""
         parts = {name: getattr(self, name) for name in PARTS}
         for key, value in changes.items():
             if key in PARTS and isinstance(value, PARTS[key]):
@@ -286,16 +261,30 @@ class Problem:
                 fail(f"{fld}.size", f"expected 3 positive numbers, got {ob.size!r}")
         if t.path is not None:
             pa = t.path
-            if t.objective != "min_effort":
-                fail("path", "a path with a speed fixes the timing: objective min_effort")
+            if t.objective not in ("min_effort", "min_time"):
+                fail("path", "a path is followed at its speed (min_effort) or as fast as it can be (min_time)")
             if t.goal is not None or t.theta_end is not None:
                 fail("path", "the path's end is where the arm ends: no theta_end or goal")
-            if pa.points.shape[0] < 2 or not np.all(np.isfinite(pa.points)) or pa.length <= 0:
-                fail("path.points", "expected at least two distinct points of 3 numbers")
-            _number(fail, "path.speed", pa.speed, True)
+            if pa.kind == "polyline":
+                if pa.points.shape[0] < 2 or not np.all(np.isfinite(pa.points)) or pa.length <= 0:
+                    fail("path.points", "expected at least two distinct points of 3 numbers")
+            else:
+                for key in ("center", "normal"):
+                    vec = getattr(pa, key)
+                    if vec.shape != (3,) or not np.all(np.isfinite(vec)) or (key == "normal" and not np.any(vec)):
+                        fail(f"path.circle.{key}", f"expected 3 finite numbers{' not all 0' if key == 'normal' else ''}, got {vec!r}")
+                _number(fail, "path.circle.radius", pa.radius, True)
+                _number(fail, "path.circle.turns", pa.turns, True)
             _number(fail, "path.tolerance", pa.tolerance, True)
-            if abs(t.duration - pa.duration) > 1e-9 * pa.duration:
-                fail("duration", f"the path's length and speed make it {pa.duration:.6g} s (leave duration out)")
+            if t.objective == "min_time":
+                if pa.speed is not None:
+                    fail("path.speed", "min_time chooses the timing along the path: no speed (duration is the guess)")
+            else:
+                if pa.speed is None:
+                    fail("path.speed", "missing required field (objective min_effort: the mean speed along the path)")
+                _number(fail, "path.speed", pa.speed, True)
+                if abs(t.duration - pa.duration) > 1e-9 * pa.duration:
+                    fail("duration", f"the path's length and speed make it {pa.duration:.6g} s (leave duration out)")
         if t.goal is not None:
             g = t.goal
             if g.position.shape != (3,) or not np.all(np.isfinite(g.position)):
@@ -350,17 +339,20 @@ def load_problem(path) -> Problem:
                 fail(f"{name}.{key}", f"unknown key (allowed: {', '.join(sorted(TABLES[name]))})")
         return t
 
-    for key in ("model", "objective") + (("duration",) if "path" not in d else ()):
+    timed_path = "path" in d and d.get("objective") != "min_time"      # the path's speed sets the duration
+    for key in ("model", "objective") + (("duration",) if not timed_path else ()):
         if key not in d:
-            fail(key, "missing required field")
-    if "path" in d and "duration" in d:
+            fail(key, "missing required field" + (" (the guess of min_time along a path)" if "path" in d else ""))
+    if timed_path and "duration" in d:
         fail("duration", "a path's length and speed set the duration: leave it out")
     tool_path = _tool_path(fail, table("path")) if "path" in d else None
     for key in ("model", "trajectory"):
         if key in d and (not isinstance(d[key], str) or not d[key].strip()):
             fail(key, f"expected the path of a file, got {d[key]!r}")
+    if timed_path and tool_path.speed is None:
+        fail("path.speed", "missing required field (objective min_effort: the mean speed along the path)")
     task = {"model": (path.parent / str(d["model"])).resolve(), "objective": d["objective"],
-            "duration": _number(fail, "duration", d["duration"], True) if tool_path is None else tool_path.duration,
+            "duration": _number(fail, "duration", d["duration"], True) if not timed_path else tool_path.duration,
             "path": tool_path}
     if "goal" in d and not isinstance(d["goal"], dict):
         fail("goal", "expected a table")
@@ -416,20 +408,33 @@ def _vector3(fail, fld, v, positive: bool = False) -> np.ndarray:
 
 
 def _tool_path(fail, t: dict) -> ToolPath:
-    """The [path] table: frame, points (a polyline), speed (m/s), tolerance (m)."""
+    """The [path] table: frame, points (a polyline) or circle = { center, radius, normal, turns },
+    speed (m/s; not for min_time), tolerance (m)."""
     for key in t:
         if key not in PATH_KEYS:
             fail(f"path.{key}", f"unknown key (allowed: {', '.join(sorted(PATH_KEYS))})")
-    for key in ("frame", "points", "speed"):
-        if key not in t:
-            fail(f"path.{key}", "missing required field")
+    if "frame" not in t:
+        fail("path.frame", "missing required field")
+    if ("points" in t) == ("circle" in t):
+        fail("path", "give points (a polyline) or a circle = { center, radius, normal }, one of them")
     if not isinstance(t["frame"], str):
         fail("path.frame", f"expected the name of a frame, got {t['frame']!r}")
+    speed = _number(fail, "path.speed", t["speed"], True) if "speed" in t else None
+    tolerance = _number(fail, "path.tolerance", t.get("tolerance", 1e-3), True)
+    if "circle" in t:
+        c = t["circle"]
+        if not isinstance(c, dict) or set(c) - CIRCLE_KEYS or not {"center", "radius", "normal"} <= set(c):
+            fail("path.circle", f"expected {{ center, radius, normal[, turns] }}, got {c!r}")
+        normal = _vector3(fail, "path.circle.normal", c["normal"])
+        if not np.any(normal):
+            fail("path.circle.normal", "must not be [0, 0, 0]")
+        return ToolPath(t["frame"], speed=speed, tolerance=tolerance, center=_vector3(fail, "path.circle.center", c["center"]),
+                        radius=_number(fail, "path.circle.radius", c["radius"], True), normal=normal,
+                        turns=_number(fail, "path.circle.turns", c.get("turns", 1.0), True))
     if not isinstance(t["points"], list) or len(t["points"]) < 2:
         fail("path.points", f"expected a list of at least two points, got {t['points']!r}")
     points = np.array([_vector3(fail, f"path.points[{i}]", v) for i, v in enumerate(t["points"])])
-    return ToolPath(t["frame"], points, _number(fail, "path.speed", t["speed"], True),
-                    _number(fail, "path.tolerance", t.get("tolerance", 1e-3), True))
+    return ToolPath(t["frame"], points, speed, tolerance)
 
 
 def _goal(fail, t: dict) -> Goal:

@@ -105,11 +105,11 @@ def verify(solution: dict, substeps: int = 20, tol: float = 1e-10) -> dict:
         report["interval_clearance"] = gap[1:].reshape(len(t) - 1, substeps).min(axis=1).tolist()
     if solution.get("path"):                                          # on the path, between the nodes too
         from rscasadi.ocp.problem import ToolPath
-        pa = solution["path"]
-        path = ToolPath(pa["frame"], pa["points"], pa["speed"], pa["tolerance"])
-        place = arm.frame_placement(pa["frame"]).map(sim["theta"].shape[1])
+        path = ToolPath.from_dict(solution["path"])
+        place = arm.frame_placement(path.frame).map(sim["theta"].shape[1])
         where = np.array(place(sim["theta"])[1]).T
-        gap = np.linalg.norm(where - path(sim["t"]), axis=1)
+        # a fixed timing: from the point of its time; a free one: from the path itself
+        gap = np.linalg.norm(where - path(sim["t"]), axis=1) if path.speed is not None else path.distance(where)
         report["path_error"] = float(gap.max())
         report["interval_path_error"] = gap[1:].reshape(len(t) - 1, substeps).max(axis=1).tolist()
     report["max_collocation_deviation"] = float(np.max(np.abs(sim["theta"][:, ::substeps] - np.asarray(solution["theta"]))))

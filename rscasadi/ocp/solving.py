@@ -50,8 +50,11 @@ def guess(tr: Transcription, problem: Problem, arm: Arm, t, warm: dict | None):
     T = t[-1]
     tc = (t[:-1, None] + np.diff(t)[:, None] * tr.fractions[None, :]).ravel()       # interval-major
     design = np.array([np.clip(v, *problem.task.design[k]) for k, v in _design_start(problem, arm).items()])
+    arc = None
     if warm:
         tw = np.asarray(warm["t"]) * T / warm["t"][-1]
+        if tr.ns:
+            arc = np.interp(t, tw, warm["path_arc"])
         Xw = np.vstack([np.asarray(warm[k]) for k in ("theta", "phi", "dtheta", "dphi")])
         interp = lambda s: np.vstack([np.interp(s, tw, row) for row in Xw])
         mid = (t[:-1] + t[1:]) / 2
@@ -59,6 +62,8 @@ def guess(tr: Transcription, problem: Problem, arm: Arm, t, warm: dict | None):
         Xs, Xc, U = interp(t), interp(tc), np.asarray(warm["tau"])[:, k]
         if warm.get("design"):
             design = np.array([warm["design"].get(name, v) for name, v in zip(problem.task.design, design)])
+    elif tr.tool_path is not None:
+        Xs, Xc, U, arc = _along_path(tr, problem, arm, t, tc)
     else:
         x0 = rest_state(arm, problem.task.theta_start if problem.task.theta_start is not None else _reference(problem, t[:1])[:, 0])
         xe = rest_state(arm, problem.task.theta_end) if problem.task.theta_end is not None else x0
@@ -73,7 +78,33 @@ def guess(tr: Transcription, problem: Problem, arm: Arm, t, warm: dict | None):
     u = np.repeat(U, m, axis=1)
     fd = arm.forward_dynamics().map(N * m)
     acc = np.vstack([np.array(a) for a in fd(Xc[:n], Xc[n:2 * n], Xc[2 * n:3 * n], Xc[3 * n:], u)])
-    return tr.pack(Xs, U, T, design, acc.reshape(2 * n, N, m).transpose(0, 2, 1))
+    return tr.pack(Xs, U, T, design, acc.reshape(2 * n, N, m).transpose(0, 2, 1), arc, t)
+
+
+def _along_path(tr: Transcription, problem: Problem, arm: Arm, t, tc):
+    """The guess along a path: the frame on it at every node and collocation point with the
+    path's timing law over the guess's duration (inverse kinematics, each configuration the
+    closest to the one before), the speeds of that motion, the SEAs in their static deflection
+    and the torques holding each node still.  Returns Xs, Xc, U and the arc lengths at the nodes."""
+    from rscasadi.dynamics.inverse_kinematics import inverse_kinematics_along
+    n, path, T = tr.n, tr.tool_path, t[-1]
+    law = dataclasses.replace(path, speed=path.length / T)              # the fixed timing over T
+    times = np.union1d(t, tc)
+    ik = inverse_kinematics_along(arm, path.frame, law(times), problem.task.theta_start, position_tol=path.tolerance / 4)
+    if not ik["success"]:
+        raise ModelFileError(f"{problem.path}: field 'path': frame {path.frame!r} cannot reach the path's point "
+                             f"{np.round(law(times[ik['index']:ik['index'] + 1])[0], 4).tolist()} (at "
+                             f"{ik['index'] / (len(times) - 1):.0%} of it) within the joint limits")
+    theta = ik["theta"]
+    dtheta = np.gradient(theta, times, axis=1)
+    z = np.zeros(n)
+    X = np.array([rest_state(arm, th) for th in theta.T]).T
+    X[2 * n:3 * n], X[3 * n:] = dtheta, dtheta
+    at = lambda tt: X[:, np.searchsorted(times, tt)]
+    Xs, Xc = at(t), at(tc)
+    tau = arm.inverse_dynamics().map(len(t) - 1)
+    U = np.array(tau(Xs[:n, :-1], Xs[n:2 * n, :-1], z, z, z, z)[0])
+    return Xs, Xc, U, law.arc_length(t)
 
 
 def _design_start(problem: Problem, arm: Arm) -> dict:
@@ -91,14 +122,19 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
         base = with_collision(base, problem.task.collision, problem.path)
     arm = Arm(with_values(base, problem.task.parameters))              # the plant for guesses and replay
     w = np.full(problem.transcription.intervals, 1.0 / problem.transcription.intervals) if w is None else np.asarray(w, float)
-    tr = Transcription(problem, Arm(base), N=len(w))
     path = problem.task.path
-    goal = problem.task.goal if path is None else Goal(path.frame, path.points[-1], position_tol=path.tolerance)
     if path is not None:                                            # the start must be on the path
         on = np.array(arm.frame_placement(path.frame)(problem.task.theta_start)[1]).ravel()
-        if np.linalg.norm(on - path.points[0]) > path.tolerance:
+        try:
+            path = path.anchored(on)                                # a circle starts where the frame is
+        except ValueError as exc:
+            raise ModelFileError(f"{problem.path}: field 'path.circle': {exc}") from None
+        problem = problem.replace(tool_path=path)
+        if np.linalg.norm(on - path.first) > path.tolerance:
             raise ModelFileError(f"{problem.path}: field 'path.points[0]': theta_start puts {path.frame!r} at "
-                                 f"{np.round(on, 4).tolist()}, {np.linalg.norm(on - path.points[0]):.3g} m from it")
+                                 f"{np.round(on, 4).tolist()}, {np.linalg.norm(on - path.first):.3g} m from it")
+    tr = Transcription(problem, Arm(base), N=len(w))
+    goal = problem.task.goal if path is None else Goal(path.frame, path.end, position_tol=path.tolerance)
     if goal is not None and problem.task.theta_end is None:        # the guess's end: inverse kinematics
         problem = problem.replace(theta_end=goal_configuration(arm, goal, problem.task.theta_start, problem.path))
     t_guess = (warm["t"][-1] if warm else problem.task.duration) * np.concatenate([[0.0], np.cumsum(w)])
@@ -152,8 +188,8 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
             "trajectory": None if problem.task.trajectory is None else str(problem.task.trajectory),
             "theta_reference": None if ref is None else _reference(problem, t).tolist(),
             "payload": problem.task.payload, "collision": problem.task.collision,
-            "path": None if path is None else {"frame": path.frame, "points": path.points.tolist(), "speed": path.speed,
-                                               "tolerance": path.tolerance},
+            "path": None if path is None else path.to_dict(),
+            "path_arc": None if out["arc"] is None else out["arc"].tolist(),
             "obstacles": [{"kind": o.kind, "center": o.center.tolist(), "radius": o.radius,
                            "size": None if o.size is None else o.size.tolist()} for o in problem.task.obstacles],
             "goal": None if goal is None else {"frame": goal.frame, "position": goal.position.tolist(),

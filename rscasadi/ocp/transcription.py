@@ -65,18 +65,21 @@ class Transcription:
         self.interior = [j for j in range(self.m) if 0.0 < c[j] < 1.0]
         self.nT = 1 if problem.task.objective == "min_time" else 0
         self.nz = self.nT + len(self.design)                                 # carried constants
-        self.nx = 4 * n + self.nz
-        self.nu_lifted = n + 2 * n * self.m
+        self.tool_path = problem.task.path                  # its frame's position pinned at every node
+        # min_time along a path: the path's arc length s is a state, its rate a control (>= 0)
+        self.ns = 1 if self.tool_path is not None and self.nT else 0
+        self.nx = 4 * n + self.nz + self.ns
+        self.nu_lifted = n + self.ns + 2 * n * self.m
         # condensed: the accelerations are solved for inside the NLP's functions (condensing.py)
         self.condensed = problem.transcription.condense
-        self.nu = n if self.condensed else self.nu_lifted
+        self.nu = n + self.ns if self.condensed else self.nu_lifted
+        self.n_start = 4 * n + self.ns                                       # the start's rows
         # condensed, the collocation equations are solved exactly, so both forms give the same
         # NLP; the inverse dynamics' derivatives are the cheaper (Hessian 17 807 SX instructions
         # with the projections, 26 332 through the forward dynamics; n = 3)
         self.dynamics = "implicit" if self.condensed else problem.transcription.dynamics
         self.tracking = problem.task.objective == "tracking"
-        self.tool_path = problem.task.path                  # its frame's position pinned at every node
-        self.goal = problem.task.goal if self.tool_path is None else Goal(self.tool_path.frame, self.tool_path.points[-1])
+        self.goal = problem.task.goal if self.tool_path is None else Goal(self.tool_path.frame, self.tool_path.end)
         th = ca.SX.sym("theta", n)
         self.clear = (ca.Function("clearance", [th], [clearances(arm.model, problem.task.obstacles, th)])
                       if problem.task.obstacles else None)
@@ -137,7 +140,9 @@ class Transcription:
             rest_lo = np.r_[np.zeros(3 * n + 3), [0.0, 0.0, 0.0, 1.0] if self.goal.R is not None else []]
             rest_hi = np.r_[np.zeros(3 * n + 3), [0.0, 0.0, 0.0, 3.0] if self.goal.R is not None else []]
         c = self.clear.size1_out(0) if self.clear is not None else 0
-        return np.r_[rest_lo, -psi_max, -dphi_max, np.zeros(c)], np.r_[rest_hi, psi_max, dphi_max, np.full(c, np.inf)]
+        s = np.zeros(self.ns)                                              # at the path's end: s_N = L
+        return (np.r_[rest_lo, s, -psi_max, -dphi_max, np.zeros(c)],
+                np.r_[rest_hi, s, psi_max, dphi_max, np.full(c, np.inf)])
 
     def _pf(self, design, p_fixed):
         """The free parameters' values, in the order of Arm(free=design + fixed); None if none."""
@@ -176,11 +181,11 @@ class Transcription:
     def _stage(self, x, u, w, dur, pfix):
         """The stage's expressions (its model calls recorded if self.calls is a recorder)."""
         n, m, A, b, c = self.n, self.m, self.A, self.b, self.fractions
-        q, v, z = x[:2 * n], x[2 * n:4 * n], x[4 * n:]
+        q, v, z, arc = x[:2 * n], x[2 * n:4 * n], x[4 * n:4 * n + self.nz], x[4 * n + self.nz:]
         h = (z[0] if self.nT else dur) * w
         pf = self._pf(z[self.nT:self.nz] if self.design else None, pfix)
-        tau, s = u[:n], ca.DM(self.acc_scale)
-        acc = [s * u[n + 2 * n * j: n + 2 * n * (j + 1)] for j in range(m)]        # ddtheta, ddphi
+        tau, s, a0 = u[:n], ca.DM(self.acc_scale), n + self.ns
+        acc = [s * u[a0 + 2 * n * j: a0 + 2 * n * (j + 1)] for j in range(m)]      # ddtheta, ddphi
         AA = A @ A
         V = [v + h * sum(A[j, l] * acc[l] for l in range(m)) for j in range(m)]
         Q = [q + h * c[j] * v + h ** 2 * sum(AA[j, l] * acc[l] for l in range(m)) for j in range(m)]
@@ -199,14 +204,16 @@ class Transcription:
             limits += [Q[j][:n], Q[j][n:] - Q[j][:n], speed * V[j][n:]]
         if self.clear is not None:                                              # clear of the obstacles
             limits += [self.clear(q[:n])] + [self.clear(Q[j][:n]) for j in self.interior]
-        return [ca.vertcat(x_end, z), ca.vertcat(*dynamics, *limits), h * ca.sumsqr(tau)]
+        arc_end = arc + h * u[n:n + self.ns]                                   # s_{k+1} = s_k + h ds_k
+        return [ca.vertcat(x_end, z, arc_end), ca.vertcat(*dynamics, *limits), h * ca.sumsqr(tau)]
 
     # -- the NLP ----------------------------------------------------------------------------
     def parameter_layout(self):
         n, N = self.n, self.N
         sizes = [("theta_start", n), ("theta_end", n), ("duration", 1), ("effort_weight", 1), ("scale", 1),
                  ("w", N), ("theta_ref", n * N if self.tracking else 0), ("p_fixed", len(self.fixed)),
-                 ("goal", 12 if self.goal is not None else 0), ("path_target", 3 * N if self.tool_path else 0)]
+                 ("goal", 12 if self.goal is not None else 0),
+                 ("path_target", 3 * N if self.tool_path and not self.ns else 0)]
         out, i = {}, 0
         for key, size in sizes:
             out[key] = slice(i, i + size)
@@ -223,7 +230,8 @@ class Transcription:
         w, dur, pfix = ca.SX.sym("w"), ca.SX.sym("duration"), ca.SX.sym("p_fixed", len(self.fixed))
         ew, scale, ref = ca.SX.sym("effort_weight"), ca.SX.sym("scale"), ca.SX.sym("theta_ref", n)
         target = ca.SX.sym("path_target", 3)                 # where the path's frame is at x_k's time
-        args = [w, dur, pfix, ew, scale] + ([ref] if self.tracking else []) + ([target] if self.tool_path else [])
+        timed = self.tool_path is not None and not self.ns
+        args = [w, dur, pfix, ew, scale] + ([ref] if self.tracking else []) + ([target] if timed else [])
 
         def pieces(stage):
             x_next, path, effort = stage(x, u, w, dur, pfix)
@@ -235,12 +243,14 @@ class Transcription:
                 f = dur * w * ca.sumsqr(x1[:n] - ref) / ca.fmax(ew, 1e-12) + effort
             # fatrop's stage k may constrain x_k and u_k only: the path holds at x_k (the first
             # stage's rows are left free: theta_start is on the path), and the end's is the goal
-            on_path = [self.arm.frame_placement(self.tool_path.frame)(x[:n])[1] - target] if self.tool_path else []
+            # (the timing free: at the path's point of its own arc length s_k)
+            on = self.tool_path.position_symbolic(x[nx - 1]) if self.ns else target
+            on_path = [self.arm.frame_placement(self.tool_path.frame)(x[:n])[1] - on] if self.tool_path else []
             return ca.vertcat(x1 - x_next, path, *on_path), scale * f
 
         fn = ca.Function("stage_piece", [z, *args], list(pieces(self.stage)),
                          ["z", "w", "duration", "p_fixed", "effort_weight", "scale"] + (["theta_ref"] if self.tracking else [])
-                         + (["path_target"] if self.tool_path else []), ["rows", "f"])
+                         + (["path_target"] if timed else []), ["rows", "f"])
         self.calls = Calls()
         try:
             rows, f = pieces(self._stage)
@@ -260,11 +270,12 @@ class Transcription:
         if end:
             rest = [] if self.tracking else [self.rest_residual(x, None if goal_end else theta, pf)]
             rest += self.goal_rows(x[:n], theta) if goal_end else []
+            rest += [x[self.nx - 1] - self.tool_path.length] if self.ns else []
             rows = rest + [x[n:2 * n] - x[:n], self._geared_speeds(x[3 * n:4 * n], pf)]
             rows += [self.clear(x[:n])] if self.clear is not None else []
             f = ca.SX(0)
         else:
-            rows = [self.rest_residual(x, theta, pf)]
+            rows = [self.rest_residual(x, theta, pf)] + ([x[self.nx - 1]] if self.ns else [])     # s_0 = 0
             f = scale * x[4 * n] if self.p.task.objective == "min_time" else ca.SX(0)
         return ca.Function("end_piece" if end else "start_piece", [x, theta, pfix, scale], [ca.vertcat(*rows), f],
                            ["z", "theta", "p_fixed", "scale"], ["rows", "f"])
@@ -277,8 +288,9 @@ class Transcription:
         """The stage piece with its accelerations eliminated (condensing.py): kept z = (x_k, tau_k,
         x_{k+1}), solved rows = the dynamics at the points (the first path rows)."""
         n, nx, nul, na = self.n, self.nx, self.nu_lifted, 2 * self.n * self.m
-        keep = np.r_[np.arange(nx + n), nx + nul + np.arange(nx)]
-        return condense(*derivatives, keep, nx + n + np.arange(na), nx + np.arange(na), log=log)
+        nu = n + self.ns                                                      # tau, [ds]
+        keep = np.r_[np.arange(nx + nu), nx + nul + np.arange(nx)]
+        return condense(*derivatives, keep, nx + nu + np.arange(na), nx + np.arange(na), log=log)
 
     def nlp(self, log=print):
         """The NLP dict and its constant bounds on g; variables and constraints in stage order.
@@ -292,12 +304,13 @@ class Transcription:
         r = nx + self._n_path()                                             # a stage's rows
         end_lo, end_hi = self._end_bounds()
         n_end = len(end_lo)
-        stage_rows = np.vstack([np.arange(r)] + [r + 4 * n + (k - 1) * r + np.arange(r) for k in range(1, N)])
-        n_g = r + 4 * n + (N - 1) * r + n_end
+        n0 = self.n_start
+        stage_rows = np.vstack([np.arange(r)] + [r + n0 + (k - 1) * r + np.arange(r) for k in range(1, N)])
+        n_g = r + n0 + (N - 1) * r + n_end
         stage_args = [ca.reshape(par["w"], 1, N), par["duration"], par["p_fixed"], par["effort_weight"], par["scale"]]
         if self.tracking:
             stage_args.append(ca.reshape(par["theta_ref"], n, N))
-        if self.tool_path:
+        if self.tool_path and not self.ns:
             stage_args.append(ca.reshape(par["path_target"], 3, N))
         stage, derivatives = self._stage_piece()
         if self.condensed:
@@ -307,7 +320,7 @@ class Transcription:
         self.pieces = [
             Piece(stage, np.arange(N)[:, None] * stride + np.arange(stride + nx), stage_rows, stage_args, derivatives,
                   self.kernel.library if self.kernel else None),
-            Piece(self._boundary_piece(False), np.arange(nx)[None, :], r + np.arange(4 * n)[None, :],
+            Piece(self._boundary_piece(False), np.arange(nx)[None, :], r + np.arange(n0)[None, :],
                   [par["theta_start"], par["p_fixed"], par["scale"]]),
             Piece(self._boundary_piece(True), N * stride + np.arange(nx)[None, :], n_g - n_end + np.arange(n_end)[None, :],
                   [par["goal"] if self.goal is not None else par["theta_end"], par["p_fixed"], par["scale"]])]
@@ -316,8 +329,8 @@ class Transcription:
         first_lo, first_hi = stage_lo.copy(), stage_hi.copy()
         if self.tool_path:                                  # the start is theta_start: on the path already
             first_lo[-3:], first_hi[-3:] = -np.inf, np.inf
-        lbg = np.concatenate([first_lo, np.zeros(4 * n), np.tile(stage_lo, N - 1), end_lo])
-        ubg = np.concatenate([first_hi, np.zeros(4 * n), np.tile(stage_hi, N - 1), end_hi])
+        lbg = np.concatenate([first_lo, np.zeros(n0), np.tile(stage_lo, N - 1), end_lo])
+        ubg = np.concatenate([first_hi, np.zeros(n0), np.tile(stage_hi, N - 1), end_hi])
         return {"x": w, "f": f, "g": g, "p": P}, lbg, ubg
 
     def _limit(self, key):
@@ -344,7 +357,7 @@ class Transcription:
         """fatrop's manual structure: per stage nx, nu and the number of non-gap constraints."""
         n, N = self.n, self.N
         n_path = self._n_path()
-        ng = [n_path + 4 * n] + [n_path] * (N - 1)
+        ng = [n_path + self.n_start] + [n_path] * (N - 1)
         ng.append(len(self._end_bounds()[0]))
         return {"structure_detection": "manual", "N": N, "nx": [self.nx] * (N + 1),
                 "nu": [self.nu] * N + [0], "ng": ng}
@@ -358,10 +371,11 @@ class Transcription:
                 lo_q[j], hi_q[j] = jt.limits["theta"]
             if "dphi" in jt.limits and j not in self.geared:             # geared: a row (_geared_speeds)
                 lo_q[3 * n + j], hi_q[3 * n + j] = -jt.limits["dphi"], jt.limits["dphi"]
-        lo_z = ([1e-3] if self.nT else []) + [b[0] for b in self.p.task.design.values()]
-        hi_z = ([max_duration] if self.nT else []) + [b[1] for b in self.p.task.design.values()]
+        lo_z = ([1e-3] if self.nT else []) + [b[0] for b in self.p.task.design.values()] + [0.0] * self.ns
+        hi_z = (([max_duration] if self.nT else []) + [b[1] for b in self.p.task.design.values()]
+                + ([self.tool_path.length] if self.ns else []))           # 0 <= s <= L
         tau_max = np.array([jt.limits.get("tau", np.inf) for jt in jts])
-        lo_u = np.concatenate([-tau_max, np.full(self.nu - n, -np.inf)])
+        lo_u = np.concatenate([-tau_max, np.zeros(self.ns), np.full(self.nu - n - self.ns, -np.inf)])   # ds >= 0
         hi_u = np.concatenate([tau_max, np.full(self.nu - n, np.inf)])
         lo_x, hi_x = np.concatenate([lo_q, lo_z]), np.concatenate([hi_q, hi_z])
         lb = np.concatenate([np.tile(np.concatenate([lo_x, lo_u]), N), lo_x])
@@ -377,20 +391,22 @@ class Transcription:
         for key, value in (("theta_start", theta_start), ("theta_end", theta_end), ("duration", duration),
                            ("effort_weight", effort_weight), ("scale", scale), ("w", w),
                            ("theta_ref", theta_ref), ("p_fixed", p_fixed), ("goal", goal),
-                           ("path_target", None if self.tool_path is None else
+                           ("path_target", None if self.tool_path is None or self.ns else
                             self.tool_path(duration * np.r_[0.0, np.cumsum(w)[:-1]]).T)):
             if value is not None and layout[key].stop > layout[key].start:
                 P[layout[key]] = np.ravel(value, order="F")
         return P
 
     # -- guesses and solutions --------------------------------------------------------------
-    def pack(self, Xs, U, T, design, acc):
-        """Stage-ordered vector from Xs (4n, N+1), U (n, N), T, design, acc (2n, m, N) unscaled."""
+    def pack(self, Xs, U, T, design, acc, arc=None, t=None):
+        """Stage-ordered vector from Xs (4n, N+1), U (n, N), T, design, acc (2n, m, N) unscaled,
+        and (min_time along a path) the arc lengths s (N+1) at the node times t."""
         n, N = self.n, self.N
         z = np.concatenate([[T] if self.nT else [], design])
-        X = np.vstack([Xs, np.repeat(np.reshape(z, (-1, 1)), N + 1, axis=1)])
+        X = np.vstack([Xs, np.repeat(np.reshape(z, (-1, 1)), N + 1, axis=1)] + ([np.reshape(arc, (1, -1))] if self.ns else []))
+        ds = [np.maximum(np.diff(arc), 0.0)[None, :] / np.diff(t)[None, :]] if self.ns else []
         scaled = (np.asarray(acc) / self.acc_scale[:, None, None]).reshape(2 * n * self.m, N, order="F")
-        body = [X[:, :N], U] + ([] if self.condensed else [scaled])      # condensed: solved for inside
+        body = [X[:, :N], U] + ds + ([] if self.condensed else [scaled])      # condensed: solved for inside
         return np.concatenate([np.vstack(body).ravel("F"), X[:, N]])
 
     def unpack(self, w) -> dict:
@@ -398,10 +414,12 @@ class Transcription:
         w = np.asarray(w, float).ravel()
         body = w[:N * (self.nx + self.nu)].reshape(self.nx + self.nu, N, order="F")
         X = np.hstack([body[:self.nx], w[N * (self.nx + self.nu):, None]])
-        z = X[4 * n:, 0]
-        acc = None if self.condensed else body[self.nx + n:].reshape(2 * n, self.m, N, order="F") * self.acc_scale[:, None, None]
+        z = X[4 * n:4 * n + self.nz, 0]
+        a0 = self.nx + n + self.ns
+        acc = None if self.condensed else body[a0:].reshape(2 * n, self.m, N, order="F") * self.acc_scale[:, None, None]
         return {"Xs": X[:4 * n], "U": body[self.nx:self.nx + n], "acc": acc,
-                "T": float(z[0]) if self.nT else None, "design": z[self.nT:]}
+                "T": float(z[0]) if self.nT else None, "design": z[self.nT:],
+                "arc": X[self.nx - 1] if self.ns else None}
 
 
 def butcher(c):
