@@ -1,6 +1,8 @@
 """Frames, kinematics and external wrenches against outside references: Pinocchio parsing the
 same URDF (Panda, UR5, the reference arm's URDF), the Lagrangian oracle, finite differences and
 the energy balance; and the [frames] table's refusals."""
+import re
+
 import casadi as ca
 import numpy as np
 import pytest
@@ -263,3 +265,66 @@ def test_parametric_twins_and_the_reduced_model_take_frames_too(arm3):
     M = np.array(arm3.mass_matrix(reduced=True)(th, th + 0.01))
     dd = np.concatenate([dm(v) for v in red_f(*x, tau, f)]) - np.concatenate([dm(v) for v in red(*x, tau)])
     assert np.allclose(M @ dd, np.r_[J.T @ f, np.zeros(3)], atol=1e-9)      # the wrench's share: M^-1 [J^T f; 0]
+
+
+# ----------------------------------------------------------------------------- URDF collision geometry
+
+PRIMITIVES = {"panda_link5": '<collision><origin xyz="0 0.08 -0.12" rpy="0.3 0 0.2"/><geometry>'
+                             '<cylinder radius="0.06" length="0.12"/></geometry></collision>',
+              "panda_link7": '<collision><origin xyz="0.01 0.02 0.05" rpy="0 0 0"/><geometry>'
+                             '<sphere radius="0.05"/></geometry></collision>'}
+
+
+@pytest.fixture(scope="module")
+def panda_with_primitives(tmp_path_factory):
+    """The Panda whose URDF gives link 5 a cylinder and link 7 a sphere (besides their meshes)."""
+    d = tmp_path_factory.mktemp("primitives")
+    text = (ROOT / "problems" / "urdf" / "panda.urdf").read_text()
+    text = re.sub(r"<collision>(?:(?!</collision>).)*<mesh(?:(?!</collision>).)*</collision>", "", text, flags=re.S)
+    for link, xml in PRIMITIVES.items():
+        head = f'<link name="{link}">'
+        assert head in text
+        text = text.replace(head, head + xml, 1)
+    (d / "panda.urdf").write_text(text)
+    model = (ROOT / "problems" / "panda_sea.toml").read_text().replace('urdf = "urdf/panda.urdf"', 'urdf = "panda.urdf"')
+    model += '\n[collision]\nmargin = 0.01\nlinks = { panda_link3 = 0.06, panda_link5 = "urdf", panda_link7 = 0.04 }\n'
+    (d / "panda.toml").write_text(model)
+    return d
+
+
+def test_urdf_cylinders_and_spheres_are_the_links_geometry(panda_with_primitives):
+    """Their ends, placed by our kinematics, equal Pinocchio's placements of the same URDF
+    collision geometries (built by pinocchio/coal); a link without primitives keeps its
+    capsule from joint to joint."""
+    arm = rscasadi.load(panda_with_primitives / "panda.toml")
+    by_link = {c.link: c for c in arm.model.collision.capsules}
+    assert set(by_link) == {"panda_link3", "panda_link5", "panda_link7"}
+    assert by_link["panda_link5"].radius == 0.06 and by_link["panda_link7"].radius == 0.05
+    assert np.allclose(by_link["panda_link3"].a, 0.0)                 # a capsule from the joint's origin
+    ref = PinocchioURDF(arm.model)
+    geom = pin.buildGeomFromUrdf(ref.model, str(panda_with_primitives / "panda.urdf"), pin.GeometryType.COLLISION)
+    gdata = geom.createData()
+    from rscasadi.dynamics.kinematics import body_poses
+    theta_sym = ca.SX.sym("theta", arm.n)
+    poses = body_poses(arm.model, theta_sym)
+    rng = np.random.default_rng(5)
+    for _ in range(3):
+        th = rng.uniform(-1.5, 1.5, arm.n)
+        pin.updateGeometryPlacements(ref.model, ref.data, geom, gdata, ref.q(th))
+        for link, capsule in (("panda_link5", by_link["panda_link5"]), ("panda_link7", by_link["panda_link7"])):
+            g = next(i for i, o in enumerate(geom.geometryObjects)
+                     if o.name.startswith(link) and type(o.geometry).__name__ in ("Cylinder", "Sphere"))
+            M = gdata.oMg[g]
+            half = M.rotation[:, 2] * (0.06 if link == "panda_link5" else 0.0)
+            R, o = (np.array(ca.Function("pose", [theta_sym], list(poses[capsule.body]))(th)[i]) for i in (0, 1))
+            ends = [o.ravel() + R @ capsule.a, o.ravel() + R @ capsule.b]
+            want = [M.translation - half, M.translation + half]
+            assert min(np.linalg.norm(ends[0] - want[0]) + np.linalg.norm(ends[1] - want[1]),
+                       np.linalg.norm(ends[0] - want[1]) + np.linalg.norm(ends[1] - want[0])) < 1e-9, link
+
+
+def test_urdf_geometry_asked_for_where_there_is_none_is_refused(panda_with_primitives, tmp_path):
+    text = (panda_with_primitives / "panda.toml").read_text().replace('panda_link3 = 0.06', 'panda_link3 = "urdf"')
+    (panda_with_primitives / "no_primitives.toml").write_text(text)
+    with pytest.raises(rscasadi.ModelFileError, match=r"no_primitives.toml.*'collision.links.panda_link3'.*no cylinder"):
+        rscasadi.load(panda_with_primitives / "no_primitives.toml")

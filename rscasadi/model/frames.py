@@ -106,26 +106,41 @@ def payload_document(model) -> dict | None:
 COLLISION_KEYS = {"margin", "tip", "links"}
 
 
-def collision(ctx, raw, joints, frames: tuple, default_tip: str | None) -> Collision | None:
+def collision(ctx, raw, joints, frames: tuple, default_tip: str | None, urdf: dict | None = None) -> Collision | None:
     """The [collision] table: `links` (a frame name -> the capsule radius of the link that
     carries it), `margin` (m), `tip` (the frame where the last link's capsule ends).  A link's
-    capsule runs from its joint's origin to the next joint's origin (the last link's to `tip`)."""
+    capsule runs from its joint's origin to the next joint's origin (the last link's to `tip`),
+    unless the URDF gives that link cylinders or spheres (`urdf`: link name -> capsules (a, b, r)
+    in its frame), which are then its geometry; `"urdf"` instead of a radius asks for them."""
     if raw is None:
         return None
+    urdf = urdf or {}
     t = _table(ctx, "collision", raw, COLLISION_KEYS, ("links",))
     known = {f.name: f for f in frames}
     n = len(joints)
     margin = _number(ctx, "collision.margin", t.get("margin", 0.0), nonneg=True)
     tip = t.get("tip", default_tip)
     links = _table(ctx, "collision.links", t["links"], set(t["links"]))
-    capsules = []
+    capsules, bodies = [], {}
     for name, radius in links.items():
         fld = f"collision.links.{name}"
         if name not in known:
             ctx.fail(fld, f"no frame {name!r} (frames: {', '.join(known)})")
-        body = known[name].body
+        frame = known[name]
+        body = frame.body
         if body == 0:
             ctx.fail(fld, f"{name!r} is on the fixed base, which does not move")
+        if body in bodies:
+            ctx.fail(fld, f"{bodies[body]!r} of the same link has its geometry already")
+        bodies[body] = name
+        if name in urdf:                                                  # the URDF's cylinders and spheres
+            if radius != "urdf":
+                _number(ctx, fld, radius, positive=True)
+            capsules += [Capsule(name, body, frame.R @ a + frame.p, frame.R @ b + frame.p, r) for a, b, r in urdf[name]]
+            continue
+        if radius == "urdf":
+            ctx.fail(fld, f"the URDF gives {name!r} no cylinder or sphere <collision> (boxes and meshes are not "
+                          "read): give a capsule radius")
         r = _number(ctx, fld, radius, positive=True)
         if body < n:
             end = np.asarray(joints[body].origin_xyz, float)               # the next joint's origin
@@ -135,10 +150,8 @@ def collision(ctx, raw, joints, frames: tuple, default_tip: str | None) -> Colli
             if known[tip].body != n:
                 ctx.fail("collision.tip", f"frame {tip!r} is not on the last link")
             end = np.asarray(known[tip].p, float)
-        if any(c.body == body for c in capsules):
-            ctx.fail(fld, "another frame of the same link has a capsule already")
         capsules.append(Capsule(name, body, np.zeros(3), end, r))
-    return Collision(margin, tuple(capsules), tip)
+    return Collision(margin, tuple(capsules), tip, {k: v for k, v in links.items()})
 
 
 def collision_document(model) -> dict | None:
@@ -146,7 +159,7 @@ def collision_document(model) -> dict | None:
     c = model.collision
     if c is None:
         return None
-    return {"margin": c.margin, **({"tip": c.tip} if c.tip else {}), "links": {k.link: k.radius for k in c.capsules}}
+    return {"margin": c.margin, **({"tip": c.tip} if c.tip else {}), "links": dict(c.links)}
 
 
 def holding(model, frame=None, mass=None, com=None, inertia=None):
@@ -183,4 +196,5 @@ def with_collision(model, raw: dict, where):
     name `where` and the field."""
     import dataclasses
     tip = model.collision.tip if model.collision is not None else model.extra.get("tip_link_name")
-    return dataclasses.replace(model, collision=collision(_Ctx(where), raw, model.joints, model.frames, tip))
+    return dataclasses.replace(model, collision=collision(_Ctx(where), raw, model.joints, model.frames, tip,
+                                                          model.extra.get("collision_geometry")))

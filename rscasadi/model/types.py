@@ -133,6 +133,7 @@ class Collision:
     margin: float
     capsules: tuple
     tip: str
+    links: dict = field(default_factory=dict, compare=False)     # as the [collision] table gave them
 
 
 @dataclass(frozen=True)

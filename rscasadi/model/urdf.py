@@ -174,9 +174,35 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
     frames = user_frames(ctx, data.get("frames"), frames)
     tip_link = data.get("tip") or next((lk for lk in reversed(bodies[-1]["links"])), None)
     extra["tip_link_name"] = tip_link                          # where the last link's capsule ends by default
+    extra["collision_geometry"] = {lk: geometry for b in bodies for lk in b["links"]
+                                   if (geometry := _collision_primitives(urdf_path, links_by_name[lk]))}
     return ArmModel(data["name"], gravity, tuple(joints), path, extra, frames=frames,
                     payload=payload(ctx, data.get("payload"), frames),
-                    collision=collision(ctx, data.get("collision"), joints, frames, tip_link))
+                    collision=collision(ctx, data.get("collision"), joints, frames, tip_link,
+                                        extra["collision_geometry"]))
+
+
+def _collision_primitives(urdf_path, link) -> list:
+    """A URDF link's <collision> cylinders and spheres as capsules (a, b, radius) in the link's
+    frame: a cylinder's axis is its z, and the capsule of its radius over its length holds it;
+    a sphere is a capsule of no length.  Boxes and meshes are left out (None of them: [])."""
+    out = []
+    for c in link.collisions or ():
+        T = np.asarray(c.origin if c.origin is not None else np.eye(4), float)
+        g = c.geometry
+        if g is None or not np.all(np.isfinite(T)):
+            continue
+        if g.cylinder is not None:
+            r, length = float(g.cylinder.radius), float(g.cylinder.length)
+            half = T[:3, :3] @ np.array([0.0, 0.0, length / 2])
+            out.append((T[:3, 3] - half, T[:3, 3] + half, r))
+        elif g.sphere is not None:
+            out.append((T[:3, 3].copy(), T[:3, 3].copy(), float(g.sphere.radius)))
+    for a, b, r in out:
+        if not (np.isfinite(r) and r > 0 and np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+            raise ModelFileError(f"{urdf_path}: link {link.name!r}, <collision>: a cylinder or sphere with a "
+                                 f"radius that is not a positive number ({r!r})")
+    return out
 
 
 def _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuators, tip, ctx):
