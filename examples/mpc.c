@@ -4,7 +4,7 @@
  * gets the state and the reference at the ends of its N intervals (theta_d, dtheta_d at
  * t + k h), returns the motor torques, and the arm (the same complete model, one RK4 step of
  * `step` from rscasadi codegen per millisecond, 4 substeps) moves.  Each mpc_step is timed with
- * clock_gettime.  No allocation.  Like a real 1 kHz loop it is paced: after each step it sleeps until
+ * clock_gettime.  No allocation: the controller's state is a static mpc_t of this program.  Like a real 1 kHz loop it is paced: after each step it sleeps until
  * the next millisecond (clock_nanosleep, absolute), its memory is locked (mlockall: no page fault
  * in the loop), and with `rt` it runs under SCHED_FIFO (needs the privilege; else it says so and
  * goes on); a step that does not finish within its millisecond is a deadline miss.
@@ -35,6 +35,7 @@
 static const double A[N] = {0.5, 0.6, -0.7}; /* rad */
 static const double PERIOD = 2.0;              /* s */
 static double step_times[MAX_STEPS];
+static mpc_t controller;                      /* the controller's state: the caller's memory */
 
 static double now(void) {
   struct timespec t;
@@ -112,7 +113,7 @@ int main(int argc, char **argv) {
    * motion starts; the tracking error is counted from then on */
   double x[4 * N] = {0}, tau[N], reference[MPC_NREF], max_err = 0.0;
   long misses = 0;
-  if (mpc_init(x) != 0) return 1;
+  if (mpc_init(&controller, x) != 0) return 1;
   realtime(argc == 4);
   struct timespec next;
   clock_gettime(CLOCK_MONOTONIC, &next);
@@ -120,7 +121,7 @@ int main(int argc, char **argv) {
     const double t = k * dt;
     for (int j = 0; j < MPC_HORIZON; ++j) desired(t + (j + 1) * interval, reference + 2 * N * j, reference + 2 * N * j + N);
     const double t0 = now();
-    if (mpc_step(x, reference, tau) != 0) return 1;
+    if (mpc_step(&controller, x, reference, tau) != 0) return 1;
     step_times[k] = now() - t0;
     misses += step_times[k] > dt;
     if (k % 10 == 0) printf("%.3f %.9f %.9f %.9f %.9f %.9f %.9f\n", t, x[0], x[1], x[2], tau[0], tau[1], tau[2]);

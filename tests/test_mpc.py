@@ -36,11 +36,12 @@ def test_generated_c_equals_the_casadi_function(mpc_dir):
     rng = np.random.default_rng(3)
     x = rest_state(arm, [0.1, 0.4, -0.6])
     c.init(x)
-    X, U = (np.array(v) for v in hold(x))
+    params = x[:3]                                       # the posture: the measured angles at mpc_init
+    X, U = (np.array(v) for v in hold(x, params))
     for _ in range(5):                                   # the C keeps its state and torque plans between steps
         ref = np.vstack([x[:3, None] + rng.normal(0, 0.05, (3, p.horizon)), rng.normal(0, 0.2, (3, p.horizon))])
         tau_c, _, flag = c.step(x, ref)
-        tau_py, X, U = (np.array(v) for v in rti(x, ref, X, U))
+        tau_py, X, U = (np.array(v) for v in rti(x, ref, X, U, params))
         assert flag == 0 and np.max(np.abs(tau_c - tau_py.ravel())) < 1e-12
         x = x + rng.normal(0, 1e-3, x.shape)
     assert np.all(np.abs(tau_c) <= np.array([jt.limits["tau"] for jt in arm.model.joints]) + 1e-12)
@@ -84,16 +85,17 @@ def test_qp_step_equals_an_active_set_solver_on_a_cold_step_to_a_far_pose(arm3):
     limits = M.limit_arrays(arm3)
     xm, ref = ca.MX.sym("x", 4 * n), ca.MX.sym("r", 2 * n, N)
     X, U = ca.MX.sym("X", 4 * n, N + 1), ca.MX.sym("U", n, N)
-    lin = M._Linearisation(F, M.stage_residual(n, p, limits), p, xm, ref, X, U)
+    posture, mass = ca.MX.sym("posture", n), ca.MX.sym("m", 0)
+    lin = M._Linearisation(F, M.stage_residual(arm3, p, limits), p, xm, ref, X, U, posture, mass)
     tm = np.tile(limits["tau"], N)
     lo, hi = -tm - ca.vec(U), tm - ca.vec(U)
-    qp = ca.Function("qp", [xm, ref, X, U], [lin.H, lin.g, lo, hi, M.box_qp(lin.H, lin.g, lo, hi, p.qp_iterations)])
+    qp = ca.Function("qp", [xm, ref, X, U, posture], [lin.H, lin.g, lo, hi, M.box_qp(lin.H, lin.g, lo, hi, p.qp_iterations)])
     x = rest_state(arm3, [0.0, 0.0, 0.0])
-    Xh, Uh = hold_function(arm3, p)(x)
+    Xh, Uh = hold_function(arm3, p)(x, x[:n])
     rng = np.random.default_rng(7)
     for target in [[0.6, 0.8, -0.9], [-0.3, 0.2, 0.5]] + [rng.uniform(-1.2, 1.2, 3) for _ in range(6)]:
         R = np.vstack([np.tile(np.array(target)[:, None], (1, N)), np.zeros((n, N))])
-        H, g, lo_v, hi_v, d = (np.array(v) for v in qp(x, R, Xh, Uh))
+        H, g, lo_v, hi_v, d = (np.array(v) for v in qp(x, R, Xh, Uh, x[:n]))
         d_ref = _qpoases(H, g, lo_v, hi_v)
         active = np.sum((d_ref <= lo_v.ravel() + 1e-9) | (d_ref >= hi_v.ravel() - 1e-9))
         assert active >= 3, "the case must exercise the bounds"

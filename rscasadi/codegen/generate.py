@@ -54,7 +54,7 @@ def rhs(arm: Arm, parametric: bool = False) -> ca.Function:
     """The state equation as a compact SX Function: (x, tau[, p]) -> dx/dt, x = (theta, phi, dtheta, dphi)."""
     n = arm.n
     x, tau = ca.SX.sym("x", 4 * n), ca.SX.sym("tau", n)
-    p = [ca.SX.sym("p", len(arm.parameters()[0]))] if parametric else []
+    p = [ca.SX.sym("p", arm.n_p)] if parametric else []
     q = ca.vertsplit(x, n)
     xdot = ca.vertcat(q[2], q[3], *arm.forward_dynamics(parametric)(*q, tau, *p))
     return ca.Function("rhs", [x, tau] + p, ca.cse([xdot]), ["x", "tau"] + ["p"] * len(p), ["xdot"])
@@ -79,7 +79,7 @@ def step_functions(arm: Arm, prefix: str = "", fd_jacobian: ca.Function | None =
     n, f = arm.n, rhs(arm, parametric)
     fd_jacobian = fd_jacobian or forward_dynamics_jacobian(arm, parametric, prefix + "forward_dynamics_jacobian")
     x, tau, h = ca.MX.sym("x", 4 * n), ca.MX.sym("tau", n), ca.MX.sym("h")
-    p = [ca.MX.sym("p", len(arm.parameters()[0]))] if parametric else []
+    p = [ca.MX.sym("p", arm.n_p)] if parametric else []
     x_next, stages = rk4(lambda z: f(z, tau, *p), x, h)
     I = ca.DM.eye(5 * n)[:4 * n, :]                                  # d x / d(x, tau)
     small = fd_jacobian.is_a("SXFunction")

@@ -1,36 +1,48 @@
 """The generated C controller, loaded through ctypes."""
 from __future__ import annotations
 
+import ctypes
 from pathlib import Path
 
 import numpy as np
 
 
 class CompiledMPC:
-    """The generated C controller through ctypes: init(x), step(x, reference) -> tau, seconds
-    (the step's duration measured in C, by mpc_step_seconds), flag."""
+    """One generated C controller through ctypes, its `mpc_t` in memory this object owns:
+    init(x), step(x, reference) -> (tau, seconds measured in C, flag), step_to(x, target),
+    set_payload_mass(m), set_posture(theta).  Several may share one library."""
 
     def __init__(self, directory):
-        import ctypes
         self.lib = ctypes.CDLL(str(Path(directory) / "librscasadi_mpc.so"))
         self.lib.mpc_step_seconds.restype = ctypes.c_double
+        self.lib.mpc_sizeof.restype = ctypes.c_size_t
+        self.lib.mpc_set_payload_mass.argtypes = [ctypes.c_void_p, ctypes.c_double]
         self.c_double_p = ctypes.POINTER(ctypes.c_double)
+        self.state = np.zeros(-(-self.lib.mpc_sizeof() // 8))       # the mpc_t, 8-byte aligned
+        self.c = ctypes.c_void_p(self.state.ctypes.data)
 
     def _p(self, a):
-        return np.ascontiguousarray(a, float).ctypes.data_as(self.c_double_p)
+        return a.ctypes.data_as(self.c_double_p)
 
     def init(self, x):
-        assert self.lib.mpc_init(self._p(x)) == 0
+        assert self.lib.mpc_init(self.c, self._p(np.ascontiguousarray(x, float))) == 0
 
     def step(self, x, reference):
-        """reference: 2n x N (theta_ref over dtheta_ref, a column per interval end)."""
+        """reference: rows x N, a column per interval end (theta_ref over dtheta_ref; in task
+        space p_ref, v_ref [, vec(R_ref)])."""
         return self._call(self.lib.mpc_step, x, np.asarray(reference, float).T.ravel())
 
-    def step_to(self, x, theta_target):
-        return self._call(self.lib.mpc_step_to, x, np.asarray(theta_target, float))
+    def step_to(self, x, target):
+        return self._call(self.lib.mpc_step_to, x, np.asarray(target, float).ravel())
+
+    def set_payload_mass(self, mass: float) -> int:
+        return self.lib.mpc_set_payload_mass(self.c, float(mass))
+
+    def set_posture(self, theta) -> int:
+        return self.lib.mpc_set_posture(self.c, self._p(np.ascontiguousarray(theta, float)))
 
     def _call(self, fn, x, data):
         tau = np.zeros(len(x) // 4)
         x, data = np.ascontiguousarray(x, float), np.ascontiguousarray(data, float)
-        flag = fn(self._p(x), self._p(data), tau.ctypes.data_as(self.c_double_p))
-        return tau, self.lib.mpc_step_seconds(), flag
+        flag = fn(self.c, self._p(x), self._p(data), self._p(tau))
+        return tau, self.lib.mpc_step_seconds(self.c), flag

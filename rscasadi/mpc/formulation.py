@@ -13,15 +13,21 @@ so the work per sample is bounded. After the iterations the plan is shifted by o
 Cost (per interval end k = 1..N): w_theta |theta_k - theta_ref_k|^2 + w_dtheta |dtheta_k -
 dtheta_ref_k|^2 + w_tau |tau_k|^2, and a penalty w_limits (|c| - 0.9 c_max)^2 on the SEA
 deflection psi and the slow-side speed dphi beyond 90 % of their limits (Gauss-Newton on the
-part active at the linearisation point); the motor torques are hard bounds.
+part active at the linearisation point); the motor torques are hard bounds.  In task space the
+tracking terms are the frame's: w_position |p_k - p_ref_k|^2 + w_velocity |J dtheta_k -
+v_ref_k|^2 (+ w_orientation |skew(R_ref^T R_k)|^2), and w_posture |theta_k - theta_posture|^2
+holds a redundant arm's null space (the posture: the measured angles at mpc_init, or set).
+Obstacles are soft: w_obstacles max(0, -clearance)^2 on the smooth conservative clearances of
+the model's capsules (rscasadi.dynamics.collision).  The payload's mass is a parameter of the
+dynamics, set at run time.
 
 Problem file and C interface: docs/user-guide/mpc.md (`problems/mpc_arm3.toml` is an example).
 
-Generated (DIR): `mpc_rti.c` (CasADi: mpc_rti(x, reference, X, U) -> tau, X_next, U_next and
-mpc_hold(x) -> X, U), `rscasadi_mpc.c` and `rscasadi_mpc.h` (the controller: static
-buffers, `mpc_init(x_measured)`, `mpc_step(x_measured, reference, tau_out)` for a trajectory,
-`mpc_step_to(x_measured, theta_target, tau_out)` for a target pose), `librscasadi_mpc.so`,
-`manifest.json`.  reference is 2n x N, column-major: theta_ref then dtheta_ref at t + k h.
+Generated (DIR): `mpc_rti.c` (CasADi: mpc_rti(x, reference, X, U, params) -> tau, X_next,
+U_next and mpc_hold(x, params) -> X, U; params = (theta_posture, [payload mass])),
+`rscasadi_mpc.c` and `rscasadi_mpc.h` (the controller, its state in a caller's `mpc_t`),
+`librscasadi_mpc.so`, `manifest.json`.  reference is column-major, a column per interval end
+t + k h: theta_ref then dtheta_ref (2n), or in task space p_ref, v_ref (6) [and vec(R_ref) (9)].
 """
 from __future__ import annotations
 
@@ -31,32 +37,46 @@ import casadi as ca
 import numpy as np
 
 from rscasadi.dynamics.arm import Arm
+from rscasadi.dynamics.collision import clearances
 from rscasadi.mpc.problem import SOFT, LINE_SEARCH, MPCProblem
 
 
+def controller_arm(model) -> Arm:
+    """The controller's arm: its payload's mass (if it holds one) a parameter of the dynamics."""
+    return Arm(model, free=["payload.mass"]) if model.payload is not None else Arm(model)
+
+
+def n_params(arm: Arm) -> int:
+    """Length of the controller's params: the posture (n) and the payload's mass (0 or 1)."""
+    return arm.n + (1 if arm.free else 0)
+
+
 def interval_functions(arm: Arm, h: float, substeps: int):
-    """F: (x, tau) -> (x after h, A = dx/dx0, B = dx/dtau): `substeps` RK4 steps and their
-    structured Jacobians chained (A = A_s ... A_1, B = A_s (...) B_1 + ... + B_s); Fx: the state alone.
+    """F: (x, tau, m) -> (x after h, A = dx/dx0, B = dx/dtau): `substeps` RK4 steps and their
+    structured Jacobians chained (A = A_s ... A_1, B = A_s (...) B_1 + ... + B_s); Fx: the state
+    alone.  m: the payload's mass (an empty input if the arm holds none, or it is constant).
     One substep (step, Jacobian and the chain's products) is one Function, straight-line SX when
     the step Jacobian is SX (small arms), called `substeps` times: its C is generated once, so
     the controller compiles in a fifth of the time of one straight-line interval, as fast."""
     from rscasadi.codegen.generate import step_functions
-    n, hs = arm.n, h / substeps
-    step, step_jac = step_functions(arm)
+    n, hs, parametric = arm.n, h / substeps, bool(arm.free)
+    step, step_jac = step_functions(arm, parametric=parametric)
     sym = ca.SX if step_jac.is_a("SXFunction") else ca.MX
     if sym is ca.SX:
         step = step.expand()
     z, tau, A, B = sym.sym("x", 4 * n), sym.sym("tau", n), sym.sym("A", 4 * n, 4 * n), sym.sym("B", 4 * n, n)
-    Ai, Bi = step_jac(z, tau, hs)
+    m = sym.sym("m", 1 if parametric else 0)
+    pm = [m] if parametric else []
+    Ai, Bi = step_jac(z, tau, hs, *pm)
     opts = {"cse": True} if sym is ca.SX else {}
-    substep = ca.Function("substep", [z, tau, A, B], [step(z, tau, hs), ca.mtimes(Ai, A), ca.mtimes(Ai, B) + Bi], opts)
-    substep_x = ca.Function("substep_x", [z, tau], [step(z, tau, hs)], opts)
-    x, u = ca.MX.sym("x", 4 * n), ca.MX.sym("tau", n)
+    substep = ca.Function("substep", [z, tau, m, A, B], [step(z, tau, hs, *pm), ca.mtimes(Ai, A), ca.mtimes(Ai, B) + Bi], opts)
+    substep_x = ca.Function("substep_x", [z, tau, m], [step(z, tau, hs, *pm)], opts)
+    x, u, mm = ca.MX.sym("x", 4 * n), ca.MX.sym("tau", n), ca.MX.sym("m", m.shape[0])
     zk, Ak, Bk, z_only = x, ca.MX.eye(4 * n), ca.MX.zeros(4 * n, n), x
     for _ in range(substeps):
-        zk, Ak, Bk = substep(zk, u, Ak, Bk)
-        z_only = substep_x(z_only, u)
-    return ca.Function("interval", [x, u], [zk, Ak, Bk]), ca.Function("interval_x", [x, u], [z_only])
+        zk, Ak, Bk = substep(zk, u, mm, Ak, Bk)
+        z_only = substep_x(z_only, u, mm)
+    return ca.Function("interval", [x, u, mm], [zk, Ak, Bk]), ca.Function("interval_x", [x, u, mm], [z_only])
 
 
 def limit_arrays(arm: Arm) -> dict:
@@ -65,19 +85,44 @@ def limit_arrays(arm: Arm) -> dict:
             for key in ("tau", "psi", "dphi")}
 
 
-def stage_residual(n: int, p: MPCProblem, limits: dict) -> ca.Function:
-    """(x_k, reference_k) -> (r, dr/dx): the weighted residual whose half squared norm is the stage
-    cost: tracking errors, and the psi and dphi excess beyond 90 % of their limits."""
-    x, ref = ca.SX.sym("x", 4 * n), ca.SX.sym("reference", 2 * n)
+def reference_rows(n: int, p: MPCProblem) -> int:
+    """Rows of one reference column: 2n (link angles and speeds) or the task space's 6 or 15."""
+    return p.reference_rows if p.task_space else 2 * n
+
+
+def _tracking(arm: Arm, p: MPCProblem, x, ref, posture):
+    """The weighted tracking residuals: link angles and speeds, or the frame's position, velocity
+    (and rotation) and the posture."""
+    n, w = arm.n, p.weights
+    theta, dtheta = x[:n], x[2 * n:3 * n]
+    if not p.task_space:
+        return [np.sqrt(w["theta"]) * (theta - ref[:n]), np.sqrt(w["dtheta"]) * (dtheta - ref[n:])]
+    R, pos = arm.frame_placement(p.frame)(theta)
+    J = arm.frame_jacobian(p.frame, "local_world_aligned")(theta)
+    rows = [np.sqrt(w["position"]) * (pos - ref[:3]), np.sqrt(w["velocity"]) * (ca.mtimes(J[:3, :], dtheta) - ref[3:6])]
+    if p.orientation:
+        E = ca.mtimes(ca.reshape(ref[6:15], 3, 3).T, R)
+        rows.append(np.sqrt(w["orientation"]) * ca.vertcat(E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]) / 2)
+    return rows + [np.sqrt(w["posture"]) * (theta - posture)]
+
+
+def stage_residual(arm: Arm, p: MPCProblem, limits: dict) -> ca.Function:
+    """(x_k, reference_k, posture) -> (r, dr/dx): the weighted residual whose half squared norm is
+    the stage cost: tracking errors, the psi and dphi excess beyond 90 % of their limits, and the
+    obstacles' intrusion into their margin."""
+    n = arm.n
+    x, ref, posture = ca.SX.sym("x", 4 * n), ca.SX.sym("reference", reference_rows(n, p)), ca.SX.sym("posture", n)
     w = p.weights
-    parts = [np.sqrt(w["theta"]) * (x[:n] - ref[:n]), np.sqrt(w["dtheta"]) * (x[2 * n:3 * n] - ref[n:])]
+    parts = _tracking(arm, p, x, ref, posture)
     for c, cmax in ((x[n:2 * n] - x[:n], limits["psi"]), (x[3 * n:], limits["dphi"])):
         finite = np.isfinite(cmax)
         if finite.any():
             excess = ca.fmax(ca.fabs(c) - SOFT * np.where(finite, cmax, 1.0), 0) * ca.sign(c)
             parts.append(np.sqrt(w["limits"]) * finite * excess)
+    if p.obstacles:
+        parts.append(np.sqrt(w["obstacles"]) * ca.fmax(-clearances(arm.model, p.obstacles, x[:n]), 0))
     r = ca.vertcat(*parts)
-    return ca.Function("stage_residual", [x, ref], [r, ca.jacobian(r, x)])
+    return ca.Function("stage_residual", [x, ref, posture], [r, ca.jacobian(r, x)])
 
 
 class _Linearisation:
@@ -85,19 +130,19 @@ class _Linearisation:
     dx_0 = x_measured - X_0 (initial-value embedding); dx_{k+1} = A_k dx_k + B_k du_k + c_k with the
     gap c_k = F(X_k, U_k) - X_{k+1}; so dx_k = E_k + G_k dU, and the QP is in dU alone."""
 
-    def __init__(self, F, residual, p: MPCProblem, xm, ref, X, U):
+    def __init__(self, F, residual, p: MPCProblem, xm, ref, X, U, posture, mass):
         n, N = U.shape[0], p.horizon
         nx = X.shape[0]
         self.H, self.g = p.weights["tau"] * ca.MX.eye(n * N), p.weights["tau"] * ca.vec(U)
         E, G = xm - X[:, 0], ca.MX.zeros(nx, n * N)
         self.E, self.G = [E], [G]
         for k in range(N):
-            xp, A, B = F(X[:, k], U[:, k])
+            xp, A, B = F(X[:, k], U[:, k], mass)
             E = ca.mtimes(A, E) + xp - X[:, k + 1]
             G = ca.horzcat(ca.mtimes(A, G[:, :n * k]), B, ca.MX.zeros(nx, n * (N - k - 1)))
             self.E.append(E)
             self.G.append(G)
-            r, Jx = residual(X[:, k + 1] + E, ref[:, k])
+            r, Jx = residual(X[:, k + 1] + E, ref[:, k], posture)
             J = ca.mtimes(Jx, G)
             self.H += ca.mtimes(J.T, J)
             self.g += ca.mtimes(J.T, r)
@@ -107,13 +152,13 @@ class _Linearisation:
         return ca.horzcat(*[E + ca.mtimes(G, dU) for E, G in zip(self.E, self.G)])
 
 
-def rollout(Fx, residual, p: MPCProblem, xm, ref, U):
+def rollout(Fx, residual, p: MPCProblem, xm, ref, U, posture, mass):
     """The NLP's cost along the plan's states simulated from the measured state, and those states:
     the measure of progress of the line search (a condensed, hence gap-free, merit function)."""
     xs, total = [xm], 0.5 * p.weights["tau"] * ca.sumsqr(U)
     for k in range(p.horizon):
-        xs.append(Fx(xs[-1], U[:, k]))
-        total += 0.5 * ca.sumsqr(residual(xs[-1], ref[:, k])[0])
+        xs.append(Fx(xs[-1], U[:, k], mass))
+        total += 0.5 * ca.sumsqr(residual(xs[-1], ref[:, k], posture)[0])
     return total, ca.horzcat(*xs)
 
 
@@ -181,19 +226,22 @@ def shifted(Z, alpha: float):
 
 
 def rti_function(arm: Arm, p: MPCProblem) -> ca.Function:
-    """mpc_rti(x, reference, X, U) -> (tau, X_next, U_next): `sqp_iterations`
+    """mpc_rti(x, reference, X, U, params) -> (tau, X_next, U_next): `sqp_iterations`
     Gauss-Newton SQP iterations of the multiple-shooting NLP (1: the real-time iteration; more:
-    each with a line search on the rollout's cost), then the plan shifted by one sample."""
+    each with a line search on the rollout's cost), then the plan shifted by one sample.
+    params: the posture (n) and the payload's mass (if `arm` takes it: `controller_arm`)."""
     n, N, nx = arm.n, p.horizon, 4 * arm.n
     F, Fx = interval_functions(arm, p.interval, p.substeps)
     limits = limit_arrays(arm)
-    residual = stage_residual(n, p, limits)
-    xm, ref = ca.MX.sym("x", nx), ca.MX.sym("reference", 2 * n, N)
+    residual = stage_residual(arm, p, limits)
+    xm, ref = ca.MX.sym("x", nx), ca.MX.sym("reference", reference_rows(n, p), N)
+    params = ca.MX.sym("params", n_params(arm))
+    posture, mass = params[:n], params[n:]
     X0, U0 = ca.MX.sym("X", nx, N + 1), ca.MX.sym("U", n, N)
     X, U, phi0 = X0, U0, None
     tau_max = np.tile(limits["tau"], N)
     for _ in range(p.sqp_iterations):
-        lin = _Linearisation(F, residual, p, xm, ref, X, U)
+        lin = _Linearisation(F, residual, p, xm, ref, X, U, posture, mass)
         dU = box_qp(lin.H, lin.g, -tau_max - ca.vec(U), tau_max - ca.vec(U), p.qp_iterations)
         dX = lin.step(dU)
         if p.sqp_iterations == 1:                                         # RTI: the full step
@@ -203,26 +251,27 @@ def rti_function(arm: Arm, p: MPCProblem) -> ca.Function:
         # cost, else the shortest; the states become that rollout (the gaps close), and its cost
         # is the next iteration's reference
         if phi0 is None:
-            phi0 = rollout(Fx, residual, p, xm, ref, U)[0]
+            phi0 = rollout(Fx, residual, p, xm, ref, U, posture, mass)[0]
         dU = ca.reshape(dU, n, N)
         alpha = ca.MX(LINE_SEARCH[-1])
-        phi_new, X_new = rollout(Fx, residual, p, xm, ref, U + alpha * dU)
+        phi_new, X_new = rollout(Fx, residual, p, xm, ref, U + alpha * dU, posture, mass)
         for a in reversed(LINE_SEARCH[:-1]):
-            phi, Xa = rollout(Fx, residual, p, xm, ref, U + a * dU)
+            phi, Xa = rollout(Fx, residual, p, xm, ref, U + a * dU, posture, mass)
             better = phi < phi0
             alpha, phi_new, X_new = ca.if_else(better, a, alpha), ca.if_else(better, phi, phi_new), ca.if_else(better, Xa, X_new)
         X, U, phi0 = X_new, U + alpha * dU, phi_new
     X = ca.horzcat(xm, X[:, 1:])
     alpha = p.sample_time / p.interval
-    return ca.Function("mpc_rti", [xm, ref, X0, U0], [U[:, 0], shifted(X, alpha), shifted(U, alpha)],
-                       ["x", "reference", "X", "U"], ["tau", "X_next", "U_next"])
+    return ca.Function("mpc_rti", [xm, ref, X0, U0, params], [U[:, 0], shifted(X, alpha), shifted(U, alpha)],
+                       ["x", "reference", "X", "U", "params"], ["tau", "X_next", "U_next"])
 
 
 def hold_function(arm: Arm, p: MPCProblem) -> ca.Function:
-    """mpc_hold(x) -> (X, U): the initial plan, the arm held where it is over the horizon."""
+    """mpc_hold(x, params) -> (X, U): the initial plan, the arm held where it is over the horizon."""
     n = arm.n
-    x = ca.SX.sym("x", 4 * n)
+    x, params = ca.SX.sym("x", 4 * n), ca.SX.sym("params", n_params(arm))
     z = ca.SX.zeros(n)
-    tau = arm.inverse_dynamics()(x[:n], x[n:2 * n], z, z, z, z)[0]
-    return ca.Function("mpc_hold", [x], [ca.repmat(x, 1, p.horizon + 1), ca.repmat(tau, 1, p.horizon)],
-                       ["x"], ["X", "U"])
+    pm = [params[n:]] if arm.free else []
+    tau = arm.inverse_dynamics(parametric=bool(arm.free))(x[:n], x[n:2 * n], z, z, z, z, *pm)[0]
+    return ca.Function("mpc_hold", [x, params], [ca.repmat(x, 1, p.horizon + 1), ca.repmat(tau, 1, p.horizon)],
+                       ["x", "params"], ["X", "U"])

@@ -1,5 +1,6 @@
-"""The MPC problem file (docs/user-guide/mpc.md): the model, the reference, horizon, sampling and
-weights, checked field by field."""
+"""The MPC problem file (docs/user-guide/mpc.md): the model, the reference (link angles, or a
+frame's position in task space), horizon, sampling, weights, soft obstacles and the payload
+whose mass the controller takes at run time, checked field by field."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -9,10 +10,14 @@ import numpy as np
 
 from rscasadi.model.checks import field_checker, read_toml
 from rscasadi.model.types import ModelFileError
+from rscasadi.ocp.problem import PAYLOAD_KEYS, read_obstacles, read_path
+from rscasadi.ocp.toolpath import ToolPath
 
 TOP = {"model", "trajectory", "sample_time", "horizon", "interval", "substeps", "sqp_iterations", "qp_iterations",
-       "weights"}
-WEIGHTS = {"theta": 1e5, "dtheta": 1.0, "tau": 1e-3, "limits": 1e5}
+       "weights", "frame", "orientation", "path", "obstacles", "payload", "theta_start"}
+WEIGHTS = {"theta": 1e5, "dtheta": 1.0, "tau": 1e-3, "limits": 1e5,
+           "position": 1e6, "velocity": 10.0, "orientation": 1e3, "posture": 1.0, "obstacles": 1e6}
+JOINT_WEIGHTS, TASK_WEIGHTS = ("theta", "dtheta"), ("position", "velocity", "orientation", "posture")
 SOFT = 0.9                   # penalties start at this fraction of the psi and dphi limits
 LINE_SEARCH = (1.0, 0.5, 0.25, 0.125)   # step sizes tried when sqp_iterations > 1
 
@@ -22,8 +27,13 @@ class MPCProblem:
     """An MPC problem: the `model` and the reference `trajectory`, the controller's `sample_time`,
     a horizon of `horizon` intervals of `interval` s with `substeps` RK4 steps each, the SQP
     iterations per sample (1: the real-time iteration) and the QP's interior-point iterations,
-    and the cost `weights` (theta, dtheta, tau, limits).  Build it in Python or read it with
-    `load_mpc_problem`; `check()` applies the file's rules.  `path`: the file it came from."""
+    and the cost `weights` (theta, dtheta, tau, limits; in task space position, velocity,
+    orientation, posture; obstacles).  Task space: `frame` (its position, and its rotation if
+    `orientation`, is the reference), `tool_path` (a `ToolPath` at a speed: the study's
+    reference, from rest at `theta_start`).  `obstacles` are soft (the model's [collision]
+    capsules); `payload` sets or changes the model's payload, whose mass is a run-time parameter.
+    Build it in Python or read it with `load_mpc_problem`; `check()` applies the file's rules.
+    `path`: the file it came from."""
     model: Path
     trajectory: Path | None = None
     sample_time: float = 1e-3
@@ -34,11 +44,37 @@ class MPCProblem:
     qp_iterations: int = 16
     weights: dict = field(default_factory=lambda: dict(WEIGHTS))
     path: Path | None = None
+    frame: str | None = None
+    orientation: bool = False
+    tool_path: ToolPath | None = None
+    obstacles: tuple = ()
+    payload: dict | None = None
+    theta_start: np.ndarray | None = None
 
     def __post_init__(self):
         self.model = Path(self.model)
         self.trajectory = None if self.trajectory is None else Path(self.trajectory)
         self.weights = {**WEIGHTS, **self.weights}
+        self.obstacles = tuple(self.obstacles)
+        if self.theta_start is not None:
+            self.theta_start = np.asarray(self.theta_start, float).ravel()
+
+    def __eq__(self, other):
+        if not isinstance(other, MPCProblem):
+            return NotImplemented
+        mine, theirs = self.__dict__, other.__dict__
+        return all(np.array_equal(mine[k], theirs[k]) if isinstance(mine[k], np.ndarray) else mine[k] == theirs[k]
+                   for k in mine)
+
+    @property
+    def task_space(self) -> bool:
+        """The reference is the frame's position (and rotation), not link angles."""
+        return self.frame is not None
+
+    @property
+    def reference_rows(self) -> int:
+        """Rows of a reference column: theta and dtheta (2n), or p, v (6) and vec(R) (9) in task space."""
+        return (15 if self.orientation else 6) if self.task_space else None
 
     def check(self) -> "MPCProblem":
         """The problem file's rules on the object; a `ModelFileError` names the field."""
@@ -59,6 +95,25 @@ class MPCProblem:
                 fail(f"weights.{key}", f"unknown weight (allowed: {', '.join(WEIGHTS)})")
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0:
                 fail(f"weights.{key}", f"must be a number >= 0, got {v!r}")
+        if self.frame is not None and (not isinstance(self.frame, str) or not self.frame):
+            fail("frame", f"expected the name of a frame, got {self.frame!r}")
+        if not isinstance(self.orientation, bool):
+            fail("orientation", f"must be true or false, got {self.orientation!r}")
+        if self.orientation and self.frame is None:
+            fail("orientation", "needs a frame (task space)")
+        if self.tool_path is not None:
+            if self.frame is None:
+                fail("path", "a path is a task-space reference: give frame too")
+            if self.tool_path.frame != self.frame:
+                fail("path.frame", f"the path is for {self.tool_path.frame!r}, the controller's frame is {self.frame!r}")
+            if self.tool_path.speed is None:
+                fail("path.speed", "missing required field (the reference's mean speed along the path)")
+            if self.trajectory is not None:
+                fail("path", "give a trajectory (link angles) or a path (task space), not both")
+            if self.theta_start is None:
+                fail("theta_start", "missing required field (where the path's run starts, at rest)")
+        if self.theta_start is not None and not np.all(np.isfinite(self.theta_start)):
+            fail("theta_start", f"expected finite numbers, got {self.theta_start!r}")
         return self
 
 
@@ -73,10 +128,53 @@ def load_mpc_problem(path) -> MPCProblem:
         fail("trajectory", "expected the path of a trajectory file")
     if not isinstance(d.get("weights", {}), dict):
         fail("weights", "expected a table")
-    fields = {k: d[k] for k in TOP - {"model", "trajectory", "weights"} if k in d}
+    special = {"model", "trajectory", "weights", "path", "obstacles", "payload", "theta_start"}
+    fields = {k: d[k] for k in TOP - special if k in d}
+    if "path" in d:
+        if not isinstance(d["path"], dict):
+            fail("path", "expected a table")
+        fields["tool_path"] = read_path(fail, d["path"])
+    if "obstacles" in d:
+        fields["obstacles"] = read_obstacles(fail, d["obstacles"])
+    if "payload" in d:
+        held = d["payload"]
+        if not isinstance(held, dict) or not held or set(held) - PAYLOAD_KEYS:
+            fail("payload", f"expected a table of {', '.join(sorted(PAYLOAD_KEYS))}, got {held!r}")
+        fields["payload"] = dict(held)
+    if "theta_start" in d:
+        v = d["theta_start"]
+        if not isinstance(v, list) or not v or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in v):
+            fail("theta_start", f"expected a list of numbers, got {v!r}")
+        fields["theta_start"] = np.array(v, float)
     return MPCProblem((path.parent / d["model"]).resolve(),
                       (path.parent / d["trajectory"]).resolve() if "trajectory" in d else None,
                       weights=dict(d.get("weights", {})), path=path, **fields).check()
+
+
+def mpc_model(p: MPCProblem):
+    """The controller's model: the problem's model file with its payload set or changed, checked
+    against the problem (frame, obstacles, theta_start); errors name the problem file."""
+    from rscasadi.model.frames import holding
+    from rscasadi.model.modelfile import read
+    model = read(p.model)
+    where = p.path if p.path is not None else "<MPCProblem>"
+    if p.payload is not None:
+        try:
+            model = holding(model, **p.payload)
+        except (ValueError, TypeError) as exc:
+            raise ModelFileError(f"{where}: field '{str(exc).split(':')[0]}': {str(exc).split(':', 1)[-1].strip()}") from None
+    frames = [f.name for f in model.frames]
+    if p.frame is not None and p.frame not in frames:
+        raise ModelFileError(f"{where}: field 'frame': {model.path} has no frame {p.frame!r} (frames: {', '.join(frames)})")
+    if p.orientation and model.n < 6:
+        raise ModelFileError(f"{where}: field 'orientation': a position and a rotation are 6 conditions, more than "
+                             f"the {model.n} joints can follow")
+    if p.obstacles and model.collision is None:
+        raise ModelFileError(f"{where}: field 'obstacles': {model.path} has no [collision] table (the capsules that "
+                             "must keep clear)")
+    if p.theta_start is not None and len(p.theta_start) != model.n:
+        raise ModelFileError(f"{where}: field 'theta_start': {len(p.theta_start)} entries for a {model.n}-joint arm")
+    return model
 
 
 def mpc_problem(problem) -> MPCProblem:

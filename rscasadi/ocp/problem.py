@@ -345,7 +345,7 @@ def load_problem(path) -> Problem:
             fail(key, "missing required field" + (" (the guess of min_time along a path)" if "path" in d else ""))
     if timed_path and "duration" in d:
         fail("duration", "a path's length and speed set the duration: leave it out")
-    tool_path = _tool_path(fail, table("path")) if "path" in d else None
+    tool_path = read_path(fail, table("path")) if "path" in d else None
     for key in ("model", "trajectory"):
         if key in d and (not isinstance(d[key], str) or not d[key].strip()):
             fail(key, f"expected the path of a file, got {d[key]!r}")
@@ -371,7 +371,7 @@ def load_problem(path) -> Problem:
     if "goal" in d:
         task["goal"] = _goal(fail, table("goal"))
     if "obstacles" in d:
-        task["obstacles"] = _obstacles(fail, d["obstacles"])
+        task["obstacles"] = read_obstacles(fail, d["obstacles"])
     if "collision" in d:
         if not isinstance(d["collision"], dict):
             fail("collision", f"expected a table like the model file's [collision], got {d['collision']!r}")
@@ -407,7 +407,7 @@ def _vector3(fail, fld, v, positive: bool = False) -> np.ndarray:
     return np.array([_number(fail, f"{fld}[{i}]", x, positive) for i, x in enumerate(v)])
 
 
-def _tool_path(fail, t: dict) -> ToolPath:
+def read_path(fail, t: dict) -> ToolPath:
     """The [path] table: frame, points (a polyline) or circle = { center, radius, normal, turns },
     speed (m/s; not for min_time), tolerance (m)."""
     for key in t:
@@ -456,7 +456,7 @@ def _goal(fail, t: dict) -> Goal:
                 **{f"{k}_tol": _number(fail, f"goal.tolerance.{k}", v, True) for k, v in tol.items()})
 
 
-def _obstacles(fail, raw) -> tuple:
+def read_obstacles(fail, raw) -> tuple:
     """[[obstacles]]: each a sphere = { center, radius } or a box = { center, size }."""
     if not isinstance(raw, list):
         fail("obstacles", "expected [[obstacles]] tables")

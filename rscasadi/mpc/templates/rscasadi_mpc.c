@@ -4,14 +4,13 @@
 #include "rscasadi_mpc.h"
 #include "mpc_rti.h"
 
-#define MAX(a, b) ((a) > (b) ? (a) : (b))
 #define NXP (MPC_NX * (MPC_HORIZON + 1))
 #define NUP (MPC_NU * MPC_HORIZON)
-static casadi_real X[NXP], U[NUP], X_next[NXP], U_next[NUP];
-static casadi_real target_reference[MPC_NREF];
-static casadi_real w[MAX(mpc_rti_SZ_W, mpc_hold_SZ_W) + 1];
-static casadi_int iw[MAX(mpc_rti_SZ_IW, mpc_hold_SZ_IW) + 1];
-static double last_step_seconds;
+#define NROWS (MPC_NREF / MPC_HORIZON)
+#define PAYLOAD_MASS ${mass}                 /* the problem's, or -1: the model holds no payload */
+typedef char casadi_int_is_long_long[sizeof(casadi_int) == sizeof(long long) ? 1 : -1];
+typedef char work_fits[sizeof(((mpc_t *)0)->w) >= sizeof(casadi_real) * (mpc_rti_SZ_W > mpc_hold_SZ_W ? mpc_rti_SZ_W : mpc_hold_SZ_W) ? 1 : -1];
+typedef char iwork_fits[sizeof(((mpc_t *)0)->iw) >= sizeof(casadi_int) * (mpc_rti_SZ_IW > mpc_hold_SZ_IW ? mpc_rti_SZ_IW : mpc_hold_SZ_IW) ? 1 : -1];
 
 static double now(void) {
   struct timespec t;
@@ -19,45 +18,71 @@ static double now(void) {
   return t.tv_sec + 1e-9 * t.tv_nsec;
 }
 
-double mpc_step_seconds(void) { return last_step_seconds; }
+size_t mpc_sizeof(void) { return sizeof(mpc_t); }
 
-int mpc_init(const double *x_measured) {
-  const casadi_real *arg[mpc_hold_SZ_ARG + 1] = {x_measured};
-  casadi_real *res[mpc_hold_SZ_RES + 1] = {X, U};
-  return mpc_hold(arg, res, iw, w, 0);
-}
+double mpc_step_seconds(const mpc_t *c) { return c->last_step_seconds; }
 
-static int step(const double *x_measured, const double *reference, double *tau_out) {
-  const casadi_real *arg[mpc_rti_SZ_ARG + 1] = {x_measured, reference, X, U};
-  casadi_real *res[mpc_rti_SZ_RES + 1] = {tau_out, X_next, U_next};
-  int finite = 1;
-  if (mpc_rti(arg, res, iw, w, 0) != 0) {
-    for (int i = 0; i < MPC_NU; ++i) tau_out[i] = U[i];
-    return MPC_FAILED;
-  }
-  for (int i = 0; i < NXP; ++i) finite = finite && isfinite(X_next[i]);
-  for (int i = 0; i < NUP; ++i) finite = finite && isfinite(U_next[i]);
-  if (!finite) {                          /* e.g. a NaN measurement: keep the plan, its first torque */
-    for (int i = 0; i < MPC_NU; ++i) tau_out[i] = U[i];
-    return MPC_NOT_FINITE;
-  }
-  for (int i = 0; i < NXP; ++i) X[i] = X_next[i];
-  for (int i = 0; i < NUP; ++i) U[i] = U_next[i];
+int mpc_set_payload_mass(mpc_t *c, double mass) {
+  if (PAYLOAD_MASS < 0) return MPC_NO_PAYLOAD;
+  if (!isfinite(mass) || mass < 0) return MPC_BAD_ARGUMENT;
+  c->params[MPC_NU] = mass;
   return 0;
 }
 
-int mpc_step(const double *x_measured, const double *reference, double *tau_out) {
+int mpc_set_posture(mpc_t *c, const double *theta) {
+  for (int i = 0; i < MPC_NU; ++i)
+    if (!isfinite(theta[i])) return MPC_BAD_ARGUMENT;
+  for (int i = 0; i < MPC_NU; ++i) c->params[i] = theta[i];
+  return 0;
+}
+
+int mpc_init(mpc_t *c, const double *x_measured) {
+  for (int i = 0; i < MPC_NU; ++i) c->params[i] = x_measured[i];
+  c->params[MPC_NU] = PAYLOAD_MASS;
+  c->last_step_seconds = 0.0;
+  const casadi_real *arg[mpc_hold_SZ_ARG + 1] = {x_measured, c->params};
+  casadi_real *res[mpc_hold_SZ_RES + 1] = {c->X, c->U};
+  return mpc_hold(arg, res, (casadi_int *)c->iw, c->w, 0);
+}
+
+static int step(mpc_t *c, const double *x_measured, const double *reference, double *tau_out) {
+  const casadi_real *arg[mpc_rti_SZ_ARG + 1] = {x_measured, reference, c->X, c->U, c->params};
+  casadi_real *res[mpc_rti_SZ_RES + 1] = {tau_out, c->X_next, c->U_next};
+  int finite = 1;
+  if (mpc_rti(arg, res, (casadi_int *)c->iw, c->w, 0) != 0) {
+    for (int i = 0; i < MPC_NU; ++i) tau_out[i] = c->U[i];
+    return MPC_FAILED;
+  }
+  for (int i = 0; i < NXP; ++i) finite = finite && isfinite(c->X_next[i]);
+  for (int i = 0; i < NUP; ++i) finite = finite && isfinite(c->U_next[i]);
+  if (!finite) {                          /* e.g. a NaN measurement: keep the plan, its first torque */
+    for (int i = 0; i < MPC_NU; ++i) tau_out[i] = c->U[i];
+    return MPC_NOT_FINITE;
+  }
+  for (int i = 0; i < NXP; ++i) c->X[i] = c->X_next[i];
+  for (int i = 0; i < NUP; ++i) c->U[i] = c->U_next[i];
+  return 0;
+}
+
+int mpc_step(mpc_t *c, const double *x_measured, const double *reference, double *tau_out) {
   const double t0 = now();
-  const int flag = step(x_measured, reference, tau_out);
-  last_step_seconds = now() - t0;
+  const int flag = step(c, x_measured, reference, tau_out);
+  c->last_step_seconds = now() - t0;
   return flag;
 }
 
-int mpc_step_to(const double *x_measured, const double *theta_target, double *tau_out) {
-  for (int k = 0; k < MPC_HORIZON; ++k)
-    for (int i = 0; i < MPC_NU; ++i) {
-      target_reference[2 * MPC_NU * k + i] = theta_target[i];
-      target_reference[2 * MPC_NU * k + MPC_NU + i] = 0.0;
+/* the target held over the horizon at rest: joint space theta (n) and zero speeds; task space
+ * p (3), zero velocity, and R (9, column-major) when the rotation is followed */
+int mpc_step_to(mpc_t *c, const double *x_measured, const double *target, double *tau_out) {
+  for (int k = 0; k < MPC_HORIZON; ++k) {
+    double *col = c->target_reference + NROWS * k;
+    for (int i = 0; i < NROWS; ++i) col[i] = 0.0;
+    if (MPC_TASK_SPACE) {
+      for (int i = 0; i < 3; ++i) col[i] = target[i];
+      for (int i = 0; i < NROWS - 6; ++i) col[6 + i] = target[3 + i];
+    } else {
+      for (int i = 0; i < MPC_NU; ++i) col[i] = target[i];
     }
-  return mpc_step(x_measured, target_reference, tau_out);
+  }
+  return mpc_step(c, x_measured, c->target_reference, tau_out);
 }
