@@ -80,10 +80,16 @@ def cmd_sweep(args):
 
 def cmd_mpc(args):
     from rscasadi.mpc import closed_loop, generate_mpc, plot_closed_loop
+    from rscasadi.mpc.problem import mpc_problem
     from rscasadi.files import check_writable
     check_writable(args.out)
     generate_mpc(args.problem, args.out, opt=args.opt, log=lambda msg: print(msg, flush=True), model=args.model)
-    if args.study is not None:
+    if args.study is not None and mpc_problem(args.problem).task_space:
+        from rscasadi.mpc import task_study
+        res = task_study(args.problem, args.out, plant_mass=args.plant_payload, log=lambda msg: print(msg, flush=True))
+        write_json(Path(args.out) / "closed_loop.json", res)
+        print(f"wrote {Path(args.out) / 'closed_loop.json'}")
+    elif args.study is not None:
         import os
         traces = {}
         res = closed_loop(args.problem, args.out, duration=args.study or None, log=lambda msg: print(msg, flush=True),
@@ -200,7 +206,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--opt", default="-O2", type=opt_flag, help="optimisation flag for the library (default -O2)")
     p.add_argument("--study", type=positive(float, zero=True), nargs="?", const=0.0, metavar="SECONDS",
                    help="then run the closed-loop study (heavier tip, quantised encoders) for SECONDS "
-                        "(default: the whole trajectory) and write closed_loop.json")
+                        "(default: the whole trajectory) and write closed_loop.json; a task-space problem: "
+                        "its path with the problem's payload, and with --plant-payload kg untold and told")
+    p.add_argument("--plant-payload", type=positive(float), default=None, metavar="KG",
+                   help="task-space study: the payload the arm really holds (default: 10 times the problem's)")
     p.set_defaults(func=cmd_mpc)
     p = sub.add_parser("sweep", help="solve an optimal-control problem over a grid of parameters, in parallel on Dask")
     p.add_argument("sweep", help="sweep file (TOML): problem and [grid]")

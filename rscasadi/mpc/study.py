@@ -139,6 +139,109 @@ def closed_loop(problem, mpc_dir, duration: float | None = None, tip_factor: flo
     return results
 
 
+def task_reference(path, t, offsets) -> np.ndarray:
+    """The task-space reference columns at the times t + offsets: the path's point and velocity
+    (central differences of its timing law, 0.1 ms), 6 x len(offsets)."""
+    tk, eps = t + np.asarray(offsets, float), 1e-4            # (the path holds its ends outside [0, T])
+    return np.vstack([path(tk).T, ((path(tk + eps) - path(tk - eps)) / (2 * eps)).T])
+
+
+def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bool = False, settle: float = 0.2,
+                     quantised: bool = True, log=print) -> dict:
+    """The task-space MPC (its problem's `[path]`, from rest at theta_start) on the arm holding a
+    payload of `plant_mass` kg (None: the problem's), at 1 kHz with quantised encoders: `told`,
+    the controller is given that mass (mpc_set_payload_mass), else it keeps the problem's.  The
+    arm holds the start for `settle` s, then the path runs and the arm holds its end for 0.2 s.
+    Returns the frame's largest and RMS distance from the reference point of its time, the
+    largest distance from the path itself, the final error, the largest limit violation, the
+    smallest clearance to the obstacles (exact) and the time per step in C."""
+    from rscasadi.dynamics.collision import exact_clearance
+    from rscasadi.dynamics.statics import rest_state
+    from rscasadi.model.frames import holding
+    from rscasadi.mpc.problem import mpc_model
+    from rscasadi.sim.sensors import quanta
+    p = mpc_problem(problem)
+    if not p.task_space or p.tool_path is None:
+        raise ValueError(f"{p.path}: task_closed_loop needs a frame and a [path]")
+    model = mpc_model(p)
+    plant = Arm(model if plant_mass is None else holding(model, mass=plant_mass))
+    path, dt, n = p.tool_path, p.sample_time, plant.n
+    advance, limits = plant_step(plant, dt), limit_arrays(plant)
+    place = plant.frame_placement(p.frame)
+    clearance = exact_clearance(plant.model, p.obstacles) if p.obstacles else None
+    q_link, q_motor = quanta(plant.model.column("gear_ratio"))
+    mpc = CompiledMPC(mpc_dir)
+    x = rest_state(plant, p.theta_start)
+    mpc.init(x)
+    if told:
+        if mpc.set_payload_mass(plant.model.payload.body.mass) != 0:
+            raise ValueError(f"{p.path}: the controller's model holds no payload to be told of")
+    K = int(round((settle + path.duration + 0.2) / dt))
+    offsets = p.interval * np.arange(1, p.horizon + 1)
+    errors, off_path, times, violation, gap, gap_at = [], [], [], 0.0, np.inf, None
+    meas_prev = None
+    thetas, every = [x[:n].copy()], max(1, int(round(0.01 / dt)))
+    for k in range(K):
+        t_path = k * dt - settle                      # the path's clock (< 0: holding its start)
+        meas = np.concatenate([np.round(x[:n] / q_link) * q_link, np.round(x[n:2 * n] / q_motor) * q_motor])
+        speeds = (meas - meas_prev) / dt if meas_prev is not None else x[2 * n:]
+        meas_prev = meas
+        if not quantised:
+            meas, speeds = x[:2 * n], x[2 * n:]
+        ref = task_reference(path, t_path, offsets)
+        tau, seconds, flag = mpc.step(np.concatenate([meas, speeds]), ref)
+        if flag != 0:
+            raise RuntimeError(f"mpc_step returned {flag} at t = {k * dt:.3f} s")
+        times.append(seconds)
+        x = np.array(advance(x, np.clip(tau, -limits["tau"], limits["tau"]))).ravel()
+        where = np.array(place(x[:n])[1]).ravel()
+        errors.append(np.linalg.norm(where - path(t_path + dt)[0]))
+        off_path.append(float(path.distance(where[None, :])[0]))
+        violation = max(violation, float(np.max(np.abs(x[n:2 * n] - x[:n]) / limits["psi"] - 1)),
+                        float(np.max(np.abs(x[3 * n:]) / limits["dphi"] - 1)))
+        if clearance is not None and float(clearance(x[:n])) < gap:
+            gap, gap_at = float(clearance(x[:n])), (k + 1) * dt - settle
+        if (k + 1) % every == 0:
+            thetas.append(x[:n].copy())
+    e = np.array(errors)
+    res = {"plant_mass": float(plant.model.payload.body.mass) if plant.model.payload else 0.0,
+           "told": told, "max_error": float(e.max()), "rms_error": float(np.sqrt(np.mean(e ** 2))),
+           "max_path_distance": float(np.max(off_path)), "final_error": float(e[-1]),
+           "max_limit_violation": max(violation, 0.0), "min_clearance": None if clearance is None else gap,
+           "min_clearance_at_s": gap_at,
+           "step_median_s": float(np.median(times)), "step_worst_s": float(np.max(times)),
+           "model": str(p.model), "t": (np.arange(len(thetas)) * every * dt).tolist(), "theta": np.array(thetas).T.tolist()}
+    log(f"payload {res['plant_mass']:.2f} kg, {'told' if told else 'not told'}: the frame within "
+        f"{res['max_error'] * 1e3:.2f} mm of its reference (RMS {res['rms_error'] * 1e3:.2f} mm), "
+        f"{res['max_path_distance'] * 1e3:.2f} mm of the path, {res['final_error'] * 1e3:.2f} mm at the end, "
+        f"limit violation {res['max_limit_violation']:.1e}"
+        + (f", clearance >= {gap * 1e3:.1f} mm (at {gap_at:.3f} s)" if clearance is not None else "")
+        + f"; step median {res['step_median_s'] * 1e6:.0f} us")
+    return res
+
+
+def task_study(problem, mpc_dir, plant_mass: float | None = None, log=print) -> dict:
+    """The task-space closed loop (task_closed_loop) three times: the arm holding the problem's
+    payload; holding `plant_mass` kg (default ten times the problem's) that the controller is
+    not told; and the same, told (mpc_set_payload_mass).  The C MPC must be in `mpc_dir`."""
+    from rscasadi.mpc.problem import mpc_model
+    p = mpc_problem(problem)
+    model = mpc_model(p)
+    if model.payload is None:
+        raise ValueError(f"{p.path}: the task-space study changes the payload: give the problem a payload")
+    plant_mass = 10 * model.payload.body.mass if plant_mass is None else plant_mass
+    out = {"path": p.tool_path.to_dict(), "obstacles": [{"kind": o.kind, "center": o.center.tolist(), "radius": o.radius,
+                                                         "size": None if o.size is None else o.size.tolist()}
+                                                        for o in p.obstacles]}
+    for case, mass, told in (("as_modelled", None, False), ("untold_payload", plant_mass, False),
+                             ("told_payload", plant_mass, True)):
+        run = task_closed_loop(p, mpc_dir, mass, told, log=log)
+        from rscasadi.model.frames import holding, payload_document
+        run["payload"] = payload_document(holding(model, mass=run["plant_mass"]))
+        out[case] = {"MPC (C)": run}
+    return out
+
+
 def study(problem, build, identified_model=None, true_arm: Arm | None = None, log=print,
           figure: Path | None = None) -> dict:
     """The closed-loop evidence, whole trajectory: the problem's model against a 20 % heavier tip;

@@ -98,8 +98,9 @@ def scene_of(path, model=None) -> Scene:
             cases = [data] + [case for case in data.values() if isinstance(case, dict)]   # one plant, or several
             runs = [case["MPC (C)"] for case in cases
                     if isinstance(case.get("MPC (C)"), dict) and "theta" in case["MPC (C)"]]
-            if runs:
-                data = {"t": runs[0]["t"], "theta": runs[0]["theta"], "model": runs[0]["model"]}
+            if runs:                                    # with the task's path, obstacles and payload
+                data = {"t": runs[0]["t"], "theta": runs[0]["theta"], "model": runs[0]["model"],
+                        **{k: v for k, v in {**data, **runs[0]}.items() if k in ("path", "obstacles", "payload")}}
         if not isinstance(data, dict) or not {"t", "theta", "model"} <= set(data):
             raise ModelFileError(f"{path}: not a solution.json or closed_loop.json (no t, theta, model)")
         from rscasadi.ocp.solution import solution_arm
@@ -122,7 +123,8 @@ def scene_of(path, model=None) -> Scene:
             scene.path = (scene.poses[:, arm.n] @ tip)[:, :3]
     scene.obstacles = list(data.get("obstacles") or []) if data else []
     if data and data.get("path"):                       # the path asked for, beside the one flown
-        scene.target = np.asarray(data["path"]["points"], float)
+        from rscasadi.ocp.toolpath import ToolPath
+        scene.target = ToolPath.from_dict(data["path"]).sample()
     if arm.model.payload is not None:
         f = arm.model.frame(arm.model.payload.frame)
         body = arm.model.payload.body
