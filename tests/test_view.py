@@ -69,3 +69,45 @@ def test_view_refuses_what_it_cannot_draw(tmp_path, capsys):
     assert main(["view", str(bad), "--out", str(tmp_path / "x.html")]) == 2
     assert "not a solution.json" in capsys.readouterr().err and not (tmp_path / "x.html").exists()
     assert main(["view", str(SOLUTION), "--out", str(tmp_path / "no" / "such" / "x.html")]) == 2
+
+
+def _cube_stl(half: float) -> str:
+    """An ASCII STL cube of half-width `half` (m)."""
+    v = np.array([[x, y, z] for x in (-half, half) for y in (-half, half) for z in (-half, half)])
+    faces = [(0, 1, 3), (0, 3, 2), (4, 6, 7), (4, 7, 5), (0, 4, 5), (0, 5, 1), (2, 3, 7), (2, 7, 6), (0, 2, 6),
+             (0, 6, 4), (1, 5, 7), (1, 7, 3)]
+    rows = ["solid cube"]
+    for f in faces:
+        a, b, c = v[list(f)]
+        normal = np.cross(b - a, c - a)
+        if normal @ (a + b + c) < 0:                     # outward, counter-clockwise seen from outside
+            f, normal = f[::-1], -normal
+        normal = normal / np.linalg.norm(normal)
+        rows += [f"facet normal {' '.join(map(str, normal))}", "outer loop"] + \
+                [f"vertex {' '.join(map(str, v[i]))}" for i in f] + ["endloop", "endfacet"]
+    return "\n".join(rows + ["endsolid cube"]) + "\n"
+
+
+def test_urdf_visual_meshes_at_hand_are_drawn(chromium, tmp_path):
+    """A Panda whose URDF's link-4 visual is an STL at hand (a package:// name found beside the
+    URDF): the scene draws it instead of the link's capsule, and the page differs from the
+    capsules' by the cube's pixels."""
+    from rscasadi.view import scene_of
+    (tmp_path / "urdf").mkdir()
+    text = (ROOT / "problems" / "urdf" / "panda.urdf").read_text().replace("meshes/visual/link4.dae",
+                                                                           "meshes/visual/link4.stl")
+    (tmp_path / "urdf" / "panda.urdf").write_text(text)
+    mesh = tmp_path / "robots" / "panda_description" / "meshes" / "visual" / "link4.stl"
+    mesh.parent.mkdir(parents=True)
+    mesh.write_text(_cube_stl(0.12))
+    model = (ROOT / "problems" / "panda_sea.toml").read_text()
+    (tmp_path / "panda.toml").write_text(model)
+    scene = scene_of(tmp_path / "panda.toml")
+    assert [kind for kind, *_ in scene.visuals[4]] == ["mesh"] and set(scene.visuals) == {4}
+    pages = {}
+    for name, folder in (("capsules", ROOT / "problems"), ("mesh", tmp_path)):
+        page = tmp_path / f"{name}.html"
+        assert main(["view", str(folder / "panda_sea.toml" if name == "capsules" else folder / "panda.toml"),
+                     "--out", str(page)]) in (0, None)
+        pages[name] = screenshot(chromium, page, 0.0, tmp_path / f"{name}.png")
+    assert (np.abs(pages["mesh"] - pages["capsules"]).max(axis=2) > 0.1).sum() > 2000

@@ -54,7 +54,21 @@ def commands(scene) -> list:
         if T is not None:
             out.append(SetTransform(T, path))
 
+    for body, shapes in scene.visuals.items():              # the URDF's visuals, where at hand
+        for i, (kind, data, T) in enumerate(shapes):
+            if kind == "mesh":
+                suffix = data.rsplit(".", 1)[-1].lower()
+                geometry = {"stl": g.StlMeshGeometry, "obj": g.ObjMeshGeometry, "dae": g.DaeMeshGeometry}[suffix].from_file(data)
+            elif kind == "box":
+                geometry = g.Box(data)
+            elif kind == "cylinder":                         # MeshCat's axis is y, the URDF's z
+                geometry, T = g.Cylinder(data[1], data[0]), T @ _align_y(np.array([0.0, 0.0, -1.0]), np.array([0.0, 0.0, 1.0]))
+            else:
+                geometry = g.Sphere(data[0])
+            put(geometry, COLOURS["link"], _path(f"body{body}", f"visual{i}"), T)
     for body, capsules in scene.links.items():
+        if body in scene.visuals:
+            continue
         for i, (a, b, r) in enumerate(capsules):
             length = float(np.linalg.norm(b - a))
             put(g.Cylinder(max(length, 1e-4), r), COLOURS["link"], _path(f"body{body}", f"rod{i}"), _align_y(a, b))
@@ -63,9 +77,11 @@ def commands(scene) -> list:
                 T[:3, 3] = end
                 put(g.Sphere(r), COLOURS["link"], _path(f"body{body}", f"rod{i}", f"end{k}"),
                     np.linalg.inv(_align_y(a, b)) @ T)
+    # the rotors stand out of the links' capsules on both sides
+    half = max([0.03] + [r + 0.015 for capsules in scene.links.values() for _, _, r in capsules])
     for j, (parent, T) in enumerate(scene.rotors):
-        axis = T @ np.array([[0.0, 0.0, -0.03, 1.0], [0.0, 0.0, 0.03, 1.0]]).T
-        put(g.Cylinder(0.06, 0.045), COLOURS["rotor"], _path(f"body{parent}", f"rotor{j}"),
+        axis = T @ np.array([[0.0, 0.0, -half, 1.0], [0.0, 0.0, half, 1.0]]).T
+        put(g.Cylinder(2 * half, 0.045), COLOURS["rotor"], _path(f"body{parent}", f"rotor{j}"),
             _align_y(axis[:3, 0], axis[:3, 1]), opacity=0.8)
     if scene.payload is not None:
         body, T, size = scene.payload

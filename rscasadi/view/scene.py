@@ -23,7 +23,9 @@ class Scene:
     """Everything to draw: `links` per body (1..n) a list of capsules (a, b in the body frame,
     radius), `rotors` per joint (its origin and axis in its parent body's frame), `poses` per
     animation frame per body (4x4 in the world), `broken` per frame (a limit or clearance),
-    `path` (k x 3 tool positions), `goal`, `obstacles`, `payload` (body, 4x4 in it, size)."""
+    `path` (k x 3 tool positions), `goal`, `obstacles`, `payload` (body, 4x4 in it, size);
+    `visuals` per body its URDF visual geometries (kind, data, 4x4 in the body frame): a body
+    that has any is drawn with them instead of its capsules."""
     title: str
     times: np.ndarray
     poses: np.ndarray                          # (frames, n + 1, 4, 4)
@@ -35,6 +37,7 @@ class Scene:
     obstacles: list = field(default_factory=list)
     payload: tuple | None = None
     target: np.ndarray | None = None
+    visuals: dict = field(default_factory=dict)
 
 
 def _homogeneous(R, p) -> np.ndarray:
@@ -62,6 +65,64 @@ def _links(arm: Arm) -> dict:
             end = max(ends, key=np.linalg.norm)
         shapes[b].append((np.zeros(3), end, 0.025))
     return shapes
+
+
+MESHES = (".stl", ".obj", ".dae")
+
+
+def _mesh_file(urdf: Path, name: str) -> Path | None:
+    """A visual's mesh file where it is at hand: relative to the URDF, or a package:// name
+    found under the URDF's folder or one above it (its package's share directory)."""
+    if name.startswith("file://"):
+        name = name[len("file://"):]
+    if not name.startswith("package://"):
+        path = (urdf.parent / name) if not Path(name).is_absolute() else Path(name)
+        return path if path.is_file() else None
+    parts = Path(name[len("package://"):]).parts
+    for root in (urdf.parent, *urdf.parent.parents[:3]):
+        for k in range(len(parts)):                     # with or without the package's own name
+            path = root.joinpath(*parts[k:])
+            if path.is_file():
+                return path
+    return None
+
+
+def _visuals(arm: Arm) -> dict:
+    """Per body the URDF's visual geometries (a URDF model): meshes whose files are at hand
+    (STL, OBJ, DAE) and boxes, cylinders and spheres, each with its pose in the body frame."""
+    urdf = arm.model.extra.get("urdf") if isinstance(arm.model.extra, dict) else None
+    if not urdf or not Path(urdf).is_file():
+        return {}
+    import yourdfpy
+    robot = yourdfpy.URDF.load(urdf, load_meshes=False, build_scene_graph=False,
+                               load_collision_meshes=False, build_collision_scene_graph=False)
+    links = {lk.name: lk for lk in robot.robot.links}
+    frames = {f.name: f for f in arm.model.frames}
+    out = {}
+    for name, frame in frames.items():
+        if frame.body == 0 or name not in links:
+            continue
+        for v in links[name].visuals or ():
+            T = _homogeneous(frame.R, frame.p) @ np.asarray(v.origin if v.origin is not None else np.eye(4), float)
+            g = v.geometry
+            if g is None:
+                continue
+            if g.mesh is not None:
+                path = _mesh_file(Path(urdf), g.mesh.filename)
+                if path is None or path.suffix.lower() not in MESHES:
+                    continue
+                scale = np.ones(3) if g.mesh.scale is None else np.broadcast_to(np.asarray(g.mesh.scale, float), 3)
+                shape = ("mesh", str(path), T @ np.diag([*scale, 1.0]))
+            elif g.box is not None:
+                shape = ("box", np.asarray(g.box.size, float).tolist(), T)
+            elif g.cylinder is not None:
+                shape = ("cylinder", [float(g.cylinder.radius), float(g.cylinder.length)], T)
+            elif g.sphere is not None:
+                shape = ("sphere", [float(g.sphere.radius)], T)
+            else:
+                continue
+            out.setdefault(frame.body, []).append(shape)
+    return out
 
 
 def _rotors(arm: Arm) -> list:
@@ -109,7 +170,7 @@ def scene_of(path, model=None) -> Scene:
         times = np.arange(0.0, t[-1] + 1e-9, 1.0 / FPS)
         thetas = np.vstack([np.interp(times, t, row) for row in theta])
     scene = Scene(f"{path.parent.name}/{path.name}" if text is not None else path.name, times, _poses(arm, thetas), _links(arm), _rotors(arm),
-                  _broken(arm, thetas, data))
+                  _broken(arm, thetas, data), visuals=_visuals(arm))
     if data:                                            # the tool's path: the goal's frame, else the arm's tip
         goal = data.get("goal")
         if goal:
