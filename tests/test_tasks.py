@@ -350,3 +350,50 @@ def test_a_problem_may_give_the_arm_its_collision_geometry(tool_arm, capsule_arm
     with pytest.raises(ModelFileError, match=r"<Problem>: field 'collision.links.nowhere'"):
         solve(Problem(Task(tool_arm / "arm3_tool.toml", collision={"links": {"nowhere": 0.1}}, **task)),
               print_level=0, log=lambda m: None)
+
+
+# ----------------------------------------------------------------------------- the shipped problems
+
+SHIPPED = sorted((ROOT / "problems").glob("ocp_*.toml")) + sorted((ROOT / "problems").glob("mpc_*.toml"))
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.stem)
+def test_every_shipped_problem_states_its_task_and_fits_its_arm(path):
+    """Each example opens with its task in words (a comment of at least two lines) and is read,
+    checked and fitted to its model without error; a task for a frame names a frame of the arm."""
+    from rscasadi.mpc.problem import load_mpc_problem, mpc_model
+    from rscasadi.ocp.problem import check_against_model
+    from rscasadi.model.modelfile import read
+    head = []
+    for line in path.read_text().splitlines():
+        if not line.startswith("#"):
+            break
+        head.append(line.lstrip("# ").strip())
+    assert len(head) >= 2 and len(" ".join(head)) > 80, f"{path.name}: no statement of its task"
+    if path.name.startswith("mpc_"):
+        mpc_model(load_mpc_problem(path))
+    else:
+        problem = load_problem(path)
+        check_against_model(problem, read(problem.task.model))
+
+
+def test_every_shipped_optimal_control_problem_is_in_the_main_job():
+    from rscasadi.studies.reproduce import OCP_PROBLEMS
+    shipped = {p.stem.removeprefix("ocp_") for p in SHIPPED if p.stem.startswith("ocp_")}
+    assert shipped == set(OCP_PROBLEMS) | {"panda_shelf"}
+
+
+def test_the_panda_shelf_task_at_a_coarse_mesh():
+    """The shipped 7-joint task (2 kg, a pose goal, a ball and the table) on 16 intervals with
+    IPOPT, uncompiled: solved; the collocation's end at the pose; the replay clear of both
+    obstacles and within millimetres of the goal (the main job refines it until the replay
+    passes)."""
+    problem = load_problem(ROOT / "problems" / "ocp_panda_shelf.toml").replace(
+        intervals=16, compiled=False, condense=False, solver="ipopt", rounds=0)
+    sol = solve(problem, print_level=0, log=lambda m: None)
+    report = sol["verification"]
+    assert sol["solver_success"] and 0.3 < sol.t[-1] < 1.5
+    arm = solution_arm(sol)
+    R, p = (np.array(v) for v in arm.frame_placement("panda_hand_tcp")(sol.theta[:, -1]))
+    assert np.linalg.norm(p.ravel() - [0.45, 0.35, 0.45]) < 1e-6 and np.allclose(R[:, 2], [0, 0, -1], atol=1e-6)
+    assert report["min_clearance"] > 0 and report["goal_position_error"] < 5e-3

@@ -482,7 +482,7 @@ def check_against_model(problem: Problem, model):
     if t.payload is not None:
         from rscasadi.model.frames import holding
         try:
-            holding(model, **t.payload)
+            model = holding(model, **t.payload)                # its parameters (payload.*) named too
         except (ValueError, TypeError) as exc:
             raise ModelFileError(f"{problem.path}: field '{str(exc).split(':')[0]}': "
                                  f"{str(exc).split(':', 1)[-1].strip()}") from None

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rscasadi.dynamics.arm import load
+from rscasadi.dynamics.arm import Arm, load
 from rscasadi.files import OutputError, check_writable, write_json, write_text
 from rscasadi.model.modelfile import ModelFileError
 from rscasadi.studies.model_report import model_report
@@ -16,11 +16,46 @@ PROBLEMS = Path(__file__).resolve().parents[2] / "problems"
 REFERENCE = PROBLEMS / "arm3.toml"
 TRAJECTORY = PROBLEMS / "trajectory_arm3.toml"
 OCP_PROBLEMS = ("min_time", "min_effort", "tracking", "min_time_codesign", "min_time_gear_codesign", "panda_min_time",
-                "reach_around")
+                "reach_around", "tool_circle")
+WATCHED = ("min_effort", "reach_around", "tool_circle", "panda_shelf")      # view.html and view.gif
 
 
 class PartFailed(RuntimeError):
     """A part of the main job did not pass its own check."""
+
+
+def _watch(directory: Path):
+    """The motion of directory/solution.json to watch: view.html, and view.gif for documents."""
+    from rscasadi.view import scene_of, write_gif, write_html
+    scene = scene_of(directory / "solution.json")
+    write_html(scene, directory / "view.html")
+    write_gif(scene, directory / "view.gif")
+
+
+def shelf_comparison(out: Path, log=print) -> str:
+    """The shelf task with its 2 kg part and without it: one NLP, the part's inertial
+    parameters set (the model's) or zero."""
+    from rscasadi.model.frames import holding
+    from rscasadi.model.modelfile import read
+    from rscasadi.model.parameters import value
+    from rscasadi.ocp import load_problem
+    from rscasadi.ocp import run as run_ocp
+    problem = load_problem(PROBLEMS / "ocp_panda_shelf.toml")
+    held = holding(read(problem.task.model), **problem.task.payload)
+    names = [k for k in Arm(held).parameters()[0] if k.startswith("payload.")]
+    times = {}
+    for case, values in (("panda_shelf", {k: value(held, k) for k in names}),
+                         ("panda_shelf_empty", {k: 0.0 for k in names})):
+        sol = run_ocp(problem.replace(parameters=values), out / "ocp" / case, log=log, print_level=0)
+        if not sol["success"]:
+            raise PartFailed(f"{case}: not solved and verified ({sol['status']})")
+        times[case] = sol["t"][-1]
+    _watch(out / "ocp" / "panda_shelf")
+    write_json(out / "ocp" / "panda_shelf" / "comparison.json",
+               {"with_part_s": times["panda_shelf"], "without_part_s": times["panda_shelf_empty"],
+                "slower": times["panda_shelf"] / times["panda_shelf_empty"] - 1})
+    return (f"{out / 'ocp' / 'panda_shelf'}/: {times['panda_shelf']:.3f} s with the 2 kg part, "
+            f"{times['panda_shelf_empty']:.3f} s without, verified")
 
 
 def run(out, log=print) -> list:
@@ -59,11 +94,7 @@ def run(out, log=print) -> list:
             sol = run_ocp(PROBLEMS / f"ocp_{name}.toml", out / "ocp" / name, log=log, print_level=0)
             if not sol["success"]:
                 raise PartFailed(f"not solved and verified ({sol['status']})")
-            if name in ("min_effort", "reach_around"):    # the motions to watch: view.html, and a GIF
-                from rscasadi.view import scene_of, write_gif, write_html
-                scene = scene_of(out / "ocp" / name / "solution.json")
-                write_html(scene, out / "ocp" / name / "view.html")
-                write_gif(scene, out / "ocp" / name / "view.gif")
+            _watch(out / "ocp" / name) if name in WATCHED else None
             return f"{out / 'ocp' / name}/: objective {sol['objective']:.6g}, verified"
         return work
 
@@ -91,12 +122,29 @@ def run(out, log=print) -> list:
             raise PartFailed("the closed-loop MPC's tracking error is not finite")
         return f"{out / 'mpc'}/: closed-loop MPC max tracking error {worst:.2e} rad"
 
+    def mpc_task():
+        import tempfile
+        from rscasadi.mpc import generate_mpc, task_study
+        from rscasadi.files import fresh_directory
+        with tempfile.TemporaryDirectory() as build, fresh_directory(out / "mpc_tool", "closed_loop.json") as tmp:
+            generate_mpc(PROBLEMS / "mpc_arm3_tool.toml", build, log=log)
+            res = task_study(PROBLEMS / "mpc_arm3_tool.toml", build, log=log)
+            write_json(tmp / "closed_loop.json", res)
+        runs = {k: v["MPC (C)"] for k, v in res.items() if isinstance(v, dict) and "MPC (C)" in v}
+        if any(r["max_limit_violation"] > 0 or r["min_clearance"] < 0 for r in runs.values()):
+            raise PartFailed("the task-space MPC broke a limit or the obstacle's margin")
+        return (f"{out / 'mpc_tool'}/: tool path within {1e3 * max(r['max_path_distance'] for r in runs.values()):.1f} mm, "
+                f"untold payload {1e3 * runs['untold_payload']['final_error']:.2f} mm at the end, told "
+                f"{1e3 * runs['told_payload']['final_error']:.2f} mm")
+
     part("model", model)
     part("paper", paper)
     for name in OCP_PROBLEMS:
         part(f"ocp {name}", ocp(name))
+    part("ocp panda_shelf", lambda: shelf_comparison(out, log))
     part("identification", identification)
     part("mpc", mpc, needs=("identification",))
+    part("mpc task space", mpc_task)
     log(f"\nrscasadi reproduce into {out}:")
     for name, state, what in summary:
         log(f"  {name:28s} {state:8s} {what}")
