@@ -239,11 +239,12 @@ def test_task_space_c_equals_casadi_with_the_payload_mass_it_is_given(tool_mpc_d
     and after mpc_set_payload_mass(0.5): equal to 1e-12, and the mass changes the torques."""
     from rscasadi.mpc.formulation import controller_arm
     from rscasadi.mpc.problem import mpc_model
-    from rscasadi.mpc.study import task_reference
+    from rscasadi.mpc.study import FrameReference
     p = load_mpc_problem(TOOL)
     arm = controller_arm(mpc_model(p))
     rti, hold = rti_function(arm, p), hold_function(arm, p)
     x = rest_state(arm, p.theta_start)
+    reference = FrameReference(p, arm)
     offsets = p.interval * np.arange(1, p.horizon + 1)
     for mass in (0.05, 0.5):
         c = CompiledMPC(tool_mpc_dir)
@@ -254,7 +255,7 @@ def test_task_space_c_equals_casadi_with_the_payload_mass_it_is_given(tool_mpc_d
         X, U = (np.array(v) for v in hold(x, np.r_[x[:3], 0.05]))
         xk = x.copy()
         for k in range(4):
-            ref = task_reference(p.tool_path, 0.05 * k, offsets)
+            ref = reference.columns(0.05 * k + offsets)
             tau_c, _, flag = c.step(xk, ref)
             tau_py, X, U = (np.array(v) for v in rti(xk, ref, X, U, params))
             assert flag == 0 and np.max(np.abs(tau_c - tau_py.ravel())) < 1e-12
@@ -330,3 +331,13 @@ def test_a_task_space_problem_that_does_not_fit_the_arm_is_refused(tmp_path, tex
     path.write_text(f'model = "{(ROOT / "problems" / "arm3_tool.toml").as_posix()}"\n' + text)
     with pytest.raises(ModelFileError, match=rf"bad_mpc\.toml: field '{field}'"):
         M.generate_mpc(path, tmp_path / "out", log=lambda m: None)
+
+
+def test_the_panda_follows_its_shelf_motion_with_the_part_it_is_told_of(tmp_path):
+    """The 7-joint task-space MPC (position and rotation, the ball and the table soft) on the
+    committed minimum-time shelf motion with its 2 kg part, told: finite at every step, the hand
+    within millimetres of the reference and at it at the end, clear of both obstacles."""
+    p = load_mpc_problem(ROOT / "problems" / "mpc_panda_shelf.toml")
+    M.generate_mpc(p, tmp_path / "panda", opt="-O1", log=lambda m: None)
+    run = M.task_closed_loop(p, tmp_path / "panda", plant_mass=2.0, told=True, settle=0.05, log=lambda m: None)
+    assert run["max_error"] < 0.01 and run["final_error"] < 0.5e-3 and run["min_clearance"] > 0

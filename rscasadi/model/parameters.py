@@ -48,7 +48,7 @@ def body_from_parameters(v) -> Body:
     """The inverse of body_parameters: mass, centre of mass and inertia about it."""
     m, h = float(v[0]), np.asarray(v[1:4], float)
     I_O = np.array([[v[4], v[7], v[8]], [v[7], v[5], v[9]], [v[8], v[9], v[6]]], float)
-    c = h / m
+    c = h / m if m != 0.0 else np.zeros(3)                  # a massless body (an empty payload) has no centre
     return Body(m, c, I_O - m * (c @ c * np.eye(3) - np.outer(c, c)))
 
 

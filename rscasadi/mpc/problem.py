@@ -14,7 +14,7 @@ from rscasadi.ocp.problem import PAYLOAD_KEYS, read_obstacles, read_path
 from rscasadi.ocp.toolpath import ToolPath
 
 TOP = {"model", "trajectory", "sample_time", "horizon", "interval", "substeps", "sqp_iterations", "qp_iterations",
-       "weights", "frame", "orientation", "path", "obstacles", "payload", "theta_start"}
+       "weights", "frame", "orientation", "path", "obstacles", "payload", "theta_start", "solution"}
 WEIGHTS = {"theta": 1e5, "dtheta": 1.0, "tau": 1e-3, "limits": 1e5,
            "position": 1e6, "velocity": 10.0, "orientation": 1e3, "posture": 1.0, "obstacles": 1e8}
 JOINT_WEIGHTS, TASK_WEIGHTS = ("theta", "dtheta"), ("position", "velocity", "orientation", "posture")
@@ -30,7 +30,8 @@ class MPCProblem:
     and the cost `weights` (theta, dtheta, tau, limits; in task space position, velocity,
     orientation, posture; obstacles).  Task space: `frame` (its position, and its rotation if
     `orientation`, is the reference), `tool_path` (a `ToolPath` at a speed: the study's
-    reference, from rest at `theta_start`).  `obstacles` are soft (the model's [collision]
+    reference, from rest at `theta_start`) or `solution` (an optimal-control solution.json: the
+    frame's motion in it is the study's reference).  `obstacles` are soft (the model's [collision]
     capsules); `payload` sets or changes the model's payload, whose mass is a run-time parameter.
     Build it in Python or read it with `load_mpc_problem`; `check()` applies the file's rules.
     `path`: the file it came from."""
@@ -50,12 +51,14 @@ class MPCProblem:
     obstacles: tuple = ()
     payload: dict | None = None
     theta_start: np.ndarray | None = None
+    solution: Path | None = None
 
     def __post_init__(self):
         self.model = Path(self.model)
         self.trajectory = None if self.trajectory is None else Path(self.trajectory)
         self.weights = {**WEIGHTS, **self.weights}
         self.obstacles = tuple(self.obstacles)
+        self.solution = None if self.solution is None else Path(self.solution)
         if self.theta_start is not None:
             self.theta_start = np.asarray(self.theta_start, float).ravel()
 
@@ -112,6 +115,13 @@ class MPCProblem:
                 fail("path", "give a trajectory (link angles) or a path (task space), not both")
             if self.theta_start is None:
                 fail("theta_start", "missing required field (where the path's run starts, at rest)")
+        if self.solution is not None:
+            if self.frame is None:
+                fail("solution", "a solution's frame motion is a task-space reference: give frame too")
+            if self.tool_path is not None or self.trajectory is not None:
+                fail("solution", "give one reference: a trajectory, a path or a solution")
+            if not self.solution.is_file():
+                fail("solution", f"no file {self.solution}")
         if self.theta_start is not None and not np.all(np.isfinite(self.theta_start)):
             fail("theta_start", f"expected finite numbers, got {self.theta_start!r}")
         return self
@@ -128,7 +138,7 @@ def load_mpc_problem(path) -> MPCProblem:
         fail("trajectory", "expected the path of a trajectory file")
     if not isinstance(d.get("weights", {}), dict):
         fail("weights", "expected a table")
-    special = {"model", "trajectory", "weights", "path", "obstacles", "payload", "theta_start"}
+    special = {"model", "trajectory", "weights", "path", "obstacles", "payload", "theta_start", "solution"}
     fields = {k: d[k] for k in TOP - special if k in d}
     if "path" in d:
         if not isinstance(d["path"], dict):
@@ -141,6 +151,10 @@ def load_mpc_problem(path) -> MPCProblem:
         if not isinstance(held, dict) or not held or set(held) - PAYLOAD_KEYS:
             fail("payload", f"expected a table of {', '.join(sorted(PAYLOAD_KEYS))}, got {held!r}")
         fields["payload"] = dict(held)
+    if "solution" in d:
+        if not isinstance(d["solution"], str) or not d["solution"].strip():
+            fail("solution", f"expected the path of a solution.json, got {d['solution']!r}")
+        fields["solution"] = (path.parent / d["solution"]).resolve()
     if "theta_start" in d:
         v = d["theta_start"]
         if not isinstance(v, list) or not v or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in v):

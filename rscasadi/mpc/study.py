@@ -139,70 +139,122 @@ def closed_loop(problem, mpc_dir, duration: float | None = None, tip_factor: flo
     return results
 
 
-def task_reference(path, t, offsets) -> np.ndarray:
-    """The task-space reference columns at the times t + offsets: the path's point and velocity
-    (central differences of its timing law, 0.1 ms), 6 x len(offsets)."""
-    tk, eps = t + np.asarray(offsets, float), 1e-4            # (the path holds its ends outside [0, T])
-    return np.vstack([path(tk).T, ((path(tk + eps) - path(tk - eps)) / (2 * eps)).T])
+class FrameReference:
+    """Where the controller's frame should be over time, for the task-space study: the problem's
+    `[path]` at its speed (from rest at theta_start; the rotation held at the start's), or the
+    frame's motion in an optimal-control `solution` (its link angles and speeds interpolated
+    between the nodes).  `columns(times)` gives the MPC's reference columns."""
+
+    def __init__(self, p: MPCProblem, arm: Arm, samples: int = 2000):
+        self.p, self.arm = p, arm
+        place, jac = arm.frame_placement(p.frame), arm.frame_jacobian(p.frame, "local_world_aligned")
+        if p.tool_path is not None:
+            self.theta_start, self.duration = np.asarray(p.theta_start, float), p.tool_path.duration
+            self.R0 = np.array(place(self.theta_start)[0])
+            return
+        import json
+        sol = json.loads(Path(p.solution).read_text())
+        t = np.asarray(sol["t"], float)
+        theta, dtheta = np.asarray(sol["theta"], float), np.asarray(sol["dtheta"], float)
+        self.theta_start, self.duration = theta[:, 0], float(t[-1])
+        self.tt = np.linspace(0.0, t[-1], samples)
+        th = np.vstack([np.interp(self.tt, t, row) for row in theta])
+        dth = np.vstack([np.interp(self.tt, t, row) for row in dtheta])
+        R, P = place.map(samples)(th)
+        J = np.array(jac.map(samples)(th)).reshape(6, samples, arm.n, order="F")
+        self.P = np.array(P).T
+        self.V = np.einsum("ksj,js->sk", J[:3], dth)
+        self.R = np.array(R).reshape(3, samples, 3, order="F").transpose(1, 0, 2)      # R[s] (3 x 3)
+
+    def position(self, t) -> np.ndarray:
+        """The frame's reference positions at the times t (len(t) x 3)."""
+        if self.p.tool_path is not None:
+            return self.p.tool_path(t)
+        return np.column_stack([np.interp(t, self.tt, self.P[:, i]) for i in range(3)])
+
+    def columns(self, times) -> np.ndarray:
+        """The reference columns at `times`: p, v (central differences of a path's timing law,
+        0.1 ms) and, with orientation, vec(R)."""
+        times = np.atleast_1d(np.asarray(times, float))
+        if self.p.tool_path is not None:
+            eps = 1e-4
+            v = (self.position(times + eps) - self.position(times - eps)) / (2 * eps)
+            R = np.repeat(self.R0.ravel("F")[None, :], len(times), axis=0)
+        else:
+            v = np.column_stack([np.interp(times, self.tt, self.V[:, i]) for i in range(3)])
+            R = np.column_stack([np.interp(times, self.tt, self.R[:, i % 3, i // 3]) for i in range(9)])
+        rows = [self.position(times).T, v.T] + ([R.T] if self.p.orientation else [])
+        return np.vstack(rows)
+
+    def distance(self, point) -> float:
+        """How far `point` is from the whole reference curve."""
+        if self.p.tool_path is not None:
+            return float(self.p.tool_path.distance(np.asarray(point)[None, :])[0])
+        from rscasadi.ocp.toolpath import ToolPath
+        return float(ToolPath(self.p.frame, self.P).distance(np.asarray(point)[None, :])[0])
 
 
 def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bool = False, settle: float = 0.2,
                      quantised: bool = True, log=print) -> dict:
-    """The task-space MPC (its problem's `[path]`, from rest at theta_start) on the arm holding a
-    payload of `plant_mass` kg (None: the problem's), at 1 kHz with quantised encoders: `told`,
-    the controller is given that mass (mpc_set_payload_mass), else it keeps the problem's.  The
-    arm holds the start for `settle` s, then the path runs and the arm holds its end for 0.2 s.
-    Returns the frame's largest and RMS distance from the reference point of its time, the
-    largest distance from the path itself, the final error, the largest limit violation, the
-    smallest clearance to the obstacles (exact) and the time per step in C."""
+    """The task-space MPC (its problem's `[path]` from rest at theta_start, or the frame's motion in
+    its `solution`) on the arm holding a payload of `plant_mass` kg (None: the problem's), at the
+    problem's sample rate with quantised encoders: `told`, the controller is given that mass
+    (mpc_set_payload_mass), else it keeps the problem's.  The arm holds the start for `settle` s,
+    then the reference runs and the arm holds its end for 0.2 s.  Returns the frame's largest and
+    RMS distance from the reference point of its time, the largest distance from the reference
+    curve, the final error, the largest limit violation, the smallest clearance to the obstacles
+    (exact) and the time per step in C."""
     from rscasadi.dynamics.collision import exact_clearance
     from rscasadi.dynamics.statics import rest_state
     from rscasadi.model.frames import holding
     from rscasadi.mpc.problem import mpc_model
     from rscasadi.sim.sensors import quanta
     p = mpc_problem(problem)
-    if not p.task_space or p.tool_path is None:
-        raise ValueError(f"{p.path}: task_closed_loop needs a frame and a [path]")
+    if not p.task_space or (p.tool_path is None and p.solution is None):
+        raise ValueError(f"{p.path}: task_closed_loop needs a frame, and a [path] or a solution")
     model = mpc_model(p)
     plant = Arm(model if plant_mass is None else holding(model, mass=plant_mass))
-    path, dt, n = p.tool_path, p.sample_time, plant.n
+    reference = FrameReference(p, plant)
+    dt, n = p.sample_time, plant.n
     advance, limits = plant_step(plant, dt), limit_arrays(plant)
     place = plant.frame_placement(p.frame)
     clearance = exact_clearance(plant.model, p.obstacles) if p.obstacles else None
     q_link, q_motor = quanta(plant.model.column("gear_ratio"))
     mpc = CompiledMPC(mpc_dir)
-    x = rest_state(plant, p.theta_start)
+    x = rest_state(plant, reference.theta_start)
     mpc.init(x)
     if told:
         if mpc.set_payload_mass(plant.model.payload.body.mass) != 0:
             raise ValueError(f"{p.path}: the controller's model holds no payload to be told of")
-    K = int(round((settle + path.duration + 0.2) / dt))
+    K = int(round((settle + reference.duration + 0.2) / dt))
     offsets = p.interval * np.arange(1, p.horizon + 1)
     errors, off_path, times, violation, gap, gap_at = [], [], [], 0.0, np.inf, None
     meas_prev = None
     thetas, every = [x[:n].copy()], max(1, int(round(0.01 / dt)))
     for k in range(K):
-        t_path = k * dt - settle                      # the path's clock (< 0: holding its start)
+        t_ref = k * dt - settle                       # the reference's clock (< 0: holding its start)
         meas = np.concatenate([np.round(x[:n] / q_link) * q_link, np.round(x[n:2 * n] / q_motor) * q_motor])
         speeds = (meas - meas_prev) / dt if meas_prev is not None else x[2 * n:]
         meas_prev = meas
         if not quantised:
             meas, speeds = x[:2 * n], x[2 * n:]
-        ref = task_reference(path, t_path, offsets)
+        ref = reference.columns(np.clip(t_ref + offsets, 0.0, reference.duration))
         tau, seconds, flag = mpc.step(np.concatenate([meas, speeds]), ref)
         if flag != 0:
             raise RuntimeError(f"mpc_step returned {flag} at t = {k * dt:.3f} s")
         times.append(seconds)
         x = np.array(advance(x, np.clip(tau, -limits["tau"], limits["tau"]))).ravel()
         where = np.array(place(x[:n])[1]).ravel()
-        errors.append(np.linalg.norm(where - path(t_path + dt)[0]))
-        off_path.append(float(path.distance(where[None, :])[0]))
+        errors.append(np.linalg.norm(where - reference.position(np.clip([t_ref + dt], 0.0, reference.duration))[0]))
+        off_path.append(reference.distance(where))
         violation = max(violation, float(np.max(np.abs(x[n:2 * n] - x[:n]) / limits["psi"] - 1)),
                         float(np.max(np.abs(x[3 * n:]) / limits["dphi"] - 1)))
         if clearance is not None and float(clearance(x[:n])) < gap:
             gap, gap_at = float(clearance(x[:n])), (k + 1) * dt - settle
         if (k + 1) % every == 0:
             thetas.append(x[:n].copy())
+        if (k + 1) % 500 == 0:
+            log(f"  {(k + 1) * dt:.2f} of {K * dt:.2f} s")
     e = np.array(errors)
     res = {"plant_mass": float(plant.model.payload.body.mass) if plant.model.payload else 0.0,
            "told": told, "max_error": float(e.max()), "rms_error": float(np.sqrt(np.mean(e ** 2))),
@@ -213,7 +265,7 @@ def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bo
            "model": str(p.model), "t": (np.arange(len(thetas)) * every * dt).tolist(), "theta": np.array(thetas).T.tolist()}
     log(f"payload {res['plant_mass']:.2f} kg, {'told' if told else 'not told'}: the frame within "
         f"{res['max_error'] * 1e3:.2f} mm of its reference (RMS {res['rms_error'] * 1e3:.2f} mm), "
-        f"{res['max_path_distance'] * 1e3:.2f} mm of the path, {res['final_error'] * 1e3:.2f} mm at the end, "
+        f"{res['max_path_distance'] * 1e3:.2f} mm of its curve, {res['final_error'] * 1e3:.2f} mm at the end, "
         f"limit violation {res['max_limit_violation']:.1e}"
         + (f", clearance >= {gap * 1e3:.1f} mm (at {gap_at:.3f} s)" if clearance is not None else "")
         + f"; step median {res['step_median_s'] * 1e6:.0f} us")
@@ -222,21 +274,26 @@ def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bo
 
 def task_study(problem, mpc_dir, plant_mass: float | None = None, log=print) -> dict:
     """The task-space closed loop (task_closed_loop) three times: the arm holding the problem's
-    payload; holding `plant_mass` kg (default ten times the problem's) that the controller is
-    not told; and the same, told (mpc_set_payload_mass).  The C MPC must be in `mpc_dir`."""
+    payload; holding `plant_mass` kg (default: the solution's payload, else ten times the
+    problem's) that the controller is not told; and the same, told (mpc_set_payload_mass).
+    The C MPC must be in `mpc_dir`."""
+    import json
     from rscasadi.mpc.problem import mpc_model
     p = mpc_problem(problem)
     model = mpc_model(p)
     if model.payload is None:
         raise ValueError(f"{p.path}: the task-space study changes the payload: give the problem a payload")
+    if plant_mass is None and p.solution is not None:
+        held = json.loads(Path(p.solution).read_text()).get("payload") or {}
+        plant_mass = held.get("mass")
     plant_mass = 10 * model.payload.body.mass if plant_mass is None else plant_mass
-    out = {"path": p.tool_path.to_dict(), "obstacles": [{"kind": o.kind, "center": o.center.tolist(), "radius": o.radius,
-                                                         "size": None if o.size is None else o.size.tolist()}
-                                                        for o in p.obstacles]}
+    out = {"path": None if p.tool_path is None else p.tool_path.to_dict(),
+           "obstacles": [{"kind": o.kind, "center": o.center.tolist(), "radius": o.radius,
+                          "size": None if o.size is None else o.size.tolist()} for o in p.obstacles]}
+    from rscasadi.model.frames import holding, payload_document
     for case, mass, told in (("as_modelled", None, False), ("untold_payload", plant_mass, False),
                              ("told_payload", plant_mass, True)):
         run = task_closed_loop(p, mpc_dir, mass, told, log=log)
-        from rscasadi.model.frames import holding, payload_document
         run["payload"] = payload_document(holding(model, mass=run["plant_mass"]))
         out[case] = {"MPC (C)": run}
     return out

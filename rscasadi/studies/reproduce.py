@@ -122,20 +122,29 @@ def run(out, log=print) -> list:
             raise PartFailed("the closed-loop MPC's tracking error is not finite")
         return f"{out / 'mpc'}/: closed-loop MPC max tracking error {worst:.2e} rad"
 
-    def mpc_task():
-        import tempfile
-        from rscasadi.mpc import generate_mpc, task_study
-        from rscasadi.files import fresh_directory
-        with tempfile.TemporaryDirectory() as build, fresh_directory(out / "mpc_tool", "closed_loop.json") as tmp:
-            generate_mpc(PROBLEMS / "mpc_arm3_tool.toml", build, log=log)
-            res = task_study(PROBLEMS / "mpc_arm3_tool.toml", build, log=log)
-            write_json(tmp / "closed_loop.json", res)
-        runs = {k: v["MPC (C)"] for k, v in res.items() if isinstance(v, dict) and "MPC (C)" in v}
-        if any(r["max_limit_violation"] > 0 or r["min_clearance"] < 0 for r in runs.values()):
-            raise PartFailed("the task-space MPC broke a limit or the obstacle's margin")
-        return (f"{out / 'mpc_tool'}/: tool path within {1e3 * max(r['max_path_distance'] for r in runs.values()):.1f} mm, "
-                f"untold payload {1e3 * runs['untold_payload']['final_error']:.2f} mm at the end, told "
-                f"{1e3 * runs['told_payload']['final_error']:.2f} mm")
+    def mpc_task(name, problem, limits_kept=True):
+        def work():
+            import dataclasses
+            import tempfile
+            from rscasadi.mpc import generate_mpc, task_study
+            from rscasadi.mpc.problem import load_mpc_problem
+            from rscasadi.files import fresh_directory
+            p = load_mpc_problem(PROBLEMS / problem)
+            if p.solution is not None:                       # the reference this run has just solved
+                p = dataclasses.replace(p, solution=out / p.solution.relative_to(PROBLEMS.parent / "results"))
+            with tempfile.TemporaryDirectory() as build, fresh_directory(out / name, "closed_loop.json") as tmp:
+                generate_mpc(p, build, log=log)
+                res = task_study(p, build, log=log)
+                write_json(tmp / "closed_loop.json", res)
+            runs = {k: v["MPC (C)"] for k, v in res.items() if isinstance(v, dict) and "MPC (C)" in v}
+            if any((limits_kept and r["max_limit_violation"] > 0) or (r["min_clearance"] or 0.0) < 0
+                   or not np.isfinite(r["max_error"])
+                   for r in runs.values()):
+                raise PartFailed("the task-space MPC broke a limit or an obstacle's margin")
+            return (f"{out / name}/: reference within {1e3 * max(r['max_error'] for r in runs.values()):.1f} mm; "
+                    f"at the end, the payload untold {1e3 * runs['untold_payload']['final_error']:.2f} mm, told "
+                    f"{1e3 * runs['told_payload']['final_error']:.2f} mm")
+        return work
 
     part("model", model)
     part("paper", paper)
@@ -144,7 +153,10 @@ def run(out, log=print) -> list:
     part("ocp panda_shelf", lambda: shelf_comparison(out, log))
     part("identification", identification)
     part("mpc", mpc, needs=("identification",))
-    part("mpc task space", mpc_task)
+    part("mpc task space", mpc_task("mpc_tool", "mpc_arm3_tool.toml"))
+    # the minimum-time reference rides the deflection and speed limits: the MPC's soft limits overshoot
+    part("mpc panda shelf", mpc_task("mpc_panda_shelf", "mpc_panda_shelf.toml", limits_kept=False),
+         needs=("ocp panda_shelf",))
     log(f"\nrscasadi reproduce into {out}:")
     for name, state, what in summary:
         log(f"  {name:28s} {state:8s} {what}")
