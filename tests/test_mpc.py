@@ -341,3 +341,38 @@ def test_the_panda_follows_its_shelf_motion_with_the_part_it_is_told_of(tmp_path
     M.generate_mpc(p, tmp_path / "panda", opt="-O1", log=lambda m: None)
     run = M.task_closed_loop(p, tmp_path / "panda", plant_mass=2.0, told=True, settle=0.05, log=lambda m: None)
     assert run["max_error"] < 0.01 and run["final_error"] < 0.5e-3 and run["min_clearance"] > 0
+
+
+@pytest.fixture(scope="module")
+def mpc_tool_example(tool_mpc_dir, tmp_path_factory):
+    import subprocess
+    from conftest import cc
+    d = tmp_path_factory.mktemp("mpc_tool_example")
+    arm_dir = d / "arm3_tool"
+    assert main(["codegen", str(ROOT / "problems" / "arm3_tool.toml"), "--frames", "tool", "--out", str(arm_dir),
+                 "--opt=-O1"]) in (0, None)
+    exe = d / "mpc_tool"
+    subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", f"-I{arm_dir}", f"-I{tool_mpc_dir}",
+                    str(ROOT / "examples" / "mpc_tool.c"), f"-L{arm_dir}", f"-L{tool_mpc_dir}", "-lrscasadi_arm",
+                    "-lrscasadi_mpc", f"-Wl,-rpath,{arm_dir}", f"-Wl,-rpath,{tool_mpc_dir}", "-lm", "-o", str(exe)],
+                   check=True)
+    return exe
+
+
+def test_the_task_space_c_example_follows_the_path_and_is_valgrind_clean(mpc_tool_example):
+    """examples/mpc_tool.c: the tool ends at the path's end at rest, never strays more than the
+    ball makes it, and a run under valgrind has no error or leak."""
+    import shutil
+    import subprocess
+    run = subprocess.run([str(mpc_tool_example), "2"], capture_output=True, text=True, check=True)
+    rows = np.array([[float(v) for v in line.split()] for line in run.stdout.splitlines() if not line.startswith("#")])
+    assert rows.shape == (200, 7)
+    assert np.linalg.norm(rows[-1, 1:4] - [0.478388, 0.1, 0.493831]) < 1e-4
+    off = float(run.stdout.splitlines()[-1].split("from the path = ")[1].split()[0].rstrip(";"))
+    assert off < 0.02
+    if shutil.which("valgrind") is not None:
+        check = subprocess.run(["valgrind", "--error-exitcode=9", "--leak-check=full", str(mpc_tool_example), "0.4"],
+                               capture_output=True, text=True)
+        assert check.returncode == 0, check.stderr
+    bad = subprocess.run([str(mpc_tool_example), "-1"], capture_output=True, text=True)
+    assert bad.returncode == 2 and "argument 1" in bad.stderr and bad.stdout == ""
