@@ -287,7 +287,9 @@ def panda_with_primitives(tmp_path_factory):
         text = text.replace(head, head + xml, 1)
     (d / "panda.urdf").write_text(text)
     model = (ROOT / "problems" / "panda_sea.toml").read_text().replace('urdf = "urdf/panda.urdf"', 'urdf = "panda.urdf"')
-    model += '\n[collision]\nmargin = 0.01\nlinks = { panda_link3 = 0.06, panda_link5 = "urdf", panda_link7 = 0.04 }\n'
+    own = re.search(r"\[collision\].*?\n\n", model, re.S)                 # the model's own table, replaced
+    model = model.replace(own.group(0), '[collision]\nmargin = 0.01\ntip = "panda_hand_tcp"\n'
+                          'links = { panda_link3 = 0.06, panda_link5 = "urdf", panda_link7 = 0.04 }\n\n')
     (d / "panda.toml").write_text(model)
     return d
 
