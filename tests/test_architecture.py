@@ -12,7 +12,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "rscasadi"
 
 # bottom to top: a module may import its own room and the rooms below it
 LAYERS = [{"spatial", "files", "interrupt"}, {"model"}, {"dynamics"}, {"native"}, {"codegen"}, {"sim"}, {"ocp"},
-          {"mpc"}, {"identification"}, {"studies", "view"}, {"cli", "__init__"}]
+          {"mpc", "interaction"}, {"identification"}, {"studies", "view"}, {"cli", "__init__"}]
 REFERENCE = "reference"        # the independent references: they may import the model, nothing imports them
 
 
