@@ -142,6 +142,17 @@ def cmd_codegen(args):
           f"({time.perf_counter() - t0:.1f} s)")
 
 
+def cmd_observer(args):
+    from rscasadi.files import check_writable
+    from rscasadi.interaction import generate_observer
+    if args.gain * args.sample_time >= 1.0:
+        raise ValueError(f"--gain {args.gain:g} 1/s at --sample-time {args.sample_time:g} s: K times the sample "
+                         "time must be below 1 (the discrete observer is unstable otherwise)")
+    check_writable(args.out)
+    generate_observer(args.model, args.out, args.gain, args.sample_time, opt=args.opt,
+                      log=lambda msg: print(msg, flush=True))
+
+
 def cmd_excite(args):
     from rscasadi.identification.excitation import run
     run(args.model, args.out, period=args.period, harmonics=args.harmonics, log=lambda msg: print(msg, flush=True))
@@ -241,6 +252,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gif", default=None, help="also an animated GIF, for documents")
     p.add_argument("--model", default=None, help="draw this model file instead of the solution's")
     p.set_defaults(func=cmd_view)
+    p = sub.add_parser("controller", help="generate an interaction controller or observer as C")
+    kinds = p.add_subparsers(dest="kind", required=True, parser_class=Parser)
+    q = kinds.add_parser("observer", help="the generalised-momentum observer of external torques (complete model)")
+    q.add_argument("model")
+    q.add_argument("--gain", type=positive(float), required=True, metavar="K",
+                   help="the observer's bandwidth K (1/s): dr/dt = K (tau_ext - r); K times the sample time < 1")
+    q.add_argument("--sample-time", type=positive(float), default=1e-3, metavar="S", help="seconds (default 0.001)")
+    q.add_argument("--out", required=True, help="directory for the sources, header, library and manifest.json")
+    q.add_argument("--opt", default="-O2", type=opt_flag, help="optimisation flag (default -O2)")
+    q.set_defaults(func=cmd_observer)
     p = sub.add_parser("reproduce", help="the main job: everything the project reproduces, into --out")
     p.add_argument("--out", default="results")
     p.set_defaults(func=cmd_reproduce)

@@ -35,7 +35,7 @@ def pushed(arm, frame, wrench, theta0, quantised=False, gain=300.0, seconds=0.8)
     tau = np.array(arm.inverse_dynamics()(x[:n], x[n:2 * n], zero, zero, zero, zero)[0]).ravel()
     q_link, q_motor = quanta(arm.model.column("gear_ratio"))
     obs, prev, out = MomentumObserver(arm, gain, DT), None, {"t": [], "r": [], "true": [], "theta": []}
-    obs.init(x, tau)
+    obs.init(x)
     for k in range(int(round(seconds / DT))):
         t = (k + 1) * DT
         f = np.asarray(wrench, float) if PUSH[0] <= k * DT < PUSH[1] else np.zeros(6)
@@ -108,3 +108,44 @@ def test_the_panda_wrench_is_found_force_and_moment(wrench):
 def test_the_observer_refuses_a_gain_it_cannot_sample(arm3):
     with pytest.raises(ValueError, match="K dt < 1"):
         MomentumObserver(arm3, 2000.0, DT)
+
+
+@pytest.fixture(scope="module")
+def observer_dir(tmp_path_factory):
+    from rscasadi.cli import main
+    out = tmp_path_factory.mktemp("observer") / "arm3_tool"
+    assert main(["controller", "observer", str(ROOT / "problems" / "arm3_tool.toml"), "--gain", "50",
+                 "--out", str(out), "--opt=-O1"]) in (0, None)
+    return out
+
+
+def test_the_generated_observer_equals_the_python_one_and_survives_a_nan(observer_dir):
+    """The C observer (its state in the caller's observer_t) against MomentumObserver on the
+    quantised push: equal to 1e-9 N m at every sample; two observers of one library kept apart;
+    a NaN measurement returns 2 and keeps the state, so the next good sample is unchanged."""
+    from rscasadi.interaction import CompiledObserver
+    arm = rscasadi.load(ROOT / "problems" / "arm3_tool.toml")
+    rng = np.random.default_rng(2)
+    x0 = rest_state(arm, [0.0, 0.3, -0.5])
+    xs = x0 + np.cumsum(rng.normal(0, 1e-4, (200, 12)), axis=0)
+    taus = rng.normal(0, 0.05, (200, 3))
+    py, c, other = MomentumObserver(arm, 50.0, DT), CompiledObserver(observer_dir), CompiledObserver(observer_dir)
+    py.init(x0)
+    assert c.init(x0) == 0 and other.init(xs[50]) == 0
+    for k, (x, tau) in enumerate(zip(xs, taus)):
+        r_py = py.step(x, tau)
+        r_c, flag = c.step(x, tau)
+        other.step(xs[::-1][k], tau)                   # another arm's observer in between
+        assert flag == 0 and np.max(np.abs(r_c - r_py)) < 1e-9, k
+        if k == 100:
+            bad = x.copy()
+            bad[5] = np.nan
+            r_bad, flag = c.step(bad, tau)
+            assert flag == 2 and np.array_equal(r_bad, r_c)
+
+
+def test_a_bad_observer_gain_is_refused_by_name(tmp_path, capsys):
+    from rscasadi.cli import main
+    assert main(["controller", "observer", str(ROOT / "problems" / "arm3_tool.toml"), "--gain", "2000",
+                 "--out", str(tmp_path / "obs")]) == 2
+    assert "--gain" in capsys.readouterr().err and not (tmp_path / "obs").exists()

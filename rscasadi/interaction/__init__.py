@@ -1,4 +1,5 @@
 """Interaction: estimating and controlling the forces between the arm and the world."""
+from rscasadi.interaction.generate import CompiledObserver, generate_observer
 from rscasadi.interaction.observer import MomentumObserver, observer_terms, tool_wrench
 
-__all__ = ["MomentumObserver", "observer_terms", "tool_wrench"]
+__all__ = ["CompiledObserver", "MomentumObserver", "generate_observer", "observer_terms", "tool_wrench"]

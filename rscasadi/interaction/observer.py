@@ -62,16 +62,17 @@ class MomentumObserver:
         p, beta = self.terms(x[:n], x[n:2 * n], x[2 * n:3 * n], x[3 * n:], tau)
         return np.array(p).ravel(), np.array(beta).ravel()
 
-    def init(self, x, tau=None):
-        """At the first sample: the measured state and the torque being applied."""
-        self.p0, self.beta = self._terms(np.asarray(x, float), np.zeros(self.n) if tau is None else np.asarray(tau, float))
+    def init(self, x):
+        """At the first sample: the measured state."""
+        self.p0, self.beta = self._terms(np.asarray(x, float), np.zeros(self.n))[0], None
         self.integral, self.r = np.zeros(2 * self.n), np.zeros(2 * self.n)
 
     def step(self, x, tau) -> np.ndarray:
         """One sample: beta by the trapezoidal rule (the rectangle rule's error stays in the
-        integral as a bias: 2 % on a push against 0.1 % here), r held over the sample."""
+        integral as a bias: 2 % on a push against 0.1 % here; the first sample, with no torque
+        before it, by the rectangle rule), r held over the sample."""
         p, beta = self._terms(np.asarray(x, float), np.asarray(tau, float))
-        self.integral += self.dt * (0.5 * (beta + self.beta) + self.r)
+        self.integral += self.dt * (0.5 * (beta + (beta if self.beta is None else self.beta)) + self.r)
         self.beta = beta
         self.r = self.K * (p - self.p0 - self.integral)
         return self.r.copy()
