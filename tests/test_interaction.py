@@ -149,3 +149,89 @@ def test_a_bad_observer_gain_is_refused_by_name(tmp_path, capsys):
     assert main(["controller", "observer", str(ROOT / "problems" / "arm3_tool.toml"), "--gain", "2000",
                  "--out", str(tmp_path / "obs")]) == 2
     assert "--gain" in capsys.readouterr().err and not (tmp_path / "obs").exists()
+
+
+# ----------------------------------------------------------------------------- contacts in simulation
+
+def _lossless_arm():
+    """The tool arm with no SEA damping and no gear losses: its energy is conserved."""
+    from rscasadi.model.parameters import with_values
+    arm = rscasadi.load(ROOT / "problems" / "arm3_tool.toml")
+    zero = {f"{jt.name}.{k}": 0.0 for jt in arm.model.joints for k in ("sea.d", "gear_loss.b", "gear_loss.c")}
+    return rscasadi.Arm(with_values(arm.model, zero))
+
+
+def _fall(arm, contact, seconds=0.6):
+    """The arm released at rest, motors off, its tool falling onto `contact`: per sample the
+    energy (the arm's and the contact spring's, k delta^2 / 2) and the depth."""
+    from rscasadi.sim.contact import World, plant_with_contacts
+    th0 = np.array([0.0, 0.3, -0.5])
+    plant = plant_with_contacts(arm, World(contacts=(contact,)), DT, 8)
+    energy, place = arm.energy(), arm.frame_placement("tool")
+    surface = contact.point[2] if contact.point is not None else contact.center[2] + contact.size[2] / 2
+    x, out = rest_state(arm, th0), {"energy": [], "depth": []}
+    for k in range(int(round(seconds / DT))):
+        x = np.array(plant(x, np.zeros(3), k * DT)[0]).ravel()
+        depth = max(0.0, surface - float(place(x[:3])[1][2]))
+        out["energy"].append(float(energy(x[:3], x[3:6], x[6:9], x[9:12])) + 0.5 * contact.k * depth ** 2)
+        out["depth"].append(depth)
+    return {k: np.array(v) for k, v in out.items()}
+
+
+@pytest.mark.parametrize("shape", ["plane", "box"])
+def test_an_elastic_contact_conserves_energy(shape):
+    """A lossless arm falls 1 cm onto a frictionless, undamped plane or box (k = 2e4 N/m) and
+    bounces: the contact's wrench enters the complete model so that the arm's energy plus the
+    contact spring's is conserved (to the RK4 error), through several impacts."""
+    from rscasadi.sim.contact import Contact
+    arm = _lossless_arm()
+    p0 = np.array(arm.frame_placement("tool")(np.array([0.0, 0.3, -0.5]))[1]).ravel()
+    contact = (Contact("tool", k=2e4, point=p0 - [0, 0, 0.01], normal=[0, 0, 1]) if shape == "plane" else
+               Contact("tool", k=2e4, center=p0 - [0, 0, 0.51], size=[3.0, 3.0, 1.0]))
+    run = _fall(arm, contact)
+    assert run["depth"].max() > 2e-3                                      # it did hit
+    assert np.ptp(run["energy"]) < 1e-5                                   # J, of ~0.05 J exchanged
+
+
+def test_damping_and_friction_only_take_energy():
+    from rscasadi.sim.contact import Contact
+    arm = _lossless_arm()
+    p0 = np.array(arm.frame_placement("tool")(np.array([0.0, 0.3, -0.5]))[1]).ravel()
+    run = _fall(arm, Contact("tool", k=2e4, c=50.0, mu=0.5, point=p0 - [0, 0, 0.01], normal=[0, 0, 1]))
+    assert run["depth"].max() > 1e-3
+    assert np.all(np.diff(run["energy"]) < 1e-7) and run["energy"][-1] < run["energy"][0] - 1e-3
+
+
+def test_a_push_acts_only_in_its_window():
+    """A scripted push: the motion equals the unpushed one before t1, the observer sees its
+    J^T f inside the window (the push is the only external force)."""
+    from rscasadi.sim.contact import Push, World, plant_with_contacts
+    arm = rscasadi.load(ROOT / "problems" / "arm3_tool.toml")
+    x0 = rest_state(arm, [0.0, 0.3, -0.5])
+    zero = np.zeros(3)
+    tau = np.array(arm.inverse_dynamics()(x0[:3], x0[3:6], zero, zero, zero, zero)[0]).ravel()
+    pushed_plant = plant_with_contacts(arm, World(pushes=(Push("tool", [0, 0, -8.0, 0, 0, 0], 0.05, 0.3),)), DT, 4)
+    free_plant = plant_with_contacts(arm, World(pushes=(Push("tool", [0, 0, 0, 0, 0, 0], 0.05, 0.3),)), DT, 4)
+    obs = MomentumObserver(arm, 300.0, DT)
+    obs.init(x0)
+    x, y = x0.copy(), x0.copy()
+    for k in range(250):
+        x = np.array(pushed_plant(x, tau, k * DT)[0]).ravel()
+        y = np.array(free_plant(y, tau, k * DT)[0]).ravel()
+        r = obs.step(x, tau)
+        if (k + 1) * DT < 0.05 - 1e-9:                  # (the step ending at t1 feels it in its last stage)
+            assert np.array_equal(x, y)
+    J = np.array(arm.frame_jacobian("tool", "local_world_aligned")(x[:3]))
+    assert np.linalg.norm(r[:3] - J[:3].T @ [0, 0, -8.0]) < 0.02 * np.linalg.norm(J[:3].T @ [0, 0, -8.0])
+
+
+@pytest.mark.parametrize("kwargs,words", [
+    ({"k": 1e4}, "a plane .point, normal. or a box"),
+    ({"k": 1e4, "point": [0, 0, 0], "normal": [0, 0, 0]}, "normal, not all zero"),
+    ({"k": -1.0, "point": [0, 0, 0], "normal": [0, 0, 1]}, "k > 0"),
+    ({"k": 1e4, "center": [0, 0, 0], "size": [1, 0, 1]}, "size of three positive"),
+])
+def test_a_bad_contact_is_refused(kwargs, words):
+    from rscasadi.sim.contact import Contact
+    with pytest.raises(ValueError, match=words):
+        Contact("tool", **kwargs)
