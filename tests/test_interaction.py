@@ -263,3 +263,66 @@ def test_the_observer_c_example_flags_the_push_and_is_valgrind_clean(observer_di
         assert check.returncode == 0, check.stderr
     bad = subprocess.run([str(exe), "1", "two", "3"], capture_output=True, text=True)
     assert bad.returncode == 2 and "argument 2" in bad.stderr and bad.stdout == ""
+
+
+# ----------------------------------------------------------------------------- impedance control
+
+def _impedance_run(contacts=(), pushes=(), stiffness=1000.0, seconds=2.0, target_offset=(0, 0, 0), ramp=0.5):
+    """The tool arm under the impedance controller at its start pose (the target moved by
+    `target_offset` along a ramp of `ramp` s), among `contacts` and `pushes`, quantised encoders."""
+    from rscasadi.interaction import ImpedanceController
+    from rscasadi.sim.contact import World, plant_with_contacts
+    arm = rscasadi.load(ROOT / "problems" / "arm3_tool.toml")
+    th0 = np.array([0.0, 0.3, -0.5])
+    R0, p0 = (np.array(v) for v in arm.frame_placement("tool")(th0))
+    offset = np.asarray(target_offset, float)
+    ctrl = ImpedanceController(arm, "tool")
+    plant = plant_with_contacts(arm, World(contacts=tuple(contacts), pushes=tuple(pushes)), DT, 8)
+    q_link, q_motor = quanta(arm.model.column("gear_ratio"))
+    x, prev, out = rest_state(arm, th0), None, {"p": [], "f": [], "psi": [], "tau": []}
+    for k in range(int(round(seconds / DT))):
+        q = np.r_[np.round(x[:3] / q_link) * q_link, np.round(x[3:6] / q_motor) * q_motor]
+        meas, prev = np.r_[q, (q - prev) / DT if prev is not None else x[6:]], q
+        s = min(k * DT / ramp, 1.0)
+        pose = np.r_[p0.ravel() + (3 * s ** 2 - 2 * s ** 3) * offset, R0.ravel("F")]
+        tau = ctrl.step(meas, pose, [stiffness] * 3 + [0.0] * 3, [0.7] * 6)
+        x, W = (np.array(v) for v in plant(x, tau, k * DT))
+        x = x.ravel()
+        out["p"].append(np.array(arm.frame_placement("tool")(x[:3])[1]).ravel())
+        out["f"].append(W[:3, 0] if W.size else np.zeros(3))
+        out["psi"].append(x[3:6] - x[:3])
+        out["tau"].append(tau)
+    res = {k: np.array(v) for k, v in out.items()}
+    res["p0"], res["arm"] = p0.ravel(), arm
+    return res
+
+
+@pytest.mark.parametrize("stiffness", [300.0, 2000.0])
+def test_the_realised_stiffness_is_the_commanded_one(stiffness):
+    """A 15 N push at the tool, quantised encoders, 1 kHz: the steady displacement is F / K
+    within 5 % (the springs in between do not soften it), no deflection or torque limit broken."""
+    from rscasadi.sim.contact import Push
+    F = np.array([0.0, 0.0, -15.0])
+    run = _impedance_run(pushes=(Push("tool", np.r_[F, 0, 0, 0], 0.3, 5.0),), stiffness=stiffness, seconds=2.5)
+    shift = run["p"][-1] - run["p0"]
+    assert abs(shift[2] / (F[2] / stiffness) - 1) < 0.05, shift
+    assert np.abs(shift[:2]).max() < 0.05 * abs(F[2] / stiffness) + 5e-3
+    psi_max = np.array([jt.limits["psi"] for jt in run["arm"].model.joints])
+    assert np.all(np.abs(run["psi"]) < psi_max)
+
+
+def test_pressing_into_a_stiff_wall_settles_at_k_times_the_commanded_depth():
+    """The target moved in 0.5 s to 5 mm inside a wall of 1e5 N/m under the tool (K = 1000 N/m,
+    a wall damped to zeta ~0.4: at 0.13 it bounces by itself): the tool touches, stays in contact,
+    and the force settles at
+    K d k_w / (K + k_w) (4.95 N) within 5 %, without chattering."""
+    from rscasadi.sim.contact import Contact
+    arm = rscasadi.load(ROOT / "problems" / "arm3_tool.toml")
+    p0 = np.array(arm.frame_placement("tool")(np.array([0.0, 0.3, -0.5]))[1]).ravel()
+    wall = Contact("tool", k=1e5, c=300.0, mu=0.2, point=p0 - [0, 0, 0.002], normal=[0, 0, 1])   # contact zeta ~0.4
+    run = _impedance_run(contacts=(wall,), stiffness=1000.0, seconds=2.0, target_offset=(0, 0, -0.007))
+    fz = run["f"][:, 2]
+    touched = np.argmax(fz > 0)
+    assert fz[touched:].min() > 0                                   # no bounce off the wall
+    expected = 1000.0 * 0.005 * 1e5 / (1e5 + 1000.0)
+    assert abs(fz[-200:].mean() / expected - 1) < 0.05 and np.ptp(fz[-200:]) < 0.05 * expected
