@@ -153,6 +153,13 @@ def cmd_observer(args):
                       log=lambda msg: print(msg, flush=True))
 
 
+def cmd_impedance(args):
+    from rscasadi.files import check_writable
+    from rscasadi.interaction import generate_impedance
+    check_writable(args.out)
+    generate_impedance(args.model, args.out, args.frame, opt=args.opt, log=lambda msg: print(msg, flush=True))
+
+
 def cmd_excite(args):
     from rscasadi.identification.excitation import run
     run(args.model, args.out, period=args.period, harmonics=args.harmonics, log=lambda msg: print(msg, flush=True))
@@ -262,6 +269,12 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--out", required=True, help="directory for the sources, header, library and manifest.json")
     q.add_argument("--opt", default="-O2", type=opt_flag, help="optimisation flag (default -O2)")
     q.set_defaults(func=cmd_observer)
+    q = kinds.add_parser("impedance", help="the Cartesian impedance controller through the SEAs (complete model)")
+    q.add_argument("model")
+    q.add_argument("--frame", required=True, help="the frame whose stiffness is commanded (e.g. tool)")
+    q.add_argument("--out", required=True, help="directory for the sources, header, library and manifest.json")
+    q.add_argument("--opt", default="-O2", type=opt_flag, help="optimisation flag (default -O2)")
+    q.set_defaults(func=cmd_impedance)
     p = sub.add_parser("reproduce", help="the main job: everything the project reproduces, into --out")
     p.add_argument("--out", default="results")
     p.set_defaults(func=cmd_reproduce)

@@ -326,3 +326,30 @@ def test_pressing_into_a_stiff_wall_settles_at_k_times_the_commanded_depth():
     assert fz[touched:].min() > 0                                   # no bounce off the wall
     expected = 1000.0 * 0.005 * 1e5 / (1e5 + 1000.0)
     assert abs(fz[-200:].mean() / expected - 1) < 0.05 and np.ptp(fz[-200:]) < 0.05 * expected
+
+
+def test_the_generated_impedance_controller_equals_the_python_one(tmp_path):
+    """rscasadi controller impedance: the C (its memory the caller's impedance_t) equals
+    ImpedanceController to 1e-12 at random states and targets, within the torque limits."""
+    from rscasadi.cli import main
+    from rscasadi.interaction import CompiledImpedance, ImpedanceController
+    arm = rscasadi.load(ROOT / "problems" / "arm3_tool.toml")
+    assert main(["controller", "impedance", str(ROOT / "problems" / "arm3_tool.toml"), "--frame", "tool",
+                 "--out", str(tmp_path / "imp"), "--opt=-O1"]) in (0, None)
+    c, py = CompiledImpedance(tmp_path / "imp"), ImpedanceController(arm, "tool")
+    rng = np.random.default_rng(9)
+    x0 = rest_state(arm, [0.0, 0.3, -0.5])
+    assert c.init(x0) == 0
+    for _ in range(20):
+        x = x0 + rng.normal(0, [0.05] * 6 + [0.5] * 6)
+        pose = np.r_[rng.uniform(0.3, 0.6, 3), np.eye(3).ravel()]
+        K, zeta = rng.uniform(100, 3000, 6), rng.uniform(0.3, 1.0, 6)
+        tau_c, flag = c.step(x, pose, K, zeta)
+        assert flag == 0 and np.max(np.abs(tau_c - py.step(x, pose, K, zeta))) < 1e-12
+
+
+def test_an_impedance_controller_for_an_unknown_frame_is_refused(tmp_path, capsys):
+    from rscasadi.cli import main
+    assert main(["controller", "impedance", str(ROOT / "problems" / "arm3_tool.toml"), "--frame", "nowhere",
+                 "--out", str(tmp_path / "imp")]) == 2
+    assert "--frame" in capsys.readouterr().err and not (tmp_path / "imp").exists()
