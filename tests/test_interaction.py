@@ -353,3 +353,33 @@ def test_an_impedance_controller_for_an_unknown_frame_is_refused(tmp_path, capsy
     assert main(["controller", "impedance", str(ROOT / "problems" / "arm3_tool.toml"), "--frame", "nowhere",
                  "--out", str(tmp_path / "imp")]) == 2
     assert "--frame" in capsys.readouterr().err and not (tmp_path / "imp").exists()
+
+
+def test_the_impedance_c_example_realises_the_stiffness_and_is_valgrind_clean(tmp_path):
+    """examples/impedance.c on the generated model and controller: -Werror; pushed by 15 N at
+    K = 1000 N/m the tool moves F / K within 1 %; valgrind clean; bad arguments refused."""
+    import re
+    import shutil
+    import subprocess
+    from conftest import cc
+    from rscasadi.cli import main
+    arm_dir, imp_dir = tmp_path / "arm3_tool", tmp_path / "impedance"
+    assert main(["codegen", str(ROOT / "problems" / "arm3_tool.toml"), "--frames", "tool", "--external", "tool",
+                 "--out", str(arm_dir), "--opt=-O1"]) in (0, None)
+    assert main(["controller", "impedance", str(ROOT / "problems" / "arm3_tool.toml"), "--frame", "tool",
+                 "--out", str(imp_dir), "--opt=-O1"]) in (0, None)
+    exe = tmp_path / "impedance_example"
+    subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", f"-I{arm_dir}", f"-I{imp_dir}",
+                    str(ROOT / "examples" / "impedance.c"), f"-L{arm_dir}", f"-L{imp_dir}", "-lrscasadi_arm",
+                    "-lrscasadi_impedance", f"-Wl,-rpath,{arm_dir}", f"-Wl,-rpath,{imp_dir}", "-lm", "-o", str(exe)],
+                   check=True)
+    run = subprocess.run([str(exe)], capture_output=True, text=True, check=True)
+    moved, expected = (float(v) for v in re.search(r"= (-?[0-9.]+) m along z \(F / K = (-?[0-9.]+) m\)",
+                                                   run.stdout).groups())
+    assert abs(moved / expected - 1) < 0.01
+    if shutil.which("valgrind") is not None:
+        check = subprocess.run(["valgrind", "--error-exitcode=9", "--leak-check=full", str(exe), "1000", "-15", "0.5"],
+                               capture_output=True, text=True)
+        assert check.returncode == 0, check.stderr
+    bad = subprocess.run([str(exe), "-5"], capture_output=True, text=True)
+    assert bad.returncode == 2 and "argument 1" in bad.stderr and bad.stdout == ""
