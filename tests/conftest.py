@@ -101,6 +101,18 @@ def cc():
     return shutil.which("cc") or shutil.which("gcc")
 
 
+def build_example(name: str, exe, libraries: dict):
+    """Compile examples/NAME.c as a user would (-std=c99 -Wall -Wextra -Werror -O2) against the
+    generated `libraries` ({directory: library name, as in -l}) into `exe`; returns exe."""
+    import subprocess
+    dirs = list(libraries)
+    subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", *[f"-I{d}" for d in dirs],
+                    str(ROOT / "examples" / f"{name}.c"), *[f"-L{d}" for d in dirs],
+                    *[f"-l{lib}" for lib in libraries.values()], *[f"-Wl,-rpath,{d}" for d in dirs], "-lm",
+                    "-o", str(exe)], check=True)
+    return exe
+
+
 # ------------------------------------------------------------- optimal-control problems
 
 @pytest.fixture(scope="session")

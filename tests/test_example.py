@@ -5,7 +5,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from conftest import ROOT, cc
+from conftest import ROOT, build_example, cc
 
 pytestmark = pytest.mark.skipif(cc() is None, reason="no C compiler")
 A, PERIOD, KP, KD, H = np.array([0.5, 0.6, -0.7]), 2.0, 0.5, 0.05, 1e-3
@@ -13,11 +13,7 @@ A, PERIOD, KP, KD, H = np.array([0.5, 0.6, -0.7]), 2.0, 0.5, 0.05, 1e-3
 
 @pytest.fixture(scope="module")
 def controller(built, tmp_path_factory):
-    out, exe = built[0], tmp_path_factory.mktemp("example") / "controller"
-    subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", f"-I{out}",
-                    str(ROOT / "examples" / "controller.c"), f"-L{out}", "-lrscasadi_arm",
-                    f"-Wl,-rpath,{out}", "-lm", "-o", str(exe)], check=True)
-    return exe
+    return build_example("controller", tmp_path_factory.mktemp("example") / "controller", {built[0]: "rscasadi_arm"})
 
 
 def k1(arm):

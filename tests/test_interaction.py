@@ -244,16 +244,12 @@ def test_the_observer_c_example_flags_the_push_and_is_valgrind_clean(observer_di
     import re
     import shutil
     import subprocess
-    from conftest import cc
+    from conftest import build_example
     from rscasadi.cli import main
     arm_dir = tmp_path / "arm3_tool"
     assert main(["codegen", str(ROOT / "problems" / "arm3_tool.toml"), "--frames", "tool", "--external", "tool",
                  "--out", str(arm_dir), "--opt=-O1"]) in (0, None)
-    exe = tmp_path / "observer"
-    subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", f"-I{arm_dir}", f"-I{observer_dir}",
-                    str(ROOT / "examples" / "observer.c"), f"-L{arm_dir}", f"-L{observer_dir}", "-lrscasadi_arm",
-                    "-lrscasadi_observer", f"-Wl,-rpath,{arm_dir}", f"-Wl,-rpath,{observer_dir}", "-lm", "-o", str(exe)],
-                   check=True)
+    exe = build_example("observer", tmp_path / "observer", {arm_dir: "rscasadi_arm", observer_dir: "rscasadi_observer"})
     run = subprocess.run([str(exe)], capture_output=True, text=True, check=True)
     flagged, error = (float(v) for v in re.search(r"flagged at ([0-9.]+) s .* within ([0-9.]+) %", run.stdout).groups())
     assert 0.2 < flagged <= 0.21 and error < 5.0
@@ -361,18 +357,15 @@ def test_the_impedance_c_example_realises_the_stiffness_and_is_valgrind_clean(tm
     import re
     import shutil
     import subprocess
-    from conftest import cc
+    from conftest import build_example
     from rscasadi.cli import main
     arm_dir, imp_dir = tmp_path / "arm3_tool", tmp_path / "impedance"
     assert main(["codegen", str(ROOT / "problems" / "arm3_tool.toml"), "--frames", "tool", "--external", "tool",
                  "--out", str(arm_dir), "--opt=-O1"]) in (0, None)
     assert main(["controller", "impedance", str(ROOT / "problems" / "arm3_tool.toml"), "--frame", "tool",
                  "--out", str(imp_dir), "--opt=-O1"]) in (0, None)
-    exe = tmp_path / "impedance_example"
-    subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", f"-I{arm_dir}", f"-I{imp_dir}",
-                    str(ROOT / "examples" / "impedance.c"), f"-L{arm_dir}", f"-L{imp_dir}", "-lrscasadi_arm",
-                    "-lrscasadi_impedance", f"-Wl,-rpath,{arm_dir}", f"-Wl,-rpath,{imp_dir}", "-lm", "-o", str(exe)],
-                   check=True)
+    exe = build_example("impedance", tmp_path / "impedance_example",
+                        {arm_dir: "rscasadi_arm", imp_dir: "rscasadi_impedance"})
     run = subprocess.run([str(exe)], capture_output=True, text=True, check=True)
     moved, expected = (float(v) for v in re.search(r"= (-?[0-9.]+) m along z \(F / K = (-?[0-9.]+) m\)",
                                                    run.stdout).groups())

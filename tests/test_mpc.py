@@ -182,14 +182,9 @@ def test_bad_mpc_problem_names_the_field(tmp_path, text, field):
 
 @pytest.fixture(scope="module")
 def mpc_example(built, mpc_dir, tmp_path_factory):
-    import subprocess
-    from conftest import cc
-    arm_dir, exe = built[0], tmp_path_factory.mktemp("mpc_example") / "mpc_example"
-    subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", f"-I{arm_dir}", f"-I{mpc_dir}",
-                    str(ROOT / "examples" / "mpc.c"), f"-L{arm_dir}", f"-L{mpc_dir}", "-lrscasadi_arm",
-                    "-lrscasadi_mpc", f"-Wl,-rpath,{arm_dir}", f"-Wl,-rpath,{mpc_dir}", "-lm", "-o", str(exe)],
-                   check=True)
-    return exe
+    from conftest import build_example
+    exe = tmp_path_factory.mktemp("mpc_example") / "mpc_example"
+    return build_example("mpc", exe, {built[0]: "rscasadi_arm", mpc_dir: "rscasadi_mpc"})
 
 
 def test_mpc_example_tracks_within_limits(mpc_example):
@@ -345,18 +340,12 @@ def test_the_panda_follows_its_shelf_motion_with_the_part_it_is_told_of(tmp_path
 
 @pytest.fixture(scope="module")
 def mpc_tool_example(tool_mpc_dir, tmp_path_factory):
-    import subprocess
-    from conftest import cc
+    from conftest import build_example
     d = tmp_path_factory.mktemp("mpc_tool_example")
     arm_dir = d / "arm3_tool"
     assert main(["codegen", str(ROOT / "problems" / "arm3_tool.toml"), "--frames", "tool", "--out", str(arm_dir),
                  "--opt=-O1"]) in (0, None)
-    exe = d / "mpc_tool"
-    subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", f"-I{arm_dir}", f"-I{tool_mpc_dir}",
-                    str(ROOT / "examples" / "mpc_tool.c"), f"-L{arm_dir}", f"-L{tool_mpc_dir}", "-lrscasadi_arm",
-                    "-lrscasadi_mpc", f"-Wl,-rpath,{arm_dir}", f"-Wl,-rpath,{tool_mpc_dir}", "-lm", "-o", str(exe)],
-                   check=True)
-    return exe
+    return build_example("mpc_tool", d / "mpc_tool", {arm_dir: "rscasadi_arm", tool_mpc_dir: "rscasadi_mpc"})
 
 
 def test_the_task_space_c_example_follows_the_path_and_is_valgrind_clean(mpc_tool_example):

@@ -92,19 +92,27 @@ def generate_impedance(model, out, frame: str, opt: str = "-O2", log=print) -> d
     return _generate(impedance_law(arm, frame), "impedance", header, body, out, opt, log, manifest)
 
 
-class CompiledObserver:
-    """One generated observer through ctypes, its `observer_t` in memory this object owns:
-    init(x), step(x, tau) -> (r, flag)."""
+class _Compiled:
+    """A generated library through ctypes, its state struct in memory this object owns."""
 
-    def __init__(self, directory):
-        self.lib = ctypes.CDLL(str(Path(directory) / "librscasadi_observer.so"))
-        self.lib.observer_sizeof.restype = ctypes.c_size_t
-        self.state = np.zeros(-(-self.lib.observer_sizeof() // 8))
+    def __init__(self, directory, stem: str):
+        self.lib = ctypes.CDLL(str(Path(directory) / f"librscasadi_{stem}.so"))
+        sizeof = getattr(self.lib, f"{stem}_sizeof")
+        sizeof.restype = ctypes.c_size_t
+        self.state = np.zeros(-(-sizeof() // 8))                       # 8-byte aligned
         self.c = ctypes.c_void_p(self.state.ctypes.data)
         self.p = ctypes.POINTER(ctypes.c_double)
 
     def _ptr(self, a):
         return a.ctypes.data_as(self.p)
+
+
+class CompiledObserver(_Compiled):
+    """One generated observer through ctypes, its `observer_t` in memory this object owns:
+    init(x), step(x, tau) -> (r, flag)."""
+
+    def __init__(self, directory):
+        super().__init__(directory, "observer")
 
     def init(self, x) -> int:
         return self.lib.observer_init(self.c, self._ptr(np.ascontiguousarray(x, float)))
@@ -115,19 +123,12 @@ class CompiledObserver:
         return r, self.lib.observer_step(self.c, self._ptr(x), self._ptr(tau), self._ptr(r))
 
 
-class CompiledImpedance:
+class CompiledImpedance(_Compiled):
     """One generated impedance controller through ctypes: step(x, pose_desired, stiffness,
     damping_ratio) -> (tau, flag)."""
 
     def __init__(self, directory):
-        self.lib = ctypes.CDLL(str(Path(directory) / "librscasadi_impedance.so"))
-        self.lib.impedance_sizeof.restype = ctypes.c_size_t
-        self.state = np.zeros(-(-self.lib.impedance_sizeof() // 8))
-        self.c = ctypes.c_void_p(self.state.ctypes.data)
-        self.p = ctypes.POINTER(ctypes.c_double)
-
-    def _ptr(self, a):
-        return a.ctypes.data_as(self.p)
+        super().__init__(directory, "impedance")
 
     def init(self, x) -> int:
         return self.lib.impedance_init(self.c, self._ptr(np.ascontiguousarray(x, float)))

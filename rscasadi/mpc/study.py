@@ -165,6 +165,8 @@ class FrameReference:
         self.P = np.array(P).T
         self.V = np.einsum("ksj,js->sk", J[:3], dth)
         self.R = np.array(R).reshape(3, samples, 3, order="F").transpose(1, 0, 2)      # R[s] (3 x 3)
+        from rscasadi.ocp.toolpath import ToolPath
+        self.curve = ToolPath(p.frame, self.P)                 # the frame's curve, for distances
 
     def position(self, t) -> np.ndarray:
         """The frame's reference positions at the times t (len(t) x 3)."""
@@ -188,10 +190,8 @@ class FrameReference:
 
     def distance(self, point) -> float:
         """How far `point` is from the whole reference curve."""
-        if self.p.tool_path is not None:
-            return float(self.p.tool_path.distance(np.asarray(point)[None, :])[0])
-        from rscasadi.ocp.toolpath import ToolPath
-        return float(ToolPath(self.p.frame, self.P).distance(np.asarray(point)[None, :])[0])
+        curve = self.p.tool_path if self.p.tool_path is not None else self.curve
+        return float(curve.distance(np.asarray(point)[None, :])[0])
 
 
 def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bool = False, settle: float = 0.2,
