@@ -12,6 +12,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import rscasadi  # noqa: E402
+from rscasadi.files import run_stamp  # noqa: E402
 from rscasadi.model.modelfile import parse  # noqa: E402
 
 RESULTS = ROOT / "results"
@@ -19,24 +20,7 @@ RESULTS = ROOT / "results"
 
 def stamp() -> str:
     """The run's date, machine and commit, for the first line under a results file's title."""
-    import datetime
-    import os
-    import platform
-    import subprocess
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    run = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
-    commit = run.stdout.strip() or "not a git checkout"
-    dirty = subprocess.run(["git", "status", "--porcelain", "--", "rscasadi"], cwd=ROOT, capture_output=True,
-                           text=True).stdout.strip()
-    return (f"Run of {datetime.date.today().isoformat()} on {cpu}, {os.cpu_count()} cores, {platform.system()}; "
-            f"commit {commit}{' with local changes' if dirty else ''}.")
+    return run_stamp()
 
 
 def chain_arm(n: int) -> rscasadi.Arm:

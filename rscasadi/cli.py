@@ -45,6 +45,17 @@ def names_list(text: str) -> list:
     return names
 
 
+def float_list(text: str) -> list:
+    """A comma-separated list of finite numbers."""
+    try:
+        values = [float(t) for t in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of numbers")
+    if not all(np.isfinite(values)):
+        raise argparse.ArgumentTypeError(f"{text!r} holds a number that is not finite")
+    return values
+
+
 def opt_flag(text: str) -> str:
     """An optimisation flag for the C compiler: -O0..-O3, -Os, -Og, -Oz or -Ofast, nothing else."""
     if text not in ("-O0", "-O1", "-O2", "-O3", "-Os", "-Og", "-Oz", "-Ofast"):
@@ -156,9 +167,23 @@ def cmd_observer(args):
 def cmd_impedance(args):
     from rscasadi.files import check_writable
     from rscasadi.interaction import generate_impedance
+    log = lambda msg: print(msg, flush=True)  # noqa: E731
     check_writable(args.out)
-    generate_impedance(args.model, args.out, args.frame, opt=args.opt, log=lambda msg: print(msg, flush=True))
-
+    if not args.study:
+        generate_impedance(args.model, args.out, None if args.joint_space else args.frame, design=args.design,
+                           opt=args.opt, log=log)
+        return 0
+    from rscasadi.dynamics.arm import load
+    from rscasadi.interaction.study import study
+    if args.joint_space or args.theta is None:
+        raise ValueError("--study: needs --frame and --theta (the configuration the arm is held at)")
+    arm = load(args.model)
+    if len(args.theta) != arm.n:
+        raise ValueError(f"--theta: {len(args.theta)} angles for the {arm.n} joints of {args.model}")
+    if args.frame not in arm.frames():
+        raise ValueError(f"--frame: {args.model} has no frame {args.frame!r} (frames: {', '.join(arm.frames())})")
+    study(arm, args.frame, args.theta, args.out, threshold=args.threshold, short=args.short, opt=args.opt, log=log)
+    return 0
 
 def cmd_excite(args):
     from rscasadi.identification.excitation import run
@@ -269,11 +294,22 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--out", required=True, help="directory for the sources, header, library and manifest.json")
     q.add_argument("--opt", default="-O2", type=opt_flag, help="optimisation flag (default -O2)")
     q.set_defaults(func=cmd_observer)
-    q = kinds.add_parser("impedance", help="the Cartesian impedance controller through the SEAs (complete model)")
+    q = kinds.add_parser("impedance", help="the impedance controller through the SEAs (complete model), or its study")
     q.add_argument("model")
-    q.add_argument("--frame", required=True, help="the frame whose stiffness is commanded (e.g. tool)")
-    q.add_argument("--out", required=True, help="directory for the sources, header, library and manifest.json")
+    where = q.add_mutually_exclusive_group(required=True)
+    where.add_argument("--frame", help="Cartesian: the frame whose stiffness is commanded (e.g. tool)")
+    where.add_argument("--joint-space", action="store_true", help="joint space: a stiffness per joint")
+    q.add_argument("--design", choices=("motor", "link"), default="motor",
+                   help="motor: on motor positions, passive (default); link: on link angles, stiffer than the springs")
+    q.add_argument("--out", required=True, help="directory for the sources, header, library and manifest.json "
+                   "(with --study: for study.md, study.json, study.png and the C)")
     q.add_argument("--opt", default="-O2", type=opt_flag, help="optimisation flag (default -O2)")
+    q.add_argument("--study", action="store_true", help="run the closed-loop study instead: push, wall, collision, "
+                   "reduced-model design, C time per step (about a minute on 7 joints)")
+    q.add_argument("--theta", type=float_list, default=None, help="with --study: the configuration, rad, comma-separated")
+    q.add_argument("--threshold", type=positive(float), default=1.0, metavar="NM",
+                   help="with --study: the observer's collision threshold on any link, N m (default 1)")
+    q.add_argument("--short", action="store_true", help="with --study: fewer and shorter cases")
     q.set_defaults(func=cmd_impedance)
     p = sub.add_parser("reproduce", help="the main job: everything the project reproduces, into --out")
     p.add_argument("--out", default="results")

@@ -141,3 +141,30 @@ def write_json(path, obj, indent: int = 1):
     """Valid JSON (no NaN or Infinity: null), written whole or not at all."""
     import json
     write_text(path, json.dumps(finite_json(obj), indent=indent, allow_nan=False) + "\n")
+
+
+def run_stamp() -> str:
+    """The run's date, machine and commit (of the checkout holding this package), for the first
+    line under a results file's title."""
+    import datetime
+    import os
+    import platform
+    import subprocess
+    root = Path(__file__).resolve().parents[1]
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    try:
+        run = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True)
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "rscasadi"], cwd=root, capture_output=True,
+                               text=True).stdout.strip()
+        commit = run.stdout.strip()
+    except OSError:
+        commit, dirty = "", ""
+    where = f"commit {commit}{' with local changes' if dirty else ''}" if commit else "not a git checkout"
+    return f"Run of {datetime.date.today().isoformat()} on {cpu}, {os.cpu_count()} cores, {platform.system()}; {where}."

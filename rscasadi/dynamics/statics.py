@@ -6,11 +6,14 @@ import numpy as np
 from rscasadi.dynamics.arm import Arm
 
 
-def spring_deflection(arm: Arm, T, psi=None):
-    """psi with k1 psi + k3 psi^3 = T (static part of the spring law), by Newton."""
+def spring_deflection(arm: Arm, T, psi=None, steps: int = 30):
+    """psi with k1 psi + k3 psi^3 = T (static part of the spring law), by `steps` Newton steps;
+    T / k1 exactly for linear springs.  T may be numbers or a CasADi expression."""
     k1, k3 = arm.model.column("k1"), arm.model.column("k3")
+    if psi is None and not np.any(k3):
+        return T / k1
     psi = T / k1 if psi is None else psi
-    for _ in range(30):
+    for _ in range(steps):
         psi = psi - (k1 * psi + k3 * psi ** 3 - T) / (k1 + 3 * k3 * psi ** 2)
     return psi
 

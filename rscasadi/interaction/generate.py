@@ -1,6 +1,6 @@
 """The interaction controllers as C: the momentum observer (`rscasadi controller observer MODEL
---gain K --out DIR`) and the Cartesian impedance controller (`rscasadi controller impedance MODEL
---frame F --out DIR`).  Their CasADi Functions generated to C, the code around them from the
+--gain K --out DIR`) and the impedance controller (`rscasadi controller impedance MODEL --frame F
+| --joint-space --out DIR`).  Their CasADi Functions generated to C, the code around them from the
 template files in `templates/` (the state in a caller's struct), compiled once per source by the
 one build step, and described by a manifest."""
 from __future__ import annotations
@@ -67,29 +67,48 @@ def generate_observer(model, out, gain, sample_time: float = 1e-3, opt: str = "-
     body = {"dt": repr(float(sample_time)), "gains": ", ".join(repr(float(k)) for k in K)}
     manifest = {"model": str(arm.model.path),
                 "api": {"observer_sizeof": [], "observer_init": ["obs", "x_measured"],
-                        "observer_step": ["obs", "x_measured", "tau_applied", "r_out"]},
+                        "observer_step": ["obs", "x_measured", "tau_applied", "r_out"],
+                        "observer_step_seconds": ["obs"]},
                 "sizes": {"x": 4 * n, "tau": n, "r": 2 * n}, "gain": K.tolist(), "sample_time": sample_time}
     return _generate(observer_terms(arm), "observer", header, body, out, opt, log, manifest)
 
 
-def generate_impedance(model, out, frame: str, opt: str = "-O2", log=print) -> dict:
-    """Write the Cartesian impedance controller's C, header, library and manifest for `model` at
-    `frame` into `out` (whole or not at all)."""
+def generate_impedance(model, out, frame: str | None, design: str = "motor", opt: str = "-O2", log=print) -> dict:
+    """Write the impedance controller's C, header, library and manifest for `model` into `out`
+    (whole or not at all): Cartesian at `frame`, or in joint space when frame is None; `design`
+    "motor" (passive) or "link" (as `impedance_law`)."""
     from rscasadi.interaction.impedance import impedance_law
     from rscasadi.model.checks import identifier
     arm = model if isinstance(model, Arm) else load(model)
-    if frame not in arm.frames():
+    if frame is not None and frame not in arm.frames():
         raise ValueError(f"--frame: {arm.model.path} has no frame {frame!r} (frames: {', '.join(arm.frames())})")
+    if design not in ("motor", "link"):
+        raise ValueError(f"--design {design!r}: choose motor or link")
     n = arm.n
+    nref, nk = (12, 6) if frame is not None else (n, n)
     limits = [jt.limits.get("tau", np.inf) for jt in arm.model.joints]
-    header = {"model": _model_name(arm), "n": n, "nx": 4 * n, "frame": identifier(frame),
-              "rotation": "" if n >= 6 else "; not used on arms of fewer than 6 joints"}
-    body = {"limits": ", ".join(repr(float(v)) if np.isfinite(v) else "INFINITY" for v in limits)}
-    manifest = {"model": str(arm.model.path), "frame": frame,
+    texts = {"motor": "on motor positions, q_bar(phi) solves phi = q_bar + psi(T(q_bar)) and\n"
+                      " * the motors ask the springs for T(q_bar) - D dphi: passive, and at rest the stiffness seen\n"
+                      " * is the commanded one, the springs' compliance included.",
+             "link": "on the measured link angles, the springs are asked for T(theta) - D dtheta\n"
+                     " * by a torque loop: stiffer than the springs allow the passive design, not shown passive."}
+    cartesian = frame is not None
+    header = {"model": _model_name(arm), "n": n, "nx": 4 * n, "nref": nref, "nk": nk, "design": design,
+              "design_text": texts[design], "space": "Cartesian" if cartesian else "joint-space",
+              "at": f" at frame {identifier(frame)}" if cartesian else "",
+              "reference": "p (3, world, m) then R (9, column-major)" if cartesian else f"q_desired ({n}, rad)",
+              "stiffness": (f"translational N/m (3), rotational N m/rad (3{'' if n >= 6 else '; not used below 6 joints'})"
+                            if cartesian else f"N m/rad ({n})"),
+              "nref_k": nk}
+    body = {"limits": ", ".join(repr(float(v)) if np.isfinite(v) else "INFINITY" for v in limits),
+            "passive": int(design == "motor")}
+    reference = "pose_desired" if cartesian else "q_desired"
+    manifest = {"model": str(arm.model.path), "frame": frame, "design": design,
                 "api": {"impedance_sizeof": [], "impedance_init": ["c", "x_measured"],
-                        "impedance_step": ["c", "x_measured", "pose_desired", "stiffness", "damping_ratio", "tau_out"]},
-                "sizes": {"x": 4 * n, "pose_desired": 12, "stiffness": 6, "damping_ratio": 6, "tau": n}}
-    return _generate(impedance_law(arm, frame), "impedance", header, body, out, opt, log, manifest)
+                        "impedance_step": ["c", "x_measured", reference, "stiffness", "damping_ratio", "tau_out"],
+                        "impedance_step_seconds": ["c"]},
+                "sizes": {"x": 4 * n, reference: nref, "stiffness": nk, "damping_ratio": nk, "tau": n}}
+    return _generate(impedance_law(arm, frame, design=design), "impedance", header, body, out, opt, log, manifest)
 
 
 class _Compiled:
@@ -113,6 +132,10 @@ class CompiledObserver(_Compiled):
 
     def __init__(self, directory):
         super().__init__(directory, "observer")
+        self.lib.observer_step_seconds.restype = ctypes.c_double
+
+    def seconds(self) -> float:
+        return self.lib.observer_step_seconds(self.c)
 
     def init(self, x) -> int:
         return self.lib.observer_init(self.c, self._ptr(np.ascontiguousarray(x, float)))
@@ -124,11 +147,15 @@ class CompiledObserver(_Compiled):
 
 
 class CompiledImpedance(_Compiled):
-    """One generated impedance controller through ctypes: step(x, pose_desired, stiffness,
-    damping_ratio) -> (tau, flag)."""
+    """One generated impedance controller through ctypes: step(x, reference, stiffness,
+    damping_ratio) -> (tau, flag); seconds(): the last step's duration measured in C."""
 
     def __init__(self, directory):
         super().__init__(directory, "impedance")
+        self.lib.impedance_step_seconds.restype = ctypes.c_double
+
+    def seconds(self) -> float:
+        return self.lib.impedance_step_seconds(self.c)
 
     def init(self, x) -> int:
         return self.lib.impedance_init(self.c, self._ptr(np.ascontiguousarray(x, float)))

@@ -1,98 +1,144 @@
-"""Cartesian impedance control of the complete FS-SEA model: the links are given the spring and
-damper of a commanded stiffness at a frame, through the SEAs' torque.
+"""Impedance control of the complete FS-SEA model through its springs, on motor positions, in
+Cartesian or joint space: the passive flexible-joint design of Albu-Schaeffer, Ott and Hirzinger
+(IJRR 26(1), 2007) and Ott et al. (IEEE TRO 24(2), 2008), with the complete model's statics.
 
-Link-side law: the SEA torque the links should feel,
+The commanded spring V_K (Cartesian: 1/2 e^T K e at the frame, e = [p - p_d; e_R]; joint space:
+1/2 (q - q_d)^T K (q - q_d)) asks the SEAs for the link torque
 
-    T_d = g(theta) - J(theta)^T [ K_t (p - p_d) + D_t v ;  K_r e_R + D_r omega ],
+    T(q) = g(q) - dV_K/dq = g(q) - J(q)^T K e(q)                     (g: the complete model's)
 
-(g: the links' gravity torques of the complete model at rest; J, v, omega at the frame, world
-axes; e_R the rotation error R_d vee(R_d^T R - R^T R_d) / 2, used on arms of 6 joints or more),
-is realised by the motors through the springs: the motor angle that gives it, phi_d = theta +
-psi(T_d) (the spring law inverted), is held by a motor-side PD around the complete model's
-holding torque at (theta, phi_d),
+On motor positions phi alone: q_bar(phi) solves phi = q_bar + psi(T(q_bar)), the link angles at
+which springs deflected to carry T balance the motors at phi (Newton from the measured theta).
+The motors then ask the springs for
 
-    tau = tau_hold(theta, phi_d) + (K_m (phi - phi_d) + D_m dphi) / mu
+    u = T(q_bar) - D(q_bar) dphi,     D = J^T D_x J + N^T D_n N,     D_x = 2 zeta sqrt(K Lambda)
 
-(in the model's convention mu tau enters the rotor rows as -mu tau).  At rest the springs then
-carry exactly T_d, and the links' statics T_SEA = g - J^T f give f = K (p - p_d): the stiffness
-seen at the frame is the commanded one, whatever the springs' (the link encoders measure theta;
-a design on motor positions alone sees the springs in series).  Damping: D = 2 zeta sqrt(K
-Lambda_ii), Lambda the frame's inertia seen from the links, (J M_tt^-1 J^T)^-1.
-"""
+(Lambda = (J M_tt^-1 J^T)^-1 the frame's inertia, N = I - M_tt^-1 J^T Lambda J the dynamically
+consistent null space, damped on arms with more joints than task rows), with torque feedback
+u_m = T_s + rho (u - T_s) (T_s the measured spring torque; rho > 1 makes the rotors feel lighter),
+and tau = -(Q_s + u_m) / mu (the model's convention: -mu tau on the rotor rows; Q_s their other
+static terms).  At rest u = T_s gives theta = q_bar, so the links' statics T_s = g - J^T f give
+f = K e: the stiffness at the frame is the commanded one, the springs' compliance included.  With
+rho = 1, H = E(x) - V_g(q_bar) + V_K(q_bar) - V_s(phi - q_bar) (E the complete model's energy)
+has dH/dt = dtheta^T J^T f_ext - dphi^T D dphi - losses: the loop is passive (H bounded below
+where the springs dominate gravity's stiffness; isotropic rotational stiffness is an exact
+potential, 3 - tr(R_d^T R), anisotropic a first-order one)."""
 from __future__ import annotations
 
 import casadi as ca
 import numpy as np
 
 from rscasadi.dynamics.arm import Arm
+from rscasadi.dynamics.statics import spring_deflection
 
 
 def _vee(S):
     return ca.vertcat(S[2, 1], S[0, 2], S[1, 0])
 
 
-def impedance_law(arm: Arm, frame: str, motor_bandwidth_hz: float = 10.0, motor_damping: float = 0.6) -> ca.Function:
-    """(theta, phi, dtheta, dphi, pose_desired [p; vec(R)] (12), stiffness (6), damping_ratio (6))
-    -> (tau, T_d): the motor torques (not yet limited) and the SEA torques the links should feel.
-    The motor PD per joint: K_m = B w^2, D_m = 2 zeta B w (B the rotor row's inertia at theta = 0,
-    w = 2 pi motor_bandwidth_hz, zeta = motor_damping)."""
+def _cartesian(arm: Arm, frame: str):
+    """(q, pose_desired (12), K (6)) -> (dV_K/dq, J): the commanded spring at `frame`; the rows
+    of rotation only on arms of 6 joints or more."""
+    q, pose, K = ca.SX.sym("q", arm.n), ca.SX.sym("pose_desired", 12), ca.SX.sym("stiffness", 6)
+    R, p = arm.frame_placement(frame)(q)
+    J = arm.frame_jacobian(frame, "local_world_aligned")(q)
+    R_d, e = ca.reshape(pose[3:], 3, 3), p - pose[:3]
+    if arm.n >= 6:                              # e_R = vee(R R_d^T - R_d R^T) / 2, world axes
+        e = ca.vertcat(e, ca.mtimes(R_d, _vee(ca.mtimes(R_d.T, R) - ca.mtimes(R.T, R_d))) / 2)
+    else:
+        J = J[:3, :]
+    return ca.Function("spring", [q, pose, K], [ca.mtimes(J.T, K[:J.shape[0]] * e), J])
+
+
+def _joint(arm: Arm):
+    """(q, q_desired (n), K (n)) -> (dV_K/dq, I)."""
+    q, q_d, K = ca.SX.sym("q", arm.n), ca.SX.sym("q_desired", arm.n), ca.SX.sym("stiffness", arm.n)
+    return ca.Function("spring", [q, q_d, K], [K * (q - q_d), ca.DM.eye(arm.n)])
+
+
+def impedance_law(arm: Arm, frame: str | None, design: str = "motor", torque_feedback=None, motor_damping=None,
+                  null_damping: float = 2.0, newton_steps: int = 2, reduced: bool = False,
+                  motor_bandwidth_hz: float = 10.0) -> ca.Function:
+    """(theta, phi, dtheta, dphi, reference, stiffness, damping_ratio) -> (tau, u, q_bar, margin):
+    the motor torques (not yet limited), the spring torques asked, the static link angles the
+    potential is evaluated at, and the realisability margin (> 0: the commanded stiffness is
+    softer than the springs allow the passive design; the smallest pivot of I - K^1/2 J C_s J^T
+    K^1/2, C_s the springs' compliance).
+    frame: Cartesian at that frame (reference = p (3), R (9, column-major); stiffness and
+    damping_ratio 6), or None for joint space (reference q_d, stiffness, damping_ratio: n each).
+    design "motor": q_bar(phi), damping on dphi, passive (the module's text); design "link": q_bar
+    = theta, damping on dtheta, the spring torque held by a torque loop (rho = 1 + B w^2 / k1,
+    D_m = 2 0.6 B w, w = 2 pi motor_bandwidth_hz): stiffer than the springs, not shown passive.
+    torque_feedback rho and motor_damping D_m override those; null_damping: D_n = c diag(M_tt)
+    (1/s) where joints outnumber task rows; reduced: designed on the DLR/Spong reduced model."""
+    if design not in ("motor", "link"):
+        raise ValueError(f"impedance design {design!r}: choose 'motor' (passive) or 'link'")
     n = arm.n
+    spring = _cartesian(arm, frame) if frame is not None else _joint(arm)
+    m = n if frame is None else (6 if n >= 6 else 3)                          # task rows
     th, ph, dth, dph = (ca.SX.sym(s, n) for s in ("theta", "phi", "dtheta", "dphi"))
-    pose, K, zeta = ca.SX.sym("pose_desired", 12), ca.SX.sym("stiffness", 6), ca.SX.sym("damping_ratio", 6)
+    ref, K, zeta = (ca.SX.sym(s, spring.size1_in(i)) for i, s in ((1, "reference"), (2, "stiffness"), (2, "damping_ratio")))
     zero = ca.DM.zeros(n)
-    R, p = arm.frame_placement(frame)(th)
-    J = arm.frame_jacobian(frame, "local_world_aligned")(th)
-    rotation = n >= 6
-    Jt = J if rotation else J[:3, :]
-    twist = ca.mtimes(Jt, dth)
-    M = arm.mass_matrix()(th, th)
-    Lam = ca.inv(ca.mtimes(Jt, ca.solve(M[:n, :n], Jt.T)))
-    k = K if rotation else K[:3]
-    D = 2 * (zeta if rotation else zeta[:3]) * ca.sqrt(k * ca.diag(Lam))
-    R_d = ca.reshape(pose[3:], 3, 3)
-    error = p - pose[:3]
-    if rotation:
-        error = ca.vertcat(error, ca.mtimes(R_d, _vee(ca.mtimes(R_d.T, R) - ca.mtimes(R.T, R_d)) / 2))
-    g = arm.inverse_dynamics()(th, th, zero, zero, zero, zero)[1]
-    T_d = g - ca.mtimes(Jt.T, k * error + D * twist)
-    psi_d = _spring_inverse(arm, T_d)
-    phi_d = th + psi_d
-    tau_hold = arm.inverse_dynamics()(th, phi_d, zero, zero, zero, zero)[0]
+    inverse = arm.reduced_inverse_dynamics() if reduced else arm.inverse_dynamics()
+    mass = arm.mass_matrix(reduced=reduced)
+    B = np.diag(np.array(mass(np.zeros(n), np.zeros(n))))[n:]
+    k1, w = arm.model.column("k1"), 2 * np.pi * motor_bandwidth_hz
+    link = design == "link"
+    rho = (1 + B * w ** 2 / k1 if link else 1.0) if torque_feedback is None else torque_feedback
+    D_m = (2 * 0.6 * B * w if link else 0.0) if motor_damping is None else motor_damping
+
+    q = ca.SX.sym("q", n)
+    T = inverse(q, q, zero, zero, zero, zero)[1] - spring(q, ref, K)[0]        # T(q) = g - dV_K/dq
+    if link:
+        q_bar = th
+    else:
+        F = q + spring_deflection(arm, T, steps=4) - ph                        # phi = q + psi(T(q))
+        newton = ca.Function("newton", [q, ph, ref, K], [q - ca.solve(ca.jacobian(F, q), F)])
+        q_bar = th
+        for _ in range(newton_steps):
+            q_bar = newton(q_bar, ph, ref, K)
+    T_bar = ca.substitute(T, q, q_bar)
+
+    J = spring(q_bar, ref, K)[1][:m, :]
+    M = mass(q_bar, q_bar)[:n, :n]
+    MiJt = ca.solve(M, J.T)
+    Lam = ca.inv(ca.mtimes(J, MiJt))
+    D = ca.mtimes([J.T, ca.diag(2 * zeta[:m] * ca.sqrt(K[:m] * ca.diag(Lam))), J])
+    if m < n:                                                                  # the null space's damping
+        N = ca.DM.eye(n) - ca.mtimes([MiJt, Lam, J])
+        D += null_damping * ca.mtimes([N.T, ca.diag(ca.diag(M)), N])
+    u = T_bar - ca.mtimes(D, dth if link else dph)
+    T_s = arm.sea_torque(th, ph, zero, zero)                                   # measured, elastic part
+    u_m = T_s + rho * (u - T_s) - D_m * dph
     mu = arm.model.column("gear_ratio")
-    B = np.diag(np.array(arm.mass_matrix()(np.zeros(n), np.zeros(n))))[n:]
-    w = 2 * np.pi * motor_bandwidth_hz
-    Km, Dm = B * w ** 2, 2 * motor_damping * B * w
-    tau = tau_hold + (Km * (ph - phi_d) + Dm * dph) / mu
-    return ca.Function("impedance", [th, ph, dth, dph, pose, K, zeta], [tau, T_d],
-                       ["theta", "phi", "dtheta", "dphi", "pose_desired", "stiffness", "damping_ratio"], ["tau", "T_d"],
-                       {"cse": True})
-
-
-def _spring_inverse(arm: Arm, T):
-    """The deflection psi with k1 psi + k3 psi^3 = T (three Newton steps from T / k1; exact when
-    k3 = 0)."""
-    k1 = ca.DM([jt.k1 for jt in arm.model.joints])
-    k3 = ca.DM([jt.k3 for jt in arm.model.joints])
-    psi = T / k1
-    if float(ca.mmax(ca.fabs(k3))) > 0:
-        for _ in range(3):
-            psi = psi - (k1 * psi + k3 * psi ** 3 - T) / (k1 + 3 * k3 * psi ** 2)
-    return psi
+    tau_hold = inverse(q_bar, ph, zero, zero, zero, zero)[0]                   # -(Q_s + spring(phi - q_bar)) / mu
+    tau = tau_hold + (arm.sea_torque(q_bar, ph, zero, zero) - u_m) / mu
+    sqrtK = ca.sqrt(K[:m])
+    S = ca.DM.eye(m) - ca.mtimes([ca.diag(sqrtK), J, ca.diag(1 / k1), J.T, ca.diag(sqrtK)])
+    margin = ca.mmin(ca.ldl(S)[0])
+    names = ["pose_desired" if frame is not None else "q_desired", "stiffness", "damping_ratio"]
+    return ca.Function("impedance", [th, ph, dth, dph, ref, K, zeta], [tau, u, q_bar, margin],
+                       ["theta", "phi", "dtheta", "dphi"] + names, ["tau", "u", "q_bar", "margin"], {"cse": True})
 
 
 class ImpedanceController:
-    """The Cartesian impedance controller at `frame`, in discrete time: `step(x, pose_desired,
-    stiffness, damping_ratio)` -> the motor torques within the limits.  pose_desired: p (3) and
-    R (9, column-major); stiffness: translational N/m (3), rotational N m/rad (3, used on arms of
-    6 joints or more); damping_ratio: 6."""
+    """The impedance controller in discrete time: `step(x, reference, stiffness, damping_ratio)` ->
+    the motor torques within the limits.  frame given: Cartesian, reference p (3) and R (9,
+    column-major), stiffness translational N/m (3) and rotational N m/rad (3, used on arms of 6
+    joints or more), damping_ratio 6; frame None: joint space, reference q_d, stiffness N m/rad
+    and damping_ratio, n each.  Keywords as `impedance_law`."""
 
-    def __init__(self, arm: Arm, frame: str, **motor):
-        self.n = arm.n
-        self.law = impedance_law(arm, frame, **motor)
+    def __init__(self, arm: Arm, frame: str | None, **design):
+        self.n, self.passive = arm.n, design.get("design", "motor") == "motor"
+        self.law = impedance_law(arm, frame, **design)
         self.limit = np.array([jt.limits.get("tau", np.inf) for jt in arm.model.joints])
 
-    def step(self, x, pose_desired, stiffness, damping_ratio) -> np.ndarray:
+    def step(self, x, reference, stiffness, damping_ratio) -> np.ndarray:
+        """The motor torques; a ValueError if the passive design is asked for a stiffness beyond
+        the springs' (its margin <= 0)."""
         n, x = self.n, np.asarray(x, float)
-        tau = np.array(self.law(x[:n], x[n:2 * n], x[2 * n:3 * n], x[3 * n:], pose_desired, stiffness,
-                                damping_ratio)[0]).ravel()
-        return np.clip(tau, -self.limit, self.limit)
+        tau, _, _, margin = self.law(x[:n], x[n:2 * n], x[2 * n:3 * n], x[3 * n:], reference, stiffness, damping_ratio)
+        if self.passive and not float(margin) > 0:
+            raise ValueError(f"impedance: stiffness {list(np.ravel(stiffness))} is beyond what the springs allow the "
+                             f"passive design here (margin {float(margin):.3g}); command a softer one or design='link'")
+        return np.clip(np.array(tau).ravel(), -self.limit, self.limit)

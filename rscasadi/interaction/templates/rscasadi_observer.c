@@ -1,4 +1,6 @@
+#define _POSIX_C_SOURCE 199309L
 #include <math.h>
+#include <time.h>
 #include "rscasadi_observer.h"
 #include "observer_terms.h"
 
@@ -7,7 +9,15 @@ static const double K[OBSERVER_NQ] = {${gains}};
 typedef char casadi_int_is_long_long[sizeof(casadi_int) == sizeof(long long) ? 1 : -1];
 typedef char work_fits[sizeof(((observer_t *)0)->w) >= sizeof(casadi_real) * observer_terms_SZ_W ? 1 : -1];
 
+static double now(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return t.tv_sec + 1e-9 * t.tv_nsec;
+}
+
 size_t observer_sizeof(void) { return sizeof(observer_t); }
+
+double observer_step_seconds(const observer_t *obs) { return obs->last_step_seconds; }
 
 /* observer_terms(theta, phi, dtheta, dphi, tau) -> p = M dq, beta = dM dq - G(q, dq, 0, tau) */
 static int terms(observer_t *obs, const double *x, const double *tau, double *p, double *beta) {
@@ -24,11 +34,12 @@ int observer_init(observer_t *obs, const double *x_measured) {
     obs->integral[i] = obs->r[i] = obs->beta[i] = 0.0;
   }
   obs->started = 0;
+  obs->last_step_seconds = 0.0;
   return 0;
 }
 
 /* the integral of beta by the trapezoidal rule (the first sample: the rectangle rule), r held */
-int observer_step(observer_t *obs, const double *x_measured, const double *tau_applied, double *r_out) {
+static int step(observer_t *obs, const double *x_measured, const double *tau_applied, double *r_out) {
   double p[OBSERVER_NQ], beta[OBSERVER_NQ], integral[OBSERVER_NQ], r[OBSERVER_NQ];
   int finite = 1;
   if (terms(obs, x_measured, tau_applied, p, beta) != 0) {
@@ -52,4 +63,11 @@ int observer_step(observer_t *obs, const double *x_measured, const double *tau_a
   }
   obs->started = 1;
   return 0;
+}
+
+int observer_step(observer_t *obs, const double *x_measured, const double *tau_applied, double *r_out) {
+  const double t0 = now();
+  const int code = step(obs, x_measured, tau_applied, r_out);
+  obs->last_step_seconds = now() - t0;
+  return code;
 }

@@ -6,7 +6,8 @@
  * state and the motor torque applied over the sample before; r_out (${nq}): the external torques
  * on the links (first ${n}, N m) and on the rotors (last ${n}).  Return 0; OBSERVER_NOT_FINITE if
  * r is not finite (e.g. a NaN measurement: the state is kept and r_out is the last r);
- * OBSERVER_FAILED if the generated function failed.
+ * OBSERVER_FAILED if the generated function failed.  observer_step_seconds: the duration of the
+ * last observer_step (CLOCK_MONOTONIC).
  * x: theta, phi, dtheta, dphi (${nx}); tau: ${n} motor torques. */
 #ifndef RSCASADI_OBSERVER_H
 #define RSCASADI_OBSERVER_H
@@ -19,10 +20,12 @@
 typedef struct observer_s {
   double p0[OBSERVER_NQ], integral[OBSERVER_NQ], beta[OBSERVER_NQ], r[OBSERVER_NQ];
   int started;
+  double last_step_seconds;
   double w[${sz_w}];
   long long iw[${sz_iw}];
 } observer_t;
 size_t observer_sizeof(void);
 int observer_init(observer_t *obs, const double *x_measured);
 int observer_step(observer_t *obs, const double *x_measured, const double *tau_applied, double *r_out);
+double observer_step_seconds(const observer_t *obs);
 #endif

@@ -1,0 +1,275 @@
+"""Closed-loop evidence for the interaction controllers, at 1 kHz through quantised encoders on the
+complete model with contacts (`rscasadi.sim.contact`):
+
+(a) `push`: a push of F at the frame; the steady displacement against F / K;
+(b) `wall`: the target moved into a wall; the contact force against K d k_w / (K + k_w);
+(c) `collision`: the target moved through an obstacle nobody told the controller of; the momentum
+    observer's flag delay and its torques against the contact's J^T f;
+(d) each of (a), (b) with the controller designed on the DLR/Spong reduced model;
+and the generated C's time per step.  `study` runs them all for one arm (`rscasadi controller
+impedance MODEL --frame F --study`, benchmarks/bench_interaction.py)."""
+from __future__ import annotations
+
+import numpy as np
+
+from rscasadi.dynamics.arm import Arm
+from rscasadi.dynamics.statics import rest_state
+from rscasadi.interaction.impedance import ImpedanceController
+from rscasadi.interaction.observer import MomentumObserver
+from rscasadi.sim.contact import Contact, Push, World, plant_with_contacts
+from rscasadi.sim.sensors import quanta
+
+DT = 1e-3
+
+
+class Encoders:
+    """The absolute link and motor encoders, quantised, their speeds by backward differences
+    (the true speeds at the first sample)."""
+
+    def __init__(self, arm: Arm):
+        self.n, self.prev = arm.n, None
+        self.q_link, self.q_motor = quanta(arm.model.column("gear_ratio"))
+
+    def __call__(self, x) -> np.ndarray:
+        n = self.n
+        q = np.r_[np.round(x[:n] / self.q_link) * self.q_link, np.round(x[n:2 * n] / self.q_motor) * self.q_motor]
+        speeds = (q - self.prev) / DT if self.prev is not None else x[2 * n:]
+        self.prev = q
+        return np.r_[q, speeds]
+
+
+def pose_of(arm: Arm, frame: str, theta) -> np.ndarray:
+    """The frame's pose as the controller's reference: p (3), R (9, column-major)."""
+    R, p = (np.array(v) for v in arm.frame_placement(frame)(np.asarray(theta, float)))
+    return np.r_[p.ravel(), R.ravel("F")]
+
+
+def impedance_loop(arm: Arm, frame: str, theta0, world: World, seconds: float, reference, stiffness,
+                   damping_ratio, observer_gain: float | None = None, substeps: int = 8, **design) -> dict:
+    """The arm at rest at theta0 under the Cartesian impedance controller (`design` keywords as
+    `impedance_law`), the reference reference(t) (12), in `world`: per sample t, the frame's
+    position p, the wrench at world.frames[0] (6), the deflections psi, the torques, the
+    observer's link torques r and the true J^T f (when observer_gain is given)."""
+    n = arm.n
+    ctrl = ImpedanceController(arm, frame, **design)
+    plant = plant_with_contacts(arm, world, DT, substeps)
+    place, jac = arm.frame_placement(frame), arm.frame_jacobian(world.frames[0], "local_world_aligned")
+    encoders, x = Encoders(arm), rest_state(arm, theta0)
+    obs = MomentumObserver(arm, observer_gain, DT) if observer_gain else None
+    if obs:
+        obs.init(x)
+    rows = {k: [] for k in ("t", "p", "f", "psi", "tau", "r", "true")}
+    tau = None
+    for k in range(int(round(seconds / DT))):
+        meas = encoders(x)
+        if obs and tau is not None:                 # the torque held over the sample before
+            rows["r"].append(obs.step(meas, tau)[:n])
+            rows["true"].append(np.array(jac(x[:n])).T @ f)
+        tau = ctrl.step(meas, reference(k * DT), stiffness, damping_ratio)
+        x, W = (np.array(v) for v in plant(x, tau, k * DT))
+        x, f = x.ravel(), W[:, 0]
+        rows["t"].append((k + 1) * DT)
+        rows["p"].append(np.array(place(x[:n])[1]).ravel())
+        rows["f"].append(f)
+        rows["psi"].append(x[n:2 * n] - x[:n])
+        rows["tau"].append(tau)
+    return {k: np.array(v) for k, v in rows.items() if v}
+
+
+def push(arm: Arm, frame: str, theta0, stiffness: float, force=(0.0, 0.0, -15.0), seconds: float = 2.5,
+         rotational: float = 50.0, zeta: float = 0.7, **design) -> dict:
+    """(a) The frame held at its start pose, pushed by `force` (N) from 0.3 s on: the steady
+    displacement along the force against F / K, the overshoot, the largest |psi| against its limit."""
+    F = np.asarray(force, float)
+    ref = pose_of(arm, frame, theta0)
+    run = impedance_loop(arm, frame, theta0, World(pushes=(Push(frame, np.r_[F, 0, 0, 0], 0.3, 1e9),)), seconds,
+                         lambda t: ref, [stiffness] * 3 + [rotational] * 3, [zeta] * 6, **design)
+    along = (run["p"] - ref[:3]) @ (F / np.linalg.norm(F))
+    expected = np.linalg.norm(F) / stiffness
+    psi_limit = np.array([jt.limits.get("psi", np.inf) for jt in arm.model.joints])
+    return {"K": stiffness, "F": np.linalg.norm(F), "displacement": along[-1], "expected": expected,
+            "error_percent": 100 * (along[-1] / expected - 1), "overshoot_percent": 100 * (along.max() / along[-1] - 1),
+            "psi_of_limit": float(np.max(np.abs(run["psi"]) / psi_limit)), "trace": (run["t"], along)}
+
+
+def wall(arm: Arm, frame: str, theta0, stiffness: float, wall_stiffness: float, depth: float = 0.005,
+         gap: float = 0.002, seconds: float = 2.0, rotational: float = 50.0, zeta: float = 0.7, **design) -> dict:
+    """(b) A wall `gap` below the frame (damping ratio 0.4 with 1 kg); the target moved in 0.5 s
+    to `depth` inside it: the settled contact force against K d k_w / (K + k_w), lost contact
+    after the touch, the force's peak-to-peak over the last 0.2 s (chatter)."""
+    ref0 = pose_of(arm, frame, theta0)
+    c = 2 * 0.4 * np.sqrt(wall_stiffness * 1.0)
+    surface = Contact(frame, k=wall_stiffness, c=c, mu=0.2, point=ref0[:3] - [0, 0, gap], normal=[0, 0, 1])
+
+    def reference(t):
+        s = min(t / 0.5, 1.0)
+        return ref0 - np.r_[0, 0, (3 * s ** 2 - 2 * s ** 3) * (gap + depth), np.zeros(9)]
+    run = impedance_loop(arm, frame, theta0, World(contacts=(surface,)), seconds, reference,
+                         [stiffness] * 3 + [rotational] * 3, [zeta] * 6, substeps=max(8, int(np.sqrt(wall_stiffness) / 40)),
+                         **design)
+    fz = run["f"][:, 2]
+    touched = int(np.argmax(fz > 0))
+    expected = stiffness * depth * wall_stiffness / (stiffness + wall_stiffness)
+    last = run["t"] > run["t"][-1] - 0.2
+    return {"K": stiffness, "k_wall": wall_stiffness, "force": fz[last].mean(), "expected": expected,
+            "error_percent": 100 * (fz[last].mean() / expected - 1), "lost_contact_ms": 1e3 * DT * int(np.sum(fz[touched:] <= 0)),
+            "chatter_percent": 100 * np.ptp(fz[last]) / expected, "trace": (run["t"], fz)}
+
+
+def collision(arm: Arm, frame: str, theta0, stiffness: float = 300.0, gap: float = 0.03, travel: float = 0.12,
+              gain: float = 50.0, threshold: float = 1.0, seconds: float = 1.5, rotational: float = 50.0,
+              zeta: float = 0.7, **design) -> dict:
+    """(c) The target moved down by `travel` in 1 s through a table `gap` below the frame that
+    the controller was not told of; the momentum observer (gain 1/s, fed the torque of the
+    sample before): its largest link torque before the contact, the flag's delay (a link torque
+    above `threshold` N m), its torques averaged from 0.1 s after the contact against J^T f."""
+    ref0 = pose_of(arm, frame, theta0)
+    table = Contact(frame, k=1e5, c=2 * 0.4 * np.sqrt(1e5), mu=0.2, point=ref0[:3] - [0, 0, gap], normal=[0, 0, 1])
+
+    def reference(t):
+        s = min(t / 1.0, 1.0)
+        return ref0 - np.r_[0, 0, (3 * s ** 2 - 2 * s ** 3) * travel, np.zeros(9)]
+    run = impedance_loop(arm, frame, theta0, World(contacts=(table,)), seconds, reference,
+                         [stiffness] * 3 + [rotational] * 3, [zeta] * 6, observer_gain=gain, substeps=12, **design)
+    t, r, true = run["t"][:-1], run["r"], run["true"]               # r, true: at the start of samples 2..
+    contact = t[int(np.argmax(np.abs(true).max(axis=1) > 0))]
+    flagged = np.abs(r).max(axis=1) > threshold
+    flag = t[int(np.argmax(flagged))] if flagged.any() else np.nan
+    late = t > contact + 0.1
+    mean_r, mean_true = r[late].mean(0), true[late].mean(0)
+    return {"contact_s": contact, "flag_s": flag, "delay_ms": 1e3 * (flag - contact),
+            "free_max_Nm": float(np.abs(r[t < contact]).max()), "threshold_Nm": threshold,
+            "error_percent": 100 * np.linalg.norm(mean_r - mean_true) / np.linalg.norm(mean_true),
+            "force_N": float(np.linalg.norm(run["f"][run["t"] > contact + 0.1, :3].mean(0)))}
+
+
+def series_stiffness(arm: Arm, frame: str, theta0, stiffness: float, direction=(0.0, 0.0, -1.0)) -> float:
+    """The stiffness along `direction` the classical design (no spring compensation) realises:
+    1 / (1/K + u^T J C_s J^T u), C_s the springs' compliance."""
+    u = np.asarray(direction, float) / np.linalg.norm(direction)
+    J = np.array(arm.frame_jacobian(frame, "local_world_aligned")(np.asarray(theta0, float)))[:3]
+    return 1.0 / (1.0 / stiffness + u @ J @ np.diag(1 / arm.model.column("k1")) @ J.T @ u)
+
+
+def step_times(arm: Arm, frame: str, theta0, directory, samples: int = 2000, opt: str = "-O2", log=print) -> dict:
+    """The generated C's time per step (impedance_step_seconds, observer_step_seconds), median and
+    worst over `samples` states near rest at theta0, in microseconds."""
+    from pathlib import Path
+    from rscasadi.interaction.generate import (CompiledImpedance, CompiledObserver, generate_impedance,
+                                               generate_observer)
+    generate_impedance(arm, Path(directory) / "impedance", frame, opt=opt, log=log)
+    generate_observer(arm, Path(directory) / "observer", 50.0, opt=opt, log=log)
+    imp, obs = CompiledImpedance(Path(directory) / "impedance"), CompiledObserver(Path(directory) / "observer")
+    rng = np.random.default_rng(1)
+    x0, ref = rest_state(arm, theta0), pose_of(arm, frame, theta0)
+    imp.init(x0)
+    obs.init(x0)
+    t_imp, t_obs, tau = [], [], np.zeros(arm.n)
+    for _ in range(samples):
+        x = x0 + rng.normal(0, 1e-3, x0.size)
+        imp.step(x, ref, [1000.0] * 3 + [50.0] * 3, [0.7] * 6)
+        t_imp.append(imp.seconds())
+        obs.step(x, tau)
+        t_obs.append(obs.seconds())
+    us = lambda v: {"median_us": 1e6 * float(np.median(v)), "worst_us": 1e6 * float(np.max(v))}
+    return {"impedance_step": us(t_imp), "observer_step": us(t_obs), "opt": opt}
+
+
+def _passive_allows(arm: Arm, frame: str, theta0, stiffness: float, rotational: float) -> bool:
+    """Whether the passive (motor) design's margin is positive at rest at theta0."""
+    n, x = arm.n, rest_state(arm, theta0)
+    law = ImpedanceController(arm, frame).law
+    margin = law(x[:n], x[n:2 * n], x[2 * n:3 * n], x[3 * n:], pose_of(arm, frame, theta0),
+                 [stiffness] * 3 + [rotational] * 3, [0.7] * 6)[3]
+    return float(margin) > 0
+
+
+def study(arm: Arm, frame: str, theta0, out, threshold: float = 1.0, rotational: float = 50.0, short: bool = False,
+          opt: str = "-O2", log=print) -> dict:
+    """(a)-(d) and the C's time per step for one arm at theta0, written into `out` (study.json,
+    study.md, study.png; the generated C in c/) whole or not at all.  short: fewer and shorter
+    cases (for tests)."""
+    from pathlib import Path
+    from rscasadi.files import fresh_directory, write_json, write_text
+    stiffnesses, walls = ((300.0, 2000.0), (1e5,)) if short else ((200.0, 1000.0, 2000.0), (1e4, 1e5, 1e6))
+    seconds = 1.5 if short else 2.5
+    result = {"model": str(arm.model.path), "frame": frame, "theta0": list(map(float, theta0)),
+              "rotational_stiffness": rotational, "push": [], "wall": [], "reduced": {}}
+    traces = {}
+    with fresh_directory(Path(out), "study.json") as tmp:
+        for K in stiffnesses:
+            design = "motor" if _passive_allows(arm, frame, theta0, K, rotational) else "link"
+            log(f"(a) push 15 N at K = {K:g} N/m ({design} design)")
+            r = push(arm, frame, theta0, K, seconds=seconds, rotational=rotational, design=design)
+            traces[f"push K={K:g} ({design})"] = r.pop("trace")
+            result["push"].append({"design": design, **r})
+        for kw in walls:
+            log(f"(b) wall of {kw:g} N/m at K = 1000 N/m")
+            r = wall(arm, frame, theta0, 1000.0, kw, seconds=seconds, rotational=rotational)
+            traces[f"wall {kw:g} N/m"] = r.pop("trace")
+            result["wall"].append(r)
+        log("(c) a collision during a motion, the momentum observer at 50 1/s")
+        result["collision"] = collision(arm, frame, theta0, threshold=threshold, rotational=rotational)
+        log("(d) the same controller designed on the reduced (DLR/Spong) model")
+        for name, kw in (("complete", {}), ("reduced", {"reduced": True})):
+            p = push(arm, frame, theta0, 1000.0, seconds=seconds, rotational=rotational, **kw)
+            w = wall(arm, frame, theta0, 1000.0, walls[0], seconds=seconds, rotational=rotational, **kw)
+            result["reduced"][name] = {"push_error_percent": p["error_percent"], "push_overshoot_percent":
+                                       p["overshoot_percent"], "wall_error_percent": w["error_percent"]}
+        result["reduced"]["classical_series_stiffness_percent"] = \
+            100 * (series_stiffness(arm, frame, theta0, 1000.0) / 1000.0 - 1)
+        log("the generated C's time per step")
+        result["timing"] = step_times(arm, frame, theta0, tmp / "c", samples=200 if short else 5000, opt=opt, log=log)
+        write_json(tmp / "study.json", result, indent=2)
+        write_text(tmp / "study.md", study_table(result))
+        _plot(traces, tmp / "study.png")
+    log(f"wrote {Path(out) / 'study.md'}, study.json and study.png")
+    return result
+
+
+def study_table(r: dict) -> str:
+    """The study as Markdown tables."""
+    from pathlib import Path
+    from rscasadi.files import run_stamp
+    lines = [f"# Interaction study: {Path(r['model']).name} at {r['frame']}", "", run_stamp(), "",
+             "## (a) A 15 N push: displacement against F / K", "",
+             "| K (N/m) | design | displacement (mm) | F / K (mm) | error | overshoot | max psi / limit |", "|---|---|---|---|---|---|---|"]
+    lines += [f"| {p['K']:g} | {p['design']} | {1e3 * p['displacement']:.3f} | {1e3 * p['expected']:.3f} | "
+              f"{p['error_percent']:+.2f} % | {p['overshoot_percent']:.0f} % | {p['psi_of_limit']:.2f} |" for p in r["push"]]
+    lines += ["", "## (b) Pressing 5 mm into a wall at K = 1000 N/m", "",
+              "| wall (N/m) | force (N) | K d k_w / (K + k_w) (N) | error | contact lost after the touch | chatter (last 0.2 s) |",
+              "|---|---|---|---|---|---|"]
+    lines += [f"| {w['k_wall']:g} | {w['force']:.4f} | {w['expected']:.4f} | {w['error_percent']:+.3f} % | "
+              f"{w['lost_contact_ms']:.0f} ms | {w['chatter_percent']:.3f} % |" for w in r["wall"]]
+    c = r["collision"]
+    lines += ["", "## (c) A collision during a motion (momentum observer, 50 1/s)", "",
+              "| contact at | flagged after | largest residual before (N m) | threshold (N m) | torque error (averaged) | contact force (N) |",
+              "|---|---|---|---|---|---|",
+              f"| {c['contact_s']:.3f} s | {c['delay_ms']:.0f} ms | {c['free_max_Nm']:.2f} | {c['threshold_Nm']:g} | "
+              f"{c['error_percent']:.2f} % | {c['force_N']:.1f} |"]
+    d = r["reduced"]
+    lines += ["", "## (d) Designed on the complete or the reduced (DLR/Spong) model, K = 1000 N/m", "",
+              "| design model | push error | push overshoot | wall error |", "|---|---|---|---|"]
+    lines += [f"| {k} | {d[k]['push_error_percent']:+.4f} % | {d[k]['push_overshoot_percent']:.2f} % | "
+              f"{d[k]['wall_error_percent']:+.4f} % |" for k in ("complete", "reduced")]
+    lines += ["", f"Without the springs' compliance in the design (q_bar from gravity alone, the classical one) the "
+              f"stiffness seen along the push would be {d['classical_series_stiffness_percent']:+.1f} % off.", "",
+              "## The generated C, time per step", "", "| function | median (us) | worst (us) |", "|---|---|---|"]
+    lines += [f"| {k} | {v['median_us']:.1f} | {v['worst_us']:.1f} |" for k, v in r["timing"].items() if isinstance(v, dict)]
+    return "\n".join(lines) + f"\n\nCompiled at {r['timing']['opt']}.\n"
+
+
+def _plot(traces: dict, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.6))
+    for name, (t, y) in traces.items():
+        (a if name.startswith("push") else b).plot(t, 1e3 * y if name.startswith("push") else y, label=name)
+    a.set(xlabel="t (s)", ylabel="displacement along the push (mm)")
+    b.set(xlabel="t (s)", ylabel="wall force (N)")
+    a.legend(fontsize=7)
+    b.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
