@@ -160,7 +160,7 @@ def cmd_observer(args):
         raise ValueError(f"--gain {args.gain:g} 1/s at --sample-time {args.sample_time:g} s: K times the sample "
                          "time must be below 1 (the discrete observer is unstable otherwise)")
     check_writable(args.out)
-    generate_observer(args.model, args.out, args.gain, args.sample_time, opt=args.opt,
+    generate_observer(args.model, args.out, args.gain, args.sample_time, threshold=args.threshold, opt=args.opt,
                       log=lambda msg: print(msg, flush=True))
 
 
@@ -291,6 +291,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--gain", type=positive(float), required=True, metavar="K",
                    help="the observer's bandwidth K (1/s): dr/dt = K (tau_ext - r); K times the sample time < 1")
     q.add_argument("--sample-time", type=positive(float), default=1e-3, metavar="S", help="seconds (default 0.001)")
+    q.add_argument("--threshold", type=positive(float), default=float("inf"), metavar="NM",
+                   help="observer_step returns OBSERVER_COLLISION (1) while a link's |r| exceeds this (N m)")
     q.add_argument("--out", required=True, help="directory for the sources, header, library and manifest.json")
     q.add_argument("--opt", default="-O2", type=opt_flag, help="optimisation flag (default -O2)")
     q.set_defaults(func=cmd_observer)
@@ -302,7 +304,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--design", choices=("motor", "link"), default="motor",
                    help="motor: on motor positions, passive (default); link: on link angles, stiffer than the springs")
     q.add_argument("--out", required=True, help="directory for the sources, header, library and manifest.json "
-                   "(with --study: for study.md, study.json, study.png and the C)")
+                   "(with --study: for study.md, study.json and study.png)")
     q.add_argument("--opt", default="-O2", type=opt_flag, help="optimisation flag (default -O2)")
     q.add_argument("--study", action="store_true", help="run the closed-loop study instead: push, wall, collision, "
                    "reduced-model design, C time per step (about a minute on 7 joints)")

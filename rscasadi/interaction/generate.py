@@ -54,9 +54,11 @@ def _model_name(arm: Arm) -> str:
     return re.sub(r"[^A-Za-z0-9._-]", "_", Path(str(arm.model.path)).name)
 
 
-def generate_observer(model, out, gain, sample_time: float = 1e-3, opt: str = "-O2", log=print) -> dict:
+def generate_observer(model, out, gain, sample_time: float = 1e-3, threshold: float = np.inf, opt: str = "-O2",
+                      log=print) -> dict:
     """Write the observer's C, header, library and manifest for `model` (a model file or an Arm)
-    into `out` (whole or not at all): gain K (1/s, one number or 2n) at `sample_time` (s)."""
+    into `out` (whole or not at all): gain K (1/s, one number or 2n) at `sample_time` (s), the
+    collision flag above `threshold` (N m, any link)."""
     arm = model if isinstance(model, Arm) else load(model)
     n = arm.n
     K = np.broadcast_to(np.asarray(gain, float), (2 * n)).copy()
@@ -64,12 +66,17 @@ def generate_observer(model, out, gain, sample_time: float = 1e-3, opt: str = "-
         raise ValueError(f"observer: gain {gain!r} 1/s and sample time {sample_time!r} s need K > 0 and K dt < 1")
     header = {"model": _model_name(arm), "n": n, "nq": 2 * n, "nx": 4 * n, "dt": repr(float(sample_time)),
               "gain": ", ".join(f"{k:g}" for k in np.unique(K))}
-    body = {"dt": repr(float(sample_time)), "gains": ", ".join(repr(float(k)) for k in K)}
+    if not threshold > 0:
+        raise ValueError(f"observer: --threshold {threshold!r} N m must be > 0")
+    header["threshold"] = f"{threshold:g}" if np.isfinite(threshold) else "none (INFINITY)"
+    body = {"dt": repr(float(sample_time)), "gains": ", ".join(repr(float(k)) for k in K),
+            "threshold": repr(float(threshold)) if np.isfinite(threshold) else "INFINITY"}
     manifest = {"model": str(arm.model.path),
                 "api": {"observer_sizeof": [], "observer_init": ["obs", "x_measured"],
                         "observer_step": ["obs", "x_measured", "tau_applied", "r_out"],
                         "observer_step_seconds": ["obs"]},
-                "sizes": {"x": 4 * n, "tau": n, "r": 2 * n}, "gain": K.tolist(), "sample_time": sample_time}
+                "sizes": {"x": 4 * n, "tau": n, "r": 2 * n}, "gain": K.tolist(), "sample_time": sample_time,
+                "threshold": threshold if np.isfinite(threshold) else None}
     return _generate(observer_terms(arm), "observer", header, body, out, opt, log, manifest)
 
 

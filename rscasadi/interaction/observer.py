@@ -47,10 +47,12 @@ class MomentumObserver:
     """The residual observer in discrete time at the sample time `dt` with gain `gain` (1/s, a
     number or one per coordinate): `init(x)` at the first sample, then `step(x, tau)` each sample
     with the measured state and the torque applied over the sample before; it returns r (2n):
-    the external torques on the links (first n, N m) and on the rotors (last n)."""
+    the external torques on the links (first n, N m) and on the rotors (last n).  With a
+    `threshold` (N m), `collision` tells after each step whether a link's |r| exceeds it (the
+    delay: docs/user-guide/interaction.md)."""
 
-    def __init__(self, arm: Arm, gain, dt: float):
-        self.n, self.dt = arm.n, float(dt)
+    def __init__(self, arm: Arm, gain, dt: float, threshold: float = np.inf):
+        self.n, self.dt, self.threshold, self.collision = arm.n, float(dt), float(threshold), False
         self.K = np.broadcast_to(np.asarray(gain, float), (2 * arm.n)).copy()
         if not np.all(self.K > 0) or not dt > 0 or self.K.max() * dt >= 1.0:
             raise ValueError(f"observer: gain {gain!r} 1/s and dt {dt!r} s need K > 0 and K dt < 1")
@@ -75,6 +77,7 @@ class MomentumObserver:
         self.integral += self.dt * (0.5 * (beta + (beta if self.beta is None else self.beta)) + self.r)
         self.beta = beta
         self.r = self.K * (p - self.p0 - self.integral)
+        self.collision = bool(np.abs(self.r[:self.n]).max() > self.threshold)
         return self.r.copy()
 
 

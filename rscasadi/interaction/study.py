@@ -187,8 +187,9 @@ def _passive_allows(arm: Arm, frame: str, theta0, stiffness: float, rotational: 
 def study(arm: Arm, frame: str, theta0, out, threshold: float = 1.0, rotational: float = 50.0, short: bool = False,
           opt: str = "-O2", log=print) -> dict:
     """(a)-(d) and the C's time per step for one arm at theta0, written into `out` (study.json,
-    study.md, study.png; the generated C in c/) whole or not at all.  short: fewer and shorter
+    study.md, study.png) whole or not at all.  short: fewer and shorter
     cases (for tests)."""
+    import tempfile
     from pathlib import Path
     from rscasadi.files import fresh_directory, write_json, write_text
     stiffnesses, walls = ((300.0, 2000.0), (1e5,)) if short else ((200.0, 1000.0, 2000.0), (1e4, 1e5, 1e6))
@@ -219,7 +220,8 @@ def study(arm: Arm, frame: str, theta0, out, threshold: float = 1.0, rotational:
         result["reduced"]["classical_series_stiffness_percent"] = \
             100 * (series_stiffness(arm, frame, theta0, 1000.0) / 1000.0 - 1)
         log("the generated C's time per step")
-        result["timing"] = step_times(arm, frame, theta0, tmp / "c", samples=200 if short else 5000, opt=opt, log=log)
+        with tempfile.TemporaryDirectory() as c_dir:
+            result["timing"] = step_times(arm, frame, theta0, c_dir, samples=200 if short else 5000, opt=opt, log=log)
         write_json(tmp / "study.json", result, indent=2)
         write_text(tmp / "study.md", study_table(result))
         _plot(traces, tmp / "study.png")

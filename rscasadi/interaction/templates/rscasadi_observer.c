@@ -6,6 +6,7 @@
 
 static const double DT = ${dt};
 static const double K[OBSERVER_NQ] = {${gains}};
+static const double THRESHOLD = ${threshold};           /* N m on any link: OBSERVER_COLLISION */
 typedef char casadi_int_is_long_long[sizeof(casadi_int) == sizeof(long long) ? 1 : -1];
 typedef char work_fits[sizeof(((observer_t *)0)->w) >= sizeof(casadi_real) * observer_terms_SZ_W ? 1 : -1];
 
@@ -62,6 +63,8 @@ static int step(observer_t *obs, const double *x_measured, const double *tau_app
     r_out[i] = obs->r[i] = r[i];
   }
   obs->started = 1;
+  for (int i = 0; i < OBSERVER_NU; ++i)
+    if (fabs(r[i]) > THRESHOLD) return OBSERVER_COLLISION;
   return 0;
 }
 

@@ -4,7 +4,8 @@
  * (no allocation, no static data: any number of observers in one process, one thread each).
  * observer_init once with the measured state, then observer_step every sample with the measured
  * state and the motor torque applied over the sample before; r_out (${nq}): the external torques
- * on the links (first ${n}, N m) and on the rotors (last ${n}).  Return 0; OBSERVER_NOT_FINITE if
+ * on the links (first ${n}, N m) and on the rotors (last ${n}).  Return 0; OBSERVER_COLLISION if a
+ * link's |r| exceeds the threshold, ${threshold} N m; OBSERVER_NOT_FINITE if
  * r is not finite (e.g. a NaN measurement: the state is kept and r_out is the last r);
  * OBSERVER_FAILED if the generated function failed.  observer_step_seconds: the duration of the
  * last observer_step (CLOCK_MONOTONIC).
@@ -15,6 +16,7 @@
 #define OBSERVER_NQ ${nq}
 #define OBSERVER_NX ${nx}
 #define OBSERVER_NU ${n}
+#define OBSERVER_COLLISION 1
 #define OBSERVER_NOT_FINITE 2
 #define OBSERVER_FAILED 3
 typedef struct observer_s {
