@@ -182,7 +182,14 @@ def cmd_impedance(args):
         raise ValueError(f"--theta: {len(args.theta)} angles for the {arm.n} joints of {args.model}")
     if args.frame not in arm.frames():
         raise ValueError(f"--frame: {args.model} has no frame {args.frame!r} (frames: {', '.join(arm.frames())})")
-    study(arm, args.frame, args.theta, args.out, threshold=args.threshold, short=args.short, opt=args.opt, log=log)
+    trajectory = None
+    if args.trajectory is not None:
+        from rscasadi.sim.trajectory import load_trajectory
+        trajectory = load_trajectory(args.trajectory)
+        if trajectory.n != arm.n:
+            raise ValueError(f"--trajectory: {args.trajectory} moves {trajectory.n} joints, {args.model} has {arm.n}")
+    study(arm, args.frame, args.theta, args.out, gain=args.gain, threshold=args.threshold, trajectory=trajectory,
+          short=args.short, opt=args.opt, log=log)
     return 0
 
 def cmd_excite(args):
@@ -309,8 +316,12 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--study", action="store_true", help="run the closed-loop study instead: push, wall, collision, "
                    "reduced-model design, C time per step (about a minute on 7 joints)")
     q.add_argument("--theta", type=float_list, default=None, help="with --study: the configuration, rad, comma-separated")
+    q.add_argument("--gain", type=positive(float), default=50.0, metavar="K",
+                   help="with --study: the observer's gain, 1/s (default 50)")
     q.add_argument("--threshold", type=positive(float), default=1.0, metavar="NM",
                    help="with --study: the observer's collision threshold on any link, N m (default 1)")
+    q.add_argument("--trajectory", default=None, metavar="FILE",
+                   help="with --study: also a collision during this trajectory's feedforward motion")
     q.add_argument("--short", action="store_true", help="with --study: fewer and shorter cases")
     q.set_defaults(func=cmd_impedance)
     p = sub.add_parser("reproduce", help="the main job: everything the project reproduces, into --out")

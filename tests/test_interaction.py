@@ -430,50 +430,29 @@ def test_the_impedance_c_example_realises_the_stiffness_and_is_valgrind_clean(tm
     assert bad.returncode == 2 and "argument 1" in bad.stderr and bad.stdout == ""
 
 
-def test_a_collision_during_a_motion_is_flagged_and_measured():
-    """The paper's motion by feedforward + motor PD (quantised encoders), a wall (1e4 N/m) in the
-    tool's way that nobody told the controller of: the observer (K = 50 1/s, fed the torque of
-    the sample before) stays below 1 N m during the free motion, flags the collision within
-    10 ms, and its link torques average within 5 % of J^T f from the contact."""
-    from rscasadi.sim.contact import Contact, World, plant_with_contacts
-    from rscasadi.sim.simulation import feedforward
+@pytest.mark.parametrize("model,frame,trajectory,gain,threshold", [
+    ("arm3_tool", "tool", "trajectory_arm3.toml", 50.0, 1.0),
+    ("panda_sea", "panda_hand_tcp", "trajectory_panda.toml", 100.0, 5.0)])
+def test_a_collision_during_a_motion_is_flagged_and_measured(model, frame, trajectory, gain, threshold):
+    """(c) A feedforward motion + motor PD (quantised encoders) into a wall (1e4 N/m) across the
+    frame's path that nobody told the controller of: the observer (fed the torque of the sample
+    before) stays below the threshold during the free motion, flags the collision within 10 ms,
+    and its link torques average within 5 % of J^T f from the contact."""
+    from rscasadi.interaction.study import collision_feedforward
     from rscasadi.sim.trajectory import load_trajectory
-    arm = rscasadi.load(ROOT / "problems" / "arm3_tool.toml")
-    t = np.arange(0, 1.0 + 1e-9, DT)
-    ff = feedforward(arm, load_trajectory(ROOT / "problems" / "trajectory_arm3.toml"), t)
-    wall = Contact("tool", k=1e4, c=50.0, mu=0.2, point=[0, 0.2, 0], normal=[0, -1, 0])
-    plant = plant_with_contacts(arm, World(contacts=(wall,)), DT, 8)
-    mu = arm.model.column("gear_ratio")
-    B, wn = np.array([jt.rotor_inertia for jt in arm.model.joints]), 2 * np.pi * 4.0
-    kp, kd, limit = B * wn ** 2, 2 * 0.8 * B * wn, np.array([jt.limits["tau"] for jt in arm.model.joints])
-    q_link, q_motor = quanta(mu)
-    jac = arm.frame_jacobian("tool", "local_world_aligned")
-    obs, x, prev, tau = MomentumObserver(arm, 50.0, DT), ff["x0"].copy(), None, ff["tau"][:, 0]
-    obs.init(x)
-    rows, contact, flag = [], None, None
-    for k in range(len(t) - 1):
-        x, W = (np.array(v) for v in plant(x, tau, k * DT))   # the torque held over this sample
-        x, W = x.ravel(), W[:, 0]
-        q = np.r_[np.round(x[:3] / q_link) * q_link, np.round(x[3:6] / q_motor) * q_motor]
-        speeds, prev = (q - prev) / DT if prev is not None else x[6:], q
-        r = obs.step(np.r_[q, speeds], tau)                   # fed the torque of the sample before
-        contact = contact or ((k + 1) * DT if np.any(W) else None)
-        flag = flag or ((k + 1) * DT if np.abs(r[:3]).max() > 1.0 else None)
-        rows.append(np.r_[(k + 1) * DT, r[:3], np.array(jac(x[:3]))[:3].T @ W[:3]])
-        tau = np.clip(ff["tau"][:, k + 1] - (kp * (ff["phi"][:, k + 1] - q[3:]) + kd * (ff["dphi"][:, k + 1] - speeds[3:])) / mu,
-                      -limit, limit)
-    rows = np.array(rows)
-    assert contact is not None and 0.4 < contact < 0.8
-    assert np.abs(rows[rows[:, 0] < contact, 1:4]).max() < 1.0
-    assert flag is not None and 0 <= flag - contact <= 0.010
-    late = rows[rows[:, 0] > contact + 0.1]
-    assert np.linalg.norm(late[:, 1:4].mean(0) - late[:, 4:7].mean(0)) < 0.05 * np.linalg.norm(late[:, 4:7].mean(0))
+    arm = rscasadi.load(ROOT / "problems" / f"{model}.toml")
+    r = collision_feedforward(arm, frame, load_trajectory(ROOT / "problems" / trajectory), gain=gain,
+                              threshold=threshold, seconds=0.8)
+    assert 0.3 < r["contact_s"] < 0.5 and r["free_max_Nm"] < threshold, r
+    assert 0 <= r["delay_ms"] <= 10 and r["error_percent"] < 5, r
+
 
 
 def test_the_interaction_study_writes_its_evidence(tmp_path):
     """rscasadi controller impedance --study --short on the tool arm: (a) F / K within 5 % (the
     passive design at 300 N/m, the link one beyond the springs at 2000), (b) the wall's force
-    within 5 % without losing contact, (c) the collision flagged within 10 ms, no flag before it,
+    within 5 % without losing contact, (c) a collision during an impedance and a feedforward motion
+    flagged within 10 ms, no flag before it,
     the torques within 5 %, (d) the reduced model's design side by side, the C's time per step;
     study.md, study.json and study.png written; a missing --theta refused by name."""
     import json
@@ -482,13 +461,15 @@ def test_the_interaction_study_writes_its_evidence(tmp_path):
     assert main(["controller", "impedance", model, "--frame", "tool", "--study", "--short", "--opt=-O1",
                  "--out", str(tmp_path / "nothing")]) == 2 and not (tmp_path / "nothing").exists()
     assert main(["controller", "impedance", model, "--frame", "tool", "--study", "--short", "--opt=-O1",
-                 "--theta", "0,0.3,-0.5", "--out", str(tmp_path / "study")]) == 0
+                 "--theta", "0,0.3,-0.5", "--trajectory", str(ROOT / "problems" / "trajectory_arm3.toml"),
+                 "--out", str(tmp_path / "study")]) == 0
     r = json.loads((tmp_path / "study" / "study.json").read_text())
     assert [p["design"] for p in r["push"]] == ["motor", "link"]
     assert all(abs(p["error_percent"]) < 5 and p["psi_of_limit"] < 1 for p in r["push"])
     assert all(abs(w["error_percent"]) < 5 and w["lost_contact_ms"] == 0 for w in r["wall"])
-    c = r["collision"]
-    assert 0 <= c["delay_ms"] <= 10 and c["free_max_Nm"] < c["threshold_Nm"] and c["error_percent"] < 5
+    assert set(r["collision"]) == {"impedance motion", "feedforward motion"}
+    for c in r["collision"].values():
+        assert 0 <= c["delay_ms"] <= 10 and c["free_max_Nm"] < c["threshold_Nm"] and c["error_percent"] < 5
     assert set(r["reduced"]) == {"complete", "reduced", "classical_series_stiffness_percent"}
     assert r["reduced"]["classical_series_stiffness_percent"] < -20             # what the compensation buys
     assert r["timing"]["impedance_step"]["median_us"] > 0

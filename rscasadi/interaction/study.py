@@ -158,6 +158,57 @@ def collision(arm: Arm, frame: str, theta0, stiffness: float = 300.0, gap: float
             "force_N": float(np.linalg.norm(run["f"][run["t"] > contact + 0.1, :3].mean(0)))}
 
 
+def collision_feedforward(arm: Arm, frame: str, trajectory, gain: float = 50.0, threshold: float = 1.0,
+                          wall_stiffness: float = 1e4, at: float = 0.2, seconds: float | None = None,
+                          motor_hz: float = 4.0) -> dict:
+    """(c) A feedforward motion (`rscasadi.sim.simulation.feedforward` of the trajectory, a motor
+    PD of `motor_hz` around it, quantised encoders, `seconds` of it) into a wall nobody told the
+    controller of: a plane across the frame's planned path where it is at `at` of the
+    trajectory's duration, facing it.  The
+    momentum observer (gain 1/s, fed the torque of the sample before): the largest link torque
+    before the contact, the flag's delay (a link torque above `threshold` N m), its torques
+    averaged over 0.1-0.3 s after the contact against J^T f."""
+    from rscasadi.sim.simulation import feedforward
+    n = arm.n
+    seconds = trajectory.duration if seconds is None else seconds
+    t = np.arange(0.0, seconds + DT / 2, DT)
+    ff = feedforward(arm, trajectory, t)
+    place, jac = arm.frame_placement(frame), arm.frame_jacobian(frame, "local_world_aligned")
+    k = int(round(at * trajectory.duration / DT))
+    p_hit = np.array(place(ff["theta_d"][:, k])[1]).ravel()
+    v_hit = (np.array(place(ff["theta_d"][:, k + 1])[1]) - np.array(place(ff["theta_d"][:, k - 1])[1])).ravel()
+    plane = Contact(frame, k=wall_stiffness, c=2 * 0.4 * np.sqrt(wall_stiffness * 1.0), mu=0.2, point=p_hit,
+                    normal=-v_hit / np.linalg.norm(v_hit))
+    plant = plant_with_contacts(arm, World(contacts=(plane,)), DT, 8)
+    mu, B, w = arm.model.column("gear_ratio"), np.array([jt.rotor_inertia for jt in arm.model.joints]), 2 * np.pi * motor_hz
+    kp, kd = B * w ** 2, 2 * 0.8 * B * w
+    limit = np.array([jt.limits.get("tau", np.inf) for jt in arm.model.joints])
+    encoders, x, tau = Encoders(arm), ff["x0"].copy(), ff["tau"][:, 0]
+    obs = MomentumObserver(arm, gain, DT, threshold)
+    obs.init(encoders(x))
+    rows, contact, flag = [], None, None
+    for i in range(len(t) - 1):
+        x, W = (np.array(v) for v in plant(x, tau, i * DT))     # the torque held over this sample
+        x, f = x.ravel(), W[:, 0]
+        meas = encoders(x)
+        r = obs.step(meas, tau)[:n]
+        contact = contact if contact is not None else ((i + 1) * DT if np.any(f) else None)
+        flag = flag if flag is not None else ((i + 1) * DT if obs.collision else None)
+        rows.append(np.r_[(i + 1) * DT, r, np.array(jac(x[:n]))[:3].T @ f[:3]])
+        tau = np.clip(ff["tau"][:, i + 1] - (kp * (ff["phi"][:, i + 1] - meas[n:2 * n])
+                                             + kd * (ff["dphi"][:, i + 1] - meas[3 * n:])) / mu, -limit, limit)
+    rows = np.array(rows)
+    if contact is None:
+        raise ValueError(f"collision: the {frame!r} never reached the wall")
+    window = (rows[:, 0] > contact + 0.1) & (rows[:, 0] < contact + 0.3)
+    mean_r, mean_true = rows[window, 1:n + 1].mean(0), rows[window, n + 1:].mean(0)
+    return {"contact_s": contact, "flag_s": np.nan if flag is None else flag,
+            "delay_ms": np.nan if flag is None else 1e3 * (flag - contact),
+            "free_max_Nm": float(np.abs(rows[rows[:, 0] < contact, 1:n + 1]).max()), "threshold_Nm": threshold,
+            "error_percent": 100 * np.linalg.norm(mean_r - mean_true) / np.linalg.norm(mean_true),
+            "torque_Nm": float(np.linalg.norm(mean_true))}
+
+
 def series_stiffness(arm: Arm, frame: str, theta0, stiffness: float, direction=(0.0, 0.0, -1.0)) -> float:
     """The stiffness along `direction` the classical design (no spring compensation) realises:
     1 / (1/K + u^T J C_s J^T u), C_s the springs' compliance."""
@@ -199,11 +250,12 @@ def _passive_allows(arm: Arm, frame: str, theta0, stiffness: float, rotational: 
     return float(margin) > 0
 
 
-def study(arm: Arm, frame: str, theta0, out, threshold: float = 1.0, rotational: float = 50.0, short: bool = False,
-          opt: str = "-O2", log=print) -> dict:
+def study(arm: Arm, frame: str, theta0, out, gain: float = 50.0, threshold: float = 1.0, trajectory=None,
+          rotational: float = 50.0, short: bool = False, opt: str = "-O2", log=print) -> dict:
     """(a)-(d) and the C's time per step for one arm at theta0, written into `out` (study.json,
-    study.md, study.png) whole or not at all.  short: fewer and shorter
-    cases (for tests)."""
+    study.md, study.png) whole or not at all.  The observer: `gain` (1/s) and `threshold` (N m);
+    with a `trajectory` (rscasadi.sim.trajectory) (c) runs during its feedforward motion too.
+    short: fewer and shorter cases (for tests)."""
     import tempfile
     from pathlib import Path
     from rscasadi.files import fresh_directory, write_json, write_text
@@ -224,8 +276,13 @@ def study(arm: Arm, frame: str, theta0, out, threshold: float = 1.0, rotational:
             r = wall(arm, frame, theta0, 1000.0, kw, seconds=seconds, rotational=rotational)
             traces[f"wall {kw:g} N/m"] = r.pop("trace")
             result["wall"].append(r)
-        log("(c) a collision during a motion, the momentum observer at 50 1/s")
-        result["collision"] = collision(arm, frame, theta0, threshold=threshold, rotational=rotational)
+        log(f"(c) a collision during a motion, the momentum observer at {gain:g} 1/s")
+        result["collision"] = {"impedance motion": collision(arm, frame, theta0, gain=gain, threshold=threshold,
+                                                             rotational=rotational)}
+        if trajectory is not None:
+            result["collision"]["feedforward motion"] = collision_feedforward(
+                arm, frame, trajectory, gain=gain, threshold=threshold, seconds=1.0 if short else None)
+        result["observer_gain"] = gain
         log("(d) the same controller designed on the reduced (DLR/Spong) model")
         for name, kw in (("complete", {}), ("reduced", {"reduced": True})):
             p = push(arm, frame, theta0, 1000.0, seconds=seconds, rotational=rotational, **kw)
@@ -259,12 +316,11 @@ def study_table(r: dict) -> str:
     lines += [f"| {w['k_wall']:g} | {w['force']:.4f} | {w['expected']:.4f} | {w['error_percent']:+.3f} % | "
               f"{w['lost_contact_ms']:.0f} ms, {w['bounces']}, {w['bounce_um']:.1f} um | {w['chatter_percent']:.3f} % |"
               for w in r["wall"]]
-    c = r["collision"]
-    lines += ["", "## (c) A collision during a motion (momentum observer, 50 1/s)", "",
-              "| contact at | flagged after | largest residual before (N m) | threshold (N m) | torque error (averaged) | contact force (N) |",
-              "|---|---|---|---|---|---|",
-              f"| {c['contact_s']:.3f} s | {c['delay_ms']:.0f} ms | {c['free_max_Nm']:.2f} | {c['threshold_Nm']:g} | "
-              f"{c['error_percent']:.2f} % | {c['force_N']:.1f} |"]
+    lines += ["", f"## (c) A collision during a motion (momentum observer, {r['observer_gain']:g} 1/s)", "",
+              "| motion | contact at | flagged after | largest residual before (N m) | threshold (N m) | "
+              "torque error (averaged) |", "|---|---|---|---|---|---|"]
+    lines += [f"| {name} | {c['contact_s']:.3f} s | {c['delay_ms']:.0f} ms | {c['free_max_Nm']:.2f} | "
+              f"{c['threshold_Nm']:g} | {c['error_percent']:.2f} % |" for name, c in r["collision"].items()]
     d = r["reduced"]
     lines += ["", "## (d) Designed on the complete or the reduced (DLR/Spong) model, K = 1000 N/m", "",
               "| design model | push error | push overshoot | wall error |", "|---|---|---|---|"]
