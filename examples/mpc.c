@@ -1,6 +1,8 @@
-/* The generated nonlinear MPC at 1 kHz on the reference arm (3 joints), in C.
+/* The generated nonlinear MPC at 1 kHz, in C, on the arm it was generated for: the reference arm
+ * (3 joints) or, e.g., the Panda with SEAs (7; problems/mpc_panda.toml).
  *
- * Desired link motion theta_d(t) = A (1 - cos(2 pi t / 2 s)).  Every millisecond the controller
+ * Desired link motion theta_d(t) = A (1 - cos(2 pi t / 2 s)) (A below for 3 joints, else
+ * 0.15 rad of alternating sign).  Every millisecond the controller
  * gets the state and the reference at the ends of its N intervals (theta_d, dtheta_d at
  * t + k h), returns the motor torques, and the arm (the same complete model, one RK4 step of
  * `step` from rscasadi codegen per millisecond, 4 substeps) moves.  Each mpc_step is timed with
@@ -14,9 +16,10 @@
  *        cc -std=c99 -Wall -Wextra -Werror -O2 -Ibuild/arm3 -Ibuild/mpc examples/mpc.c \
  *           -Lbuild/arm3 -Lbuild/mpc -lrscasadi_arm -lrscasadi_mpc \
  *           -Wl,-rpath,build/arm3 -Wl,-rpath,build/mpc -lm -o mpc_example
+ *        (the Panda: rscasadi codegen problems/panda_sea.toml, rscasadi mpc problems/mpc_panda.toml)
  * run:   ./mpc_example INTERVAL_S [SECONDS [rt]]     (INTERVAL_S: the problem file's interval, 0.01;
  *        SECONDS includes 0.5 s of settling at rest before the motion; rt: real-time scheduling)
- * prints every 10 ms: t theta[3] tau[3], then the largest tracking error, the step times (median,
+ * prints every 10 ms: t theta[N] tau[N], then the largest tracking error, the step times (median,
  * 99.9th percentile, worst) and the deadline misses. */
 #define _POSIX_C_SOURCE 200112L
 #include <math.h>
@@ -29,10 +32,10 @@
 #include "rscasadi_arm.h"
 #include "rscasadi_mpc.h"
 
-#define N 3
+#define N MPC_NU
 #define RATE_HZ 1000
 #define MAX_STEPS 100000
-static const double A[N] = {0.5, 0.6, -0.7}; /* rad */
+static const double A3[3] = {0.5, 0.6, -0.7};  /* rad, the reference arm's */
 static const double PERIOD = 2.0;              /* s */
 static double step_times[MAX_STEPS];
 static mpc_t controller;                      /* the controller's state: the caller's memory */
@@ -54,8 +57,9 @@ static void desired(double t, double *q, double *dq) {
   const double w = 2.0 * 3.14159265358979323846 / PERIOD;
   t = t > SETTLE ? t - SETTLE : 0.0;
   for (int i = 0; i < N; ++i) {
-    q[i] = A[i] * (1.0 - cos(w * t));
-    dq[i] = A[i] * w * sin(w * t);
+    const double a = N == 3 ? A3[i % 3] : (i % 2 ? -0.15 : 0.15);
+    q[i] = a * (1.0 - cos(w * t));
+    dq[i] = a * w * sin(w * t);
   }
 }
 
@@ -124,7 +128,12 @@ int main(int argc, char **argv) {
     if (mpc_step(&controller, x, reference, tau) != 0) return 1;
     step_times[k] = now() - t0;
     misses += step_times[k] > dt;
-    if (k % 10 == 0) printf("%.3f %.9f %.9f %.9f %.9f %.9f %.9f\n", t, x[0], x[1], x[2], tau[0], tau[1], tau[2]);
+    if (k % 10 == 0) {
+      printf("%.3f", t);
+      for (int i = 0; i < N; ++i) printf(" %.9f", x[i]);
+      for (int i = 0; i < N; ++i) printf(" %.9f", tau[i]);
+      printf("\n");
+    }
     for (int s = 0; s < 4; ++s) advance(x, tau, dt / 4);
     double q[N], dq[N];
     desired(t + dt, q, dq);
