@@ -5,10 +5,15 @@
    identified model's controllers on the true arm of the identification demo;
 2. a step to a far target pose (mpc_step_to) from rest: the real-time iteration against three SQP
    iterations with the line search (limit violation, settling, time per step);
-3. the example C program's own timing of every mpc_step (clock_gettime, in C).
+3. the example C program's own timing of every mpc_step (clock_gettime, in C);
+4. seven joints: problems/mpc_panda.toml's closed loop (20 % heavier last link) over its whole
+   trajectory, the histogram of its mpc_step times in C, against the 1 kHz targets.
 
-    python benchmarks/bench_mpc.py       # writes results/bench_mpc.md and results/mpc/closed_loop.json
+    python benchmarks/bench_mpc.py         # writes results/bench_mpc.md, results/mpc/closed_loop.json,
+                                           # results/bench_mpc_panda.{md,png}
+    python benchmarks/bench_mpc.py panda   # part 4 alone
 """
+import sys
 import json
 import subprocess
 import tempfile
@@ -16,7 +21,7 @@ from pathlib import Path
 
 from common import stamp, RESULTS, ROOT  # noqa: E402
 from rscasadi.codegen import generate  # noqa: E402
-from rscasadi.mpc import generate_mpc, load_mpc_problem, reach_pose, study  # noqa: E402
+from rscasadi.mpc import closed_loop, generate_mpc, load_mpc_problem, reach_pose, study  # noqa: E402
 from rscasadi.dynamics.arm import load  # noqa: E402
 from rscasadi.studies.identification_demo import run as identification_demo, true_arm_of  # noqa: E402
 
@@ -102,5 +107,52 @@ def main():
     print(f"wrote {RESULTS / 'bench_mpc.md'}")
 
 
+def panda(work: Path):
+    """Part 4: the Panda's joint-space MPC at -O2, its closed loop and step-time histogram."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    problem = ROOT / "problems" / "mpc_panda.toml"
+    p = load_mpc_problem(problem)
+    generate_mpc(problem, work / "panda", log=print)
+    traces = {}
+    res = closed_loop(problem, work / "panda", log=print, traces=traces)
+    steps = 1e6 * traces["MPC (C)"]["step_s"]
+    q = {k: float(np.percentile(steps, v)) for k, v in (("median", 50), ("p99.9", 99.9), ("worst", 100))}
+    fig, ax = plt.subplots(figsize=(6, 3.4))
+    ax.hist(steps, bins=80, color="tab:blue")
+    for x, label in ((500, "target median"), (1000, "1 ms")):
+        ax.axvline(x, color="k", ls="--", lw=0.8)
+        ax.text(x, ax.get_ylim()[1] * 0.9, f" {label}", fontsize=8)
+    ax.set(xlabel="mpc_step (us, in C)", ylabel="steps", title=f"Panda MPC, {len(steps)} steps at 1 kHz")
+    fig.tight_layout()
+    fig.savefig(RESULTS / "bench_mpc_panda.png", dpi=110)
+    mpc, pd = res["MPC (C)"], res["feedforward + PD"]
+    md = ["# Nonlinear MPC on seven joints (the Panda with SEAs)", "", stamp(), "",
+          f"`python benchmarks/bench_mpc.py panda`: `problems/mpc_panda.toml` (N = {p.horizon} intervals of "
+          f"{p.interval * 1e3:g} ms, {p.substeps} RK4 steps each, real-time iteration, {p.qp_iterations} interior-point "
+          "iterations of the condensed QP, -O2), `problems/trajectory_panda.toml` (2 s) at 1 kHz on a plant whose last "
+          "link is 20 % heavier, link and motor encoders quantised, normal scheduling.", "",
+          "| controller | max error (rad) | RMS error (rad) | limit violation |", "|---|---|---|---|"]
+    md += [f"| {name} | {r['max_error']:.2e} | {r['rms_error']:.2e} | {r['max_limit_violation']:.1e} |"
+           for name, r in res.items()]
+    md += ["", "| mpc_step (us, in C) | median | 99.9th percentile | worst |", "|---|---|---|---|",
+           f"| measured | {q['median']:.0f} | {q['p99.9']:.0f} | {q['worst']:.0f} |",
+           "| target | 500 | 1000 | |", "",
+           f"Tracking: {pd['max_error'] / mpc['max_error']:.0f}x closer than feedforward + PD. The time targets are "
+           f"missed by {q['median'] / 500:.1f}x (median). Where the time goes (perf, the same controller): the "
+           "condensed QP's interior-point iterations (70 x 70 Cholesky, straight-line SX) about a quarter; the "
+           "condensing's dense products (G_k = A_k G_(k-1), H += J^T J) and the substeps' Jacobian chaining "
+           "another quarter; the step Jacobians by the implicit-function route (dr/dx, the LDL solves) about a fifth.",
+           "", "![step times](bench_mpc_panda.png)"]
+    (RESULTS / "bench_mpc_panda.md").write_text("\n".join(md) + "\n")
+    print(f"wrote {RESULTS / 'bench_mpc_panda.md'} and bench_mpc_panda.png")
+
+
 if __name__ == "__main__":
-    main()
+    if sys.argv[1:] not in ([], ["panda"]):
+        sys.exit("usage: python benchmarks/bench_mpc.py [panda]")
+    if not sys.argv[1:]:
+        main()
+    panda(Path(tempfile.mkdtemp()))

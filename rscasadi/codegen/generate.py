@@ -18,6 +18,7 @@ import casadi as ca
 from rscasadi.dynamics.feedforward import feedforward_functions
 from rscasadi.dynamics.arm import Arm, load
 from rscasadi.dynamics.kinematics import REFERENCES
+from rscasadi.model.parameters import gear_ratios
 from rscasadi.model.checks import identifier
 from rscasadi.files import OutputError, fresh_directory, write_json
 from rscasadi.codegen.step_kernel import kernel_source
@@ -82,7 +83,7 @@ def step_functions(arm: Arm, prefix: str = "", fd_jacobian: ca.Function | None =
     p = [ca.MX.sym("p", arm.n_p)] if parametric else []
     x_next, stages = rk4(lambda z: f(z, tau, *p), x, h)
     I = ca.DM.eye(5 * n)[:4 * n, :]                                  # d x / d(x, tau)
-    small = fd_jacobian.is_a("SXFunction")
+    small = arm.forward_dynamics(parametric).n_instructions() <= AD_JACOBIAN_LIMIT
     S, B = [], []                                                    # dk_i = [S_i; B_i]
     for xi, c in zip(stages, (0.0, 0.5, 0.5, 1.0)):
         if small:                                                    # F_i = d(ddtheta, ddphi)/d(x, tau)
@@ -114,13 +115,37 @@ def _ad_jacobian(f: ca.Function, ins, parametric: bool):
     return ca.densify(ca.jacobian(ca.vertcat(*f.call(list(ins))), ca.vertcat(*wrt)))
 
 
+IMPLICIT_SX_LIMIT = 30000  # SX instructions of the straight-line implicit-function route above which
+                           # its MX graph is generated instead (8.6k at n = 6, 20.7k on the Panda, 54.6k at
+                           # n = 12: at 7 joints 2.3 us against the MX graph's 4.7 us, -O3, 2026-11-24)
+
+
+def _implicit_sx(arm: Arm, parametric: bool) -> ca.Function:
+    """The implicit-function route as one straight-line SX Function: forward dynamics, the
+    residual's Jacobian and a symbolic LDL^T of the sparse M, M J = [-dr/dx | dQ/dtau]."""
+    n = arm.n
+    x = [ca.SX.sym(name, n) for name in ("theta", "phi", "dtheta", "dphi")]
+    tau = ca.SX.sym("tau", n)
+    p = [ca.SX.sym("p", arm.n_p)] if parametric else []
+    ddtheta, ddphi = arm.forward_dynamics(parametric)(*x, tau, *p)
+    Jr = arm.residual_jacobian(parametric)(*x, ddtheta, ddphi, *p)
+    mu = gear_ratios(arm.model, arm.free, *p)
+    rhs = ca.horzcat(-Jr, ca.vertcat(ca.DM.zeros(n, n), -ca.diag(mu)))
+    D, Lt, perm = ca.ldl(arm.mass_matrix(parametric=parametric)(x[0], x[1], *p))
+    return ca.Function("forward_dynamics_jacobian", x + [tau] + p, [ca.ldl_solve(rhs, D, Lt, perm)],
+                       ["theta", "phi", "dtheta", "dphi", "tau"] + ["p"] * len(p), ["jacobian"], {"cse": True})
+
+
 def forward_dynamics_jacobian(arm: Arm, parametric: bool = False, name: str = "forward_dynamics_jacobian"):
     """The faster route to d(ddtheta, ddphi)/d(x, tau) for this arm: plain SX AD for small
     forward dynamics (compact straight-line code), the implicit-function theorem past
-    AD_JACOBIAN_LIMIT instructions (AD through the sweep explodes with n)."""
+    AD_JACOBIAN_LIMIT instructions (AD through the sweep explodes with n): straight-line SX
+    while it stays below IMPLICIT_SX_LIMIT instructions, an MX graph of SX pieces above."""
     fd = arm.forward_dynamics(parametric)
     if fd.n_instructions() > AD_JACOBIAN_LIMIT:
-        return _renamed(arm.forward_dynamics_jacobian(parametric), name)
+        sx = _implicit_sx(arm, parametric)
+        return _renamed(sx if sx.n_instructions() <= IMPLICIT_SX_LIMIT else arm.forward_dynamics_jacobian(parametric),
+                        name)
     return _renamed(fd, name, lambda *ins: [_ad_jacobian(fd, ins, parametric)], ["jacobian"])
 
 
