@@ -82,6 +82,11 @@ def main():
             num_ns = per_call(ref, repeat=3, min_time=0.1) * 1e9 if ref else float("nan")
             pin_ns = (per_call(pin_route.forward_dynamics, *x, tau, repeat=3, min_time=0.1) * 1e9
                       if pin_route and name == "forward_dynamics" else float("nan"))
+            if pin_route and name == "forward_dynamics_jacobian":     # its C++ ABA derivatives, on the tree
+                import pinocchio as pin
+                qt, vt = pin_route.G @ np.r_[x[0], x[1]], pin_route.G @ np.r_[x[2], x[3]]
+                pin_ns = 1e9 * per_call(pin.computeABADerivatives, pin_route.model, pin_route.data, qt, vt,
+                                        rng.uniform(-0.1, 0.1, pin_route.model.nv), repeat=3, min_time=0.1)
             rows.append((n, name, manifest["functions"][name]["n_instructions"], c_ns[n][name], ext, num_ns, pin_ns))
             print(f"  {name:28s} C {c_ns[n][name]:10.1f} ns   casadi.external {ext / 1e3:8.1f} us"
                   + (f"   numeric core {num_ns / 1e3:8.1f} us" if ref else "")
@@ -143,7 +148,8 @@ def main():
           "`benchmarks/harness.c`, the median of 3 processes run after all compiles, each the median of 15",
           "batches; library at -O3 with `--native` (-march=native",
           "-ffp-contract=fast). casadi.external, the numerical core and the Pinocchio route are called",
-          "from Python (their overhead included). n_instructions: SX instructions; for the MX compositions",
+          "from Python (their overhead included); the Pinocchio column of forward_dynamics_jacobian is its",
+          "C++ computeABADerivatives on the 3n-body tree through the bindings (before any projection). n_instructions: SX instructions; for the MX compositions",
           "(step and, at larger n, forward_dynamics_jacobian) it counts MX calls, not arithmetic; for",
           "step_jacobian at n >= 6 (the structured C kernel) the SX of one stage point (forward dynamics",
           "and M's factors, then dr/dx, which the kernel evaluates at the four points at once).", "",
@@ -155,10 +161,12 @@ def main():
     md += ["", "| n | generate + compile (s) |", "|---|---|"] + [f"| {n} | {s:.1f} |" for n, s in compile_s.items()]
     md += ["", "## The Panda (7 joints, problems/panda_sea.toml from its URDF)", "",
            "| forward_dynamics (ns) | inverse_dynamics (ns) | forward_dynamics_jacobian (ns) | step (ns) | "
-           "generate + compile (s) | Pinocchio crba + rnea (ns) |", "|---|---|---|---|---|---|",
+           "step_jacobian (ns) | generate + compile (s) | Pinocchio crba + rnea (ns) | Pinocchio ABA derivatives (ns) |",
+           "|---|---|---|---|---|---|---|---|",
            f"| {panda['forward_dynamics']:.0f} | {panda['inverse_dynamics']:.0f} | "
-           f"{panda['forward_dynamics_jacobian']:.0f} | {panda['step']:.0f} | {panda['compile_s']:.1f} | "
-           f"{panda.get('pin_ns', float('nan')):.0f} |",
+           f"{panda['forward_dynamics_jacobian']:.0f} | {panda['step']:.0f} | {panda['step_jacobian']:.0f} | "
+           f"{panda['compile_s']:.1f} | {panda.get('pin_ns', float('nan')):.0f} | "
+           f"{panda.get('pin_aba_derivatives_ns', float('nan')):.0f} |",
            "", f"Task space at `{TOOL}` (C, `--frames {TOOL} --external {TOOL}`), against Pinocchio on its own "
            "model of the URDF (its C++ through the Python bindings, call overhead included):", "",
            "| function | C (ns) | Pinocchio (ns) |", "|---|---|---|",
@@ -207,7 +215,8 @@ def panda_row(work: Path, harness: Path) -> dict:
     t0 = time.perf_counter()
     manifest = generate(arm, out, log=lambda m: None, native=True, frames=[TOOL], external=[TOOL])
     row = {"compile_s": time.perf_counter() - t0}
-    names = ["forward_dynamics", "inverse_dynamics", "forward_dynamics_jacobian", "step", f"frame_placement_{TOOL}",
+    names = ["forward_dynamics", "inverse_dynamics", "forward_dynamics_jacobian", "step", "step_jacobian",
+             f"frame_placement_{TOOL}",
              f"frame_jacobian_{TOOL}_local_world_aligned", "forward_dynamics_external"]
     run = subprocess.run([str(harness), str(out / manifest["library"])] + names, capture_output=True, text=True,
                          check=True)
