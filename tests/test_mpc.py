@@ -222,11 +222,16 @@ def test_mpc_example_is_valgrind_clean_and_refuses_bad_arguments(mpc_example):
 TOOL = ROOT / "problems" / "mpc_arm3_tool.toml"
 
 
+def _generated(tmp_path_factory, problem, name: str):
+    """The MPC of `problem` generated and compiled (-O1) into a fresh directory."""
+    out = tmp_path_factory.mktemp(f"mpc_{name}") / name
+    M.generate_mpc(problem, out, opt="-O1", log=lambda m: None)
+    return out
+
+
 @pytest.fixture(scope="module")
 def tool_mpc_dir(tmp_path_factory):
-    out = tmp_path_factory.mktemp("mpc_tool") / "arm3_tool"
-    M.generate_mpc(TOOL, out, opt="-O1", log=lambda m: None)
-    return out
+    return _generated(tmp_path_factory, TOOL, "arm3_tool")
 
 
 def test_task_space_c_equals_casadi_with_the_payload_mass_it_is_given(tool_mpc_dir, mpc_dir):
@@ -374,9 +379,7 @@ PANDA = ROOT / "problems" / "mpc_panda.toml"
 
 @pytest.fixture(scope="module")
 def panda_mpc_dir(tmp_path_factory):
-    out = tmp_path_factory.mktemp("mpc_panda") / "panda"
-    M.generate_mpc(PANDA, out, opt="-O1", log=lambda m: None)
-    return out
+    return _generated(tmp_path_factory, PANDA, "panda")
 
 
 def test_the_panda_mpc_tracks_under_a_heavier_last_link(panda_mpc_dir):
