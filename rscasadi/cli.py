@@ -94,7 +94,8 @@ def cmd_mpc(args):
     from rscasadi.mpc.problem import mpc_problem
     from rscasadi.files import check_writable
     check_writable(args.out)
-    generate_mpc(args.problem, args.out, opt=args.opt, log=lambda msg: print(msg, flush=True), model=args.model)
+    generate_mpc(args.problem, args.out, opt=args.opt, log=lambda msg: print(msg, flush=True), model=args.model,
+                 native=args.native)
     if args.study is not None and mpc_problem(args.problem).task_space:
         from rscasadi.mpc import task_study
         res = task_study(args.problem, args.out, plant_mass=args.plant_payload, log=lambda msg: print(msg, flush=True))
@@ -254,6 +255,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="build/mpc")
     p.add_argument("--model", default=None, help="a model file that replaces the problem's (e.g. an identified one)")
     p.add_argument("--opt", default="-O2", type=opt_flag, help="optimisation flag for the library (default -O2)")
+    p.add_argument("--native", action="store_true",
+                   help="compile for this machine's processor (-march=native, fused multiply-adds); the sources "
+                        "stay portable C99")
     p.add_argument("--study", type=positive(float, zero=True), nargs="?", const=0.0, metavar="SECONDS",
                    help="then run the closed-loop study (heavier tip, quantised encoders) for SECONDS "
                         "(default: the whole trajectory) and write closed_loop.json; a task-space problem: "

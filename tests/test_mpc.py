@@ -416,3 +416,22 @@ def test_the_mpc_example_runs_the_panda_valgrind_clean(panda_mpc_dir, tmp_path):
             assert check.returncode == 0, check.stderr
             allocs.append(re.search(r"total heap usage: ([0-9,]+) allocs", check.stderr).group(1))
         assert allocs[0] == allocs[1], allocs
+
+
+def test_native_mpc_equals_the_portable_one(mpc_dir, tmp_path):
+    """`rscasadi mpc --native` compiles the same sources for this processor (the manifest says
+    so) and steps as the portable library does, to rounding (fused multiply-adds)."""
+    import json
+    out = tmp_path / "native"
+    assert main(["mpc", str(PROBLEM), "--out", str(out), "--opt=-O1", "--native"]) in (0, None)
+    assert "-march=native" in json.loads((out / "manifest.json").read_text())["compiler"]
+    assert (out / "mpc_rti.c").read_text() == (mpc_dir / "mpc_rti.c").read_text()
+    arm = load(ROOT / "problems" / "arm3.toml")
+    x = rest_state(arm, [0.2, 0.3, -0.4])
+    ref = np.vstack([np.tile(np.array([0.3, 0.4, -0.5])[:, None], (1, 10)), np.zeros((3, 10))])
+    a, b = CompiledMPC(mpc_dir), CompiledMPC(out)
+    a.init(x)
+    b.init(x)
+    for _ in range(5):
+        ta, tb = a.step(x, ref)[0], b.step(x, ref)[0]
+        assert np.max(np.abs(ta - tb)) < 1e-9 * max(1.0, np.max(np.abs(ta)))

@@ -128,28 +128,30 @@ def stage_residual(arm: Arm, p: MPCProblem, limits: dict) -> ca.Function:
 class _Linearisation:
     """The Gauss-Newton QP of the multiple-shooting NLP at (X, U), condensed (Bock & Plitt):
     dx_0 = x_measured - X_0 (initial-value embedding); dx_{k+1} = A_k dx_k + B_k du_k + c_k with the
-    gap c_k = F(X_k, U_k) - X_{k+1}; so dx_k = E_k + G_k dU, and the QP is in dU alone."""
+    gap c_k = F(X_k, U_k) - X_{k+1}; so dx_k = E_k + G_k dU_{<k}, and the QP is in dU alone.  G_k
+    holds only the columns of du_0..du_{k-1} (the later ones cannot act on x_k): the products
+    that form H and g run over n k columns, not n N."""
 
     def __init__(self, F, residual, p: MPCProblem, xm, ref, X, U, posture, mass):
         n, N = U.shape[0], p.horizon
-        nx = X.shape[0]
-        self.H, self.g = p.weights["tau"] * ca.MX.eye(n * N), p.weights["tau"] * ca.vec(U)
-        E, G = xm - X[:, 0], ca.MX.zeros(nx, n * N)
+        nx, nU = X.shape[0], n * N
+        self.H, self.g = p.weights["tau"] * ca.MX.eye(nU), p.weights["tau"] * ca.vec(U)
+        E, G = xm - X[:, 0], ca.MX(nx, 0)
         self.E, self.G = [E], [G]
         for k in range(N):
             xp, A, B = F(X[:, k], U[:, k], mass)
             E = ca.mtimes(A, E) + xp - X[:, k + 1]
-            G = ca.horzcat(ca.mtimes(A, G[:, :n * k]), B, ca.MX.zeros(nx, n * (N - k - 1)))
+            G = ca.horzcat(ca.mtimes(A, G), B)                      # nx x n (k + 1), dense
             self.E.append(E)
             self.G.append(G)
             r, Jx = residual(X[:, k + 1] + E, ref[:, k], posture)
-            J = ca.mtimes(Jx, G)
-            self.H += ca.mtimes(J.T, J)
-            self.g += ca.mtimes(J.T, r)
+            J, rest = ca.mtimes(Jx, G), nU - n * (k + 1)
+            self.H += ca.diagcat(ca.mtimes(J.T, J), ca.MX(rest, rest))
+            self.g += ca.vertcat(ca.mtimes(J.T, r), ca.MX(rest, 1))
 
     def step(self, dU):
-        """dX = (E_k + G_k dU)_k."""
-        return ca.horzcat(*[E + ca.mtimes(G, dU) for E, G in zip(self.E, self.G)])
+        """dX = (E_k + G_k dU_{<k})_k."""
+        return ca.horzcat(*[E + ca.mtimes(G, dU[:G.shape[1]]) for E, G in zip(self.E, self.G)])
 
 
 def rollout(Fx, residual, p: MPCProblem, xm, ref, U, posture, mass):

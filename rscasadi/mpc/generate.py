@@ -15,15 +15,16 @@ import casadi as ca
 from rscasadi.files import fresh_directory, write_json
 from rscasadi.mpc.formulation import controller_arm, hold_function, n_params, reference_rows, rti_function
 from rscasadi.mpc.problem import mpc_model, mpc_problem
-from rscasadi.native.build import cached_library, compiler
+from rscasadi.native.build import cached_library, compiler, native_flags
 
 TEMPLATES = Path(__file__).with_name("templates")
 
 
-def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None) -> dict:
+def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: bool = False) -> dict:
     """Write the C of `problem` (an `MPCProblem` or the path of its file), its header, library and
     manifest into `out` (whole or not at all); `model` (a model file) replaces the problem's,
-    e.g. an identified model."""
+    e.g. an identified model; native: compile for this machine's processor (the sources stay
+    portable C99)."""
     p = mpc_problem(problem)
     if model is not None:
         p = dataclasses.replace(p, model=Path(model).resolve())
@@ -56,10 +57,10 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None) -> dict:
         (tmp / "rscasadi_mpc.h").write_text(header)
         mass = f"{model.payload.body.mass!r}" if model.payload is not None else "-1.0"
         (tmp / "rscasadi_mpc.c").write_text(Template((TEMPLATES / "rscasadi_mpc.c").read_text()).substitute(mass=mass))
-        cc = compiler()
+        cc, flags = compiler(), [opt, "-std=c99"] + (native_flags() if native else [])
         lib = cached_library({name: (tmp / name).read_text() for name in ("mpc_rti.c", "mpc_rti.h", "rscasadi_mpc.c",
                                                                       "rscasadi_mpc.h")},
-                             [opt, "-std=c99"], name="mpc", what=f"the MPC ({opt})", log=log, cc=cc, log_hit=True)
+                             flags, name="mpc", what=f"the MPC ({' '.join(flags)})", log=log, cc=cc, log_hit=True)
         shutil.copy2(lib, tmp / "librscasadi_mpc.so")
         manifest = {"model": str(p.model), "problem": None if p.path is None else str(p.path), "header": "rscasadi_mpc.h",
                     "library": "librscasadi_mpc.so", "sources": ["mpc_rti.c", "rscasadi_mpc.c"],
@@ -73,7 +74,7 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None) -> dict:
                     "obstacles": len(p.obstacles),
                     "horizon": p.horizon, "interval": p.interval, "substeps": p.substeps,
                     "sample_time": p.sample_time, "sqp_iterations": p.sqp_iterations, "qp_iterations": p.qp_iterations, "weights": p.weights,
-                    "compiler": cc + [opt]}
+                    "compiler": cc + flags}
         write_json(tmp / "manifest.json", manifest, indent=2)
     log(f"wrote {out / 'librscasadi_mpc.so'}, rscasadi_mpc.h and manifest.json")
     return manifest
