@@ -11,7 +11,7 @@ import rscasadi
 from rscasadi.codegen import rk4
 from rscasadi.dynamics.statics import rest_state
 from rscasadi.interaction import MomentumObserver, observer_terms, tool_wrench
-from rscasadi.sim.sensors import quanta
+from rscasadi.interaction.study import Encoders
 
 from conftest import ROOT
 
@@ -33,17 +33,14 @@ def pushed(arm, frame, wrench, theta0, quantised=False, gain=300.0, seconds=0.8)
     x = rest_state(arm, theta0)
     zero = np.zeros(n)
     tau = np.array(arm.inverse_dynamics()(x[:n], x[n:2 * n], zero, zero, zero, zero)[0]).ravel()
-    q_link, q_motor = quanta(arm.model.column("gear_ratio"))
-    obs, prev, out = MomentumObserver(arm, gain, DT), None, {"t": [], "r": [], "true": [], "theta": []}
+    encoders = Encoders(arm)
+    obs, out = MomentumObserver(arm, gain, DT), {"t": [], "r": [], "true": [], "theta": []}
     obs.init(x)
     for k in range(int(round(seconds / DT))):
         t = (k + 1) * DT
         f = np.asarray(wrench, float) if PUSH[0] <= k * DT < PUSH[1] else np.zeros(6)
         x = np.array(advance(x, tau, f)).ravel()
-        meas = x
-        if quantised:
-            m = np.r_[np.round(x[:n] / q_link) * q_link, np.round(x[n:2 * n] / q_motor) * q_motor]
-            meas, prev = np.r_[m, (m - prev) / DT if prev is not None else x[2 * n:]], m
+        meas = encoders(x) if quantised else x
         out["r"].append(obs.step(meas, tau))
         out["true"].append(np.array(jac(x[:n])).T @ f)
         out["t"].append(t)

@@ -3,8 +3,9 @@ complete model with contacts (`rscasadi.sim.contact`):
 
 (a) `push`: a push of F at the frame; the steady displacement against F / K;
 (b) `wall`: the target moved into a wall; the contact force against K d k_w / (K + k_w);
-(c) `collision`: the target moved through an obstacle nobody told the controller of; the momentum
-    observer's flag delay and its torques against the contact's J^T f;
+(c) `collision` and `collision_feedforward`: an obstacle nobody told the controller of, met during
+    an impedance motion or a trajectory's feedforward; the momentum observer's flag delay and its
+    torques against the contact's J^T f;
 (d) each of (a), (b) with the controller designed on the DLR/Spong reduced model;
 and the generated C's time per step.  `study` runs them all for one arm (`rscasadi controller
 impedance MODEL --frame F --study`, benchmarks/bench_interaction.py)."""
