@@ -383,7 +383,7 @@ def panda_mpc_dir(tmp_path_factory):
 
 
 def test_the_panda_mpc_tracks_under_a_heavier_last_link(panda_mpc_dir):
-    """problems/mpc_panda.toml (7 joints, 0.1 s horizon) in C on a plant whose last link is 20 %
+    """problems/mpc_panda.toml (7 joints, a 0.1 s horizon) in C on a plant whose last link is 20 %
     heavier, quantised encoders, 0.3 s: within the limits, at least 10x closer than feedforward +
     motor PD, and as close as the 3-joint MPC under the same mismatch (7.8e-4 rad, bench_mpc)."""
     res = closed_loop(PANDA, panda_mpc_dir, duration=0.3, log=lambda m: None)
@@ -403,7 +403,8 @@ def test_the_mpc_example_runs_the_panda_valgrind_clean(panda_mpc_dir, tmp_path):
     arm_dir = tmp_path / "panda_arm"
     generate(ROOT / "problems" / "panda_sea.toml", arm_dir, opt="-O1", log=lambda m: None)
     exe = build_example("mpc", tmp_path / "mpc_panda", {arm_dir: "rscasadi_arm", panda_mpc_dir: "rscasadi_mpc"})
-    run = subprocess.run([str(exe), "0.01", "0.7"], capture_output=True, text=True, check=True)
+    interval = str(load_mpc_problem(PANDA).interval)
+    run = subprocess.run([str(exe), interval, "0.7"], capture_output=True, text=True, check=True)
     rows = np.array([[float(v) for v in line.split()] for line in run.stdout.splitlines() if not line.startswith("#")])
     limits = np.array([jt.limits["tau"] for jt in load(ROOT / "problems" / "panda_sea.toml").model.joints])
     assert rows.shape == (70, 15) and np.all(np.abs(rows[:, 8:]) <= limits + 1e-12)
@@ -411,7 +412,7 @@ def test_the_mpc_example_runs_the_panda_valgrind_clean(panda_mpc_dir, tmp_path):
     if shutil.which("valgrind") is not None:
         allocs = []
         for seconds in ("0.03", "0.02"):
-            check = subprocess.run(["valgrind", "--error-exitcode=9", "--leak-check=full", str(exe), "0.01", seconds],
+            check = subprocess.run(["valgrind", "--error-exitcode=9", "--leak-check=full", str(exe), interval, seconds],
                                    capture_output=True, text=True)
             assert check.returncode == 0, check.stderr
             allocs.append(re.search(r"total heap usage: ([0-9,]+) allocs", check.stderr).group(1))
