@@ -25,8 +25,9 @@ Problem file and C interface: docs/user-guide/mpc.md (`problems/mpc_arm3.toml` i
 
 Generated (DIR): `mpc_rti.c` (CasADi: mpc_rti(x, reference, X, U, params) -> tau, X_next,
 U_next and mpc_hold(x, params) -> X, U; params = (theta_posture, [payload mass])),
-`rscasadi_mpc.c` and `rscasadi_mpc.h` (the controller, its state in a caller's `mpc_t`),
-`librscasadi_mpc.so`, `manifest.json`.  reference is column-major, a column per interval end
+`rscasadi_mpc.c` and `rscasadi_mpc.h` (the controller, its state in a caller's `mpc_t`), on
+arms past straight-line SX `mpc_step_jacobian.c` (the structured step-Jacobian kernel the
+controller calls), `librscasadi_mpc.so`, `manifest.json`.  reference is column-major, a column per interval end
 t + k h: theta_ref then dtheta_ref (2n), or in task space p_ref, v_ref (6) [and vec(R_ref) (9)].
 """
 from __future__ import annotations
@@ -51,16 +52,19 @@ def n_params(arm: Arm) -> int:
     return arm.n + (1 if arm.free else 0)
 
 
-def interval_functions(arm: Arm, h: float, substeps: int):
+def interval_functions(arm: Arm, h: float, substeps: int, step_jacobian: ca.Function | None = None):
     """F: (x, tau, m) -> (x after h, A = dx/dx0, B = dx/dtau): `substeps` RK4 steps and their
     structured Jacobians chained (A = A_s ... A_1, B = A_s (...) B_1 + ... + B_s); Fx: the state
     alone.  m: the payload's mass (an empty input if the arm holds none, or it is constant).
     One substep (step, Jacobian and the chain's products) is one Function, straight-line SX when
     the step Jacobian is SX (small arms), called `substeps` times: its C is generated once, so
-    the controller compiles in a fifth of the time of one straight-line interval, as fast."""
+    the controller compiles in a fifth of the time of one straight-line interval, as fast.
+    step_jacobian: a Function to use in place of step_functions' (the generated controller's
+    structured C kernel, `generate.step_kernel`)."""
     from rscasadi.codegen.generate import step_functions
     n, hs, parametric = arm.n, h / substeps, bool(arm.free)
     step, step_jac = step_functions(arm, parametric=parametric)
+    step_jac = step_jac if step_jacobian is None else step_jacobian
     sym = ca.SX if step_jac.is_a("SXFunction") else ca.MX
     if sym is ca.SX:
         step = step.expand()
@@ -227,13 +231,14 @@ def shifted(Z, alpha: float):
     return (1 - alpha) * Z + alpha * Zn
 
 
-def rti_function(arm: Arm, p: MPCProblem) -> ca.Function:
+def rti_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None = None) -> ca.Function:
     """mpc_rti(x, reference, X, U, params) -> (tau, X_next, U_next): `sqp_iterations`
     Gauss-Newton SQP iterations of the multiple-shooting NLP (1: the real-time iteration; more:
     each with a line search on the rollout's cost), then the plan shifted by one sample.
-    params: the posture (n) and the payload's mass (if `arm` takes it: `controller_arm`)."""
+    params: the posture (n) and the payload's mass (if `arm` takes it: `controller_arm`).
+    step_jacobian: as `interval_functions`."""
     n, N, nx = arm.n, p.horizon, 4 * arm.n
-    F, Fx = interval_functions(arm, p.interval, p.substeps)
+    F, Fx = interval_functions(arm, p.interval, p.substeps, step_jacobian)
     limits = limit_arrays(arm)
     residual = stage_residual(arm, p, limits)
     xm, ref = ca.MX.sym("x", nx), ca.MX.sym("reference", reference_rows(n, p), N)
