@@ -89,36 +89,50 @@ def impedance_law(arm: Arm, frame: str | None, design: str = "motor", torque_fee
 
     q = ca.SX.sym("q", n)
     T = inverse(q, q, zero, zero, zero, zero)[1] - spring(q, ref, K)[0]        # T(q) = g - dV_K/dq
-    if link:
-        q_bar = th
-    else:
-        F = q + spring_deflection(arm, T, steps=4) - ph                        # phi = q + psi(T(q))
-        newton = ca.Function("newton", [q, ph, ref, K], [q - ca.solve(ca.jacobian(F, q), F)])
-        q_bar = th
-        for _ in range(newton_steps):
-            q_bar = newton(q_bar, ph, ref, K)
-    T_bar = ca.substitute(T, q, q_bar)
-
+    q_bar = th if link else _static_link_angles(arm, q, T, th, ph, ref, K, newton_steps)
     J = spring(q_bar, ref, K)[1][:m, :]
-    M = mass(q_bar, q_bar)[:n, :n]
-    MiJt = ca.solve(M, J.T)
-    Lam = ca.inv(ca.mtimes(J, MiJt))
-    D = ca.mtimes([J.T, ca.diag(2 * zeta[:m] * ca.sqrt(K[:m] * ca.diag(Lam))), J])
-    if m < n:                                                                  # the null space's damping
-        N = ca.DM.eye(n) - ca.mtimes([MiJt, Lam, J])
-        D += null_damping * ca.mtimes([N.T, ca.diag(ca.diag(M)), N])
-    u = T_bar - ca.mtimes(D, dth if link else dph)
+    D = _damping(J, mass(q_bar, q_bar)[:n, :n], K[:m], zeta[:m], null_damping)
+    u = ca.substitute(T, q, q_bar) - ca.mtimes(D, dth if link else dph)
     T_s = arm.sea_torque(th, ph, zero, zero)                                   # measured, elastic part
     u_m = T_s + rho * (u - T_s) - D_m * dph
     mu = arm.model.column("gear_ratio")
     tau_hold = inverse(q_bar, ph, zero, zero, zero, zero)[0]                   # -(Q_s + spring(phi - q_bar)) / mu
-    tau = tau_hold + (arm.sea_torque(q_bar, ph, zero, zero) - u_m) / mu
-    sqrtK = ca.sqrt(K[:m])
-    S = ca.DM.eye(m) - ca.mtimes([ca.diag(sqrtK), J, ca.diag(1 / k1), J.T, ca.diag(sqrtK)])
-    margin = ca.mmin(ca.ldl(S)[0])
+    tau = tau_hold + (arm.sea_torque(q_bar, ph, zero, zero) - u_m) / mu        # = -(Q_s + u_m) / mu
+    margin = _margin(J, K[:m], k1)
     names = ["pose_desired" if frame is not None else "q_desired", "stiffness", "damping_ratio"]
     return ca.Function("impedance", [th, ph, dth, dph, ref, K, zeta], [tau, u, q_bar, margin],
                        ["theta", "phi", "dtheta", "dphi"] + names, ["tau", "u", "q_bar", "margin"], {"cse": True})
+
+
+def _static_link_angles(arm: Arm, q, T, theta, phi, ref, K, steps: int):
+    """q_bar with phi = q_bar + psi(T(q_bar)): `steps` Newton steps from the measured theta."""
+    F = q + spring_deflection(arm, T, steps=4) - phi
+    newton = ca.Function("newton", [q, phi, ref, K], [q - ca.solve(ca.jacobian(F, q), F)])
+    q_bar = theta
+    for _ in range(steps):
+        q_bar = newton(q_bar, phi, ref, K)
+    return q_bar
+
+
+def _damping(J, M, K, zeta, null_damping: float):
+    """D = J^T D_x J + N^T D_n N: D_x = 2 zeta sqrt(K Lambda_ii), Lambda = (J M^-1 J^T)^-1; the
+    dynamically consistent null space N = I - M^-1 J^T Lambda J damped by D_n = c diag(M)."""
+    n = M.shape[0]
+    MiJt = ca.solve(M, J.T)
+    Lam = ca.inv(ca.mtimes(J, MiJt))
+    D = ca.mtimes([J.T, ca.diag(2 * zeta * ca.sqrt(K * ca.diag(Lam))), J])
+    if J.shape[0] < n:
+        N = ca.DM.eye(n) - ca.mtimes([MiJt, Lam, J])
+        D += null_damping * ca.mtimes([N.T, ca.diag(ca.diag(M)), N])
+    return D
+
+
+def _margin(J, K, k1):
+    """The smallest LDL^T pivot of I - K^1/2 J C_s J^T K^1/2, C_s = diag(1 / k1): > 0 while the
+    commanded compliance K^-1 exceeds the springs' J C_s J^T."""
+    sqrtK = ca.diag(ca.sqrt(K))
+    S = ca.DM.eye(J.shape[0]) - ca.mtimes([sqrtK, J, ca.diag(1 / k1), J.T, sqrtK])
+    return ca.mmin(ca.ldl(S)[0])
 
 
 class ImpedanceController:
