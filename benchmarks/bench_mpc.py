@@ -29,6 +29,29 @@ PROBLEM = ROOT / "problems" / "mpc_arm3.toml"
 TARGET = [0.6, 0.8, -0.9]
 
 
+def example_lines(model, mpc_dir: Path, interval: float, arm_dir: Path) -> dict:
+    """examples/mpc.c built on `model`'s generated C (into arm_dir) and the MPC in mpc_dir, paced
+    at 1 kHz for 10 s with normal scheduling and with rt (SCHED_FIFO + mlockall): its summary lines."""
+    generate(model, arm_dir, log=lambda m: None)
+    exe = arm_dir / "mpc_example"
+    subprocess.run(["cc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", f"-I{arm_dir}", f"-I{mpc_dir}",
+                    str(ROOT / "examples" / "mpc.c"), f"-L{arm_dir}", f"-L{mpc_dir}", "-lrscasadi_arm", "-lrscasadi_mpc",
+                    f"-Wl,-rpath,{arm_dir}", f"-Wl,-rpath,{mpc_dir}", "-lm", "-o", str(exe)], check=True)
+    lines = {}
+    for mode in ("normal", "rt"):
+        out = subprocess.run([str(exe), str(interval), "10"] + (["rt"] if mode == "rt" else []), capture_output=True,
+                             text=True, check=True).stdout.splitlines()
+        lines[mode] = [line for line in out if line.startswith("#")]
+        print(f"example on {Path(model).name} ({mode}):", *lines[mode])
+    return lines
+
+
+def example_block(lines: dict) -> list:
+    """The example's summary lines as an indented block, normal scheduling then rt."""
+    return ["    normal scheduling:", *("    " + line for line in lines["normal"]),
+            "    rt (SCHED_FIFO):", *("    " + line for line in lines["rt"])]
+
+
 def closed_loop_rows(res):
     md = ["| plant / controllers | controller | max error (rad) | RMS error (rad) | limit violation | "
           "step median / worst (us, in C) |", "|---|---|---|---|---|---|"]
@@ -63,19 +86,8 @@ def main():
         print(f"step to {TARGET}, {iterations} SQP iteration(s): final error {r['final_angle_error']:.1e} rad, "
               f"limit violation {r['max_limit_violation']:.1%}, step median {r['step_median_s'] * 1e6:.0f} us")
 
-    generate(ROOT / "problems" / "arm3.toml", work / "arm3", log=lambda m: None)
-    exe = work / "mpc_example"
-    subprocess.run(["cc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", f"-I{work / 'arm3'}", f"-I{work / 'mpc'}",
-                    str(ROOT / "examples" / "mpc.c"), f"-L{work / 'arm3'}", f"-L{work / 'mpc'}", "-lrscasadi_arm",
-                    "-lrscasadi_mpc", f"-Wl,-rpath,{work / 'arm3'}", f"-Wl,-rpath,{work / 'mpc'}", "-lm", "-o", str(exe)],
-                   check=True)
     p = load_mpc_problem(PROBLEM)
-    lines = {}
-    for mode in ("normal", "rt"):                 # paced at 1 kHz for 10 s; rt: SCHED_FIFO + mlockall
-        out = subprocess.run([str(exe), str(p.interval), "10"] + (["rt"] if mode == "rt" else []), capture_output=True,
-                             text=True, check=True).stdout.splitlines()
-        lines[mode] = [line for line in out if line.startswith("#")]
-        print(f"example ({mode}):", *lines[mode])
+    lines = example_lines(ROOT / "problems" / "arm3.toml", work / "mpc", p.interval, work / "arm3")
     tip = res["heavier_tip"]
     md = ["# Nonlinear MPC in C", "", stamp(), "",
           f"`python benchmarks/bench_mpc.py` on this 2-core machine: `problems/mpc_arm3.toml` (multiple shooting, "
@@ -101,8 +113,7 @@ def main():
            "`examples/mpc.c`, nominal plant, 0.5 s settling then the motion, paced at 1 kHz for 10 s "
            "(clock_nanosleep to each millisecond, memory locked), timing every mpc_step in C. With normal "
            "scheduling this VM's other work can preempt a step; with `rt` (SCHED_FIFO) it cannot:", "",
-           "    normal scheduling:", *("    " + line for line in lines["normal"]),
-           "    rt (SCHED_FIFO):", *("    " + line for line in lines["rt"])]
+           *example_block(lines)]
     (RESULTS / "bench_mpc.md").write_text("\n".join(md) + "\n")
     print(f"wrote {RESULTS / 'bench_mpc.md'}")
 
@@ -129,18 +140,7 @@ def panda(work: Path):
     fig.tight_layout()
     fig.savefig(RESULTS / "bench_mpc_panda.png", dpi=110)
     mpc, pd = res["MPC (C)"], res["feedforward + PD"]
-    generate(ROOT / "problems" / "panda_sea.toml", work / "panda_arm", log=lambda m: None)
-    exe = work / "mpc_panda_example"
-    subprocess.run(["cc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", f"-I{work / 'panda_arm'}",
-                    f"-I{work / 'panda'}", str(ROOT / "examples" / "mpc.c"), f"-L{work / 'panda_arm'}",
-                    f"-L{work / 'panda'}", "-lrscasadi_arm", "-lrscasadi_mpc", f"-Wl,-rpath,{work / 'panda_arm'}",
-                    f"-Wl,-rpath,{work / 'panda'}", "-lm", "-o", str(exe)], check=True)
-    lines = {}
-    for mode in ("normal", "rt"):                 # paced at 1 kHz for 10 s; rt: SCHED_FIFO + mlockall
-        out = subprocess.run([str(exe), str(p.interval), "10"] + (["rt"] if mode == "rt" else []), capture_output=True,
-                             text=True, check=True).stdout.splitlines()
-        lines[mode] = [line for line in out if line.startswith("#")]
-        print(f"Panda example ({mode}):", *lines[mode])
+    lines = example_lines(ROOT / "problems" / "panda_sea.toml", work / "panda", p.interval, work / "panda_arm")
     md = ["# Nonlinear MPC on seven joints (the Panda with SEAs)", "", stamp(), "",
           f"`python benchmarks/bench_mpc.py panda`: `problems/mpc_panda.toml` (N = {p.horizon} intervals of "
           f"{p.interval * 1e3:g} ms, {p.substeps} RK4 steps each, real-time iteration, {p.qp_iterations} interior-point "
@@ -162,8 +162,7 @@ def panda(work: Path):
            "", "![step times](bench_mpc_panda.png)", "",
            "`examples/mpc.c` on the Panda (its own motion, nominal plant), paced at 1 kHz for 10 s, every mpc_step "
            "timed in C; with `rt` (SCHED_FIFO, memory locked) nothing else on this VM preempts a step:", "",
-           "    normal scheduling:", *("    " + line for line in lines["normal"]),
-           "    rt (SCHED_FIFO):", *("    " + line for line in lines["rt"])]
+           *example_block(lines)]
     (RESULTS / "bench_mpc_panda.md").write_text("\n".join(md) + "\n")
     print(f"wrote {RESULTS / 'bench_mpc_panda.md'} and bench_mpc_panda.png")
 
