@@ -191,11 +191,13 @@ def run(sweep_file, out, scheduler: str | None = None, workers: int | None = Non
                 raise ModelFileError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there ({exc})") from None
         else:
             # the workers inherit an ignored SIGINT: Ctrl-C reaches this process alone, which
-            # closes the cluster, instead of every worker printing its own traceback
+            # closes the cluster, instead of every worker printing its own traceback; their logs
+            # are silenced below CRITICAL (a worker's heartbeat to the closing scheduler fails
+            # with an ERROR); a point that fails still comes back as its row's status
             previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
             try:
                 cluster = LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1, processes=True,
-                                       dashboard_address=None, silence_logs=logging.ERROR)
+                                       dashboard_address=None, silence_logs=logging.CRITICAL)
             finally:
                 signal.signal(signal.SIGINT, previous)
             client = Client(cluster)
