@@ -119,7 +119,8 @@ def generate_impedance(model, out, frame: str | None, design: str = "motor", opt
 
 
 class _Compiled:
-    """A generated library through ctypes, its state struct in memory this object owns."""
+    """A generated library through ctypes, its state struct in memory this object owns:
+    init(x) -> code, seconds(): the last step's duration measured in C."""
 
     def __init__(self, directory, stem: str):
         self.lib = ctypes.CDLL(str(Path(directory) / f"librscasadi_{stem}.so"))
@@ -128,9 +129,17 @@ class _Compiled:
         self.state = np.zeros(-(-sizeof() // 8))                       # 8-byte aligned
         self.c = ctypes.c_void_p(self.state.ctypes.data)
         self.p = ctypes.POINTER(ctypes.c_double)
+        self._init, self._seconds = getattr(self.lib, f"{stem}_init"), getattr(self.lib, f"{stem}_step_seconds")
+        self._seconds.restype = ctypes.c_double
 
     def _ptr(self, a):
         return a.ctypes.data_as(self.p)
+
+    def init(self, x) -> int:
+        return self._init(self.c, self._ptr(np.ascontiguousarray(x, float)))
+
+    def seconds(self) -> float:
+        return self._seconds(self.c)
 
 
 class CompiledObserver(_Compiled):
@@ -139,13 +148,6 @@ class CompiledObserver(_Compiled):
 
     def __init__(self, directory):
         super().__init__(directory, "observer")
-        self.lib.observer_step_seconds.restype = ctypes.c_double
-
-    def seconds(self) -> float:
-        return self.lib.observer_step_seconds(self.c)
-
-    def init(self, x) -> int:
-        return self.lib.observer_init(self.c, self._ptr(np.ascontiguousarray(x, float)))
 
     def step(self, x, tau):
         x, tau = np.ascontiguousarray(x, float), np.ascontiguousarray(tau, float)
@@ -155,19 +157,12 @@ class CompiledObserver(_Compiled):
 
 class CompiledImpedance(_Compiled):
     """One generated impedance controller through ctypes: step(x, reference, stiffness,
-    damping_ratio) -> (tau, flag); seconds(): the last step's duration measured in C."""
+    damping_ratio) -> (tau, flag)."""
 
     def __init__(self, directory):
         super().__init__(directory, "impedance")
-        self.lib.impedance_step_seconds.restype = ctypes.c_double
 
-    def seconds(self) -> float:
-        return self.lib.impedance_step_seconds(self.c)
-
-    def init(self, x) -> int:
-        return self.lib.impedance_init(self.c, self._ptr(np.ascontiguousarray(x, float)))
-
-    def step(self, x, pose_desired, stiffness, damping_ratio):
-        args = [np.ascontiguousarray(v, float) for v in (x, pose_desired, stiffness, damping_ratio)]
+    def step(self, x, reference, stiffness, damping_ratio):
+        args = [np.ascontiguousarray(v, float) for v in (x, reference, stiffness, damping_ratio)]
         tau = np.zeros(len(args[0]) // 4)
         return tau, self.lib.impedance_step(self.c, *[self._ptr(a) for a in args], self._ptr(tau))
