@@ -66,7 +66,7 @@ def _dense_cols(sp: ca.Sparsity, rows, cols) -> list:
 
 def _sx_functions(prefix: str, d1: ca.Function, f1: ca.Function, d2: ca.Function, keep, elim, grows):
     """The SX functions the kernel calls (their C is generated): lin, rows, first, objective,
-    adjoint, second (module docstring for the formulas)."""
+    adjoint, hessian (module docstring for the formulas)."""
     nz, nrows = d1.size1_in(0), d1.size1_out(0)
     z = ca.SX.sym("z", nz)
     args = [ca.SX.sym(d1.name_in(i), d1.sparsity_in(i)) for i in range(1, d1.n_in())]
@@ -83,8 +83,8 @@ def _sx_functions(prefix: str, d1: ca.Function, f1: ca.Function, d2: ca.Function
         Z[elim, i] = S[:, s]
     lam, lam_f, lam_r = ca.SX.sym("lam", nrows), ca.SX.sym("lam_f"), ca.SX.sym("lam_r", len(rk))
     _, H = d2(z, *args, lam, lam_f)
-    Hu = ca.triu(ca.mtimes([Z.T, H, Z]))                 # upper side computed, mirrored
-    Hc = Hu + ca.triu(Hu, False).T
+    dcols = _curved(d2.sparsity_out(1), keep, scols)
+    kd = [keep[i] for i in dcols]
     J_r = J[rk, :]
     opts = {"cse": True}
     fns = {
@@ -98,11 +98,26 @@ def _sx_functions(prefix: str, d1: ca.Function, f1: ca.Function, d2: ca.Function
         # right-hand side, its kept part (plus G_w' nu, in C) the condensed Lagrangian's gradient
         "adjoint": ca.Function(prefix + "adjoint", [z, *args, lam_r, lam_f],
                                [ca.densify(ca.mtimes(J_r.T, lam_r) + lam_f * gf)], opts),
-        # the Hessian alone (the gradient comes from the adjoint: through the model calls it
-        # would cost 17 % of this function)
-        "second": ca.Function(prefix + "second", [z, *args, lam, lam_f, S], [Hc], opts),
+        # the lifted Hessian's blocks on the curved kept columns D and y alone (the gradient comes
+        # from the adjoint: through the model calls it would cost 17 % of this function); the
+        # kernel forms Z' H Z in dense loops: as SX with S symbolic it took 256k instructions at n = 7
+        "hessian": ca.Function(prefix + "hessian", [z, *args, lam, lam_f],
+                               [ca.densify(H[kd, kd]), ca.densify(H[elim, kd]), ca.densify(H[elim, elim])], opts),
     }
-    return fns, rk, scols, args
+    return fns, rk, scols, dcols, args
+
+
+def _curved(sp: ca.Sparsity, keep, scols) -> list:
+    """D: the kept columns (positions in keep) where the condensed Hessian can be nonzero, those
+    the lifted Hessian touches and those y depends on (scols)."""
+    touched = set(np.array(sp.get_triplet()[1]).tolist())
+    return sorted({i for i, j in enumerate(keep) if j in touched} | set(scols))
+
+
+def _block(n: int, idx) -> ca.Sparsity:
+    """The n x n pattern dense on the rows and columns idx (sorted), zero elsewhere."""
+    pairs = [(i, j) for j in idx for i in idx]
+    return ca.Sparsity.triplet(n, n, [i for i, _ in pairs], [j for _, j in pairs])
 
 
 def _sparsity_c(name: str, sp: ca.Sparsity) -> str:
@@ -113,9 +128,9 @@ def _int_array(name: str, values) -> str:
     return f"static const int {name}[] = {{{', '.join(str(int(v)) for v in values) or '0'}}};\n"
 
 
-def _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols) -> str:
+def _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols, dcols) -> str:
     """The C kernel: cache, Newton, LU, and the four external functions (module docstring)."""
-    nk, ny, ns, nr, nrows = len(keep), len(elim), fns["lin"].size2_out(2), len(rk), fns["second"].size1_in(len(args) + 1)
+    nk, ny, ns, nr, nrows = len(keep), len(elim), fns["lin"].size2_out(2), len(rk), fns["hessian"].size1_in(len(args) + 1)
     assert fns["adjoint"].size1_out(0) == fns["lin"].size1_in(0)
     na = len(args)
     arg_nnz = [a.nnz() for a in args]
@@ -123,12 +138,13 @@ def _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols) -> str:
     lines = [f"/* condensed collocation kernel {prefix} (rscasadi/ocp/condensing.py) */\n",
              "#include <stdlib.h>\n#include <string.h>\n",
              f"#define NK {nk}\n#define NY {ny}\n#define NS {ns}\n#define NR {nr}\n#define NROWS {nrows}\n"
-             f"#define NZ {fns['lin'].size1_in(0)}\n#define NA {na}\n#define NKEY {nk + sum(arg_nnz)}\n"
+             f"#define NZ {fns['lin'].size1_in(0)}\n#define ND {len(dcols)}\n#define NA {na}\n#define NKEY {nk + sum(arg_nnz)}\n"
              f"#define SZ_ARG {sz['arg']}\n#define SZ_RES {sz['res']}\n#define SZ_IW {sz['iw'] + 1}\n#define SZ_W {sz['w'] + 1}\n"
              f"#define MAXIT {NEWTON_MAX_ITER}\n#define STEPTOL {NEWTON_STEP_TOL!r}\n#define SPURIOUS {SPURIOUS!r}\n"
              f"#define P(name) {prefix}##name\n",
              _int_array("KEEP", keep), _int_array("ELIM", elim), _int_array("RKEEP", rk), _int_array("GROWS", grows),
              _int_array("ARGNNZ", arg_nnz), _int_array("SCOLS", scols),
+             _int_array("DS", [scols.index(i) if i in scols else -1 for i in dcols]),
              _KERNEL]
     # sparsity of the externals' inputs and outputs
     sp_w = ca.Sparsity.dense(nk, 1)
@@ -136,7 +152,7 @@ def _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols) -> str:
     outs = {"ext_rows": [fns["rows"].sparsity_out(0), fns["rows"].sparsity_out(1)],
             "ext_first": [fns["first"].sparsity_out(0), fns["first"].sparsity_out(1)],
             "ext_objective": [fns["objective"].sparsity_out(0), fns["objective"].sparsity_out(1)],
-            "ext_second": [ca.Sparsity.dense(nk, 1), fns["second"].sparsity_out(0)],
+            "ext_second": [ca.Sparsity.dense(nk, 1), _block(nk, dcols)],
             "ext_newton": [ca.Sparsity.dense(ny, 1)]}
     extra = {"ext_second": [ca.Sparsity.dense(nr, 1), ca.Sparsity.dense(1, 1)]}
     for name, out in outs.items():
@@ -162,6 +178,13 @@ _KERNEL = r"""
 /* Per thread: the SX functions' work arrays and, per interval, the last solution.  Nothing in
    the result depends on the cache beyond Newton's tolerance: it only chooses the starting point
    and skips the solve when the inputs are bitwise those of the last call. */
+/* the dense loops vectorised even when the generated SX code around them is built at -O1
+   (its size makes -O2 cost minutes) */
+#if defined(__GNUC__) && !defined(__clang__)
+#define DENSE __attribute__((optimize("O3")))
+#else
+#define DENSE
+#endif
 typedef struct { long generation; int seen, valid, factored, derived; casadi_real key[NKEY]; casadi_real y[NY];
                  casadi_real lu[NY * NY]; int piv[NY]; casadi_real S[NY * NS], Gs[NY * NS]; } entry_t;
 static long generation = 1;            /* reset() starts a new one: every thread's entries go stale */
@@ -187,7 +210,7 @@ static entry_t* entry(long k) {
 }
 
 /* LU with partial pivoting of the dense column-major n x n matrix a, in place. */
-static int lu_factor(casadi_real* a, int* piv, int n) {
+DENSE static int lu_factor(casadi_real* a, int* piv, int n) {
   int i, j, k;
   for (k = 0; k < n; ++k) {
     int p = k;
@@ -206,7 +229,7 @@ static int lu_factor(casadi_real* a, int* piv, int n) {
 }
 
 /* x := A^{-1} x (trans = 0) or A^{-T} x (trans = 1) with the factors of lu_factor. */
-static void lu_solve(const casadi_real* a, const int* piv, int n, casadi_real* x, int trans) {
+DENSE static void lu_solve(const casadi_real* a, const int* piv, int n, casadi_real* x, int trans) {
   int i, j;
   if (!trans) {
     for (i = 0; i < n; ++i) if (piv[i] != i) { casadi_real t = x[i]; x[i] = x[piv[i]]; x[piv[i]] = t; }
@@ -221,7 +244,7 @@ static void lu_solve(const casadi_real* a, const int* piv, int n, casadi_real* x
 
 /* S := -G_y^{-1} Gs (NY x NS, column-major) with the factors of lu_factor: rows of a row-major
    copy updated as vectors (the NS right-hand sides at once) */
-static void sensitivities(const casadi_real* a, const int* piv, const casadi_real* Gs, casadi_real* S) {
+DENSE static void sensitivities(const casadi_real* a, const int* piv, const casadi_real* Gs, casadi_real* S) {
   casadi_real T[NY][NS], t;
   int i, j, c;
   for (i = 0; i < NY; ++i) for (c = 0; c < NS; ++c) T[i][c] = -Gs[i + c * NY];
@@ -394,11 +417,38 @@ EXTERNAL(ext_first) { return with_sensitivities(P(first), arg, res); }
 
 EXTERNAL(ext_objective) { return with_sensitivities(P(objective), arg, res); }
 
+/* Hc = H_DD + M + M' on the curved columns D, M = S~' (H_YY S~ / 2 + H_YD): Z' H Z with Z = [I; S~],
+   S~ = S on D (zero where y does not depend on the column); dense loops, the inner one over
+   independent outputs (they vectorise without reassociation) */
+DENSE static void condensed_hessian(const casadi_real* Hdd, const casadi_real* Hyd, const casadi_real* Hyy,
+                              const casadi_real* S, casadi_real* Hc) {
+  static __thread casadi_real V[NY * ND], St[ND * NY], M[ND * ND];
+  int i, j, a, b;
+  for (b = 0; b < ND; ++b) {                                   /* V = H_YY S~ / 2 + H_YD */
+    casadi_real* v = V + b * NY;
+    for (i = 0; i < NY; ++i) v[i] = Hyd[i + b * NY];
+    if (DS[b] < 0) continue;
+    for (j = 0; j < NY; ++j) {
+      casadi_real s = 0.5 * S[j + DS[b] * NY];
+      for (i = 0; i < NY; ++i) v[i] += Hyy[i + j * NY] * s;
+    }
+  }
+  for (i = 0; i < NY; ++i) for (a = 0; a < ND; ++a) St[a + i * ND] = DS[a] < 0 ? 0 : S[i + DS[a] * NY];
+  memset(M, 0, sizeof M);                                      /* M = S~' V */
+  for (b = 0; b < ND; ++b) for (i = 0; i < NY; ++i) {
+    casadi_real v = V[i + b * NY];
+    for (a = 0; a < ND; ++a) M[a + b * ND] += St[a + i * ND] * v;
+  }
+  for (b = 0; b < ND; ++b) for (a = 0; a < ND; ++a)            /* the block, column by column */
+    *Hc++ = (a <= b ? Hdd[a + b * ND] : Hdd[b + a * ND]) + M[a + b * ND] + M[b + a * ND];
+}
+
 /* the Hessian of lam' R + lam_f f: nu from the adjoint equation, then Z' H(lam, nu) Z */
 EXTERNAL(ext_second) {
+  static __thread casadi_real Hdd[ND * ND], Hyd[NY * ND], Hyy[NY * NY];
   casadi_real g[NZ], nu[NY], lam[NROWS], zero = 0;
   const casadi_real* extra[3];
-  casadi_real* out[1];
+  casadi_real* out[3];
   int i, j;
   entry_t* e = derived(arg[0], arg + 1, index_of(arg));
   if (!e) return 1;
@@ -417,8 +467,10 @@ EXTERNAL(ext_second) {
   for (i = 0; i < NR; ++i) lam[RKEEP[i]] = arg[2 + NA] ? arg[2 + NA][i] : 0;
   for (i = 0; i < NY; ++i) lam[GROWS[i]] = nu[i];
   extra[0] = lam;
-  extra[2] = e->S;
-  return call(P(second), arg + 1, extra, 3, res + 1, 1);
+  out[0] = Hdd; out[1] = Hyd; out[2] = Hyy;
+  if (call(P(hessian), arg + 1, extra, 2, out, 3)) return 1;
+  condensed_hessian(Hdd, Hyd, Hyy, e->S, res[1]);
+  return 0;
 }
 """
 
@@ -435,8 +487,8 @@ def condense(d1: ca.Function, f1: ca.Function, d2: ca.Function, keep, elim, grow
     keep, elim, grows = (list(map(int, v)) for v in (keep, elim, grows))
     prefix = "rsc" + _fingerprint(d1.serialize(), f1.serialize(), d2.serialize(), keep, elim, grows,
                                   NEWTON_MAX_ITER, NEWTON_STEP_TOL, SPURIOUS) + "_"
-    fns, rk, scols, args = _sx_functions(prefix, d1, f1, d2, keep, elim, grows)
-    library = _compiled(prefix, fns, _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols), log, opt)
+    fns, rk, scols, dcols, args = _sx_functions(prefix, d1, f1, d2, keep, elim, grows)
+    library = _compiled(prefix, fns, _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols, dcols), log, opt)
     ext = {name: ca.external(prefix + "ext_" + name, library) for name in ("rows", "first", "objective", "second", "newton")}
     return Condensed(ext["rows"], (ext["first"], ext["objective"], ext["second"]), library, ext["newton"], prefix)
 
