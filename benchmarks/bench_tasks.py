@@ -12,44 +12,14 @@
 
 Each solve runs in a child process (a fresh interpreter, as a user's first command would).
 """
-import json
-import os
-import subprocess
-import sys
 import tempfile
-import time
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
 
-from common import stamp, ROOT, write_results  # noqa: E402
-
-CHILD = """
-import json, sys, time
-t0 = time.perf_counter()
-from rscasadi.ocp import load_problem, solve
-sol = solve(load_problem(sys.argv[1]), print_level=0, log=lambda m: print(m, file=sys.stderr, flush=True))
-rounds = sol["rounds"]
-print(json.dumps({"wall_s": time.perf_counter() - t0, "success": bool(sol["success"]), "T": sol["t"][-1],
-                  "setup_first_s": rounds[0]["setup_time_s"], "solve_first_s": rounds[0]["solve_time_s"],
-                  "iterations_first": rounds[0]["iterations"], "rounds": len(rounds),
-                  "solve_all_s": sum(r["solve_time_s"] for r in rounds),
-                  "setup_all_s": sum(r["setup_time_s"] for r in rounds), "solver": sol["solver"]}))
-"""
-
-
-def solve_in_child(problem, cache=None) -> dict:
-    env = dict(os.environ, **({"RSCASADI_CACHE": str(cache)} if cache else {}))
-    print(f"solving {problem.name}{' (cold cache)' if cache else ''} ...", flush=True)
-    run = subprocess.run([sys.executable, "-c", CHILD, str(problem)], env=env, capture_output=True, text=True,
-                         cwd=ROOT)
-    if run.returncode != 0:
-        raise RuntimeError(f"{problem.name}: {run.stderr[-2000:]}")
-    return json.loads(run.stdout.strip().splitlines()[-1])
-
+from common import stamp, ROOT, solve_in_child, write_results  # noqa: E402
 
 def main():
     shelf = ROOT / "problems" / "ocp_panda_shelf.toml"

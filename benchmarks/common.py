@@ -1,5 +1,8 @@
 """Shared by the benchmarks: n-joint arms built from the reference arm, and the
 mass-matrix-and-solve route that the recursive forward dynamics is compared with."""
+import json
+import os
+import subprocess
 import sys
 import time
 import tomllib
@@ -84,3 +87,31 @@ def write_results(stem: str, fig, csv: str, md: str):
     write_atomically(RESULTS / f"{stem}.csv", csv)
     write_atomically(RESULTS / f"{stem}.md", md)
     print(f"wrote {RESULTS / stem}.md, .csv, .png")
+
+
+# a fresh interpreter solves one problem file (as a user's first command would) and prints its record
+CHILD = """
+import json, sys, time
+t0 = time.perf_counter()
+from rscasadi.ocp import load_problem, solve
+sol = solve(load_problem(sys.argv[1]), print_level=0, log=lambda m: print(m, file=sys.stderr, flush=True))
+rounds = sol["rounds"]
+print(json.dumps({"wall_s": time.perf_counter() - t0, "success": bool(sol["success"]), "T": sol["t"][-1],
+                  "setup_first_s": rounds[0]["setup_time_s"], "solve_first_s": rounds[0]["solve_time_s"],
+                  "iterations_first": rounds[0]["iterations"], "rounds": len(rounds),
+                  "solve_all_s": sum(r["solve_time_s"] for r in rounds),
+                  "setup_all_s": sum(r["setup_time_s"] for r in rounds), "solver": sol["solver"],
+                  "threads": sol["threads"]}))
+"""
+
+
+def solve_in_child(problem: Path, cache=None) -> dict:
+    """`rscasadi.ocp.solve` of a problem file in a child process (with RSCASADI_CACHE=cache if
+    given: an empty directory is a cold start); its record (CHILD)."""
+    env = dict(os.environ, **({"RSCASADI_CACHE": str(cache)} if cache else {}))
+    print(f"solving {problem.name}{' (cold cache)' if cache else ''} ...", flush=True)
+    run = subprocess.run([sys.executable, "-c", CHILD, str(problem)], env=env, capture_output=True, text=True,
+                         cwd=ROOT)
+    if run.returncode != 0:
+        raise RuntimeError(f"{problem.name}: {run.stderr[-2000:]}")
+    return json.loads(run.stdout.strip().splitlines()[-1])

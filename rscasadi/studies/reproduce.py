@@ -16,7 +16,7 @@ PROBLEMS = Path(__file__).resolve().parents[2] / "problems"
 REFERENCE = PROBLEMS / "arm3.toml"
 TRAJECTORY = PROBLEMS / "trajectory_arm3.toml"
 OCP_PROBLEMS = ("min_time", "min_effort", "tracking", "min_time_codesign", "min_time_gear_codesign", "panda_min_time",
-                "reach_around", "tool_circle")
+                "ur5_min_time", "reach_around", "tool_circle")
 WATCHED = ("min_effort", "reach_around", "tool_circle", "panda_shelf")      # view.html and view.gif
 INTERACTION_ARMS = {  # model: frame, configuration, trajectory, the observer's gain (1/s) and threshold (N m)
     "arm3_tool": ("tool", [0.0, 0.3, -0.5], "trajectory_arm3.toml", 50.0, 1.0),
