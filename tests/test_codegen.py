@@ -271,6 +271,53 @@ def test_parametric_library_serves_every_arm_with_the_same_joints(tmp_path, arm3
                 assert rel(np.array(a), np.array(b)) < 1e-10, name
 
 
+def test_family_library_folds_the_zeros_and_serves_every_arm_with_them(tmp_path, arm3):
+    """`--parametric family`: p without the model's zero parameters; an arm with the same zeros and
+    every other number changed gets the same library (cache hit) and equals its own constant
+    Functions at its p; an arm with a number where the family has a zero is refused by name."""
+    import copy
+    import tomllib
+    with open(REFERENCE, "rb") as fh:
+        doc = tomllib.load(fh)
+    rng = np.random.default_rng(21)
+    same = copy.deepcopy(doc)                                 # every nonzero number scaled, zeros kept
+    for jt in same["joints"]:
+        for key in ("sea", "link", "slow_rotor", "fast_rotor"):
+            for field, v in jt[key].items():
+                if isinstance(v, list):                       # one factor: a balanced rotor stays one
+                    f = rng.uniform(0.7, 1.3)
+                    jt[key][field] = [x * f for x in v]
+                elif v and field != "eps":
+                    jt[key][field] = v * rng.uniform(0.7, 1.3)
+    other = rscasadi.load(write_arm(tmp_path, same, "same_zeros.toml"))
+    m_a = generate(REFERENCE, tmp_path / "a", opt="-O1", log=lambda m: None, parametric="family")
+    log = []
+    m_b = generate(other, tmp_path / "b", opt="-O1", log=log.append, parametric="family")
+    names, values = arm3.parameters()
+    zeros = [k for k, v in zip(names, values) if v == 0]
+    assert m_a["parametric"] == "family" and m_a["parameters"]["zero"] == zeros and zeros
+    assert m_a["source_hash"] == m_b["source_hash"] and any("cache hit" in m for m in log)
+    assert m_a["functions"]["forward_dynamics"]["n_instructions"] < arm3.forward_dynamics(True).n_instructions() / 2
+    lib = rscasadi.load_compiled(tmp_path / "a")
+    for arm in (arm3, other):
+        p = lib.parameters_of(arm)
+        assert len(p) == len(names) - len(zeros)
+        twins, _ = functions(arm)
+        for name in ("forward_dynamics", "forward_dynamics_jacobian", "step", "step_jacobian", "feedforward_step"):
+            g = twins[name]
+            args = [rng.normal(size=(g.size1_in(i), g.size2_in(i))) for i in range(g.n_in())]
+            if name.startswith("step") or name == "feedforward_step":
+                args[g.index_in("h")] = np.array([[1e-3]])
+            for a, b in zip(lib[name].call(args + [p]), g.call(args)):
+                assert rel(np.array(a), np.array(b)) < 1e-10, name
+    unbalanced = copy.deepcopy(doc)
+    unbalanced["joints"][1]["slow_rotor"]["com"] = [0.001, 0.0, 0.0]
+    with pytest.raises(ValueError, match="shoulder_pitch.slow_rotor.mx"):
+        lib.parameters_of(rscasadi.load(write_arm(tmp_path, unbalanced, "unbalanced.toml")))
+    with pytest.raises(CodegenError, match="parametric"):
+        generate(REFERENCE, tmp_path / "c", parametric="some")
+
+
 def test_compiled_feedforward_equals_the_pipeline_over_the_paper_trajectory(built, arm3):
     """feedforward_init/step in C, run sample by sample at 1 kHz, give the torques of the
     paper's pipeline (whose tracking on the complete model is tested in test_simulation)."""

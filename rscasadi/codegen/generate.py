@@ -14,6 +14,7 @@ import shutil
 from pathlib import Path
 
 import casadi as ca
+import numpy as np
 
 from rscasadi.dynamics.feedforward import feedforward_functions
 from rscasadi.dynamics.arm import Arm, load
@@ -225,11 +226,23 @@ def _io(f: ca.Function, out: bool):
     return [{"name": names[i], "rows": sp(i).size1(), "cols": sp(i).size2()} for i in range(n)]
 
 
-def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print, parametric: bool = False,
+def family(arm: Arm) -> Arm:
+    """The arm with p made of the parameters that are not zero in its model file: a zero (a
+    balanced rotor's centre, a product of inertia, k3, gravity along x on a level base) is part of
+    the family's structure and folded into the C like the constant C's numbers (at n = 3, 560
+    forward-dynamics instructions instead of 1560; the constant C has 373)."""
+    names, values = arm.parameters()
+    return Arm(arm.model, free=[k for k, v in zip(names, values) if v != 0])
+
+
+def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print, parametric: bool | str = False,
              native: bool = False, frames=(), external=()) -> dict:
     """Write C sources, one header, one shared library and manifest.json into `out`.
     parametric: every function takes the parameter vector p (manifest "parameters") last, so
-    one library serves every arm with the same joints, axes, gear ratios and eps.
+    one library serves every arm with the same joints, axes, gear ratios and eps (True or
+    "all"); "family": p holds only the parameters not zero in this model, the
+    zeros are folded: every arm with the same zeros, at about the constant C's speed
+    (Compiled.parameters_of checks an arm against it).
     native: compile for this machine's processor (native_flags()); the sources stay portable C99.
     frames, external: frame names whose kinematics, and at which wrenches, the library gets
     (frame_functions); a frame's name enters C only as a C identifier (model.checks.identifier)."""
@@ -239,6 +252,10 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
     if opt not in OPT_LEVELS:
         raise CodegenError(f"optimisation flag {opt!r} not one of {' '.join(OPT_LEVELS)}")
     arm = model if isinstance(model, Arm) else load(model)
+    if parametric not in (False, True, "all", "family"):
+        raise CodegenError(f"parametric {parametric!r} not one of all, family")
+    if parametric == "family":
+        arm = family(arm)
     frames, external = list(frames), list(external)
     check_frames(arm, frames, external)
     out = Path(out).resolve()
@@ -248,14 +265,14 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
         raise CodegenError(str(exc)) from None
     flags = [opt, "-std=c99"] + (native_flags() if native else [])
     with fresh_directory(out, "manifest.json") as tmp:
-        fns, omitted = functions(arm, prefix, parametric, frames, external)
+        fns, omitted = functions(arm, prefix, bool(parametric), frames, external)
         header_gen = ca.CodeGenerator(HEADER.removesuffix(".h"), {"with_header": True})
         sources = []
         kernels = {}                                # name -> (point Function, C body, declarations)
         for name, f in fns.items():
             gen = ca.CodeGenerator(f"{f.name()}.c", {"with_header": False})
             if name == "step_jacobian" and not f.is_a("SXFunction"):   # past straight-line SX: the C kernel
-                kernels[name] = kernel_source(arm, f.name(), parametric)
+                kernels[name] = kernel_source(arm, f.name(), bool(parametric))
                 for g in kernels[name].functions:
                     gen.add(g)
             else:
@@ -289,18 +306,26 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
                               "point (forward dynamics and M's factors, then dr/dx, which it evaluates at "
                               "the four points at once)" for name in kernels},
             "omitted": omitted,
-            "parametric": parametric,
+            "parametric": {True: "all"}.get(parametric, parametric),
             "frames": {name: identifier(name) for name in frames},
             "external": {"frames": external, "wrench": "[force; moment] at the frame's origin, world axes"}
                         if external else None,
-            "parameters": ({"names": arm.parameters()[0], "nominal": arm.parameters()[1].tolist()}
-                           if parametric else None),
+            "parameters": _parameters(arm) if parametric else None,
             "prefix": prefix,
             "compiler": cc + flags,
             "source_hash": lib.stem.rsplit("_", 1)[1],
         }
         write_json(tmp / "manifest.json", manifest, indent=2)
     return manifest
+
+
+def _parameters(arm: Arm) -> dict:
+    """The manifest's parameters: p's names and nominal values, and the family's zeros."""
+    names, values = arm.parameters()
+    free = names if arm.free is None else arm.free
+    nominal = dict(zip(names, values.tolist()))
+    return {"names": free, "nominal": [nominal[k] for k in free],
+            "zero": [k for k in names if k not in set(free)]}
 
 
 class Compiled:
@@ -315,6 +340,23 @@ class Compiled:
         lib = str(self.directory / self.manifest["library"])
         self.functions = {name: ca.external(info["symbol"], lib)
                           for name, info in self.manifest["functions"].items()}
+
+    def parameters_of(self, arm: Arm) -> np.ndarray:
+        """p for `arm` in this parametric library's order; ValueError naming the parameter if the
+        arm is not of the library's family (a number where the family has a zero)."""
+        info = self.manifest.get("parameters")
+        if not info:
+            raise ValueError(f"{self.directory}: not a parametric library (rscasadi codegen --parametric)")
+        names, values = arm.parameters()
+        value = dict(zip(names, values.tolist()))
+        missing = [k for k in info["names"] + info.get("zero", []) if k not in value]
+        if missing:
+            raise ValueError(f"{arm.model.path}: has no parameter {missing[0]!r} of the library in {self.directory}")
+        for k in info.get("zero", []):
+            if value[k] != 0:
+                raise ValueError(f"{arm.model.path}: parameter {k!r} is {value[k]:g}, but the library in "
+                                 f"{self.directory} folds it to 0 (its family); generate one with --parametric all")
+        return np.array([value[k] for k in info["names"]])
 
     def __getitem__(self, name) -> ca.Function:
         return self.functions[name]

@@ -30,9 +30,8 @@ def _spring(arm, parametric):
     parameter vector p (returned too)."""
     if not parametric:
         return None, arm.physics.columns
-    from rscasadi.model.parameters import Physics
-    p = ca.SX.sym("p", len(arm.parameters()[0]))
-    return p, Physics.of(arm.model, p).columns
+    p = ca.SX.sym("p", arm.n_p)
+    return p, arm._physics_of(p).columns
 
 
 def feedforward_functions(arm, reduced: bool = False, parametric: bool = False) -> tuple[ca.Function, ca.Function]:
