@@ -109,7 +109,7 @@ def solve_in_child(problem: Path, cache=None) -> dict:
     """`rscasadi.ocp.solve` of a problem file in a child process (with RSCASADI_CACHE=cache if
     given: an empty directory is a cold start); its record (CHILD)."""
     env = dict(os.environ, **({"RSCASADI_CACHE": str(cache)} if cache else {}))
-    print(f"solving {problem.name}{' (cold cache)' if cache else ''} ...", flush=True)
+    print(f"solving {problem.name}" + (f" (compile cache {cache})" if cache else "") + " ...", flush=True)
     run = subprocess.run([sys.executable, "-c", CHILD, str(problem)], env=env, capture_output=True, text=True,
                          cwd=ROOT)
     if run.returncode != 0:
