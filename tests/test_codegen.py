@@ -297,11 +297,14 @@ def test_family_library_folds_the_zeros_and_serves_every_arm_with_them(tmp_path,
     zeros = [k for k, v in zip(names, values) if v == 0]
     assert m_a["parametric"] == "family" and m_a["parameters"]["zero"] == zeros and zeros
     assert m_a["source_hash"] == m_b["source_hash"] and any("cache hit" in m for m in log)
-    assert m_a["functions"]["forward_dynamics"]["n_instructions"] < arm3.forward_dynamics(True).n_instructions() / 2
+    tied = m_a["parameters"]["tied"]                          # balanced rotors stay balanced: Iyy is Ixx
+    assert len(tied) == 6 and all(k.endswith(".Iyy") and v == k[:-3] + "Ixx" for k, v in tied.items())
+    # the zeros folded and the balanced rotors in the joint frame: near the constant C's size
+    assert m_a["functions"]["forward_dynamics"]["n_instructions"] < 1.2 * arm3.forward_dynamics().n_instructions()
     lib = rscasadi.load_compiled(tmp_path / "a")
     for arm in (arm3, other):
         p = lib.parameters_of(arm)
-        assert len(p) == len(names) - len(zeros)
+        assert len(p) == len(names) - len(zeros) - len(tied)
         twins, _ = functions(arm)
         for name in ("forward_dynamics", "forward_dynamics_jacobian", "step", "step_jacobian", "feedforward_step"):
             g = twins[name]
@@ -313,6 +316,10 @@ def test_family_library_folds_the_zeros_and_serves_every_arm_with_them(tmp_path,
     unbalanced = copy.deepcopy(doc)
     unbalanced["joints"][1]["slow_rotor"]["com"] = [0.001, 0.0, 0.0]
     with pytest.raises(ValueError, match="shoulder_pitch.slow_rotor.mx"):
+        lib.parameters_of(rscasadi.load(write_arm(tmp_path, unbalanced, "unbalanced.toml")))
+    unbalanced["joints"][1]["slow_rotor"]["com"] = [0.0, 0.0, 0.0]
+    unbalanced["joints"][2]["fast_rotor"]["inertia"][1] *= 1.1            # Iyy != Ixx
+    with pytest.raises(ValueError, match="elbow_pitch.fast_rotor.Iyy"):
         lib.parameters_of(rscasadi.load(write_arm(tmp_path, unbalanced, "unbalanced.toml")))
     with pytest.raises(CodegenError, match="parametric"):
         generate(REFERENCE, tmp_path / "c", parametric="some")

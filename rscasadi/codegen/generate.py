@@ -18,6 +18,7 @@ import numpy as np
 
 from rscasadi.dynamics.feedforward import feedforward_functions
 from rscasadi.dynamics.arm import Arm, load
+from rscasadi.model.parameters import family as parameter_family, tied_balanced
 from rscasadi.dynamics.kinematics import REFERENCES
 from rscasadi.model.parameters import gear_ratios
 from rscasadi.model.checks import identifier
@@ -229,10 +230,9 @@ def _io(f: ca.Function, out: bool):
 def family(arm: Arm) -> Arm:
     """The arm with p made of the parameters that are not zero in its model file: a zero (a
     balanced rotor's centre, a product of inertia, k3, gravity along x on a level base) is part of
-    the family's structure and folded into the C like the constant C's numbers (at n = 3, 560
-    forward-dynamics instructions instead of 1560; the constant C has 373)."""
-    names, values = arm.parameters()
-    return Arm(arm.model, free=[k for k, v in zip(names, values) if v != 0])
+    the family's structure and folded into the C like the constant C's numbers, and a balanced
+    rotor stays one (its Iyy is its Ixx: written in the joint frame, no sin and cos of phi)."""
+    return Arm(arm.model, free=parameter_family(arm.model)[0], tie_balanced=True)
 
 
 def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print, parametric: bool | str = False,
@@ -323,9 +323,10 @@ def _parameters(arm: Arm) -> dict:
     """The manifest's parameters: p's names and nominal values, and the family's zeros."""
     names, values = arm.parameters()
     free = names if arm.free is None else arm.free
+    tied = tied_balanced(arm.model, free) if arm.tie_balanced else {}
     nominal = dict(zip(names, values.tolist()))
-    return {"names": free, "nominal": [nominal[k] for k in free],
-            "zero": [k for k in names if k not in set(free)]}
+    return {"names": free, "nominal": [nominal[k] for k in free], "tied": tied,
+            "zero": [k for k in names if k not in set(free) and k not in tied]}
 
 
 class Compiled:
@@ -356,6 +357,11 @@ class Compiled:
             if value[k] != 0:
                 raise ValueError(f"{arm.model.path}: parameter {k!r} is {value[k]:g}, but the library in "
                                  f"{self.directory} folds it to 0 (its family); generate one with --parametric all")
+        for k, like in info.get("tied", {}).items():
+            if value[k] != value[like]:
+                raise ValueError(f"{arm.model.path}: parameter {k!r} is {value[k]:g}, not {like!r} "
+                                 f"({value[like]:g}): the library in {self.directory} keeps that rotor balanced "
+                                 "(its family); generate one with --parametric all")
         return np.array([value[k] for k in info["names"]])
 
     def __getitem__(self, name) -> ca.Function:

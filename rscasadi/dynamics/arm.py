@@ -20,17 +20,20 @@ class Arm:
     the same equations with every physical parameter symbolic, equal to the constant version
     at p = arm.parameters()[1].  `Arm(model, free=[names])` makes p only those parameters (in
     that order), the others staying the model file's numbers: compact expressions for design
-    studies that free a few constants (Physics.partial)."""
+    studies that free a few constants (Physics.partial); `tie_balanced=True` keeps the model's
+    balanced rotors balanced (Iyy = Ixx) and in the joint frame."""
 
-    def __init__(self, model: ArmModel, free: list | None = None):
+    def __init__(self, model: ArmModel, free: list | None = None, tie_balanced: bool = False):
         self.model = model
         self.n = model.n
         self.free = None if free is None else list(free)
+        self.tie_balanced = tie_balanced          # Physics.partial: balanced rotors stay balanced
         self._functions = {}
         self.physics = Physics.constant(model)
 
     def _physics_of(self, p) -> Physics:
-        return Physics.of(self.model, p) if self.free is None else Physics.partial(self.model, self.free, p)
+        return (Physics.of(self.model, p) if self.free is None
+                else Physics.partial(self.model, self.free, p, self.tie_balanced))
 
     @property
     def n_p(self) -> int:

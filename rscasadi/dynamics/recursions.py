@@ -51,7 +51,8 @@ def segments(model, phys, reduced: bool = False) -> list:
     segs = []
     for j, jt in enumerate(model.joints):
         M, mu = phys.inertias[j], phys.columns["gear_ratio"][j]        # mu: a number, or free
-        rotors = [(gear, M[part], phys.symbolic or not getattr(jt, part).balanced)
+        rotors = [(gear, M[part], (phys.symbolic and (jt.name, part) not in phys.balanced)
+                   or not getattr(jt, part).balanced)
                   for gear, part in ((1.0, "slow_rotor"), (-mu, "fast_rotor"))]
         segs.append(Segment(jt.R, jt.origin_xyz, M["link"], [] if reduced else rotors,
                             phys.rotor_inertia(j) if reduced else 0.0))

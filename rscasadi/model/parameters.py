@@ -155,11 +155,13 @@ class Physics:
     """What the recursions read: per joint the spatial inertias {link, slow_rotor, fast_rotor}
     (6x6), the actuator columns k1, k3, d, b, c (n x 1), the constants eps and gear_ratio, and
     gravity.  `symbolic` says whether they are expressions of p (then every rotor is written in
-    its spinning frame, exact for any p) or the model file's numbers."""
+    its spinning frame, exact for any p, except the rotors (j, part) in `balanced`, balanced for
+    every p) or the model file's numbers."""
     inertias: list
     columns: dict
     gravity: object
     symbolic: bool
+    balanced: frozenset = frozenset()
 
     @staticmethod
     def constant(model: ArmModel) -> "Physics":
@@ -190,11 +192,13 @@ class Physics:
         return M["slow_rotor"][2, 2] + self.columns["gear_ratio"][j] ** 2 * M["fast_rotor"][2, 2]
 
     @staticmethod
-    def partial(model: ArmModel, free: list, p) -> "Physics":
+    def partial(model: ArmModel, free: list, p, tie_balanced: bool = False) -> "Physics":
         """Physics with only the parameters named in `free` symbolic (p, one entry each) and the
         rest the model file's numbers.  When only actuator constants (sea.*, gear_loss.*) or
         gravity are free, the inertias stay numbers and the rotors stay in the joint frame, so
-        the expressions are as compact as the constant version's."""
+        the expressions are as compact as the constant version's.  tie_balanced: a rotor balanced
+        in the model whose Iyy is not free takes Iyy = Ixx (tied_balanced), so it stays balanced
+        for every p and is written in the joint frame."""
         all_names, values = names(model), nominal(model)
         idx = {k: all_names.index(name) for k, name in enumerate(free) if _gear_joint(model, name) is None}
         S = ca.MX if isinstance(p, ca.MX) else ca.SX
@@ -205,7 +209,11 @@ class Physics:
             entries = [S(v) for v in values]
             for k, i in idx.items():
                 entries[i] = p[k]
+            tied = tied_balanced(model, free) if tie_balanced else {}
+            for iyy, ixx in tied.items():
+                entries[all_names.index(iyy)] = entries[all_names.index(ixx)]
             phys = Physics.of(model, ca.vertcat(*entries))
+            phys.balanced = frozenset(tuple(name.rsplit(".", 2)[:2]) for name in tied)
         else:
             phys = Physics.constant(model)
             for k, i in idx.items():
@@ -223,6 +231,29 @@ class Physics:
                     phys.columns[attr] = ca.vertcat(*col)
         phys.columns["gear_ratio"] = gear_ratios(model, free, p)     # the file's, or free ones
         return phys
+
+
+def tied_balanced(model: ArmModel, free: list) -> dict:
+    """{Iyy name: Ixx name} of the rotors balanced in the model (Ixx = Iyy about the joint axis,
+    centre on it, no products) whose Iyy, mx, my and products are not in `free`: tied, they stay
+    balanced for every value of the free parameters."""
+    out, free = {}, set(free)
+    for jt in model.joints:
+        for part in ("slow_rotor", "fast_rotor"):
+            key = f"{jt.name}.{part}."
+            if getattr(jt, part).balanced and not free & {key + a for a in ("Iyy", "mx", "my", "Ixy", "Ixz", "Iyz")}:
+                out[key + "Iyy"] = key + "Ixx"
+    return out
+
+
+def family(model: ArmModel) -> tuple[list, dict]:
+    """The parameters that define an arm of this model's family, and the tied ones: p without the
+    parameters that are zero in the model (folded: balanced rotors' centres, products of inertia,
+    k3, gravity off z) and without the Iyy of its balanced rotors (tied to Ixx: such a rotor stays
+    balanced and is written in the joint frame).  Arm(model, free, tie_balanced=True) takes them."""
+    nonzero = [k for k, v in zip(names(model), nominal(model)) if v != 0]
+    tied = tied_balanced(model, [k for k in nonzero if not k.endswith(".Iyy")])
+    return [k for k in nonzero if k not in tied], tied
 
 
 def check_names(model: ArmModel, wanted, where: str) -> list:
