@@ -152,3 +152,29 @@ def test_condense_needs_compiled(pitch_arm):
     with pytest.raises(ModelFileError, match="transcription.condense"):
         load_problem(path)
     assert load_problem(problem(pitch_arm, "ok.toml", transcription={"compiled": False})).transcription.condense is False
+
+
+def test_a_family_nlp_serves_another_arm_of_the_family_without_compiling(tmp_path):
+    """`parametric = "family"`: the same minimum-time solution as the constant NLP; an arm with
+    the same zeros and heavier links (as identification might give) finds the kernel and the NLP
+    in the cache and gets the constant NLP's solution for its own numbers."""
+    import copy
+    import tomllib
+    from conftest import write_arm
+    with open(REFERENCE, "rb") as fh:
+        doc = tomllib.load(fh)
+    heavier = copy.deepcopy(doc)
+    for jt in heavier["joints"]:
+        jt["link"]["mass"] *= 1.2
+        jt["sea"]["k1"] *= 0.9
+    other = write_arm(tmp_path, heavier, "heavier.toml")
+    base = load_problem(REFERENCE.parent / "ocp_min_time.toml").replace(intervals=20)
+    for model in (REFERENCE, other):
+        plain = solve_once(base.replace(model=model), **QUIET)
+        log = []
+        fam = solve_once(base.replace(model=model, parametric="family"), print_level=0, log=log.append)
+        assert plain["success"] and fam["success"]
+        assert abs(fam["objective"] - plain["objective"]) <= 1e-7 * abs(plain["objective"])
+        assert np.allclose(fam["tau"], plain["tau"], rtol=0, atol=1e-5 * np.abs(plain["tau"]).max())
+    assert not any(m.startswith("compiling the") for m in log), log      # the second arm compiled nothing
+    assert abs(plain["objective"] - solve_once(base, **QUIET)["objective"]) > 1e-4     # a different arm

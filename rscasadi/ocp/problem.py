@@ -30,6 +30,8 @@ The TOML file, every field checked and named in errors:
     condense = true                      # solve each interval's collocation equations inside the
                                          # NLP's functions (a C kernel; needs compiled): the solver
                                          # sees (x_k, tau_k) only, 2-3x faster; false: the lifted NLP
+    parametric = "none"                  # "family": the model's nonzero parameters are NLP parameters,
+                                         # one compiled NLP for every arm with the same zeros
     [verification]                       # the replay on the complete model must meet these
     final_angle_tol = 1e-4               # theta, phi at the end (rad)
     final_speed_tol = 1e-3               # dtheta, dphi at the end (rad/s)
@@ -71,6 +73,7 @@ from rscasadi.ocp.toolpath import ToolPath
 OBJECTIVES = ("min_time", "min_effort", "tracking")
 METHODS = ("radau", "legendre", "hermite-simpson")
 DYNAMICS = ("explicit", "implicit")
+PARAMETRIC = ("none", "family")
 SOLVERS = ("fatrop", "ipopt")
 INTERFACES = ("direct", "casadi")
 BARRIERS = ("monotone",)                     # fatrop's barrier rule (docs/design/condensing.md)
@@ -82,7 +85,7 @@ PATH_KEYS = {"frame", "points", "circle", "speed", "tolerance"}
 CIRCLE_KEYS = {"center", "radius", "normal", "turns"}
 PAYLOAD_KEYS = {"frame", "mass", "com", "inertia"}
 GOAL_KEYS = {"frame", "position", "rpy", "tolerance"}
-TABLES = {"transcription": {"method", "degree", "intervals", "dynamics", "compiled", "condense"},
+TABLES = {"transcription": {"method", "degree", "intervals", "dynamics", "compiled", "condense", "parametric"},
           "verification": {"final_angle_tol", "final_speed_tol", "tracking_tol", "limit_tol", "clearance_tol"},
           "refinement": {"rounds"},
           "solver": {"name", "hessian", "interface", "threads", "barrier"}}
@@ -157,13 +160,17 @@ class TranscriptionOptions:
     """Direct collocation: `method` radau | legendre | hermite-simpson with `degree` points on
     each of `intervals` intervals; `dynamics` explicit (forward dynamics) | implicit
     (inverse-dynamics residual); `compiled`: the NLP's functions as C; `condense`: each
-    interval's collocation solved inside the NLP's functions (needs compiled)."""
+    interval's collocation solved inside the NLP's functions (needs compiled); `parametric`
+    none | family: the model's nonzero parameters (model.parameters.family) enter the compiled
+    NLP as parameters, so every arm with the same zeros (an identified one, another payload's)
+    reuses it."""
     method: str = "radau"
     degree: int = 3
     intervals: int = 100
     dynamics: str = "explicit"
     compiled: bool = True
     condense: bool = True
+    parametric: str = "none"
 
 
 @dataclass
@@ -298,6 +305,7 @@ class Problem:
                 fail(f"design.{name}", f"expected [lower, upper] with lower < upper, got {bounds!r}")
         for fld, value, allowed in (("transcription.method", tr.method, METHODS),
                                     ("transcription.dynamics", tr.dynamics, DYNAMICS),
+                                    ("transcription.parametric", tr.parametric, PARAMETRIC),
                                     ("solver.name", s.name, SOLVERS), ("solver.hessian", s.hessian, HESSIANS),
                                     ("solver.interface", s.interface, INTERFACES)):
             if value not in allowed:

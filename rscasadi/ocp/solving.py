@@ -22,7 +22,7 @@ from rscasadi.native.parallel import available_cores, openmp_flags, set_threads
 from rscasadi.dynamics.arm import Arm
 from rscasadi.model.frames import holding, with_collision
 from rscasadi.model.modelfile import ModelFileError, document, read, to_toml
-from rscasadi.model.parameters import value, with_values
+from rscasadi.model.parameters import family, value, with_values
 from rscasadi.dynamics.statics import rest_state  # noqa: F401  (exported by rscasadi.ocp)
 from rscasadi.sim.simulation import held_interval
 from rscasadi.sim.trajectory import load_trajectory
@@ -120,6 +120,11 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
         base = holding(base, **problem.task.payload)
     if problem.task.collision is not None:                        # and the task's collision geometry
         base = with_collision(base, problem.task.collision, problem.path)
+    if problem.transcription.parametric == "family":              # the family's numbers as NLP parameters
+        free, _ = family(base)
+        values = dict(zip(*Arm(base).parameters()))
+        problem = problem.replace(parameters={**{k: float(values[k]) for k in free if k not in problem.task.design},
+                                              **problem.task.parameters})
     arm = Arm(with_values(base, problem.task.parameters))              # the plant for guesses and replay
     w = np.full(problem.transcription.intervals, 1.0 / problem.transcription.intervals) if w is None else np.asarray(w, float)
     path = problem.task.path

@@ -53,7 +53,7 @@ class Transcription:
         self.n, self.N = arm.n, N or problem.transcription.intervals
         self.design, self.fixed = list(problem.task.design), list(problem.task.parameters)
         free = self.design + self.fixed
-        self.arm = Arm(arm.model, free=free) if free else arm
+        self.arm = Arm(arm.model, free=free, tie_balanced=problem.transcription.parametric == "family") if free else arm
         # joints whose gear ratio is designed or swept: their motor speed limit mu dphi is the
         # model's, so dphi's limit becomes a constraint row instead of a bound
         self.geared = [j for j, jt in enumerate(arm.model.joints) if f"{jt.name}.gear_ratio" in free]
@@ -84,6 +84,10 @@ class Transcription:
         self.clear = (ca.Function("clearance", [th], [clearances(arm.model, problem.task.obstacles, th)])
                       if problem.task.obstacles else None)
         self.acc_scale = self._acceleration_scale()
+        # a family's NLP takes the acceleration scale as parameters too (it is the arm's): p_fixed
+        # = (the fixed parameters, then the scale)
+        self.family = problem.transcription.parametric == "family"
+        self.n_pfix = len(self.fixed) + (len(self.acc_scale) if self.family else 0)
         self.calls = None                    # a Calls recorder while the stage's derivatives are built
         self.kernel = None                   # the condensing kernel (condensing.Condensed), if condensed
         self.stage = self._stage_function()
@@ -146,7 +150,7 @@ class Transcription:
 
     def _pf(self, design, p_fixed):
         """The free parameters' values, in the order of Arm(free=design + fixed); None if none."""
-        parts = ([design] if self.design else []) + ([p_fixed] if self.fixed else [])
+        parts = ([design] if self.design else []) + ([p_fixed[:len(self.fixed)]] if self.fixed else [])
         return ca.vertcat(*parts) if parts else None
 
     def _speed_scale(self, pf):
@@ -174,7 +178,7 @@ class Transcription:
     def _stage_function(self) -> ca.Function:
         """(x_k, u_k, w_k, P) -> (x_{k+1} target, path constraints, effort): SX, mapped over N."""
         x, u, w = ca.SX.sym("x", self.nx), ca.SX.sym("u", self.nu_lifted), ca.SX.sym("w")
-        dur, pfix = ca.SX.sym("duration"), ca.SX.sym("p_fixed", len(self.fixed))
+        dur, pfix = ca.SX.sym("duration"), ca.SX.sym("p_fixed", self.n_pfix)
         return ca.Function("stage", [x, u, w, dur, pfix], self._stage(x, u, w, dur, pfix),
                            ["x", "u", "w", "duration", "p_fixed"], ["x_next", "path", "effort"])
 
@@ -184,7 +188,8 @@ class Transcription:
         q, v, z, arc = x[:2 * n], x[2 * n:4 * n], x[4 * n:4 * n + self.nz], x[4 * n + self.nz:]
         h = (z[0] if self.nT else dur) * w
         pf = self._pf(z[self.nT:self.nz] if self.design else None, pfix)
-        tau, s, a0 = u[:n], ca.DM(self.acc_scale), n + self.ns
+        s = pfix[len(self.fixed):] if self.family else ca.DM(self.acc_scale)
+        tau, a0 = u[:n], n + self.ns
         acc = [s * u[a0 + 2 * n * j: a0 + 2 * n * (j + 1)] for j in range(m)]      # ddtheta, ddphi
         AA = A @ A
         V = [v + h * sum(A[j, l] * acc[l] for l in range(m)) for j in range(m)]
@@ -211,7 +216,7 @@ class Transcription:
     def parameter_layout(self):
         n, N = self.n, self.N
         sizes = [("theta_start", n), ("theta_end", n), ("duration", 1), ("effort_weight", 1), ("scale", 1),
-                 ("w", N), ("theta_ref", n * N if self.tracking else 0), ("p_fixed", len(self.fixed)),
+                 ("w", N), ("theta_ref", n * N if self.tracking else 0), ("p_fixed", self.n_pfix),
                  ("goal", 12 if self.goal is not None else 0),
                  ("path_target", 3 * N if self.tool_path and not self.ns else 0)]
         out, i = {}, 0
@@ -227,7 +232,7 @@ class Transcription:
         n, nx, nu = self.n, self.nx, self.nu_lifted
         z = ca.SX.sym("z", 2 * nx + nu)
         x, u, x1 = z[:nx], z[nx:nx + nu], z[nx + nu:]
-        w, dur, pfix = ca.SX.sym("w"), ca.SX.sym("duration"), ca.SX.sym("p_fixed", len(self.fixed))
+        w, dur, pfix = ca.SX.sym("w"), ca.SX.sym("duration"), ca.SX.sym("p_fixed", self.n_pfix)
         ew, scale, ref = ca.SX.sym("effort_weight"), ca.SX.sym("scale"), ca.SX.sym("theta_ref", n)
         target = ca.SX.sym("path_target", 3)                 # where the path's frame is at x_k's time
         timed = self.tool_path is not None and not self.ns
@@ -265,7 +270,7 @@ class Transcription:
         n = self.n
         goal_end = end and self.goal is not None
         x, theta = ca.SX.sym("x", self.nx), ca.SX.sym("theta", 12 if goal_end else n)
-        pfix, scale = ca.SX.sym("p_fixed", len(self.fixed)), ca.SX.sym("scale")
+        pfix, scale = ca.SX.sym("p_fixed", self.n_pfix), ca.SX.sym("scale")
         pf = self._pf(x[4 * n + self.nT:] if self.design else None, pfix)
         if end:
             rest = [] if self.tracking else [self.rest_residual(x, None if goal_end else theta, pf)]
@@ -390,7 +395,8 @@ class Transcription:
                                                     (self.goal.R if self.goal.R is not None else np.eye(3)).ravel("F")]
         for key, value in (("theta_start", theta_start), ("theta_end", theta_end), ("duration", duration),
                            ("effort_weight", effort_weight), ("scale", scale), ("w", w),
-                           ("theta_ref", theta_ref), ("p_fixed", p_fixed), ("goal", goal),
+                           ("theta_ref", theta_ref), ("goal", goal),
+                           ("p_fixed", np.r_[p_fixed, self.acc_scale] if self.family else p_fixed),
                            ("path_target", None if self.tool_path is None or self.ns else
                             self.tool_path(duration * np.r_[0.0, np.cumsum(w)[:-1]]).T)):
             if value is not None and layout[key].stop > layout[key].start:
