@@ -114,7 +114,25 @@ def _call_derivatives(fn: ca.Function, sizes: tuple):
             ca.Function(fn.name() + "_curvature", [y, mu], [H], {"cse": True}))
 
 
-def chain_rule_derivatives(fn: ca.Function, z, args, rows, f, calls: Calls):
+@dataclass
+class SplitHessian:
+    """A piece's Hessian with its model calls left as calls, for a C kernel that evaluates each
+    model Function's compiled value and curvature once per call site (the same code for all,
+    small enough to stay in the cache) instead of inlining them: per call site j, `sites[j]` =
+    (index into `values`/`curvatures`, y's offset, F's offset, y's size, F's size, Fy's and C's
+    offset in the flat nonzeros).  `y`: (z, *args) -> all y_j; `d1`: (z, *args, F, Fy) ->
+    (rows, J); `mu`: (z, *args, lam, lam_f, F) -> all mu_j; `glue`: (z, *args, lam, lam_f, F,
+    Fy, C) -> H, with F the values, Fy the Jacobians' and C the curvatures' nonzeros stacked."""
+    y: ca.Function
+    d1: ca.Function
+    mu: ca.Function
+    glue: ca.Function
+    values: list
+    curvatures: list
+    sites: list
+
+
+def chain_rule_derivatives(fn: ca.Function, z, args, rows, f, calls: Calls, split: bool = False):
     """fn's (rows, J), (f, grad f) and (grad L, H) by the chain rule through its recorded calls
     F_j = fn_j(y_j(z)): with D_j = dF_j/dy T_j, T_j = dy_j/dz, W = [1; D], mu_j = dL/dF_j,
 
@@ -124,25 +142,32 @@ def chain_rule_derivatives(fn: ca.Function, z, args, rows, f, calls: Calls):
     g_j = (dF_j/dy)' mu_j held constant in the last term (zero where y_j is linear in z, i.e. at a
     fixed step).  Why: a Radau stage's Hessian by AD of the inlined stage took 34 792 SX
     instructions (n = 3, minimum effort), through the three forward-dynamics Hessians (51
-    nonzeros each on 15 arguments) 14 701."""
+    nonzeros each on 15 arguments) 14 701.  split: also the SplitHessian."""
     lam, lam_f = ca.SX.sym("lam", rows.numel()), ca.SX.sym("lam_f")
     L = ca.dot(lam, rows) + lam_f * f
     F = ca.vertcat(*[item[3] for item in calls.items])
-    values, D, curvature, g_sym, g_val, cache = [], [], 0, [], [], {}
+    keys, fns, sites, D, curvature, g_sym, g_val, mus, Fy_syms, C_syms = [], [], [], [], 0, [], [], [], [], []
+    offsets = np.zeros(4, int)                          # y, F, Fy, C
     for fn_j, sizes, y, Fj in calls.items:
         key = (fn_j.name(), sizes)
-        if key not in cache:                            # one per model Function of this piece, not per call
-            cache[key] = _call_derivatives(fn_j, sizes)
-        value, curv = cache[key]
-        Fv, Fy = value(y)
+        if key not in keys:                             # one per model Function of this piece, not per call
+            keys.append(key)
+            fns.append(_call_derivatives(fn_j, sizes))
+        value, curv = fns[keys.index(key)]
+        Fy = ca.SX.sym("Fy", value.sparsity_out(1))     # the call's Jacobian and curvature, symbols
+        C = ca.SX.sym("C", curv.sparsity_out(0))
+        sites.append((keys.index(key), *offsets[:2], y.numel(), Fj.numel(), *offsets[2:]))
+        offsets += [y.numel(), Fj.numel(), Fy.nnz(), C.nnz()]
         T = ca.jacobian(y, z)
-        values.append(Fv)
         D.append(ca.mtimes(Fy, T))
         mu = ca.gradient(L, Fj)
-        curvature += ca.mtimes([T.T, curv(y, mu), T])
+        mus.append(mu)
+        Fy_syms.append(Fy)
+        C_syms.append(C)
+        curvature += ca.mtimes([T.T, C, T])
         g_sym.append(ca.SX.sym("g", y.numel()))
         g_val.append(ca.densify(ca.mtimes(Fy.T, mu)))
-    D, Fv = ca.vertcat(*D), ca.vertcat(*values)
+    D = ca.vertcat(*D)
     W = ca.vertcat(ca.SX.eye(z.numel()), D)
     H0, _ = ca.hessian(L, ca.vertcat(z, F))
     Hy, _ = ca.hessian(sum(ca.dot(gs, item[2]) for gs, item in zip(g_sym, calls.items)), z)
@@ -150,10 +175,29 @@ def chain_rule_derivatives(fn: ca.Function, z, args, rows, f, calls: Calls):
     J = ca.jacobian(rows, z) + ca.mtimes(ca.jacobian(rows, F), D)
     grad = ca.gradient(L, z) + ca.mtimes(D.T, ca.gradient(L, F))
     grad_f = ca.gradient(f, z) + ca.mtimes(D.T, ca.gradient(f, F))
-    out = ca.substitute([rows, J, f, grad_f, grad, H], [F], [Fv])
+    # the calls' symbols replaced by the calls (inlined), then their values
+    called = [fns[keys.index((item[0].name(), item[1]))] for item in calls.items]
+    Fys = [value(item[2])[1] for (value, _), item in zip(called, calls.items)]
+    Cs = [curv(item[2], mu) for (_, curv), item, mu in zip(called, calls.items, mus)]
+    Fvs = ca.vertcat(*[value(item[2])[0] for (value, _), item in zip(called, calls.items)])
+    symbols, exprs = Fy_syms + C_syms, Fys + Cs
+    out = ca.substitute(ca.substitute([rows, J, f, grad_f, grad, H], symbols, exprs), [F], [Fvs])
     name, opts = fn.name(), {"cse": True}
-    return (ca.Function(name + "_d1", [z, *args], out[:2], opts), ca.Function(name + "_f1", [z, *args], out[2:4], opts),
-            ca.Function(name + "_d2", [z, *args, lam, lam_f], out[4:], opts))
+    derivatives = (ca.Function(name + "_d1", [z, *args], out[:2], opts),
+                   ca.Function(name + "_f1", [z, *args], out[2:4], opts),
+                   ca.Function(name + "_d2", [z, *args, lam, lam_f], out[4:], opts))
+    if not split:
+        return derivatives
+    flat = lambda ms: ca.vertcat(*[m.nz[:] if m.nnz() else ca.SX(0, 1) for m in ms]) if ms else ca.SX(0, 1)
+    Fy_all, C_all = ca.SX.sym("Fy", int(offsets[2])), ca.SX.sym("C", int(offsets[3]))
+    H_flat, rows_flat, J_flat = ca.substitute([H, rows, J], [ca.vertcat(flat(Fy_syms), flat(C_syms))],
+                                              [ca.vertcat(Fy_all, C_all)])
+    return derivatives + (SplitHessian(
+        ca.Function(name + "_y", [z, *args], [ca.vertcat(*[item[2] for item in calls.items])], opts),
+        ca.Function(name + "_d1", [z, *args, F, Fy_all], [rows_flat, J_flat], opts),
+        ca.Function(name + "_mu", [z, *args, lam, lam_f, F], [ca.vertcat(*mus)], opts),
+        ca.Function(name + "_glue", [z, *args, lam, lam_f, F, Fy_all, C_all], [H_flat], opts),
+        [value for value, _ in fns], [curv for _, curv in fns], sites),)
 
 
 def _placement(sp: ca.Sparsity, rows: np.ndarray, cols: np.ndarray):

@@ -64,9 +64,10 @@ def _dense_cols(sp: ca.Sparsity, rows, cols) -> list:
     return [i for i, j in enumerate(cols) if j in hit]
 
 
-def _sx_functions(prefix: str, d1: ca.Function, f1: ca.Function, d2: ca.Function, keep, elim, grows):
+def _sx_functions(prefix: str, d1: ca.Function, f1: ca.Function, d2: ca.Function, split, keep, elim, grows):
     """The SX functions the kernel calls (their C is generated): lin, rows, first, objective,
-    adjoint, hessian (module docstring for the formulas)."""
+    adjoint, the Hessian's y, mu and glue, and each model Function's value and curvature
+    (module docstring for the formulas; split: assembly.SplitHessian)."""
     nz, nrows = d1.size1_in(0), d1.size1_out(0)
     z = ca.SX.sym("z", nz)
     args = [ca.SX.sym(d1.name_in(i), d1.sparsity_in(i)) for i in range(1, d1.n_in())]
@@ -82,14 +83,16 @@ def _sx_functions(prefix: str, d1: ca.Function, f1: ca.Function, d2: ca.Function
     for s, i in enumerate(scols):
         Z[elim, i] = S[:, s]
     lam, lam_f, lam_r = ca.SX.sym("lam", nrows), ca.SX.sym("lam_f"), ca.SX.sym("lam_r", len(rk))
-    _, H = d2(z, *args, lam, lam_f)
     dcols = _curved(d2.sparsity_out(1), keep, scols)
     kd = [keep[i] for i in dcols]
     J_r = J[rk, :]
     opts = {"cse": True}
+    F, Fy = (ca.SX.sym(split.d1.name_in(i), split.d1.sparsity_in(i)) for i in (len(args) + 1, len(args) + 2))
+    rows_s, J_s = split.d1(z, *args, F, Fy)                 # the call sites' values and Jacobians given
     fns = {
-        "lin": ca.Function(prefix + "lin", [z, *args], [ca.densify(rows[grows]), ca.densify(J[grows, elim]),
-                                                        ca.densify(J[grows, [keep[i] for i in scols]])], opts),
+        "lin": ca.Function(prefix + "lin", [z, *args, F, Fy],
+                           [ca.densify(rows_s[grows]), ca.densify(J_s[grows, elim]),
+                            ca.densify(J_s[grows, [keep[i] for i in scols]])], opts),
         "residual": ca.Function(prefix + "residual", [z, *args], [ca.densify(rows[grows])], opts),
         "rows": ca.Function(prefix + "rows", [z, *args], [rows[rk], f], opts),
         "first": ca.Function(prefix + "first", [z, *args, S], [rows[rk], ca.mtimes(J_r, Z)], opts),
@@ -98,13 +101,43 @@ def _sx_functions(prefix: str, d1: ca.Function, f1: ca.Function, d2: ca.Function
         # right-hand side, its kept part (plus G_w' nu, in C) the condensed Lagrangian's gradient
         "adjoint": ca.Function(prefix + "adjoint", [z, *args, lam_r, lam_f],
                                [ca.densify(ca.mtimes(J_r.T, lam_r) + lam_f * gf)], opts),
-        # the lifted Hessian's blocks on the curved kept columns D and y alone (the gradient comes
-        # from the adjoint: through the model calls it would cost 17 % of this function); the
-        # kernel forms Z' H Z in dense loops: as SX with S symbolic it took 256k instructions at n = 7
-        "hessian": ca.Function(prefix + "hessian", [z, *args, lam, lam_f],
-                               [ca.densify(H[kd, kd]), ca.densify(H[elim, kd]), ca.densify(H[elim, elim])], opts),
     }
+    # the lifted Hessian's blocks on the curved kept columns D and y alone (the gradient comes
+    # from the adjoint); the kernel evaluates the model calls' compiled value and curvature at
+    # each call site (at n = 7 one inlined copy per site made 134k instructions, 44 us; the
+    # shared 27k-instruction curvature runs in 4.5 us) and forms Z' H Z in dense loops
+    fns.update(_split_functions(prefix, split, z, args, lam, lam_f, kd, elim, opts))
     return fns, rk, scols, dcols, args
+
+
+def _split_functions(prefix, split, z, args, lam, lam_f, kd, elim, opts) -> dict:
+    """The split Hessian's Functions under the kernel's prefix: y, mu, glue (H's blocks on D and
+    y) and value_k, curvature_k of each model Function k."""
+    sym = lambda f, i: ca.SX.sym(f.name_in(i), f.sparsity_in(i))
+    F, Fy, C = (sym(split.glue, i) for i in range(split.glue.n_in() - 3, split.glue.n_in()))
+    H = split.glue(z, *args, lam, lam_f, F, Fy, C)
+    out = {"y": ca.Function(prefix + "y", [z, *args], [split.y(z, *args)], opts),
+           "mu": ca.Function(prefix + "mu", [z, *args, lam, lam_f, F], [split.mu(z, *args, lam, lam_f, F)], opts),
+           "glue": ca.Function(prefix + "glue", [z, *args, lam, lam_f, F, Fy, C],
+                               [ca.densify(H[kd, kd]), ca.densify(H[elim, kd]), ca.densify(H[elim, elim])], opts)}
+    for k, (value, curv) in enumerate(zip(split.values, split.curvatures)):
+        y, mu = sym(curv, 0), sym(curv, 1)
+        out[f"value{k}"] = ca.Function(prefix + f"value{k}", [y], value(y), opts)
+        out[f"curvature{k}"] = ca.Function(prefix + f"curvature{k}", [y, mu], [curv(y, mu)], opts)
+    return out
+
+
+def _sites_c(split) -> str:
+    """C that evaluates every call site's model Function: values and Jacobians, then curvatures."""
+    lines = ["static int site_values(const casadi_real* Y, casadi_real* F, casadi_real* Fy) {\n"]
+    for k, y0, f0, ny, nf, fy0, c0 in split.sites:
+        lines.append(f"  if (raw(P(value{k}), Y + {y0}, 0, F + {f0}, Fy + {fy0})) return 1;\n")
+    lines.append("  return 0;\n}\n\nstatic int site_curvatures(const casadi_real* Y, const casadi_real* MU, "
+                 "casadi_real* C) {\n")
+    for k, y0, f0, ny, nf, fy0, c0 in split.sites:
+        lines.append(f"  if (raw(P(curvature{k}), Y + {y0}, MU + {f0}, C + {c0}, 0)) return 1;\n")
+    lines.append("  return 0;\n}\n")
+    return "".join(lines)
 
 
 def _curved(sp: ca.Sparsity, keep, scols) -> list:
@@ -128,9 +161,11 @@ def _int_array(name: str, values) -> str:
     return f"static const int {name}[] = {{{', '.join(str(int(v)) for v in values) or '0'}}};\n"
 
 
-def _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols, dcols) -> str:
+def _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols, dcols, split) -> str:
     """The C kernel: cache, Newton, LU, and the four external functions (module docstring)."""
-    nk, ny, ns, nr, nrows = len(keep), len(elim), fns["lin"].size2_out(2), len(rk), fns["hessian"].size1_in(len(args) + 1)
+    nk, ny, ns, nr, nrows = len(keep), len(elim), fns["lin"].size2_out(2), len(rk), fns["glue"].size1_in(len(args) + 1)
+    nyall = fns["y"].nnz_out(0)
+    nfall, nfy, nc = (fns["glue"].nnz_in(len(args) + 3 + i) for i in range(3))
     assert fns["adjoint"].size1_out(0) == fns["lin"].size1_in(0)
     na = len(args)
     arg_nnz = [a.nnz() for a in args]
@@ -138,14 +173,15 @@ def _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols, dcols) -> st
     lines = [f"/* condensed collocation kernel {prefix} (rscasadi/ocp/condensing.py) */\n",
              "#include <stdlib.h>\n#include <string.h>\n",
              f"#define NK {nk}\n#define NY {ny}\n#define NS {ns}\n#define NR {nr}\n#define NROWS {nrows}\n"
-             f"#define NZ {fns['lin'].size1_in(0)}\n#define ND {len(dcols)}\n#define NA {na}\n#define NKEY {nk + sum(arg_nnz)}\n"
+             f"#define NZ {fns['lin'].size1_in(0)}\n#define ND {len(dcols)}\n#define NA {na}\n"
+             f"#define NYALL {max(nyall, 1)}\n#define NFALL {max(nfall, 1)}\n#define NFY {max(nfy, 1)}\n#define NC {max(nc, 1)}\n#define NKEY {nk + sum(arg_nnz)}\n"
              f"#define SZ_ARG {sz['arg']}\n#define SZ_RES {sz['res']}\n#define SZ_IW {sz['iw'] + 1}\n#define SZ_W {sz['w'] + 1}\n"
              f"#define MAXIT {NEWTON_MAX_ITER}\n#define STEPTOL {NEWTON_STEP_TOL!r}\n#define SPURIOUS {SPURIOUS!r}\n"
              f"#define P(name) {prefix}##name\n",
              _int_array("KEEP", keep), _int_array("ELIM", elim), _int_array("RKEEP", rk), _int_array("GROWS", grows),
              _int_array("ARGNNZ", arg_nnz), _int_array("SCOLS", scols),
              _int_array("DS", [scols.index(i) if i in scols else -1 for i in dcols]),
-             _KERNEL]
+             _KERNEL_HEAD, _sites_c(split), _KERNEL]
     # sparsity of the externals' inputs and outputs
     sp_w = ca.Sparsity.dense(nk, 1)
     ins = [sp_w, *[a.sparsity() for a in args], ca.Sparsity.dense(1, 1)]
@@ -174,7 +210,7 @@ CASADI_SYMBOL_EXPORT int P({name}_work)(casadi_int* sz_arg, casadi_int* sz_res, 
     return "".join(lines)
 
 
-_KERNEL = r"""
+_KERNEL_HEAD = r"""
 /* Per thread: the SX functions' work arrays and, per interval, the last solution.  Nothing in
    the result depends on the cache beyond Newton's tolerance: it only chooses the starting point
    and skips the solve when the inputs are bitwise those of the last call. */
@@ -186,7 +222,8 @@ _KERNEL = r"""
 #define DENSE
 #endif
 typedef struct { long generation; int seen, valid, factored, derived; casadi_real key[NKEY]; casadi_real y[NY];
-                 casadi_real lu[NY * NY]; int piv[NY]; casadi_real S[NY * NS], Gs[NY * NS]; } entry_t;
+                 casadi_real lu[NY * NY]; int piv[NY]; casadi_real S[NY * NS], Gs[NY * NS];
+                 casadi_real Y[NYALL], F[NFALL], Fy[NFY]; } entry_t;     /* the call sites at the last linearisation */
 static long generation = 1;            /* reset() starts a new one: every thread's entries go stale */
 static __thread entry_t* cache = 0;
 static __thread long cache_size = 0;
@@ -282,6 +319,17 @@ static int call(int (*f)(const casadi_real**, casadi_real**, casadi_int*, casadi
   return f(w_arg, w_res, w_iw, w_w, 0);
 }
 
+/* call a model Function (value or curvature at a call site): two inputs, two outputs */
+static int raw(int (*f)(const casadi_real**, casadi_real**, casadi_int*, casadi_real*, int),
+               const casadi_real* a0, const casadi_real* a1, casadi_real* r0, casadi_real* r1) {
+  int i;
+  for (i = 0; i < SZ_RES; ++i) w_res[i] = 0;
+  w_arg[0] = a0; w_arg[1] = a1; w_res[0] = r0; w_res[1] = r1;
+  return f(w_arg, w_res, w_iw, w_w, 0);
+}
+"""
+
+_KERNEL = r"""
 /* the key of a call: the kept variables and the piece's arguments, bitwise */
 static void make_key(casadi_real* key, const casadi_real* w, const casadi_real** args) {
   int i, j, off = NK;
@@ -291,10 +339,14 @@ static void make_key(casadi_real* key, const casadi_real* w, const casadi_real**
 
 /* G_y (factored into e->lu) and G_w at (w, e->y); G the residual there */
 static int linearise(entry_t* e, const casadi_real* w, const casadi_real** args, casadi_real* G, casadi_real* Gs) {
+  const casadi_real* extra[2];
   casadi_real* out[3];
-  out[0] = G; out[1] = e->lu; out[2] = Gs;
   full_z(w, e->y);
-  if (call(P(lin), args, 0, 0, out, 3)) return 1;
+  out[0] = e->Y;                                 /* the call sites' values and Jacobians, kept */
+  if (call(P(y), args, 0, 0, out, 1) || site_values(e->Y, e->F, e->Fy)) return 1;
+  extra[0] = e->F; extra[1] = e->Fy;
+  out[0] = G; out[1] = e->lu; out[2] = Gs;
+  if (call(P(lin), args, extra, 2, out, 3)) return 1;
   e->factored = 1;
   return lu_factor(e->lu, e->piv, NY);
 }
@@ -417,6 +469,21 @@ EXTERNAL(ext_first) { return with_sensitivities(P(first), arg, res); }
 
 EXTERNAL(ext_objective) { return with_sensitivities(P(objective), arg, res); }
 
+/* the lifted Hessian's blocks at a derived entry: the multipliers mu of the call sites' outputs,
+   their curvatures (the sites' values and Jacobians are the entry's), then the glue
+   (assembly.SplitHessian) */
+static int split_hessian(const entry_t* e, const casadi_real** args, const casadi_real** lam, casadi_real* Hdd,
+                         casadi_real* Hyd, casadi_real* Hyy) {
+  static __thread casadi_real MU[NFALL], C[NC];
+  const casadi_real* extra[5];
+  casadi_real* out[3];
+  extra[0] = lam[0]; extra[1] = lam[1]; extra[2] = e->F; extra[3] = e->Fy; extra[4] = C;
+  out[0] = MU;
+  if (call(P(mu), args, extra, 3, out, 1) || site_curvatures(e->Y, MU, C)) return 1;
+  out[0] = Hdd; out[1] = Hyd; out[2] = Hyy;
+  return call(P(glue), args, extra, 5, out, 3);
+}
+
 /* Hc = H_DD + M + M' on the curved columns D, M = S~' (H_YY S~ / 2 + H_YD): Z' H Z with Z = [I; S~],
    S~ = S on D (zero where y does not depend on the column); dense loops, the inner one over
    independent outputs (they vectorise without reassociation) */
@@ -467,8 +534,7 @@ EXTERNAL(ext_second) {
   for (i = 0; i < NR; ++i) lam[RKEEP[i]] = arg[2 + NA] ? arg[2 + NA][i] : 0;
   for (i = 0; i < NY; ++i) lam[GROWS[i]] = nu[i];
   extra[0] = lam;
-  out[0] = Hdd; out[1] = Hyd; out[2] = Hyy;
-  if (call(P(hessian), arg + 1, extra, 2, out, 3)) return 1;
+  if (split_hessian(e, arg + 1, extra, Hdd, Hyd, Hyy)) return 1;
   condensed_hessian(Hdd, Hyd, Hyy, e->S, res[1]);
   return 0;
 }
@@ -479,16 +545,18 @@ def _fingerprint(*parts) -> str:
     return hashlib.sha256("\n".join(str(p) for p in parts).encode()).hexdigest()[:12]
 
 
-def condense(d1: ca.Function, f1: ca.Function, d2: ca.Function, keep, elim, grows, log=print,
+def condense(d1: ca.Function, f1: ca.Function, d2: ca.Function, split, keep, elim, grows, log=print,
              opt: str | None = None) -> Condensed:
     """The condensed piece of a lifted one given by its (rows, J), (f, grad f), (grad L, H)
-    Functions: `keep` and `elim` index its variables, `grows` the rows G solved for y.  The
-    kernel is generated, compiled (cached by the hash of its source) and loaded."""
+    Functions and its split Hessian (assembly.SplitHessian): `keep` and `elim` index its
+    variables, `grows` the rows G solved for y.  The kernel is generated, compiled (cached by the
+    hash of its source) and loaded."""
     keep, elim, grows = (list(map(int, v)) for v in (keep, elim, grows))
     prefix = "rsc" + _fingerprint(d1.serialize(), f1.serialize(), d2.serialize(), keep, elim, grows,
                                   NEWTON_MAX_ITER, NEWTON_STEP_TOL, SPURIOUS) + "_"
-    fns, rk, scols, dcols, args = _sx_functions(prefix, d1, f1, d2, keep, elim, grows)
-    library = _compiled(prefix, fns, _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols, dcols), log, opt)
+    fns, rk, scols, dcols, args = _sx_functions(prefix, d1, f1, d2, split, keep, elim, grows)
+    library = _compiled(prefix, fns, _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols, dcols, split),
+                        log, opt)
     ext = {name: ca.external(prefix + "ext_" + name, library) for name in ("rows", "first", "objective", "second", "newton")}
     return Condensed(ext["rows"], (ext["first"], ext["objective"], ext["second"]), library, ext["newton"], prefix)
 

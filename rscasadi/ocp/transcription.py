@@ -259,7 +259,7 @@ class Transcription:
         self.calls = Calls()
         try:
             rows, f = pieces(self._stage)
-            return fn, chain_rule_derivatives(fn, z, args, rows, f, self.calls)
+            return fn, chain_rule_derivatives(fn, z, args, rows, f, self.calls, split=self.condensed)
         finally:
             self.calls = None
 
