@@ -458,3 +458,40 @@ def test_native_mpc_equals_the_portable_one(mpc_dir, tmp_path):
     for _ in range(5):
         ta, tb = a.step(x, ref)[0], b.step(x, ref)[0]
         assert np.max(np.abs(ta - tb)) < 1e-9 * max(1.0, np.max(np.abs(ta)))
+
+
+def test_a_family_controller_takes_an_identified_arm_without_recompiling(mpc_dir, tmp_path_factory, tmp_path):
+    """parametric = "family": the same torques as the constant controller on the problem's arm,
+    and, after mpc_set_parameters with a heavier arm's parameters (same zeros), the constant
+    controller generated for that arm's torques; non-finite parameters are refused."""
+    import copy
+    import dataclasses
+    import json
+    import tomllib
+    from conftest import REFERENCE, write_arm
+    p = load_mpc_problem(PROBLEM)
+    fam_dir = _generated(tmp_path_factory, dataclasses.replace(p, parametric="family"), "family")
+    with open(REFERENCE, "rb") as fh:
+        doc = tomllib.load(fh)
+    heavier = copy.deepcopy(doc)
+    for jt in heavier["joints"]:
+        jt["link"]["mass"] *= 1.2
+        jt["sea"]["k1"] *= 0.9
+    other = write_arm(tmp_path, heavier, "heavier.toml")
+    other_dir = _generated(tmp_path_factory, dataclasses.replace(p, model=other), "other")
+    info = json.loads((fam_dir / "manifest.json").read_text())["parameters"]
+    values = dict(zip(*load(other).parameters()))
+    p_other = np.array([values[k] for k in info["names"]])
+    assert len(info["names"]) > 30 and not np.allclose(p_other, info["nominal"])
+    rng = np.random.default_rng(5)
+    x = rest_state(load(p.model), [0.1, 0.4, -0.6])
+    for constant, set_to in ((mpc_dir, None), (other_dir, p_other)):
+        a, b = CompiledMPC(constant), CompiledMPC(fam_dir)
+        a.init(x)
+        b.init(x, set_to)                              # mpc_init, or mpc_init_parameters
+        for _ in range(3):
+            ref = np.vstack([x[:3, None] + rng.normal(0, 0.05, (3, p.horizon)), rng.normal(0, 0.2, (3, p.horizon))])
+            tau_a, _, fa = a.step(x, ref)
+            tau_b, _, fb = b.step(x, ref)
+            assert fa == fb == 0 and np.max(np.abs(tau_a - tau_b)) < 1e-9 * (1 + np.max(np.abs(tau_a)))
+    assert b.set_parameters(p_other) == 0 and b.set_parameters(np.full(len(p_other), np.nan)) == 5   # BAD_ARGUMENT

@@ -10,7 +10,7 @@ import numpy as np
 class CompiledMPC:
     """One generated C controller through ctypes, its `mpc_t` in memory this object owns:
     init(x), step(x, reference) -> (tau, seconds measured in C, flag), step_to(x, target),
-    set_payload_mass(m), set_posture(theta).  Several may share one library."""
+    set_payload_mass(m), set_parameters(p), set_posture(theta).  Several may share one library."""
 
     def __init__(self, directory):
         self.lib = ctypes.CDLL(str(Path(directory) / "librscasadi_mpc.so"))
@@ -24,8 +24,13 @@ class CompiledMPC:
     def _p(self, a):
         return a.ctypes.data_as(self.c_double_p)
 
-    def init(self, x):
-        assert self.lib.mpc_init(self.c, self._p(np.ascontiguousarray(x, float))) == 0
+    def init(self, x, parameters=None):
+        """mpc_init, or mpc_init_parameters with the arm's `parameters` (manifest.json's names)."""
+        x = self._p(np.ascontiguousarray(x, float))
+        if parameters is None:
+            assert self.lib.mpc_init(self.c, x) == 0
+        else:
+            assert self.lib.mpc_init_parameters(self.c, x, self._p(np.ascontiguousarray(parameters, float))) == 0
 
     def step(self, x, reference):
         """reference: rows x N, a column per interval end (theta_ref over dtheta_ref; in task
@@ -37,6 +42,10 @@ class CompiledMPC:
 
     def set_payload_mass(self, mass: float) -> int:
         return self.lib.mpc_set_payload_mass(self.c, float(mass))
+
+    def set_parameters(self, p) -> int:
+        """The arm's parameters (manifest.json "parameters": names in order), from the next step on."""
+        return self.lib.mpc_set_parameters(self.c, self._p(np.ascontiguousarray(p, float)))
 
     def set_posture(self, theta) -> int:
         return self.lib.mpc_set_posture(self.c, self._p(np.ascontiguousarray(theta, float)))

@@ -24,7 +24,7 @@ dynamics, set at run time.
 Problem file and C interface: docs/user-guide/mpc.md (`problems/mpc_arm3.toml` is an example).
 
 Generated (DIR): `mpc_rti.c` (CasADi: mpc_rti(x, reference, X, U, params) -> tau, X_next,
-U_next and mpc_hold(x, params) -> X, U; params = (theta_posture, [payload mass])),
+U_next and mpc_hold(x, params) -> X, U; params = (theta_posture, the arm's parameters: controller_arm)),
 `rscasadi_mpc.c` and `rscasadi_mpc.h` (the controller, its state in a caller's `mpc_t`), on
 arms past straight-line SX `mpc_step_jacobian.c` (the structured step-Jacobian kernel the
 controller calls), `librscasadi_mpc.so`, `manifest.json`.  reference is column-major, a column per interval end
@@ -39,23 +39,29 @@ import numpy as np
 
 from rscasadi.dynamics.arm import Arm
 from rscasadi.dynamics.collision import clearances
+from rscasadi.model.parameters import family
 from rscasadi.mpc.problem import SOFT, LINE_SEARCH, MPCProblem
 
 
-def controller_arm(model) -> Arm:
-    """The controller's arm: its payload's mass (if it holds one) a parameter of the dynamics."""
+def controller_arm(model, parametric: str = "none") -> Arm:
+    """The controller's arm: its payload's mass (if it holds one) a parameter of the dynamics;
+    "family": every parameter not zero in the model (model.parameters.family), the payload's
+    mass among them."""
+    if parametric == "family":
+        return Arm(model, free=family(model)[0], tie_balanced=True)
     return Arm(model, free=["payload.mass"]) if model.payload is not None else Arm(model)
 
 
 def n_params(arm: Arm) -> int:
-    """Length of the controller's params: the posture (n) and the payload's mass (0 or 1)."""
-    return arm.n + (1 if arm.free else 0)
+    """Length of the controller's params: the posture (n), then the arm's parameters (none, the
+    payload's mass, or a family's)."""
+    return arm.n + (arm.n_p if arm.free else 0)
 
 
 def interval_functions(arm: Arm, h: float, substeps: int, step_jacobian: ca.Function | None = None):
     """F: (x, tau, m) -> (x after h, A = dx/dx0, B = dx/dtau): `substeps` RK4 steps and their
     structured Jacobians chained (A = A_s ... A_1, B = A_s (...) B_1 + ... + B_s); Fx: the state
-    alone.  m: the payload's mass (an empty input if the arm holds none, or it is constant).
+    alone.  m: the arm's parameters (controller_arm; empty if none).
     One substep (step, Jacobian and the chain's products) is one Function, straight-line SX when
     the step Jacobian is SX (small arms), called `substeps` times: its C is generated once, so
     the controller compiles in a fifth of the time of one straight-line interval, as fast.
@@ -69,7 +75,7 @@ def interval_functions(arm: Arm, h: float, substeps: int, step_jacobian: ca.Func
     if sym is ca.SX:
         step = step.expand()
     z, tau, A, B = sym.sym("x", 4 * n), sym.sym("tau", n), sym.sym("A", 4 * n, 4 * n), sym.sym("B", 4 * n, n)
-    m = sym.sym("m", 1 if parametric else 0)
+    m = sym.sym("m", arm.n_p if parametric else 0)
     pm = [m] if parametric else []
     Ai, Bi = step_jac(z, tau, hs, *pm)
     opts = {"cse": True} if sym is ca.SX else {}

@@ -56,7 +56,7 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
     if model is not None:
         p = dataclasses.replace(p, model=Path(model).resolve())
     model = mpc_model(p)
-    arm = controller_arm(model)
+    arm = controller_arm(model, p.parametric)
     if p.interval / p.substeps > 2e-3:
         log(f"note: {p.interval / p.substeps * 1e3:.1f} ms RK4 steps: the SEA damping (d/k1 ~ 1 ms) may make them unstable")
     cc, flags = compiler(), [opt, "-std=c99"] + (native_flags() if native else [])
@@ -81,11 +81,15 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
         header = Template((TEMPLATES / "rscasadi_mpc.h").read_text()).substitute(
             model=model_name, n=n, nx=4 * n, N=p.horizon, nref=rows * p.horizon, rows=rows, ts=p.sample_time,
             h=p.interval, iters=iters, reference=reference, target=target, ntarget=n_target,
-            nparams=n_params(arm), task=int(p.task_space),
+            nparams=n_params(arm), np=n_params(arm) - n, task=int(p.task_space),
             sz_w=max(rti.sz_w(), hold.sz_w()) + 1, sz_iw=max(rti.sz_iw(), hold.sz_iw()) + 1)
         (tmp / "rscasadi_mpc.h").write_text(header)
-        mass = f"{model.payload.body.mass!r}" if model.payload is not None else "-1.0"
-        (tmp / "rscasadi_mpc.c").write_text(Template((TEMPLATES / "rscasadi_mpc.c").read_text()).substitute(mass=mass))
+        names, values = arm.parameters()
+        free = arm.free or []
+        nominal = [float(dict(zip(names, values))[k]) for k in free]
+        mass_index = free.index("payload.mass") if "payload.mass" in free else -1
+        (tmp / "rscasadi_mpc.c").write_text(Template((TEMPLATES / "rscasadi_mpc.c").read_text()).substitute(
+            nominal=", ".join(repr(v) for v in nominal) or "0.0", mass_index=mass_index))
         sources = {name: (tmp / name).read_text() for name in ("mpc_rti.c", "mpc_rti.h", "rscasadi_mpc.c", "rscasadi_mpc.h")}
         if kernel is not None:
             (tmp / f"{KERNEL}.c").write_text(kernel)
@@ -96,10 +100,12 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
         manifest = {"model": str(p.model), "problem": None if p.path is None else str(p.path), "header": "rscasadi_mpc.h",
                     "library": "librscasadi_mpc.so",
                     "sources": ["mpc_rti.c", "rscasadi_mpc.c"] + ([f"{KERNEL}.c"] if kernel is not None else []),
-                    "api": {"mpc_sizeof": [], "mpc_init": ["c", "x_measured"],
+                    "api": {"mpc_sizeof": [], "mpc_init": ["c", "x_measured"], "mpc_init_parameters": ["c", "x_measured", "p"],
                             "mpc_step": ["c", "x_measured", "reference", "tau_out"],
                             "mpc_step_to": ["c", "x_measured", "target", "tau_out"], "mpc_step_seconds": ["c"],
-                            "mpc_set_payload_mass": ["c", "mass"], "mpc_set_posture": ["c", "theta"]},
+                            "mpc_set_payload_mass": ["c", "mass"], "mpc_set_posture": ["c", "theta"],
+                            "mpc_set_parameters": ["c", "p"]},
+                    "parameters": {"names": free, "nominal": nominal, "parametric": p.parametric},
                     "sizes": {"x": 4 * n, "tau": n, "reference": [rows, p.horizon], "target": n_target},
                     "task_space": {"frame": p.frame, "orientation": p.orientation} if p.task_space else None,
                     "payload_mass": None if model.payload is None else model.payload.body.mass,

@@ -14,7 +14,8 @@ from rscasadi.ocp.problem import PAYLOAD_KEYS, read_obstacles, read_path
 from rscasadi.ocp.toolpath import ToolPath
 
 TOP = {"model", "trajectory", "sample_time", "horizon", "interval", "substeps", "sqp_iterations", "qp_iterations",
-       "weights", "frame", "orientation", "path", "obstacles", "payload", "theta_start", "solution"}
+       "weights", "frame", "orientation", "path", "obstacles", "payload", "theta_start", "solution", "parametric"}
+PARAMETRIC = ("none", "family")
 WEIGHTS = {"theta": 1e5, "dtheta": 1.0, "tau": 1e-3, "limits": 1e5,
            "position": 1e6, "velocity": 10.0, "orientation": 1e3, "posture": 1.0, "obstacles": 1e8}
 JOINT_WEIGHTS, TASK_WEIGHTS = ("theta", "dtheta"), ("position", "velocity", "orientation", "posture")
@@ -32,8 +33,9 @@ class MPCProblem:
     `orientation`, is the reference), `tool_path` (a `ToolPath` at a speed: the study's
     reference, from rest at `theta_start`) or `solution` (an optimal-control solution.json: the
     frame's motion in it is the study's reference).  `obstacles` are soft (the model's [collision]
-    capsules); `payload` sets or changes the model's payload, whose mass is a run-time parameter.
-    Build it in Python or read it with `load_mpc_problem`; `check()` applies the file's rules.
+    capsules); `payload` sets or changes the model's payload, whose mass is a run-time parameter;
+    `parametric` "family": every nonzero parameter of the model is one too (mpc_set_parameters:
+    an identified arm of the family without recompiling).  Build it in Python or read it with `load_mpc_problem`; `check()` applies the file's rules.
     `path`: the file it came from."""
     model: Path
     trajectory: Path | None = None
@@ -52,6 +54,7 @@ class MPCProblem:
     payload: dict | None = None
     theta_start: np.ndarray | None = None
     solution: Path | None = None
+    parametric: str = "none"
 
     def __post_init__(self):
         self.model = Path(self.model)
@@ -122,6 +125,8 @@ class MPCProblem:
                 fail("solution", "give one reference: a trajectory, a path or a solution")
             if not self.solution.is_file():
                 fail("solution", f"no file {self.solution}")
+        if self.parametric not in PARAMETRIC:
+            fail("parametric", f"must be one of {', '.join(PARAMETRIC)}, got {self.parametric!r}")
         if self.theta_start is not None and not np.all(np.isfinite(self.theta_start)):
             fail("theta_start", f"expected finite numbers, got {self.theta_start!r}")
         return self

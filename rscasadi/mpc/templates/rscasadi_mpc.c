@@ -7,7 +7,8 @@
 #define NXP (MPC_NX * (MPC_HORIZON + 1))
 #define NUP (MPC_NU * MPC_HORIZON)
 #define NROWS (MPC_NREF / MPC_HORIZON)
-#define PAYLOAD_MASS ${mass}                 /* the problem's, or -1: the model holds no payload */
+#define MASS_INDEX ${mass_index}              /* the payload's mass in the parameters, or -1: none */
+static const double NOMINAL[MPC_NP + 1] = {${nominal}};      /* the model's parameters (manifest.json) */
 typedef char casadi_int_is_long_long[sizeof(casadi_int) == sizeof(long long) ? 1 : -1];
 typedef char work_fits[sizeof(((mpc_t *)0)->w) >= sizeof(casadi_real) * (mpc_rti_SZ_W > mpc_hold_SZ_W ? mpc_rti_SZ_W : mpc_hold_SZ_W) ? 1 : -1];
 typedef char iwork_fits[sizeof(((mpc_t *)0)->iw) >= sizeof(casadi_int) * (mpc_rti_SZ_IW > mpc_hold_SZ_IW ? mpc_rti_SZ_IW : mpc_hold_SZ_IW) ? 1 : -1];
@@ -23,9 +24,17 @@ size_t mpc_sizeof(void) { return sizeof(mpc_t); }
 double mpc_step_seconds(const mpc_t *c) { return c->last_step_seconds; }
 
 int mpc_set_payload_mass(mpc_t *c, double mass) {
-  if (PAYLOAD_MASS < 0) return MPC_NO_PAYLOAD;
+  if (MASS_INDEX < 0) return MPC_NO_PAYLOAD;
   if (!isfinite(mass) || mass < 0) return MPC_BAD_ARGUMENT;
-  c->params[MPC_NU] = mass;
+  c->params[MPC_NU + MASS_INDEX] = mass;
+  return 0;
+}
+
+int mpc_set_parameters(mpc_t *c, const double *p) {
+  if (MPC_NP == 0) return MPC_BAD_ARGUMENT;
+  for (int i = 0; i < MPC_NP; ++i)
+    if (!isfinite(p[i])) return MPC_BAD_ARGUMENT;
+  for (int i = 0; i < MPC_NP; ++i) c->params[MPC_NU + i] = p[i];
   return 0;
 }
 
@@ -36,9 +45,13 @@ int mpc_set_posture(mpc_t *c, const double *theta) {
   return 0;
 }
 
-int mpc_init(mpc_t *c, const double *x_measured) {
+int mpc_init(mpc_t *c, const double *x_measured) { return mpc_init_parameters(c, x_measured, NOMINAL); }
+
+int mpc_init_parameters(mpc_t *c, const double *x_measured, const double *p) {
+  for (int i = 0; i < MPC_NP; ++i)
+    if (!isfinite(p[i])) return MPC_BAD_ARGUMENT;
   for (int i = 0; i < MPC_NU; ++i) c->params[i] = x_measured[i];
-  c->params[MPC_NU] = PAYLOAD_MASS;
+  for (int i = 0; i < MPC_NP; ++i) c->params[MPC_NU + i] = p[i];
   c->last_step_seconds = 0.0;
   const casadi_real *arg[mpc_hold_SZ_ARG + 1] = {x_measured, c->params};
   casadi_real *res[mpc_hold_SZ_RES + 1] = {c->X, c->U};
