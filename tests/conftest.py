@@ -52,6 +52,20 @@ def write_arm(tmp_path, doc, name="arm.toml"):
     return path
 
 
+def heavier_reference(tmp_path) -> Path:
+    """The reference arm with 20 % heavier links and 10 % softer springs, its zeros and balanced
+    rotors kept: another arm of its parameter family (an identified one, say), as a model file."""
+    import copy
+    import tomllib
+    with open(REFERENCE, "rb") as fh:
+        doc = tomllib.load(fh)
+    heavier = copy.deepcopy(doc)
+    for jt in heavier["joints"]:
+        jt["link"]["mass"] *= 1.2
+        jt["sea"]["k1"] *= 0.9
+    return write_arm(tmp_path, heavier, "heavier.toml")
+
+
 @pytest.fixture(scope="session")
 def arm3():
     return rscasadi.load(REFERENCE)

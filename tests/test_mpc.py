@@ -464,20 +464,12 @@ def test_a_family_controller_takes_an_identified_arm_without_recompiling(mpc_dir
     """parametric = "family": the same torques as the constant controller on the problem's arm,
     and, after mpc_set_parameters with a heavier arm's parameters (same zeros), the constant
     controller generated for that arm's torques; non-finite parameters are refused."""
-    import copy
     import dataclasses
     import json
-    import tomllib
-    from conftest import REFERENCE, write_arm
+    from conftest import heavier_reference
     p = load_mpc_problem(PROBLEM)
     fam_dir = _generated(tmp_path_factory, dataclasses.replace(p, parametric="family"), "family")
-    with open(REFERENCE, "rb") as fh:
-        doc = tomllib.load(fh)
-    heavier = copy.deepcopy(doc)
-    for jt in heavier["joints"]:
-        jt["link"]["mass"] *= 1.2
-        jt["sea"]["k1"] *= 0.9
-    other = write_arm(tmp_path, heavier, "heavier.toml")
+    other = heavier_reference(tmp_path)
     other_dir = _generated(tmp_path_factory, dataclasses.replace(p, model=other), "other")
     info = json.loads((fam_dir / "manifest.json").read_text())["parameters"]
     values = dict(zip(*load(other).parameters()))

@@ -158,16 +158,8 @@ def test_a_family_nlp_serves_another_arm_of_the_family_without_compiling(tmp_pat
     """`parametric = "family"`: the same minimum-time solution as the constant NLP; an arm with
     the same zeros and heavier links (as identification might give) finds the kernel and the NLP
     in the cache and gets the constant NLP's solution for its own numbers."""
-    import copy
-    import tomllib
-    from conftest import write_arm
-    with open(REFERENCE, "rb") as fh:
-        doc = tomllib.load(fh)
-    heavier = copy.deepcopy(doc)
-    for jt in heavier["joints"]:
-        jt["link"]["mass"] *= 1.2
-        jt["sea"]["k1"] *= 0.9
-    other = write_arm(tmp_path, heavier, "heavier.toml")
+    from conftest import heavier_reference
+    other = heavier_reference(tmp_path)
     base = load_problem(REFERENCE.parent / "ocp_min_time.toml").replace(intervals=20)
     for model in (REFERENCE, other):
         plain = solve_once(base.replace(model=model), **QUIET)
