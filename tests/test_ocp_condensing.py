@@ -124,10 +124,11 @@ def test_kernel_reports_a_failed_solve_instead_of_returning_garbage():
         piece.fn(w, *args)
 
 
-@pytest.mark.parametrize("objective", ["min_effort", "min_time"])
+@pytest.mark.parametrize("objective", ["min_effort", "min_time", "tracking"])
 def test_condensed_solution_equals_the_lifted_one(objective):
     """Same optimum (N = 20): condensed and lifted with IPOPT agree to 1e-9 in the objective;
-    fatrop (which stops at a looser point: 1e-7 apart even on one NLP) to 1e-6."""
+    fatrop (which stops at a looser point: 1e-7 apart even on one NLP) to 1e-6.  Tracking curves
+    x_{k+1} alone: the condensed Hessian must not couple it with x_k (fatrop refuses that)."""
     base = load_problem(REFERENCE.parent / f"ocp_{objective}.toml").replace(intervals=20)
     lifted = solve_once(base.replace(condense=False, solver="ipopt"), **QUIET)
     for solver, tol in (("ipopt", 1e-9), ("fatrop", 1e-6)):

@@ -147,10 +147,15 @@ def _curved(sp: ca.Sparsity, keep, scols) -> list:
     return sorted({i for i, j in enumerate(keep) if j in touched} | set(scols))
 
 
-def _block(n: int, idx) -> ca.Sparsity:
-    """The n x n pattern dense on the rows and columns idx (sorted), zero elsewhere."""
-    pairs = [(i, j) for j in idx for i in idx]
-    return ca.Sparsity.triplet(n, n, [i for i, _ in pairs], [j for _, j in pairs])
+def _condensed_pattern(sp_H: ca.Sparsity, keep, elim, scols) -> ca.Sparsity:
+    """The structural pattern of Z' H Z, Z = [I; S~] (S dense on the columns scols): no entry
+    where the condensed Hessian is zero for every S (fatrop refuses a pattern coupling stages,
+    e.g. x_k with x_{k+1} when only x_{k+1} is curved)."""
+    nz, nk = sp_H.size1(), len(keep)
+    rows = list(keep) + [e for _ in scols for e in elim]
+    cols = list(range(nk)) + [c for c in scols for _ in elim]
+    Z = ca.DM(ca.Sparsity.triplet(nz, nk, rows, cols), 1.0)
+    return ca.mtimes([Z.T, ca.DM(sp_H, 1.0), Z]).sparsity()         # all entries positive: no cancellation
 
 
 def _sparsity_c(name: str, sp: ca.Sparsity) -> str:
@@ -161,7 +166,7 @@ def _int_array(name: str, values) -> str:
     return f"static const int {name}[] = {{{', '.join(str(int(v)) for v in values) or '0'}}};\n"
 
 
-def _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols, dcols, split) -> str:
+def _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols, dcols, split, sp_H) -> str:
     """The C kernel: cache, Newton, LU, and the four external functions (module docstring)."""
     nk, ny, ns, nr, nrows = len(keep), len(elim), fns["lin"].size2_out(2), len(rk), fns["glue"].size1_in(len(args) + 1)
     nyall = fns["y"].nnz_out(0)
@@ -170,6 +175,8 @@ def _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols, dcols, split
     na = len(args)
     arg_nnz = [a.nnz() for a in args]
     sz = {k: max(getattr(f, "sz_" + k)() for f in fns.values()) for k in ("arg", "res", "iw", "w")}
+    hc = _condensed_pattern(sp_H, keep, elim, scols)                  # the Hessian's nonzeros, by position in D
+    hr, hcol = (np.array(v).tolist() for v in hc.get_triplet())
     lines = [f"/* condensed collocation kernel {prefix} (rscasadi/ocp/condensing.py) */\n",
              "#include <stdlib.h>\n#include <string.h>\n",
              f"#define NK {nk}\n#define NY {ny}\n#define NS {ns}\n#define NR {nr}\n#define NROWS {nrows}\n"
@@ -181,6 +188,8 @@ def _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols, dcols, split
              _int_array("KEEP", keep), _int_array("ELIM", elim), _int_array("RKEEP", rk), _int_array("GROWS", grows),
              _int_array("ARGNNZ", arg_nnz), _int_array("SCOLS", scols),
              _int_array("DS", [scols.index(i) if i in scols else -1 for i in dcols]),
+             f"#define NHC {hc.nnz()}\n", _int_array("HROW", [dcols.index(i) for i in hr]),
+             _int_array("HCOL", [dcols.index(j) for j in hcol]),
              _KERNEL_HEAD, _sites_c(split), _KERNEL]
     # sparsity of the externals' inputs and outputs
     sp_w = ca.Sparsity.dense(nk, 1)
@@ -188,7 +197,7 @@ def _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols, dcols, split
     outs = {"ext_rows": [fns["rows"].sparsity_out(0), fns["rows"].sparsity_out(1)],
             "ext_first": [fns["first"].sparsity_out(0), fns["first"].sparsity_out(1)],
             "ext_objective": [fns["objective"].sparsity_out(0), fns["objective"].sparsity_out(1)],
-            "ext_second": [ca.Sparsity.dense(nk, 1), _block(nk, dcols)],
+            "ext_second": [ca.Sparsity.dense(nk, 1), hc],
             "ext_newton": [ca.Sparsity.dense(ny, 1)]}
     extra = {"ext_second": [ca.Sparsity.dense(nr, 1), ca.Sparsity.dense(1, 1)]}
     for name, out in outs.items():
@@ -490,7 +499,7 @@ static int split_hessian(const entry_t* e, const casadi_real** args, const casad
 DENSE static void condensed_hessian(const casadi_real* Hdd, const casadi_real* Hyd, const casadi_real* Hyy,
                               const casadi_real* S, casadi_real* Hc) {
   static __thread casadi_real V[NY * ND], St[ND * NY], M[ND * ND];
-  int i, j, a, b;
+  int i, j, a, b, k;
   for (b = 0; b < ND; ++b) {                                   /* V = H_YY S~ / 2 + H_YD */
     casadi_real* v = V + b * NY;
     for (i = 0; i < NY; ++i) v[i] = Hyd[i + b * NY];
@@ -506,8 +515,10 @@ DENSE static void condensed_hessian(const casadi_real* Hdd, const casadi_real* H
     casadi_real v = V[i + b * NY];
     for (a = 0; a < ND; ++a) M[a + b * ND] += St[a + i * ND] * v;
   }
-  for (b = 0; b < ND; ++b) for (a = 0; a < ND; ++a)            /* the block, column by column */
-    *Hc++ = (a <= b ? Hdd[a + b * ND] : Hdd[b + a * ND]) + M[a + b * ND] + M[b + a * ND];
+  for (k = 0; k < NHC; ++k) {                                   /* the pattern's entries, in order */
+    a = HROW[k]; b = HCOL[k];
+    Hc[k] = (a <= b ? Hdd[a + b * ND] : Hdd[b + a * ND]) + M[a + b * ND] + M[b + a * ND];
+  }
 }
 
 /* the Hessian of lam' R + lam_f f: nu from the adjoint equation, then Z' H(lam, nu) Z */
@@ -555,8 +566,8 @@ def condense(d1: ca.Function, f1: ca.Function, d2: ca.Function, split, keep, eli
     prefix = "rsc" + _fingerprint(d1.serialize(), f1.serialize(), d2.serialize(), keep, elim, grows,
                                   NEWTON_MAX_ITER, NEWTON_STEP_TOL, SPURIOUS) + "_"
     fns, rk, scols, dcols, args = _sx_functions(prefix, d1, f1, d2, split, keep, elim, grows)
-    library = _compiled(prefix, fns, _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols, dcols, split),
-                        log, opt)
+    library = _compiled(prefix, fns, _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols, dcols, split,
+                                                    d2.sparsity_out(1)), log, opt)
     ext = {name: ca.external(prefix + "ext_" + name, library) for name in ("rows", "first", "objective", "second", "newton")}
     return Condensed(ext["rows"], (ext["first"], ext["objective"], ext["second"]), library, ext["newton"], prefix)
 
