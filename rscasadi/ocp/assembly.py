@@ -177,9 +177,10 @@ def chain_rule_derivatives(fn: ca.Function, z, args, rows, f, calls: Calls, spli
     grad_f = ca.gradient(f, z) + ca.mtimes(D.T, ca.gradient(f, F))
     # the calls' symbols replaced by the calls (inlined), then their values
     called = [fns[keys.index((item[0].name(), item[1]))] for item in calls.items]
-    Fys = [value(item[2])[1] for (value, _), item in zip(called, calls.items)]
+    evaluated = [value(item[2]) for (value, _), item in zip(called, calls.items)]          # (F, dF/dy)
+    Fys = [Fy for _, Fy in evaluated]
     Cs = [curv(item[2], mu) for (_, curv), item, mu in zip(called, calls.items, mus)]
-    Fvs = ca.vertcat(*[value(item[2])[0] for (value, _), item in zip(called, calls.items)])
+    Fvs = ca.vertcat(*[Fv for Fv, _ in evaluated])
     symbols, exprs = Fy_syms + C_syms, Fys + Cs
     out = ca.substitute(ca.substitute([rows, J, f, grad_f, grad, H], symbols, exprs), [F], [Fvs])
     name, opts = fn.name(), {"cse": True}
