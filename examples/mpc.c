@@ -1,8 +1,9 @@
 /* The generated nonlinear MPC at 1 kHz, in C, on the arm it was generated for: the reference arm
  * (3 joints) or, e.g., the Panda with SEAs (7; problems/mpc_panda.toml).
  *
- * Desired link motion theta_d(t) = A (1 - cos(2 pi t / 2 s)) (A below for 3 joints, else
- * 0.15 rad of alternating sign).  Every millisecond the controller
+ * Desired link motion theta_d(t) = theta_0 + A (1 - cos(2 pi t / 2 s)) (A below for 3 joints,
+ * else 0.15 rad of alternating sign; theta_0 zero on 3 joints, on 7 the Panda's ready pose, inside
+ * its joint ranges: the MPC keeps the link angles in them).  Every millisecond the controller
  * gets the state and the reference at the ends of its N intervals (theta_d, dtheta_d at
  * t + k h), returns the motor torques, and the arm (the same complete model, one RK4 step of
  * `step` from rscasadi codegen per millisecond, 4 substeps) moves.  Each mpc_step is timed with
@@ -36,6 +37,7 @@
 #define RATE_HZ 1000
 #define MAX_STEPS 100000
 static const double A3[3] = {0.5, 0.6, -0.7};  /* rad, the reference arm's */
+static const double READY7[7] = {0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785};   /* rad, the Panda's ready pose */
 static const double PERIOD = 2.0;              /* s */
 static double step_times[MAX_STEPS];
 static mpc_t controller;                      /* the controller's state: the caller's memory */
@@ -58,7 +60,7 @@ static void desired(double t, double *q, double *dq) {
   t = t > SETTLE ? t - SETTLE : 0.0;
   for (int i = 0; i < N; ++i) {
     const double a = N == 3 ? A3[i % 3] : (i % 2 ? -0.15 : 0.15);
-    q[i] = a * (1.0 - cos(w * t));
+    q[i] = (N == 7 ? READY7[i % 7] : 0.0) + a * (1.0 - cos(w * t));
     dq[i] = a * w * sin(w * t);
   }
 }
@@ -113,11 +115,17 @@ int main(int argc, char **argv) {
     fprintf(stderr, "%s: at most %d s\n", argv[0], MAX_STEPS / RATE_HZ);
     return 2;
   }
-  /* start at theta = phi = 0, springs undeflected: the MPC settles the arm during SETTLE, then the
-   * motion starts; the tracking error is counted from then on */
+  /* start at theta = phi = theta_0 at rest, springs undeflected: the MPC settles the arm during
+   * SETTLE, then the motion starts; the tracking error is counted from then on */
   double x[4 * N] = {0}, tau[N], reference[MPC_NREF], max_err = 0.0;
   long misses = 0;
-  if (mpc_init(&controller, x) != 0) return 1;
+  desired(0.0, x, x + 2 * N);
+  for (int i = 0; i < N; ++i) x[N + i] = x[i];
+  int code = mpc_init(&controller, x);
+  if (code != 0) {
+    fprintf(stderr, "%s: mpc_init refused the start state (code %d)\n", argv[0], code);
+    return 1;
+  }
   realtime(argc == 4);
   struct timespec next;
   clock_gettime(CLOCK_MONOTONIC, &next);
@@ -125,7 +133,10 @@ int main(int argc, char **argv) {
     const double t = k * dt;
     for (int j = 0; j < MPC_HORIZON; ++j) desired(t + (j + 1) * interval, reference + 2 * N * j, reference + 2 * N * j + N);
     const double t0 = now();
-    if (mpc_step(&controller, x, reference, tau) != 0) return 1;
+    if ((code = mpc_step(&controller, x, reference, tau)) != 0) {
+      fprintf(stderr, "%s: mpc_step returned %d at t = %.3f s (rscasadi_mpc.h: the failure policy)\n", argv[0], code, t);
+      return 1;
+    }
     step_times[k] = now() - t0;
     misses += step_times[k] > dt;
     if (k % 10 == 0) {

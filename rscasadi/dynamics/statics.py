@@ -1,6 +1,8 @@
-"""Statics of the SEA arm: the spring deflection that carries a torque, and the rest state."""
+"""Statics of the SEA arm: the spring deflection that carries a torque, the rest state, and the
+motor torque that holds the motors still (every generated controller's safe output)."""
 from __future__ import annotations
 
+import casadi as ca
 import numpy as np
 
 from rscasadi.dynamics.arm import Arm
@@ -23,3 +25,13 @@ def rest_state(arm: Arm, theta) -> np.ndarray:
     z, theta = np.zeros(arm.n), np.asarray(theta, float)
     T = np.array(arm.inverse_dynamics()(theta, theta, z, z, z, z)[1]).ravel()
     return np.concatenate([theta, theta + spring_deflection(arm, T), z, z])
+
+
+def holding_torque(arm: Arm, name: str = "hold") -> ca.Function:
+    """(theta, phi) -> tau: the motor torques that hold the motors still at phi with the links at
+    theta (the complete model's inverse dynamics at zero speeds and accelerations: the springs'
+    torque there, through the gears, and the rotors' weight)."""
+    n = arm.n
+    theta, phi, z = ca.SX.sym("theta", n), ca.SX.sym("phi", n), ca.SX.zeros(n)
+    return ca.Function(name, [theta, phi], [arm.inverse_dynamics()(theta, phi, z, z, z, z)[0]],
+                       ["theta", "phi"], ["tau"], {"cse": True})

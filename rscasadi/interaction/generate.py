@@ -5,7 +5,6 @@ template files in `templates/` (the state in a caller's struct), compiled once p
 one build step, and described by a manifest."""
 from __future__ import annotations
 
-import ctypes
 import re
 import shutil
 import tempfile
@@ -18,27 +17,36 @@ import numpy as np
 from rscasadi.dynamics.arm import Arm, load
 from rscasadi.files import fresh_directory, write_json
 from rscasadi.interaction.observer import observer_terms
+from rscasadi.dynamics.statics import holding_torque
+from rscasadi.model.limits import limit_arrays, measurement_bounds, torque_bounds
+from rscasadi.interaction.impedance import impedance_boxes
 from rscasadi.native.build import cached_library, compiler
+from rscasadi.native.controller import DAMPING_RATIO_BOUND, STIFFNESS_BOUND, c_numbers, c_words, guard_source
+from rscasadi.native.loader import CompiledController
 
 TEMPLATES = Path(__file__).with_name("templates")
 
 
-def _generate(function: ca.Function, stem: str, header: dict, body: dict, out, opt: str, log, manifest: dict) -> dict:
-    """The C of `function` (its own file, with a header) and of the templates rscasadi_<stem>.h and
-    .c (substituted with `header` and `body`, the work sizes added), compiled once per source by
-    the one build step, written into `out` whole with `manifest`."""
-    gen = ca.CodeGenerator(f"{function.name()}.c", {"with_header": True})
-    gen.add(function)
+def _generate(functions: list, stem: str, header: dict, body: dict, out, opt: str, log, manifest: dict) -> dict:
+    """The C of `functions` (one file, with a header, named after the first) and of the templates
+    rscasadi_<stem>.h and .c (substituted with `header` and `body`, the work sizes added), with
+    the guard (native.controller), compiled once per source by the one build step, written into
+    `out` whole with `manifest`."""
+    name = functions[0].name()
+    gen = ca.CodeGenerator(f"{name}.c", {"with_header": True})
+    for f in functions:
+        gen.add(f)
     with tempfile.TemporaryDirectory() as d:
         gen.generate(d + "/")
-        sources = {name: (Path(d) / name).read_text() for name in (f"{function.name()}.c", f"{function.name()}.h")}
-    header = {**header, "sz_w": function.sz_w() + 1, "sz_iw": function.sz_iw() + 1}
+        sources = {file: (Path(d) / file).read_text() for file in (f"{name}.c", f"{name}.h")}
+    header = {**header, "sz_w": max(f.sz_w() for f in functions) + 1, "sz_iw": max(f.sz_iw() for f in functions) + 1}
     sources[f"rscasadi_{stem}.h"] = Template((TEMPLATES / f"rscasadi_{stem}.h").read_text()).substitute(header)
     sources[f"rscasadi_{stem}.c"] = Template((TEMPLATES / f"rscasadi_{stem}.c").read_text()).substitute(body)
+    sources.update(guard_source())
     out = Path(out)
     with fresh_directory(out, "manifest.json") as tmp:
-        for name, text in sources.items():
-            (tmp / name).write_text(text)
+        for file, text in sources.items():
+            (tmp / file).write_text(text)
         cc = compiler()
         lib = cached_library(sources, [opt, "-std=c99"], name=stem, what=f"the {stem} ({opt})", log=log, cc=cc)
         shutil.copy2(lib, tmp / f"librscasadi_{stem}.so")
@@ -47,6 +55,11 @@ def _generate(function: ca.Function, stem: str, header: dict, body: dict, out, o
         write_json(tmp / "manifest.json", manifest, indent=2)
     log(f"wrote {out / f'librscasadi_{stem}.so'}, rscasadi_{stem}.h and manifest.json")
     return manifest
+
+
+def _boxes(values: dict, words: bool = False) -> dict:
+    """Bounds as C initialisers (or, `words`, as a header comment's numbers)."""
+    return {k: (c_words if words else c_numbers)(v) for k, v in values.items()}
 
 
 def _model_name(arm: Arm) -> str:
@@ -69,15 +82,19 @@ def generate_observer(model, out, gain, sample_time: float = 1e-3, threshold: fl
     if not threshold > 0:
         raise ValueError(f"observer: --threshold {threshold!r} N m must be > 0")
     header["threshold"] = f"{threshold:g}" if np.isfinite(threshold) else "none (INFINITY)"
+    x_lo, x_hi = measurement_bounds(arm.model)
+    boxes = {"x_lo": x_lo, "x_hi": x_hi, "tau_lo": -torque_bounds(arm.model), "tau_hi": torque_bounds(arm.model)}
+    header.update(_boxes(boxes, words=True))
     body = {"dt": repr(float(sample_time)), "gains": ", ".join(repr(float(k)) for k in K),
-            "threshold": repr(float(threshold)) if np.isfinite(threshold) else "INFINITY"}
+            "threshold": repr(float(threshold)) if np.isfinite(threshold) else "INFINITY", **_boxes(boxes)}
     manifest = {"model": str(arm.model.path),
                 "api": {"observer_sizeof": [], "observer_init": ["obs", "x_measured"],
                         "observer_step": ["obs", "x_measured", "tau_applied", "r_out"],
                         "observer_step_seconds": ["obs"]},
                 "sizes": {"x": 4 * n, "tau": n, "r": 2 * n}, "gain": K.tolist(), "sample_time": sample_time,
-                "threshold": threshold if np.isfinite(threshold) else None}
-    return _generate(observer_terms(arm), "observer", header, body, out, opt, log, manifest)
+                "threshold": threshold if np.isfinite(threshold) else None,
+                "guard": {k: v.tolist() for k, v in boxes.items()}}
+    return _generate([observer_terms(arm)], "observer", header, body, out, opt, log, manifest)
 
 
 def generate_impedance(model, out, frame: str | None, design: str = "motor", opt: str = "-O2", log=print) -> dict:
@@ -93,7 +110,8 @@ def generate_impedance(model, out, frame: str | None, design: str = "motor", opt
         raise ValueError(f"--design {design!r}: choose motor or link")
     n = arm.n
     nref, nk = (12, 6) if frame is not None else (n, n)
-    limits = [jt.limits.get("tau", np.inf) for jt in arm.model.joints]
+    limits = limit_arrays(arm.model)["tau"]
+    boxes = impedance_boxes(arm.model, frame)
     texts = {"motor": "on motor positions, q_bar(phi) solves phi = q_bar + psi(T(q_bar)) and\n"
                       " * the motors ask the springs for T(q_bar) - D dphi: passive, and at rest the stiffness seen\n"
                       " * is the commanded one, the springs' compliance included.",
@@ -106,63 +124,51 @@ def generate_impedance(model, out, frame: str | None, design: str = "motor", opt
               "reference": "p (3, world, m) then R (9, column-major)" if cartesian else f"q_desired ({n}, rad)",
               "stiffness": (f"translational N/m (3), rotational N m/rad (3{'' if n >= 6 else '; not used below 6 joints'})"
                             if cartesian else f"N m/rad ({n})"),
-              "nref_k": nk}
-    body = {"limits": ", ".join(repr(float(v)) if np.isfinite(v) else "INFINITY" for v in limits),
-            "passive": int(design == "motor")}
+              "nref_k": nk, "tau_limits": c_words(limits), "k_max": f"{STIFFNESS_BOUND:g}",
+              "z_max": f"{DAMPING_RATIO_BOUND:g}", **_boxes({k: boxes[k] for k in ("x_lo", "x_hi", "ref_lo", "ref_hi")}, True)}
+    body = {"limits": c_numbers(limits), "passive": int(design == "motor"), **_boxes(boxes)}
     reference = "pose_desired" if cartesian else "q_desired"
     manifest = {"model": str(arm.model.path), "frame": frame, "design": design,
                 "api": {"impedance_sizeof": [], "impedance_init": ["c", "x_measured"],
                         "impedance_step": ["c", "x_measured", reference, "stiffness", "damping_ratio", "tau_out"],
                         "impedance_step_seconds": ["c"]},
-                "sizes": {"x": 4 * n, reference: nref, "stiffness": nk, "damping_ratio": nk, "tau": n}}
-    return _generate(impedance_law(arm, frame, design=design), "impedance", header, body, out, opt, log, manifest)
+                "sizes": {"x": 4 * n, reference: nref, "stiffness": nk, "damping_ratio": nk, "tau": n},
+                "guard": {k: v.tolist() for k, v in boxes.items()}}
+    return _generate([impedance_law(arm, frame, design=design), holding_torque(arm, "impedance_hold")], "impedance",
+                     header, body, out, opt, log, manifest)
 
 
-class _Compiled:
-    """A generated library through ctypes, its state struct in memory this object owns:
-    init(x) -> code, seconds(): the last step's duration measured in C."""
-
-    def __init__(self, directory, stem: str):
-        self.lib = ctypes.CDLL(str(Path(directory) / f"librscasadi_{stem}.so"))
-        sizeof = getattr(self.lib, f"{stem}_sizeof")
-        sizeof.restype = ctypes.c_size_t
-        self.state = np.zeros(-(-sizeof() // 8))                       # 8-byte aligned
-        self.c = ctypes.c_void_p(self.state.ctypes.data)
-        self.p = ctypes.POINTER(ctypes.c_double)
-        self._init, self._seconds = getattr(self.lib, f"{stem}_init"), getattr(self.lib, f"{stem}_step_seconds")
-        self._seconds.restype = ctypes.c_double
-
-    def _ptr(self, a):
-        return a.ctypes.data_as(self.p)
-
-    def init(self, x) -> int:
-        return self._init(self.c, self._ptr(np.ascontiguousarray(x, float)))
-
-    def seconds(self) -> float:
-        return self._seconds(self.c)
-
-
-class CompiledObserver(_Compiled):
+class CompiledObserver(CompiledController):
     """One generated observer through ctypes, its `observer_t` in memory this object owns:
-    init(x), step(x, tau) -> (r, flag)."""
+    init(x) -> 0 (ControllerError if refused), step(x, tau) -> (r, code)."""
+
+    CODES = {0: "ok", 1: "OBSERVER_COLLISION", 2: "OBSERVER_NOT_FINITE", 3: "OBSERVER_FAILED",
+             5: "OBSERVER_BAD_ARGUMENT", 6: "OBSERVER_BAD_MEASUREMENT", 7: "OBSERVER_BAD_TORQUE",
+             8: "OBSERVER_NOT_INITIALISED"}
 
     def __init__(self, directory):
         super().__init__(directory, "observer")
 
     def step(self, x, tau):
-        x, tau = np.ascontiguousarray(x, float), np.ascontiguousarray(tau, float)
-        r = np.zeros(len(x) // 2)
-        return r, self.lib.observer_step(self.c, self._ptr(x), self._ptr(tau), self._ptr(r))
+        x, tau = self.array("x", x), self.array("tau", tau)
+        r = np.zeros(self.sizes["r"])
+        return r, self.lib.observer_step(self.c, self.ptr(x), self.ptr(tau), self.ptr(r))
 
 
-class CompiledImpedance(_Compiled):
-    """One generated impedance controller through ctypes: step(x, reference, stiffness,
-    damping_ratio) -> (tau, flag)."""
+class CompiledImpedance(CompiledController):
+    """One generated impedance controller through ctypes: init(x) -> 0 (ControllerError if
+    refused), step(x, reference, stiffness, damping_ratio) -> (tau, code)."""
+
+    CODES = {0: "ok", 2: "IMPEDANCE_NOT_FINITE", 3: "IMPEDANCE_FAILED", 4: "IMPEDANCE_TOO_STIFF",
+             5: "IMPEDANCE_BAD_ARGUMENT", 6: "IMPEDANCE_BAD_MEASUREMENT", 7: "IMPEDANCE_BAD_REFERENCE",
+             8: "IMPEDANCE_NOT_INITIALISED"}
 
     def __init__(self, directory):
         super().__init__(directory, "impedance")
+        self.reference = "pose_desired" if "pose_desired" in self.sizes else "q_desired"
 
     def step(self, x, reference, stiffness, damping_ratio):
-        args = [np.ascontiguousarray(v, float) for v in (x, reference, stiffness, damping_ratio)]
-        tau = np.zeros(len(args[0]) // 4)
-        return tau, self.lib.impedance_step(self.c, *[self._ptr(a) for a in args], self._ptr(tau))
+        args = [self.array(name, v) for name, v in
+                zip(("x", self.reference, "stiffness", "damping_ratio"), (x, reference, stiffness, damping_ratio))]
+        tau = np.zeros(self.sizes["tau"])
+        return tau, self.lib.impedance_step(self.c, *[self.ptr(a) for a in args], self.ptr(tau))

@@ -29,7 +29,11 @@ import casadi as ca
 import numpy as np
 
 from rscasadi.dynamics.arm import Arm
-from rscasadi.dynamics.statics import spring_deflection
+from rscasadi.dynamics.statics import holding_torque, spring_deflection
+from rscasadi.model.limits import limit_arrays, measurement_bounds
+from rscasadi.native.controller import (BAD_MEASUREMENT, BAD_REFERENCE, DAMPING_RATIO_BOUND, NOT_FINITE,
+                                        NOT_INITIALISED, STIFFNESS_BOUND, TOO_STIFF, clamp, task_reference_bounds,
+                                        within)
 
 
 def _vee(S):
@@ -135,24 +139,69 @@ def _margin(J, K, k1):
     return ca.mmin(ca.ldl(S)[0])
 
 
+def impedance_boxes(model, frame: str | None) -> dict:
+    """The impedance controller's guard: the measured state's box, the reference's (link angles;
+    Cartesian: p (3) then R (9)), the stiffness's and the damping ratio's."""
+    n, nk = model.n, (6 if frame is not None else model.n)
+    x_lo, x_hi = measurement_bounds(model)
+    if frame is None:
+        ref_lo, ref_hi = x_lo[:n], x_hi[:n]
+    else:                                  # task_reference_bounds' velocity rows are no reference here
+        ref_lo, ref_hi = (np.delete(b, range(3, 6)) for b in task_reference_bounds(15))
+    return {"x_lo": x_lo, "x_hi": x_hi, "ref_lo": ref_lo, "ref_hi": ref_hi, "k_lo": np.zeros(nk),
+            "k_hi": np.full(nk, STIFFNESS_BOUND), "z_lo": np.zeros(nk), "z_hi": np.full(nk, DAMPING_RATIO_BOUND)}
+
+
 class ImpedanceController:
-    """The impedance controller in discrete time: `step(x, reference, stiffness, damping_ratio)` ->
-    the motor torques within the limits.  frame given: Cartesian, reference p (3) and R (9,
-    column-major), stiffness translational N/m (3) and rotational N m/rad (3, used on arms of 6
-    joints or more), damping_ratio 6; frame None: joint space, reference q_d, stiffness N m/rad
-    and damping_ratio, n each.  Keywords as `impedance_law`."""
+    """The impedance controller in discrete time, the generated C's twin: `init(x)` once, then
+    `step(x, reference, stiffness, damping_ratio)` -> the motor torques within the limits.  frame
+    given: Cartesian, reference p (3) and R (9, column-major), stiffness translational N/m (3) and
+    rotational N m/rad (3, used on arms of 6 joints or more), damping_ratio 6; frame None: joint
+    space, reference q_d, stiffness N m/rad and damping_ratio, n each.  Keywords as
+    `impedance_law`.  The C's failure policy: `code` is the last call's return code
+    (native.controller's names; 0: good) and a refused step returns the holding torque of the
+    last good state; nothing raises for bad data."""
 
     def __init__(self, arm: Arm, frame: str | None, **design):
         self.n, self.passive = arm.n, design.get("design", "motor") == "motor"
         self.law = impedance_law(arm, frame, **design)
-        self.limit = np.array([jt.limits.get("tau", np.inf) for jt in arm.model.joints])
+        self.hold = holding_torque(arm)
+        self.limit = limit_arrays(arm.model)["tau"]
+        self.box = impedance_boxes(arm.model, frame)
+        self.x_good, self.code = None, NOT_INITIALISED
+
+    def init(self, x) -> int:
+        """0, or BAD_MEASUREMENT for a state outside its box (then uninitialised)."""
+        ok = within(x, self.box["x_lo"], self.box["x_hi"])
+        self.x_good = np.asarray(x, float).ravel().copy() if ok else None
+        self.code = 0 if ok else BAD_MEASUREMENT
+        return self.code
+
+    def _refuse(self, code: int) -> np.ndarray:
+        self.code = code
+        n = self.n
+        return clamp(np.array(self.hold(self.x_good[:n], self.x_good[n:2 * n])).ravel(), self.limit)
 
     def step(self, x, reference, stiffness, damping_ratio) -> np.ndarray:
-        """The motor torques; a ValueError if the passive design is asked for a stiffness beyond
-        the springs' (its margin <= 0)."""
-        n, x = self.n, np.asarray(x, float)
+        """The motor torques (code 0), or the holding torque of the last good state with the code
+        of what was refused (TOO_STIFF: the passive design asked for a stiffness beyond the
+        springs', its margin <= 0)."""
+        if self.x_good is None:
+            self.code = NOT_INITIALISED
+            return np.zeros(self.n)
+        b = self.box
+        if not within(x, b["x_lo"], b["x_hi"]):
+            return self._refuse(BAD_MEASUREMENT)
+        n, x = self.n, np.asarray(x, float).ravel()
+        self.x_good = x.copy()
+        if not (within(reference, b["ref_lo"], b["ref_hi"]) and within(stiffness, b["k_lo"], b["k_hi"])
+                and within(damping_ratio, b["z_lo"], b["z_hi"])):
+            return self._refuse(BAD_REFERENCE)
         tau, _, _, margin = self.law(x[:n], x[n:2 * n], x[2 * n:3 * n], x[3 * n:], reference, stiffness, damping_ratio)
+        tau = np.array(tau).ravel()
+        if not np.all(np.isfinite(tau)):
+            return self._refuse(NOT_FINITE)
         if self.passive and not float(margin) > 0:
-            raise ValueError(f"impedance: stiffness {list(np.ravel(stiffness))} is beyond what the springs allow the "
-                             f"passive design here (margin {float(margin):.3g}); command a softer one or design='link'")
-        return np.clip(np.array(tau).ravel(), -self.limit, self.limit)
+            return self._refuse(TOO_STIFF)
+        self.code = 0
+        return clamp(tau, self.limit)

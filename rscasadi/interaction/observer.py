@@ -23,6 +23,10 @@ import casadi as ca
 import numpy as np
 
 from rscasadi.dynamics.arm import Arm
+from rscasadi.model.limits import measurement_bounds, torque_bounds
+from rscasadi.native.controller import BAD_MEASUREMENT, COLLISION, NOT_FINITE, NOT_INITIALISED, within
+
+BAD_TORQUE = 7               # the observer's name for the guard's BAD_REFERENCE: tau_applied refused
 
 
 def observer_terms(arm: Arm) -> ca.Function:
@@ -45,11 +49,13 @@ def observer_terms(arm: Arm) -> ca.Function:
 
 class MomentumObserver:
     """The residual observer in discrete time at the sample time `dt` with gain `gain` (1/s, a
-    number or one per coordinate): `init(x)` at the first sample, then `step(x, tau)` each sample
-    with the measured state and the torque applied over the sample before; it returns r (2n):
-    the external torques on the links (first n, N m) and on the rotors (last n).  With a
-    `threshold` (N m), `collision` tells after each step whether a link's |r| exceeds it (the
-    delay: docs/user-guide/interaction.md)."""
+    number or one per coordinate), the generated C's twin: `init(x)` at the first sample, then
+    `step(x, tau)` each sample with the measured state and the torque applied over the sample
+    before; it returns r (2n): the external torques on the links (first n, N m) and on the
+    rotors (last n).  With a `threshold` (N m), `collision` tells after each step whether a
+    link's |r| exceeds it (the delay: docs/user-guide/interaction.md).  The C's failure policy:
+    `code` is the last call's return code (0, COLLISION, or what was refused: then the state is
+    kept and the last r returned); nothing raises for bad data."""
 
     def __init__(self, arm: Arm, gain, dt: float, threshold: float = np.inf):
         self.n, self.dt, self.threshold, self.collision = arm.n, float(dt), float(threshold), False
@@ -57,27 +63,44 @@ class MomentumObserver:
         if not np.all(self.K > 0) or not dt > 0 or self.K.max() * dt >= 1.0:
             raise ValueError(f"observer: gain {gain!r} 1/s and dt {dt!r} s need K > 0 and K dt < 1")
         self.terms = observer_terms(arm)
-        self.r = np.zeros(2 * arm.n)
+        self.x_box, self.tau_max = measurement_bounds(arm.model), torque_bounds(arm.model)
+        self.r, self.ready, self.code = np.zeros(2 * arm.n), False, NOT_INITIALISED
 
     def _terms(self, x, tau):
         n = self.n
         p, beta = self.terms(x[:n], x[n:2 * n], x[2 * n:3 * n], x[3 * n:], tau)
         return np.array(p).ravel(), np.array(beta).ravel()
 
-    def init(self, x):
-        """At the first sample: the measured state."""
-        self.p0, self.beta = self._terms(np.asarray(x, float), np.zeros(self.n))[0], None
-        self.integral, self.r = np.zeros(2 * self.n), np.zeros(2 * self.n)
+    def init(self, x) -> int:
+        """At the first sample: the measured state.  0, or BAD_MEASUREMENT (then uninitialised)."""
+        self.ready = within(x, *self.x_box)
+        if self.ready:
+            self.p0, self.beta = self._terms(np.asarray(x, float).ravel(), np.zeros(self.n))[0], None
+            self.integral, self.r = np.zeros(2 * self.n), np.zeros(2 * self.n)
+        self.code = 0 if self.ready else BAD_MEASUREMENT
+        return self.code
 
     def step(self, x, tau) -> np.ndarray:
         """One sample: beta by the trapezoidal rule (the rectangle rule's error stays in the
         integral as a bias: 2 % on a push against 0.1 % here; the first sample, with no torque
         before it, by the rectangle rule), r held over the sample."""
-        p, beta = self._terms(np.asarray(x, float), np.asarray(tau, float))
-        self.integral += self.dt * (0.5 * (beta + (beta if self.beta is None else self.beta)) + self.r)
-        self.beta = beta
-        self.r = self.K * (p - self.p0 - self.integral)
-        self.collision = bool(np.abs(self.r[:self.n]).max() > self.threshold)
+        if not self.ready:
+            self.code = NOT_INITIALISED
+            return np.zeros(2 * self.n)
+        if not within(x, *self.x_box):
+            self.code = BAD_MEASUREMENT
+        elif not within(tau, -self.tau_max, self.tau_max):
+            self.code = BAD_TORQUE
+        else:
+            p, beta = self._terms(np.asarray(x, float).ravel(), np.asarray(tau, float).ravel())
+            integral = self.integral + self.dt * (0.5 * (beta + (beta if self.beta is None else self.beta)) + self.r)
+            r = self.K * (p - self.p0 - integral)
+            if not np.all(np.isfinite(r)):
+                self.code = NOT_FINITE
+                return self.r.copy()
+            self.integral, self.beta, self.r = integral, beta, r
+            self.collision = bool(np.abs(self.r[:self.n]).max() > self.threshold)
+            self.code = COLLISION if self.collision else 0
         return self.r.copy()
 
 

@@ -17,6 +17,7 @@ from rscasadi.dynamics.arm import Arm
 from rscasadi.dynamics.statics import rest_state
 from rscasadi.interaction.impedance import ImpedanceController
 from rscasadi.interaction.observer import MomentumObserver
+from rscasadi.native.controller import CODE_NAMES
 from rscasadi.sim.contact import Contact, Push, World, plant_with_contacts
 from rscasadi.sim.sensors import quanta
 
@@ -56,6 +57,8 @@ def impedance_loop(arm: Arm, frame: str, theta0, world: World, seconds: float, r
     plant = plant_with_contacts(arm, world, DT, substeps)
     place, jac = arm.frame_placement(frame), arm.frame_jacobian(world.frames[0], "local_world_aligned")
     encoders, x = Encoders(arm), rest_state(arm, theta0)
+    if ctrl.init(encoders(x)) != 0:
+        raise ValueError(f"impedance: the start state is outside the controller's box ({CODE_NAMES[ctrl.code]})")
     obs = MomentumObserver(arm, observer_gain, DT) if observer_gain else None
     if obs:
         obs.init(x)
@@ -67,6 +70,9 @@ def impedance_loop(arm: Arm, frame: str, theta0, world: World, seconds: float, r
             rows["r"].append(obs.step(meas, tau)[:n])
             rows["true"].append(np.array(jac(x[:n])).T @ f)
         tau = ctrl.step(meas, reference(k * DT), stiffness, damping_ratio)
+        if ctrl.code != 0:
+            raise ValueError(f"impedance: {CODE_NAMES[ctrl.code]} at t = {k * DT:.3f} s (stiffness "
+                             f"{list(np.ravel(stiffness))}: TOO_STIFF is beyond what the springs allow the passive design)")
         x, W = (np.array(v) for v in plant(x, tau, k * DT))
         x, f = x.ravel(), W[:, 0]
         rows["t"].append((k + 1) * DT)

@@ -1,57 +1,66 @@
-"""The generated C controller, loaded through ctypes."""
+"""The generated C MPC, loaded through ctypes (native.loader: every array checked against the
+manifest's sizes)."""
 from __future__ import annotations
 
 import ctypes
-from pathlib import Path
 
 import numpy as np
 
+from rscasadi.native.loader import CompiledController, ControllerError
 
-class CompiledMPC:
+CODES = {0: "ok", 2: "MPC_NOT_FINITE", 3: "MPC_FAILED", 4: "MPC_NO_PAYLOAD", 5: "MPC_BAD_ARGUMENT",
+         6: "MPC_BAD_MEASUREMENT", 7: "MPC_BAD_REFERENCE", 8: "MPC_NOT_INITIALISED"}
+
+
+class CompiledMPC(CompiledController):
     """One generated C controller through ctypes, its `mpc_t` in memory this object owns:
-    init(x), step(x, reference) -> (tau, seconds measured in C, flag), step_to(x, target),
-    set_payload_mass(m), set_parameters(p), set_posture(theta).  Several may share one library."""
+    init(x) -> code, step(x, reference) -> (tau, seconds measured in C, code), step_to(x, target),
+    set_payload_mass(m), set_parameters(p), set_posture(theta) -> code.  The codes and what tau
+    is then: the header's failure policy (CODES names them).  Several may share one library."""
+
+    CODES = CODES
 
     def __init__(self, directory):
-        self.lib = ctypes.CDLL(str(Path(directory) / "librscasadi_mpc.so"))
-        self.lib.mpc_step_seconds.restype = ctypes.c_double
-        self.lib.mpc_sizeof.restype = ctypes.c_size_t
+        super().__init__(directory, "mpc")
         self.lib.mpc_set_payload_mass.argtypes = [ctypes.c_void_p, ctypes.c_double]
-        self.c_double_p = ctypes.POINTER(ctypes.c_double)
-        self.state = np.zeros(-(-self.lib.mpc_sizeof() // 8))       # the mpc_t, 8-byte aligned
-        self.c = ctypes.c_void_p(self.state.ctypes.data)
+        self.n = self.sizes["tau"]
 
-    def _p(self, a):
-        return a.ctypes.data_as(self.c_double_p)
-
-    def init(self, x, parameters=None):
-        """mpc_init, or mpc_init_parameters with the arm's `parameters` (manifest.json's names)."""
-        x = self._p(np.ascontiguousarray(x, float))
+    def init(self, x, parameters=None) -> int:
+        """mpc_init, or mpc_init_parameters with the arm's `parameters` (manifest.json's names):
+        0, or ControllerError with the code C refused them with (the controller stays
+        uninitialised)."""
+        x = self.ptr(self.array("x", x))
         if parameters is None:
-            assert self.lib.mpc_init(self.c, x) == 0
-        else:
-            assert self.lib.mpc_init_parameters(self.c, x, self._p(np.ascontiguousarray(parameters, float))) == 0
+            return self.started(self.lib.mpc_init(self.c, x))
+        p = self.array("parameters", parameters, len(self.manifest["parameters"]["names"]))
+        return self.started(self.lib.mpc_init_parameters(self.c, x, self.ptr(p)))
 
     def step(self, x, reference):
         """reference: rows x N, a column per interval end (theta_ref over dtheta_ref; in task
         space p_ref, v_ref [, vec(R_ref)])."""
-        return self._call(self.lib.mpc_step, x, np.asarray(reference, float).T.ravel())
+        rows, N = self.sizes["reference"]
+        ref = np.asarray(reference)
+        if ref.shape != (rows, N):
+            raise ControllerError(f"mpc: reference must be {rows} x {N} (manifest.json), got shape {ref.shape}")
+        return self._call(self.lib.mpc_step, x, self.array("reference", ref.T))
 
     def step_to(self, x, target):
-        return self._call(self.lib.mpc_step_to, x, np.asarray(target, float).ravel())
+        return self._call(self.lib.mpc_step_to, x, self.array("target", target))
 
     def set_payload_mass(self, mass: float) -> int:
+        if not isinstance(mass, (int, float, np.integer, np.floating)) or isinstance(mass, bool):
+            raise ControllerError(f"mpc: the payload's mass must be a number, got {mass!r}")
         return self.lib.mpc_set_payload_mass(self.c, float(mass))
 
     def set_parameters(self, p) -> int:
         """The arm's parameters (manifest.json "parameters": names in order), from the next step on."""
-        return self.lib.mpc_set_parameters(self.c, self._p(np.ascontiguousarray(p, float)))
+        return self.lib.mpc_set_parameters(self.c, self.ptr(self.array("parameters", p, len(self.manifest["parameters"]["names"]))))
 
     def set_posture(self, theta) -> int:
-        return self.lib.mpc_set_posture(self.c, self._p(np.ascontiguousarray(theta, float)))
+        return self.lib.mpc_set_posture(self.c, self.ptr(self.array("theta", theta, self.n)))
 
     def _call(self, fn, x, data):
-        tau = np.zeros(len(x) // 4)
-        x, data = np.ascontiguousarray(x, float), np.ascontiguousarray(data, float)
-        flag = fn(self.c, self._p(x), self._p(data), self._p(tau))
+        tau = np.zeros(self.n)
+        x = self.array("x", x)
+        flag = fn(self.c, self.ptr(x), self.ptr(data), self.ptr(tau))
         return tau, self.lib.mpc_step_seconds(self.c), flag

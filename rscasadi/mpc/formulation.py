@@ -12,8 +12,10 @@ so the work per sample is bounded. After the iterations the plan is shifted by o
 
 Cost (per interval end k = 1..N): w_theta |theta_k - theta_ref_k|^2 + w_dtheta |dtheta_k -
 dtheta_ref_k|^2 + w_tau |tau_k|^2, and a penalty w_limits (|c| - 0.9 c_max)^2 on the SEA
-deflection psi and the slow-side speed dphi beyond 90 % of their limits (Gauss-Newton on the
-part active at the linearisation point); the motor torques are hard bounds.  In task space the
+deflection psi and the slow-side speed dphi beyond 90 % of their limits, and w_angle_limits on the
+link angles beyond 90 % of their range's half-width about its middle (Gauss-Newton on the part
+active at the linearisation point); the motor torques are hard bounds (every joint must give
+its torque limit: mpc_model refuses a model without one).  In task space the
 tracking terms are the frame's: w_position |p_k - p_ref_k|^2 + w_velocity |J dtheta_k -
 v_ref_k|^2 (+ w_orientation |skew(R_ref^T R_k)|^2), and w_posture |theta_k - theta_posture|^2
 holds a redundant arm's null space (the posture: the measured angles at mpc_init, or set).
@@ -39,6 +41,7 @@ import numpy as np
 
 from rscasadi.dynamics.arm import Arm
 from rscasadi.dynamics.collision import clearances
+from rscasadi.model.limits import limit_arrays as model_limits
 from rscasadi.model.parameters import family
 from rscasadi.mpc.problem import SOFT, LINE_SEARCH, MPCProblem
 
@@ -90,9 +93,9 @@ def interval_functions(arm: Arm, h: float, substeps: int, step_jacobian: ca.Func
 
 
 def limit_arrays(arm: Arm) -> dict:
-    """The motor-torque, deflection and slow-side speed limits per joint (inf where none)."""
-    return {key: np.array([jt.limits.get(key, 1e3 if key == "tau" else np.inf) for jt in arm.model.joints])
-            for key in ("tau", "psi", "dphi")}
+    """The joints' limits (rscasadi.model.limits.limit_arrays: inf where none): tau, psi, dphi,
+    theta_lo, theta_hi."""
+    return model_limits(arm.model)
 
 
 def reference_rows(n: int, p: MPCProblem) -> int:
@@ -118,17 +121,21 @@ def _tracking(arm: Arm, p: MPCProblem, x, ref, posture):
 
 def stage_residual(arm: Arm, p: MPCProblem, limits: dict) -> ca.Function:
     """(x_k, reference_k, posture) -> (r, dr/dx): the weighted residual whose half squared norm is
-    the stage cost: tracking errors, the psi and dphi excess beyond 90 % of their limits, and the
-    obstacles' intrusion into their margin."""
+    the stage cost: tracking errors, the psi, dphi and link-angle excess beyond 90 % of their
+    limits, and the obstacles' intrusion into their margin."""
     n = arm.n
     x, ref, posture = ca.SX.sym("x", 4 * n), ca.SX.sym("reference", reference_rows(n, p)), ca.SX.sym("posture", n)
     w = p.weights
     parts = _tracking(arm, p, x, ref, posture)
-    for c, cmax in ((x[n:2 * n] - x[:n], limits["psi"]), (x[3 * n:], limits["dphi"])):
+    ranged = np.isfinite(limits["theta_lo"]) & np.isfinite(limits["theta_hi"])
+    middle = np.where(ranged, (limits["theta_lo"] + limits["theta_hi"]) / 2, 0.0)
+    half = np.where(ranged, (limits["theta_hi"] - limits["theta_lo"]) / 2, np.inf)
+    for c, cmax, weight in ((x[n:2 * n] - x[:n], limits["psi"], w["limits"]), (x[3 * n:], limits["dphi"], w["limits"]),
+                            (x[:n] - middle, half, w["angle_limits"])):
         finite = np.isfinite(cmax)
-        if finite.any():
+        if finite.any() and weight > 0:
             excess = ca.fmax(ca.fabs(c) - SOFT * np.where(finite, cmax, 1.0), 0) * ca.sign(c)
-            parts.append(np.sqrt(w["limits"]) * finite * excess)
+            parts.append(np.sqrt(weight) * finite * excess)
     if p.obstacles:
         parts.append(np.sqrt(w["obstacles"]) * ca.fmax(-clearances(arm.model, p.obstacles, x[:n]), 0))
     r = ca.vertcat(*parts)

@@ -11,11 +11,14 @@ from pathlib import Path
 from string import Template
 
 import casadi as ca
+import numpy as np
 
 from rscasadi.files import fresh_directory, write_json
 from rscasadi.mpc.formulation import controller_arm, hold_function, n_params, reference_rows, rti_function
 from rscasadi.mpc.problem import mpc_model, mpc_problem
+from rscasadi.model.limits import limit_arrays, measurement_bounds
 from rscasadi.native.build import cached_library, compiler, native_flags
+from rscasadi.native.controller import c_numbers, c_words, guard_source, task_reference_bounds
 
 TEMPLATES = Path(__file__).with_name("templates")
 
@@ -45,6 +48,20 @@ def step_kernel(arm, flags: list, cc: list, log=print):
     lib = cached_library({f"{KERNEL}.c": text}, flags, name="mpc_kernel", what="the step Jacobian's kernel",
                          log=log, cc=cc, log_hit=True)
     return text, ca.external(KERNEL, str(lib))
+
+
+def guard_bounds(model, p, rows: int) -> dict:
+    """The controller's boxes (rscasadi_guard.h): the torque limits (inf: none), the measured
+    state's box (model.limits.measurement_bounds) and a reference column's: in joint space the
+    link angles' and speeds' boxes, in task space native.controller's."""
+    x_lo, x_hi = measurement_bounds(model)
+    n = model.n
+    if p.task_space:
+        ref_lo, ref_hi = task_reference_bounds(rows)
+    else:
+        ref_lo = np.concatenate([x_lo[:n], x_lo[2 * n:3 * n]])
+        ref_hi = np.concatenate([x_hi[:n], x_hi[2 * n:3 * n]])
+    return {"tau_max": limit_arrays(model)["tau"], "x_lo": x_lo, "x_hi": x_hi, "ref_lo": ref_lo, "ref_hi": ref_hi}
 
 
 def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: bool = False) -> dict:
@@ -78,19 +95,25 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
             n_target = 12 if p.orientation else 3
         else:
             reference, target, n_target = "theta_ref then dtheta_ref (2n)", f"{n} link angles", n
+        guard = guard_bounds(model, p, rows)
         header = Template((TEMPLATES / "rscasadi_mpc.h").read_text()).substitute(
             model=model_name, n=n, nx=4 * n, N=p.horizon, nref=rows * p.horizon, rows=rows, ts=p.sample_time,
             h=p.interval, iters=iters, reference=reference, target=target, ntarget=n_target,
             nparams=n_params(arm), np=n_params(arm) - n, task=int(p.task_space),
-            sz_w=max(rti.sz_w(), hold.sz_w()) + 1, sz_iw=max(rti.sz_iw(), hold.sz_iw()) + 1)
+            sz_w=max(rti.sz_w(), hold.sz_w()) + 1, sz_iw=max(rti.sz_iw(), hold.sz_iw()) + 1,
+            **{k: c_words(v) for k, v in guard.items()}, tau_limits=c_words(guard["tau_max"]))
         (tmp / "rscasadi_mpc.h").write_text(header)
         names, values = arm.parameters()
         free = arm.free or []
         nominal = [float(dict(zip(names, values))[k]) for k in free]
         mass_index = free.index("payload.mass") if "payload.mass" in free else -1
         (tmp / "rscasadi_mpc.c").write_text(Template((TEMPLATES / "rscasadi_mpc.c").read_text()).substitute(
-            nominal=", ".join(repr(v) for v in nominal) or "0.0", mass_index=mass_index))
-        sources = {name: (tmp / name).read_text() for name in ("mpc_rti.c", "mpc_rti.h", "rscasadi_mpc.c", "rscasadi_mpc.h")}
+            nominal=", ".join(repr(v) for v in nominal) or "0.0", mass_index=mass_index,
+            **{k: c_numbers(v) for k, v in guard.items()}))
+        for name, text in guard_source().items():
+            (tmp / name).write_text(text)
+        sources = {name: (tmp / name).read_text()
+                   for name in ("mpc_rti.c", "mpc_rti.h", "rscasadi_mpc.c", "rscasadi_mpc.h", *guard_source())}
         if kernel is not None:
             (tmp / f"{KERNEL}.c").write_text(kernel)
             sources[f"{KERNEL}.c"] = kernel
@@ -111,6 +134,7 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
                     "payload_mass": None if model.payload is None else model.payload.body.mass,
                     "obstacles": len(p.obstacles),
                     "horizon": p.horizon, "interval": p.interval, "substeps": p.substeps,
+                    "guard": {k: v.tolist() for k, v in guard.items()},
                     "sample_time": p.sample_time, "sqp_iterations": p.sqp_iterations, "qp_iterations": p.qp_iterations, "weights": p.weights,
                     "compiler": cc + flags}
         write_json(tmp / "manifest.json", manifest, indent=2)

@@ -16,10 +16,11 @@ from rscasadi.ocp.toolpath import ToolPath
 TOP = {"model", "trajectory", "sample_time", "horizon", "interval", "substeps", "sqp_iterations", "qp_iterations",
        "weights", "frame", "orientation", "path", "obstacles", "payload", "theta_start", "solution", "parametric"}
 PARAMETRIC = ("none", "family")
-WEIGHTS = {"theta": 1e5, "dtheta": 1.0, "tau": 1e-3, "limits": 1e5,
+WEIGHTS = {"theta": 1e5, "dtheta": 1.0, "tau": 1e-3, "limits": 1e5, "angle_limits": 1e8,
            "position": 1e6, "velocity": 10.0, "orientation": 1e3, "posture": 1.0, "obstacles": 1e8}
 JOINT_WEIGHTS, TASK_WEIGHTS = ("theta", "dtheta"), ("position", "velocity", "orientation", "posture")
-SOFT = 0.9                   # penalties start at this fraction of the psi and dphi limits
+SOFT = 0.9                   # penalties start at this fraction of the psi and dphi limits (and of
+                             # the link-angle range's half-width, about its middle)
 LINE_SEARCH = (1.0, 0.5, 0.25, 0.125)   # step sizes tried when sqp_iterations > 1
 
 
@@ -28,7 +29,7 @@ class MPCProblem:
     """An MPC problem: the `model` and the reference `trajectory`, the controller's `sample_time`,
     a horizon of `horizon` intervals of `interval` s with `substeps` RK4 steps each, the SQP
     iterations per sample (1: the real-time iteration) and the QP's interior-point iterations,
-    and the cost `weights` (theta, dtheta, tau, limits; in task space position, velocity,
+    and the cost `weights` (theta, dtheta, tau, limits, angle_limits; in task space position, velocity,
     orientation, posture; obstacles).  Task space: `frame` (its position, and its rotation if
     `orientation`, is the reference), `tool_path` (a `ToolPath` at a speed: the study's
     reference, from rest at `theta_start`) or `solution` (an optimal-control solution.json: the
@@ -182,6 +183,11 @@ def mpc_model(p: MPCProblem):
             model = holding(model, **p.payload)
         except (ValueError, TypeError) as exc:
             raise ModelFileError(f"{where}: field '{str(exc).split(':')[0]}': {str(exc).split(':', 1)[-1].strip()}") from None
+    unlimited = [jt.name for jt in model.joints if not np.isfinite(jt.limits.get("tau", np.inf))]
+    if unlimited:
+        raise ModelFileError(f"{model.path}: joint {unlimited[0]!r}: limits.tau missing: the MPC commands motor "
+                             f"torques within their limits (no limit would let it command any torque); give "
+                             f"limits.tau for {', '.join(repr(j) for j in unlimited)}")
     frames = [f.name for f in model.frames]
     if p.frame is not None and p.frame not in frames:
         raise ModelFileError(f"{where}: field 'frame': {model.path} has no frame {p.frame!r} (frames: {', '.join(frames)})")

@@ -8,7 +8,8 @@ import casadi as ca
 import numpy as np
 
 from rscasadi.dynamics.arm import Arm, load
-from rscasadi.mpc.compiled import CompiledMPC
+from rscasadi.mpc.compiled import CODES, CompiledMPC
+from rscasadi.model.limits import max_violation
 from rscasadi.mpc.formulation import limit_arrays
 from rscasadi.mpc.generate import generate_mpc
 from rscasadi.mpc.problem import mpc_problem
@@ -42,7 +43,7 @@ def reach_pose(problem, mpc_dir, theta_target, seconds: float = 1.0, plant: Arm 
     p = mpc_problem(problem)
     arm = load(p.model) if plant is None else plant
     from rscasadi.dynamics.statics import rest_state
-    n, advance, limits = arm.n, plant_step(arm, p.sample_time), limit_arrays(arm)
+    n, advance = arm.n, plant_step(arm, p.sample_time)
     target = np.asarray(theta_target, float)
     mpc = CompiledMPC(mpc_dir)
     x = rest_state(arm, np.zeros(n))
@@ -51,12 +52,11 @@ def reach_pose(problem, mpc_dir, theta_target, seconds: float = 1.0, plant: Arm 
     for _ in range(int(round(seconds / p.sample_time))):
         tau, t, flag = mpc.step_to(x, target)
         if flag != 0:
-            raise RuntimeError(f"mpc_step_to returned {flag}")
+            raise RuntimeError(f"mpc_step_to returned {CODES.get(flag, flag)}")
         taus.append(tau)
         times.append(t)
         x = np.array(advance(x, tau)).ravel()
-        violation = max(violation, float(np.max(np.abs(x[n:2 * n] - x[:n]) / limits["psi"] - 1)),
-                        float(np.max(np.abs(x[3 * n:]) / limits["dphi"] - 1)))
+        violation = max(violation, max_violation(arm.model, x[:n], x[n:2 * n], x[3 * n:]))
     return {"final_angle_error": float(np.max(np.abs(x[:n] - target))), "final_speed": float(np.max(np.abs(x[2 * n:]))),
             "max_limit_violation": max(violation, 0.0), "tau": np.array(taus),
             "step_median_s": float(np.median(times)), "step_worst_s": float(np.max(times))}
@@ -119,8 +119,7 @@ def closed_loop(problem, mpc_dir, duration: float | None = None, tip_factor: flo
             x = np.array(advance(x, tau)).ravel()
             thetas.append(x[:n].copy())
             errors.append(np.max(np.abs(x[:n] - ff["theta_d"][:, k + 1])))
-            violation = max(violation, float(np.max(np.abs(x[n:2 * n] - x[:n]) / limits["psi"] - 1)),
-                            float(np.max(np.abs(x[3 * n:]) / limits["dphi"] - 1)))
+            violation = max(violation, max_violation(plant.model, x[:n], x[n:2 * n], x[3 * n:]))
         e = np.array(errors)
         if traces is not None:
             traces[name] = {"t": t[1:K + 1], "error": e, "step_s": np.array(times)}
@@ -222,7 +221,7 @@ def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bo
     q_link, q_motor = quanta(plant.model.column("gear_ratio"))
     mpc = CompiledMPC(mpc_dir)
     x = rest_state(plant, reference.theta_start)
-    mpc.init(x)
+    mpc.init(x)                                   # ControllerError if C refuses the state
     if told:
         if mpc.set_payload_mass(plant.model.payload.body.mass) != 0:
             raise ValueError(f"{p.path}: the controller's model holds no payload to be told of")
@@ -241,14 +240,13 @@ def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bo
         ref = reference.columns(np.clip(t_ref + offsets, 0.0, reference.duration))
         tau, seconds, flag = mpc.step(np.concatenate([meas, speeds]), ref)
         if flag != 0:
-            raise RuntimeError(f"mpc_step returned {flag} at t = {k * dt:.3f} s")
+            raise RuntimeError(f"mpc_step returned {CODES.get(flag, flag)} at t = {k * dt:.3f} s")
         times.append(seconds)
         x = np.array(advance(x, np.clip(tau, -limits["tau"], limits["tau"]))).ravel()
         where = np.array(place(x[:n])[1]).ravel()
         errors.append(np.linalg.norm(where - reference.position(np.clip([t_ref + dt], 0.0, reference.duration))[0]))
         off_path.append(reference.distance(where))
-        violation = max(violation, float(np.max(np.abs(x[n:2 * n] - x[:n]) / limits["psi"] - 1)),
-                        float(np.max(np.abs(x[3 * n:]) / limits["dphi"] - 1)))
+        violation = max(violation, max_violation(plant.model, x[:n], x[n:2 * n], x[3 * n:]))
         if clearance is not None and float(clearance(x[:n])) < gap:
             gap, gap_at = float(clearance(x[:n])), (k + 1) * dt - settle
         if (k + 1) % every == 0:

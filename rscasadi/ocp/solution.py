@@ -19,6 +19,7 @@ from rscasadi.model.modelfile import read
 from rscasadi.model.parameters import with_values
 from rscasadi.sim.simulation import simulate_held
 from rscasadi.sim.trajectory import load_trajectory
+from rscasadi.model.limits import violation
 
 STATE = ("theta", "phi", "dtheta", "dphi")
 
@@ -81,7 +82,7 @@ def verify(solution: dict, substeps: int = 20, tol: float = 1e-10) -> dict:
     n, t, tau = arm.n, np.asarray(solution["t"]), np.asarray(solution["tau"])
     x0 = np.concatenate([np.asarray(solution[k])[:, 0] for k in ("theta", "phi", "dtheta", "dphi")])
     sim = simulate_held(arm, x0, t, tau, substeps, tol)
-    per_interval = _violations(arm, sim).reshape(-1)[1:].reshape(len(t) - 1, substeps).max(axis=1)
+    per_interval = violation(arm.model, sim["theta"], sim["phi"], sim["dphi"]).reshape(-1)[1:].reshape(len(t) - 1, substeps).max(axis=1)
     report = {"max_limit_violation": max(float(per_interval.max()), 0.0), "substeps": substeps}
     if solution.get("target_state") is not None:
         err = np.abs(sim["x"][:, -1] - np.asarray(solution["target_state"]))
@@ -115,20 +116,6 @@ def verify(solution: dict, substeps: int = 20, tol: float = 1e-10) -> dict:
     report["max_collocation_deviation"] = float(np.max(np.abs(sim["theta"][:, ::substeps] - np.asarray(solution["theta"]))))
     report["interval_violation"] = per_interval.tolist()
     return report
-
-
-def _violations(arm: Arm, sim) -> np.ndarray:
-    """Largest limit violation at each replay sample, relative to each limit (<= 0: within)."""
-    v = np.full(len(sim["t"]), -np.inf)
-    for j, jt in enumerate(arm.model.joints):
-        lim = jt.limits
-        for key in ("psi", "dphi"):
-            if key in lim:
-                v = np.maximum(v, (np.abs(sim[key][j]) - lim[key]) / lim[key])
-        if "theta" in lim:
-            lo, hi = lim["theta"]
-            v = np.maximum(v, np.maximum(lo - sim["theta"][j], sim["theta"][j] - hi) / (hi - lo))
-    return v
 
 
 def plot_solution(sol: dict, arm: Arm, out: Path):

@@ -4,10 +4,23 @@
  * The controller's work memory is the caller's impedance_t (no allocation, no static data).
  * x: theta, phi, dtheta, dphi (${nx}); reference: ${reference};
  * stiffness: ${stiffness}; damping_ratio: ${nref_k};
- * tau_out: ${n} motor torques, within their limits.  Return 0; IMPEDANCE_NOT_FINITE if tau is not
- * finite, IMPEDANCE_TOO_STIFF if the passive design is asked for a stiffness beyond what the
- * springs allow it here, IMPEDANCE_FAILED if the generated function failed (then tau_out holds
- * zeros).  impedance_step_seconds: the duration of the last impedance_step (CLOCK_MONOTONIC). */
+ * tau_out: ${n} motor torques, always finite and within the limits (${tau_limits} N m).
+ *
+ * Failure policy (rscasadi_guard.h, the same as every rscasadi controller's).  impedance_init
+ * refuses a measurement outside the box below (IMPEDANCE_BAD_MEASUREMENT) and leaves the
+ * controller uninitialised: impedance_step before a successful init returns
+ * IMPEDANCE_NOT_INITIALISED with zero torques.  impedance_step returns 0, else a code, and then
+ * tau_out is the holding torque of the last good measured state (the motor torques that hold the
+ * motors still there, within the limits):
+ *   IMPEDANCE_BAD_MEASUREMENT  x not finite or outside [${x_lo}]
+ *                              .. [${x_hi}];
+ *   IMPEDANCE_BAD_REFERENCE    a reference value outside [${ref_lo}] .. [${ref_hi}], a stiffness
+ *                              outside 0 .. ${k_max}, a damping ratio outside 0 .. ${z_max} (or not finite);
+ *   IMPEDANCE_TOO_STIFF        the passive design asked for a stiffness beyond what the springs
+ *                              allow it here;
+ *   IMPEDANCE_NOT_FINITE, IMPEDANCE_FAILED  tau not finite, the generated function failed.
+ * The next good sample is acted on as usual.  IMPEDANCE_BAD_ARGUMENT: a NULL tau_out or state.
+ * impedance_step_seconds: the duration of the last impedance_step (CLOCK_MONOTONIC). */
 #ifndef RSCASADI_IMPEDANCE_H
 #define RSCASADI_IMPEDANCE_H
 #include <stddef.h>
@@ -18,10 +31,16 @@
 #define IMPEDANCE_NOT_FINITE 2
 #define IMPEDANCE_FAILED 3
 #define IMPEDANCE_TOO_STIFF 4
+#define IMPEDANCE_BAD_ARGUMENT 5
+#define IMPEDANCE_BAD_MEASUREMENT 6
+#define IMPEDANCE_BAD_REFERENCE 7
+#define IMPEDANCE_NOT_INITIALISED 8
 typedef struct impedance_s {
   double w[${sz_w}];
   long long iw[${sz_iw}];
+  double x_good[IMPEDANCE_NX];            /* the last measured state acted on */
   double last_step_seconds;
+  int ready;                              /* RSCASADI_READY after a successful init */
 } impedance_t;
 size_t impedance_sizeof(void);
 int impedance_init(impedance_t *c, const double *x_measured);

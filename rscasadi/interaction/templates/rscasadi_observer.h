@@ -5,10 +5,17 @@
  * observer_init once with the measured state, then observer_step every sample with the measured
  * state and the motor torque applied over the sample before; r_out (${nq}): the external torques
  * on the links (first ${n}, N m) and on the rotors (last ${n}).  Return 0; OBSERVER_COLLISION if a
- * link's |r| exceeds the threshold, ${threshold} N m; OBSERVER_NOT_FINITE if
- * r is not finite (e.g. a NaN measurement: the state is kept and r_out is the last r);
- * OBSERVER_FAILED if the generated function failed.  observer_step_seconds: the duration of the
- * last observer_step (CLOCK_MONOTONIC).
+ * link's |r| exceeds the threshold, ${threshold} N m.
+ * Failure policy (rscasadi_guard.h, the same as every rscasadi controller's): observer_init refuses
+ * a measurement outside the box below (OBSERVER_BAD_MEASUREMENT) and leaves the observer
+ * uninitialised: observer_step before a successful init returns OBSERVER_NOT_INITIALISED with
+ * r_out zero.  A refused sample leaves the observer's state as it was and r_out is the last r:
+ *   OBSERVER_BAD_MEASUREMENT  x not finite or outside [${x_lo}]
+ *                             .. [${x_hi}];
+ *   OBSERVER_BAD_TORQUE       tau_applied not finite or beyond +-[${tau_hi}] N m;
+ *   OBSERVER_NOT_FINITE, OBSERVER_FAILED  r not finite, the generated function failed.
+ * The next good sample is taken as usual.  OBSERVER_BAD_ARGUMENT: a NULL r_out or state.
+ * observer_step_seconds: the duration of the last observer_step (CLOCK_MONOTONIC).
  * x: theta, phi, dtheta, dphi (${nx}); tau: ${n} motor torques. */
 #ifndef RSCASADI_OBSERVER_H
 #define RSCASADI_OBSERVER_H
@@ -19,9 +26,14 @@
 #define OBSERVER_COLLISION 1
 #define OBSERVER_NOT_FINITE 2
 #define OBSERVER_FAILED 3
+#define OBSERVER_BAD_ARGUMENT 5
+#define OBSERVER_BAD_MEASUREMENT 6
+#define OBSERVER_BAD_TORQUE 7
+#define OBSERVER_NOT_INITIALISED 8
 typedef struct observer_s {
   double p0[OBSERVER_NQ], integral[OBSERVER_NQ], beta[OBSERVER_NQ], r[OBSERVER_NQ];
   int started;
+  int ready;                              /* RSCASADI_READY after a successful init */
   double last_step_seconds;
   double w[${sz_w}];
   long long iw[${sz_iw}];

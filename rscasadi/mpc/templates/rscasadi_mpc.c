@@ -2,6 +2,7 @@
 #include <math.h>
 #include <time.h>
 #include "rscasadi_mpc.h"
+#include "rscasadi_guard.h"
 #include "mpc_rti.h"
 
 #define NXP (MPC_NX * (MPC_HORIZON + 1))
@@ -9,6 +10,9 @@
 #define NROWS (MPC_NREF / MPC_HORIZON)
 #define MASS_INDEX ${mass_index}              /* the payload's mass in the parameters, or -1: none */
 static const double NOMINAL[MPC_NP + 1] = {${nominal}};      /* the model's parameters (manifest.json) */
+static const double TAU_MAX[MPC_NU] = {${tau_max}};          /* INFINITY: no limit */
+static const double X_LO[MPC_NX] = {${x_lo}}, X_HI[MPC_NX] = {${x_hi}};      /* a plausible measurement */
+static const double REF_LO[NROWS] = {${ref_lo}}, REF_HI[NROWS] = {${ref_hi}};  /* a reference column */
 typedef char casadi_int_is_long_long[sizeof(casadi_int) == sizeof(long long) ? 1 : -1];
 typedef char work_fits[sizeof(((mpc_t *)0)->w) >= sizeof(casadi_real) * (mpc_rti_SZ_W > mpc_hold_SZ_W ? mpc_rti_SZ_W : mpc_hold_SZ_W) ? 1 : -1];
 typedef char iwork_fits[sizeof(((mpc_t *)0)->iw) >= sizeof(casadi_int) * (mpc_rti_SZ_IW > mpc_hold_SZ_IW ? mpc_rti_SZ_IW : mpc_hold_SZ_IW) ? 1 : -1];
@@ -21,72 +25,117 @@ static double now(void) {
 
 size_t mpc_sizeof(void) { return sizeof(mpc_t); }
 
-double mpc_step_seconds(const mpc_t *c) { return c->last_step_seconds; }
+double mpc_step_seconds(const mpc_t *c) { return c ? c->last_step_seconds : 0.0; }
 
 int mpc_set_payload_mass(mpc_t *c, double mass) {
   if (MASS_INDEX < 0) return MPC_NO_PAYLOAD;
-  if (!isfinite(mass) || mass < 0) return MPC_BAD_ARGUMENT;
+  if (!c || !isfinite(mass) || mass < 0) return MPC_BAD_ARGUMENT;
   c->params[MPC_NU + MASS_INDEX] = mass;
   return 0;
 }
 
+static int finite_all(const double *v, int n) {
+  if (!v) return 0;
+  for (int i = 0; i < n; ++i)
+    if (!isfinite(v[i])) return 0;
+  return 1;
+}
+
 int mpc_set_parameters(mpc_t *c, const double *p) {
-  if (MPC_NP == 0) return MPC_BAD_ARGUMENT;
-  for (int i = 0; i < MPC_NP; ++i)
-    if (!isfinite(p[i])) return MPC_BAD_ARGUMENT;
+  if (MPC_NP == 0 || !c || !finite_all(p, MPC_NP)) return MPC_BAD_ARGUMENT;
   for (int i = 0; i < MPC_NP; ++i) c->params[MPC_NU + i] = p[i];
   return 0;
 }
 
 int mpc_set_posture(mpc_t *c, const double *theta) {
-  for (int i = 0; i < MPC_NU; ++i)
-    if (!isfinite(theta[i])) return MPC_BAD_ARGUMENT;
+  if (!c || !rscasadi_within(theta, X_LO, X_HI, MPC_NU)) return MPC_BAD_ARGUMENT;
   for (int i = 0; i < MPC_NU; ++i) c->params[i] = theta[i];
   return 0;
+}
+
+/* mpc_hold at x into X, U: the arm held still at x over the horizon; 0 if that plan is finite */
+static int hold(mpc_t *c, const double *x, double *X, double *U) {
+  const casadi_real *arg[mpc_hold_SZ_ARG + 1] = {x, c->params};
+  casadi_real *res[mpc_hold_SZ_RES + 1] = {X, U};
+  if (mpc_hold(arg, res, (casadi_int *)c->iw, c->w, 0) != 0) return MPC_FAILED;
+  return finite_all(X, NXP) && finite_all(U, NUP) ? 0 : MPC_NOT_FINITE;
+}
+
+/* the safe output: the holding torque of the last good state, within the limits */
+static int refuse(mpc_t *c, double *tau_out, int code) {
+  if (hold(c, c->x_good, c->X_next, c->U_next) == 0)
+    for (int i = 0; i < MPC_NU; ++i) tau_out[i] = c->U_next[i];
+  else
+    rscasadi_zero(tau_out, MPC_NU);
+  rscasadi_clamp(tau_out, TAU_MAX, MPC_NU);
+  return code;
 }
 
 int mpc_init(mpc_t *c, const double *x_measured) { return mpc_init_parameters(c, x_measured, NOMINAL); }
 
 int mpc_init_parameters(mpc_t *c, const double *x_measured, const double *p) {
-  for (int i = 0; i < MPC_NP; ++i)
-    if (!isfinite(p[i])) return MPC_BAD_ARGUMENT;
+  if (!c) return MPC_BAD_ARGUMENT;
+  c->ready = 0;
+  c->last_step_seconds = 0.0;
+  if (!finite_all(p, MPC_NP)) return MPC_BAD_ARGUMENT;
+  if (!rscasadi_within(x_measured, X_LO, X_HI, MPC_NX)) return MPC_BAD_MEASUREMENT;
   for (int i = 0; i < MPC_NU; ++i) c->params[i] = x_measured[i];
   for (int i = 0; i < MPC_NP; ++i) c->params[MPC_NU + i] = p[i];
-  c->last_step_seconds = 0.0;
-  const casadi_real *arg[mpc_hold_SZ_ARG + 1] = {x_measured, c->params};
-  casadi_real *res[mpc_hold_SZ_RES + 1] = {c->X, c->U};
-  return mpc_hold(arg, res, (casadi_int *)c->iw, c->w, 0);
+  const int code = hold(c, x_measured, c->X, c->U);
+  if (code) return code;
+  for (int i = 0; i < MPC_NX; ++i) c->x_good[i] = x_measured[i];
+  c->ready = RSCASADI_READY;
+  return 0;
+}
+
+static int reference_ok(const double *reference) {
+  if (!reference) return 0;
+  for (int k = 0; k < MPC_HORIZON; ++k)
+    if (!rscasadi_within(reference + NROWS * k, REF_LO, REF_HI, NROWS)) return 0;
+  return 1;
 }
 
 static int step(mpc_t *c, const double *x_measured, const double *reference, double *tau_out) {
+  if (!c || c->ready != RSCASADI_READY) {
+    rscasadi_zero(tau_out, MPC_NU);
+    return MPC_NOT_INITIALISED;
+  }
+  if (!rscasadi_within(x_measured, X_LO, X_HI, MPC_NX)) return refuse(c, tau_out, MPC_BAD_MEASUREMENT);
+  for (int i = 0; i < MPC_NX; ++i) c->x_good[i] = x_measured[i];
+  if (!reference_ok(reference)) return refuse(c, tau_out, MPC_BAD_REFERENCE);
   const casadi_real *arg[mpc_rti_SZ_ARG + 1] = {x_measured, reference, c->X, c->U, c->params};
   casadi_real *res[mpc_rti_SZ_RES + 1] = {tau_out, c->X_next, c->U_next};
-  int finite = 1;
-  if (mpc_rti(arg, res, (casadi_int *)c->iw, c->w, 0) != 0) {
-    for (int i = 0; i < MPC_NU; ++i) tau_out[i] = c->U[i];
-    return MPC_FAILED;
-  }
-  for (int i = 0; i < NXP; ++i) finite = finite && isfinite(c->X_next[i]);
-  for (int i = 0; i < NUP; ++i) finite = finite && isfinite(c->U_next[i]);
-  if (!finite) {                          /* e.g. a NaN measurement: keep the plan, its first torque */
-    for (int i = 0; i < MPC_NU; ++i) tau_out[i] = c->U[i];
-    return MPC_NOT_FINITE;
+  int code = mpc_rti(arg, res, (casadi_int *)c->iw, c->w, 0) != 0 ? MPC_FAILED : 0;
+  if (!code && !(finite_all(c->X_next, NXP) && finite_all(c->U_next, NUP) && finite_all(tau_out, MPC_NU)))
+    code = MPC_NOT_FINITE;
+  if (code) {                             /* the plan restarts from the arm held here */
+    refuse(c, tau_out, code);
+    if (hold(c, x_measured, c->X, c->U) != 0) c->ready = 0;
+    return code;
   }
   for (int i = 0; i < NXP; ++i) c->X[i] = c->X_next[i];
   for (int i = 0; i < NUP; ++i) c->U[i] = c->U_next[i];
+  rscasadi_clamp(tau_out, TAU_MAX, MPC_NU);
   return 0;
 }
 
 int mpc_step(mpc_t *c, const double *x_measured, const double *reference, double *tau_out) {
+  if (!tau_out) return MPC_BAD_ARGUMENT;
   const double t0 = now();
   const int flag = step(c, x_measured, reference, tau_out);
-  c->last_step_seconds = now() - t0;
+  if (c) c->last_step_seconds = now() - t0;
   return flag;
 }
 
 /* the target held over the horizon at rest: joint space theta (n) and zero speeds; task space
  * p (3), zero velocity, and R (9, column-major) when the rotation is followed */
 int mpc_step_to(mpc_t *c, const double *x_measured, const double *target, double *tau_out) {
+  if (!tau_out) return MPC_BAD_ARGUMENT;
+  if (!c) {
+    rscasadi_zero(tau_out, MPC_NU);
+    return MPC_NOT_INITIALISED;
+  }
+  if (!target) return mpc_step(c, x_measured, NULL, tau_out);
   for (int k = 0; k < MPC_HORIZON; ++k) {
     double *col = c->target_reference + NROWS * k;
     for (int i = 0; i < NROWS; ++i) col[i] = 0.0;

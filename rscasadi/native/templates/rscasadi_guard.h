@@ -1,0 +1,35 @@
+/* The input guard every rscasadi controller applies before it acts, and the one failure policy
+ * they share (their headers state it):
+ *   - a controller acts only after a successful *_init (its state carries RSCASADI_READY); before,
+ *     *_step returns *_NOT_INITIALISED and zero torques;
+ *   - a measurement, reference, target or gain outside its stated box (NaN and infinity are outside
+ *     every box) is refused with a code, and the output is the safe one its header names (the
+ *     holding torque of the last good state, within the limits), never NaN, never beyond a limit;
+ *   - the controller is not changed by a refused sample: the next good one is acted on as usual.
+ * Everything here is static, so any number of generated controllers link into one binary. */
+#ifndef RSCASADI_GUARD_H
+#define RSCASADI_GUARD_H
+#include <math.h>
+
+#define RSCASADI_READY 0x52534341          /* "RSCA": set by a successful init, cleared by a failed one */
+
+/* 1 if lo[i] <= v[i] <= hi[i] for every i (a NaN fails every comparison); 0 for a NULL array */
+static inline int rscasadi_within(const double *v, const double *lo, const double *hi, int n) {
+  if (!v) return 0;
+  for (int i = 0; i < n; ++i)
+    if (!(v[i] >= lo[i] && v[i] <= hi[i])) return 0;
+  return 1;
+}
+
+/* tau within +-limit (INFINITY: none); a value that is not finite becomes 0 */
+static inline void rscasadi_clamp(double *tau, const double *limit, int n) {
+  for (int i = 0; i < n; ++i) {
+    double t = isfinite(tau[i]) ? tau[i] : 0.0;
+    tau[i] = t > limit[i] ? limit[i] : (t < -limit[i] ? -limit[i] : t);
+  }
+}
+
+static inline void rscasadi_zero(double *v, int n) {
+  for (int i = 0; i < n; ++i) v[i] = 0.0;
+}
+#endif
