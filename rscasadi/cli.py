@@ -124,6 +124,8 @@ def cmd_view(args):
         if not parent.is_dir():
             raise OutputError(f"{target}: the directory {parent} does not exist")
     scene = scene_of(args.result, model=args.model)
+    for name, why in scene.skipped:
+        print(f"skipped mesh {name!r}: {why}; its link is drawn by its capsules")
     write_html(scene, Path(args.out))
     print(f"wrote {args.out} ({len(scene.times)} frames over {scene.times[-1]:.3f} s)")
     if args.gif:

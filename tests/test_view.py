@@ -89,11 +89,12 @@ def _cube_stl(half: float) -> str:
 
 
 def test_urdf_visual_meshes_at_hand_are_drawn(chromium, tmp_path):
-    """A Panda whose URDF's link-4 visual is an STL at hand (a package:// name found beside the
-    URDF): the scene draws it instead of the link's capsule, and the page differs from the
-    capsules' by the cube's pixels."""
+    """A Panda whose URDF's link-4 visual is an STL in its package (a package:// name found under
+    the folder with the package.xml): the scene draws it instead of the link's capsule, and the
+    page differs from the capsules' by the cube's pixels."""
     from rscasadi.view import scene_of
     (tmp_path / "urdf").mkdir()
+    (tmp_path / "package.xml").write_text("<package><name>panda_description</name></package>\n")
     text = (ROOT / "problems" / "urdf" / "panda.urdf").read_text().replace("meshes/visual/link4.dae",
                                                                            "meshes/visual/link4.stl")
     (tmp_path / "urdf" / "panda.urdf").write_text(text)
@@ -111,3 +112,46 @@ def test_urdf_visual_meshes_at_hand_are_drawn(chromium, tmp_path):
                      "--out", str(page)]) in (0, None)
         pages[name] = screenshot(chromium, page, 0.0, tmp_path / f"{name}.png")
     assert (np.abs(pages["mesh"] - pages["capsules"]).max(axis=2) > 0.1).sum() > 2000
+
+
+def test_view_reads_no_file_outside_the_robots_package(tmp_path, capsys):
+    """A hostile URDF's meshes: an absolute path, a package:// name climbing out, a relative one
+    climbing out, a symlink named *.stl to a secret, a FIFO named *.stl, a secret with a mesh's
+    name outside the package.  None is read: the page holds no byte of the planted secrets, and
+    `view` names every mesh it skipped; a mesh inside the package is still drawn."""
+    import os
+    secret = "SECRET-TOKEN-5f2c9e"
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "secret.stl").write_text(f"solid {secret}\nendsolid\n")
+    (outside / "shadow").write_text(secret)
+    pkg = tmp_path / "robot"
+    (pkg / "urdf").mkdir(parents=True)
+    (pkg / "meshes").mkdir()
+    (pkg / "package.xml").write_text("<package><name>robot</name></package>\n")
+    (pkg / "meshes" / "good.stl").write_text(_cube_stl(0.05))
+    os.symlink(outside / "shadow", pkg / "meshes" / "link.stl")
+    os.mkfifo(pkg / "meshes" / "fifo.stl")
+    names = [str(outside / "secret.stl"), "package://robot/../outside/secret.stl", "../../outside/secret.stl",
+             "package://robot/meshes/link.stl", "package://robot/meshes/fifo.stl", "file://" + str(outside / "secret.stl"),
+             "package://robot/meshes/good.stl"]
+    text = (ROOT / "problems" / "urdf" / "panda.urdf").read_text()
+    for k, name in enumerate(names, start=1):          # the visuals of links 1..7
+        text = text.replace(f"package://example-robot-data/robots/panda_description/meshes/visual/link{k}.dae", name)
+    (pkg / "urdf" / "panda.urdf").write_text(text)
+    model = (ROOT / "problems" / "panda_sea.toml").read_text().replace('urdf = "urdf/panda.urdf"', 'urdf = "robot/urdf/panda.urdf"')
+    (tmp_path / "panda.toml").write_text(model)
+    page = tmp_path / "view.html"
+    assert main(["view", str(tmp_path / "panda.toml"), "--out", str(page)]) in (0, None)
+    out = capsys.readouterr().out
+    html = page.read_text()
+    import base64
+    for shift in range(3):                             # the secret inlined at any byte alignment
+        encoded = base64.b64encode(b"x" * shift + secret.encode()).decode()[4:16]
+        assert secret not in html and encoded not in html, shift
+    for name in names[:-1]:
+        assert f"skipped mesh {name!r}" in out, (name, out)
+    assert "good.stl" not in out
+    from rscasadi.view import scene_of
+    scene = scene_of(tmp_path / "panda.toml")
+    assert [v[0] for v in scene.visuals.get(7, [])] == ["mesh"]

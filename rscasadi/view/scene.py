@@ -25,7 +25,8 @@ class Scene:
     animation frame per body (4x4 in the world), `broken` per frame (a limit or clearance),
     `path` (k x 3 tool positions), `goal`, `obstacles`, `payload` (body, 4x4 in it, size);
     `visuals` per body its URDF visual geometries (kind, data, 4x4 in the body frame): a body
-    that has any is drawn with them instead of its capsules."""
+    that has any is drawn with them instead of its capsules; `skipped`: the meshes not read
+    (file name, why: only files inside the robot's package are)."""
     title: str
     times: np.ndarray
     poses: np.ndarray                          # (frames, n + 1, 4, 4)
@@ -38,6 +39,7 @@ class Scene:
     payload: tuple | None = None
     target: np.ndarray | None = None
     visuals: dict = field(default_factory=dict)
+    skipped: list = field(default_factory=list)
 
 
 def _homogeneous(R, p) -> np.ndarray:
@@ -70,35 +72,68 @@ def _links(arm: Arm) -> dict:
 MESHES = (".stl", ".obj", ".dae")
 
 
-def _mesh_file(urdf: Path, name: str) -> Path | None:
-    """A visual's mesh file where it is at hand: relative to the URDF, or a package:// name
-    found under the URDF's folder or one above it (its package's share directory)."""
+def package_root(urdf: Path) -> Path:
+    """The robot's package: the nearest folder holding a package.xml, the URDF's own or up to
+    three above it (a robot-description package), else the URDF's folder.  `view` reads meshes
+    only inside it."""
+    folder = urdf.resolve().parent
+    for root in (folder, *folder.parents[:3]):
+        if (root / "package.xml").is_file():
+            return root
+    return folder
+
+
+def _inside(path: Path, root: Path) -> Path | None:
+    """path if it is a regular mesh file inside root once every link is followed, else None."""
+    import stat
+    try:
+        real = path.resolve(strict=True)
+        mode = real.stat().st_mode
+    except (OSError, RuntimeError):
+        return None
+    if not real.is_relative_to(root) or not stat.S_ISREG(mode) or real.suffix.lower() not in MESHES:
+        return None
+    return real
+
+
+def _mesh_file(urdf: Path, name: str) -> tuple[Path | None, str]:
+    """A visual's mesh file inside the robot's package (package_root), and why not where none:
+    relative to the URDF, or a package:// name found under the package's root (with or without
+    the package's own name).  Absolute paths, names climbing out of the package, links that
+    leave it, special files and files that are not STL, OBJ or DAE are never read."""
+    root = package_root(urdf)
     if name.startswith("file://"):
         name = name[len("file://"):]
+    if Path(name).suffix.lower() not in MESHES:
+        return None, f"not an STL, OBJ or DAE mesh"
     if not name.startswith("package://"):
-        path = (urdf.parent / name) if not Path(name).is_absolute() else Path(name)
-        return path if path.is_file() else None
+        if Path(name).is_absolute():
+            return None, f"an absolute path (outside the robot's package {root})"
+        found = _inside(urdf.resolve().parent / name, root)
+        return (found, "") if found else (None, f"not a mesh file inside the robot's package {root}")
     parts = Path(name[len("package://"):]).parts
-    for root in (urdf.parent, *urdf.parent.parents[:3]):
-        for k in range(len(parts)):                     # with or without the package's own name
-            path = root.joinpath(*parts[k:])
-            if path.is_file():
-                return path
-    return None
+    if ".." in parts:
+        return None, f"climbs out of the robot's package {root}"
+    for k in range(len(parts)):                         # with or without the package's own name
+        found = _inside(root.joinpath(*parts[k:]), root)
+        if found:
+            return found, ""
+    return None, f"not found inside the robot's package {root} (a package.xml marks its root)"
 
 
-def _visuals(arm: Arm) -> dict:
-    """Per body the URDF's visual geometries (a URDF model): meshes whose files are at hand
-    (STL, OBJ, DAE) and boxes, cylinders and spheres, each with its pose in the body frame."""
+def _visuals(arm: Arm) -> tuple[dict, list]:
+    """Per body the URDF's visual geometries (a URDF model): meshes found inside the robot's
+    package (STL, OBJ, DAE) and boxes, cylinders and spheres, each with its pose in the body
+    frame; and the meshes skipped, with the reason."""
     urdf = arm.model.extra.get("urdf") if isinstance(arm.model.extra, dict) else None
     if not urdf or not Path(urdf).is_file():
-        return {}
+        return {}, []
     import yourdfpy
     robot = yourdfpy.URDF.load(urdf, load_meshes=False, build_scene_graph=False,
                                load_collision_meshes=False, build_collision_scene_graph=False)
     links = {lk.name: lk for lk in robot.robot.links}
     frames = {f.name: f for f in arm.model.frames}
-    out = {}
+    out, skipped = {}, []
     for name, frame in frames.items():
         if frame.body == 0 or name not in links:
             continue
@@ -108,8 +143,9 @@ def _visuals(arm: Arm) -> dict:
             if g is None:
                 continue
             if g.mesh is not None:
-                path = _mesh_file(Path(urdf), g.mesh.filename)
-                if path is None or path.suffix.lower() not in MESHES:
+                path, why = _mesh_file(Path(urdf), g.mesh.filename)
+                if path is None:
+                    skipped.append((g.mesh.filename, why))
                     continue
                 scale = np.ones(3) if g.mesh.scale is None else np.broadcast_to(np.asarray(g.mesh.scale, float), 3)
                 shape = ("mesh", str(path), T @ np.diag([*scale, 1.0]))
@@ -122,7 +158,7 @@ def _visuals(arm: Arm) -> dict:
             else:
                 continue
             out.setdefault(frame.body, []).append(shape)
-    return out
+    return out, skipped
 
 
 def _rotors(arm: Arm) -> list:
@@ -169,8 +205,9 @@ def scene_of(path, model=None) -> Scene:
         t, theta = np.asarray(data["t"], float), np.asarray(data["theta"], float)
         times = np.arange(0.0, t[-1] + 1e-9, 1.0 / FPS)
         thetas = np.vstack([np.interp(times, t, row) for row in theta])
-    scene = Scene(f"{path.parent.name}/{path.name}" if text is not None else path.name, times, _poses(arm, thetas), _links(arm), _rotors(arm),
-                  _broken(arm, thetas, data), visuals=_visuals(arm))
+    visuals, skipped = _visuals(arm)
+    scene = Scene(f"{path.parent.name}/{path.name}" if text is not None else path.name, times, _poses(arm, thetas),
+                  _links(arm), _rotors(arm), _broken(arm, thetas, data), visuals=visuals, skipped=skipped)
     if data:                                            # the tool's path: the goal's frame, else the arm's tip
         goal = data.get("goal")
         if goal:
