@@ -35,3 +35,43 @@ def test_ctrl_c_prints_one_line_and_keeps_nothing(name, tmp_path):
     assert p.returncode == 130, err
     assert lines == ["rscasadi: interrupted; nothing half-written was kept"], err
     assert not out.exists() or not any(out.iterdir()), sorted(out.rglob("*"))
+
+
+ENDLESS_FATROP = """
+import sys
+import rscasadi.ocp.solvers as solvers
+plain = solvers.options
+def endless(*args, **kwargs):                       # a fatrop solve that would run for an hour
+    opts = plain(*args, **kwargs)
+    opts["fatrop"].update(tol=1e-300, max_iter=10 ** 6, acceptable_iter=10 ** 6)
+    return opts
+solvers.options = endless
+from rscasadi.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_ctrl_c_stops_a_fatrop_solve_within_a_second(tmp_path):
+    """The default solver (fatrop through its C interface) in a solve that would not end: Ctrl-C
+    at its 20th iteration stops the command within a second, exit 130, one line, nothing kept."""
+    import time
+    out = tmp_path / "out"
+    script = tmp_path / "endless.py"
+    script.write_text(ENDLESS_FATROP)
+    p = subprocess.Popen([sys.executable, str(script), "ocp", str(ROOT / "problems" / "ocp_min_time.toml"),
+                          "--out", str(out)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    for line in p.stdout:
+        if line.strip().startswith("20 "):               # fatrop's 20th iteration
+            break
+    sent = time.perf_counter()
+    os.killpg(p.pid, signal.SIGINT)
+    try:
+        _, err = p.communicate(timeout=60)
+    finally:
+        p.kill()
+    took = time.perf_counter() - sent
+    assert p.returncode == 130, err[-2000:]
+    assert err.strip().splitlines() == ["rscasadi: interrupted; nothing half-written was kept"], err[-2000:]
+    assert took < 1.0, f"stopped {took:.2f} s after Ctrl-C"
+    assert not out.exists() or not any(out.iterdir())

@@ -73,13 +73,18 @@ static void read_primal(rsf_data* d, const double* primal, const struct FatropOc
   }
 }
 
-/* one NLP function with outputs of sizes n[]; an error (e.g. the kernel's Newton failing) leaves
-   NaN in every output for fatrop to reject */
+/* A stop asked for from another thread (Ctrl-C: driver.py): every later evaluation of the
+   running solve gives NaN, which fatrop cannot step on, so it returns within an iteration. */
+static volatile int rsf_stop = 0;
+void rsf_request_stop(void) { rsf_stop = 1; }
+
+/* one NLP function with outputs of sizes n[]; an error (e.g. the kernel's Newton failing) or a
+   stop leaves NaN in every output for fatrop to reject */
 static void call(rsf_data* d, fn_t f, const double** in, int n_in, double** out, const int* n, int n_out) {
   int i, j;
   for (i = 0; i < n_in; ++i) d->arg[i] = in[i];
   for (i = 0; i < n_out; ++i) d->res[i] = out[i];
-  if (f(d->arg, d->res, d->iw, d->w, 0)) {
+  if (rsf_stop || f(d->arg, d->res, d->iw, d->w, 0)) {
     d->failed = 1;
     for (i = 0; i < n_out; ++i) for (j = 0; j < n[i]; ++j) out[i][j] = NAN;
   }
@@ -369,6 +374,7 @@ int rsf_run(rsf_session* S, const double* x0, const double* p, const double* lbx
   int i, k, c, ret;
   d->p = p; d->lbx = lbx; d->ubx = ubx; d->lbg = lbg; d->ubg = ubg; d->x0 = x0;
   d->failed = d->bad_gap = d->g_valid = 0;
+  rsf_stop = 0;
   rsf_verbose = verbose;
   ret = fatrop_ocp_c_solve(S->solver);
   rsf_verbose = 0;

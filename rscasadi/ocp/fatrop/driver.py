@@ -202,6 +202,7 @@ class DirectFatrop:
         self.driver.rsf_open.restype = ctypes.c_void_p
         self.driver.rsf_close.argtypes = [ctypes.c_void_p]
         self.driver.rsf_run.restype = ctypes.c_int
+        self.driver.rsf_request_stop.restype = None
         self.driver.rsf_blasfeo_function.restype = ctypes.c_void_p
         self.blasfeo = blasfeo.in_use(self.driver.rsf_blasfeo_function())
         self.library, self.nlp = library, ctypes.CDLL(library)
@@ -299,8 +300,13 @@ class DirectFatrop:
         ptr = lambda a: a.ctypes.data_as(_Dp)  # noqa: E731
         with _ONE_AT_A_TIME:
             session = self._session(L)
-            ret = self.driver.rsf_run(ctypes.c_void_p(session), ptr(x0), ptr(p), ptr(lbx), ptr(ubx), ptr(lbg), ptr(ubg),
-                                      verbose, ptr(x), ptr(lam_g), ptr(lam_x), ptr(stats))
+            try:
+                ret = self._interruptible(lambda: self.driver.rsf_run(
+                    ctypes.c_void_p(session), ptr(x0), ptr(p), ptr(lbx), ptr(ubx), ptr(lbg), ptr(ubg), verbose, ptr(x),
+                    ptr(lam_g), ptr(lam_x), ptr(stats)))
+            except KeyboardInterrupt:                    # a solver stopped midway is not reused, nor destroyed:
+                self._sessions.pop(id(L), None)          # fatrop's teardown of it crashes (left to the process)
+                raise
             if ret == -1:                                # an exception inside fatrop: a new solver next time
                 self.driver.rsf_close(ctypes.c_void_p(self._sessions.pop(id(L))[0]))
         if stats[17]:
@@ -313,6 +319,24 @@ class DirectFatrop:
                        "interface": "direct", "blasfeo": dict(self.blasfeo),
                        "raw_derivatives": self.raw}
         return {"x": x, "lam_g": lam_g, "lam_x": lam_x}
+
+    def _interruptible(self, solve):
+        """solve() (fatrop, in C) on a thread of its own while this one waits, so that Ctrl-C
+        (Python runs signal handlers only here, between waits) reaches the caller at once: then
+        the solve is asked to stop (driver.c: rsf_request_stop, every later evaluation NaN) and
+        waited for, and the KeyboardInterrupt goes on."""
+        result = {}
+        worker = threading.Thread(target=lambda: result.setdefault("ret", solve()), daemon=True)
+        worker.start()
+        try:
+            while worker.is_alive():
+                worker.join(0.05)
+        except KeyboardInterrupt:
+            while worker.is_alive():                     # asked again: the solve may only now have begun
+                self.driver.rsf_request_stop()
+                worker.join(0.05)
+            raise
+        return result["ret"]
 
     def stats(self) -> dict:
         return dict(self._stats)
