@@ -346,8 +346,9 @@ def main(argv=None):
     except BaseException as exc:
         # an interrupt can surface as another exception when it lands inside a C extension
         if isinstance(exc, KeyboardInterrupt) or interrupt.happened():
-            print("rscasadi: interrupted; nothing half-written was kept", file=sys.stderr)
-            return 130
+            word, code = ("terminated", 143) if interrupt.terminated() else ("interrupted", 130)
+            print(f"rscasadi: {word}; nothing half-written was kept", file=sys.stderr)
+            return code
         if isinstance(exc, (ModelFileError, OutputError, CheckError, ValueError)):
             print(f"rscasadi: error: {exc}", file=sys.stderr)
             return 2

@@ -64,24 +64,57 @@ def _merge(src: Path, dst: Path):
             os.replace(entry, target)
 
 
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:                        # another user's process: alive
+        return True
+    return True
+
+
+def remove_stale(directory: Path, prefix: str):
+    """Remove the temporary directories `prefix<pid>.*` in `directory` whose process has ended
+    (killed before it could clean up: SIGKILL, a power cut)."""
+    try:
+        entries = list(Path(directory).glob(prefix + "*"))
+    except OSError:
+        return
+    for entry in entries:
+        pid = entry.name[len(prefix):].split(".", 1)[0]
+        if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)) and entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry, ignore_errors=True)
+
+
+TMP_PREFIX = ".rscasadi-tmp."
+MARKER = ".rscasadi"           # in every output directory: rscasadi wrote it (no other file counts)
+MARKER_TEXT = "This directory was written by rscasadi: the next run into it replaces the files it wrote.\n"
+
+
 @contextlib.contextmanager
-def fresh_directory(out, marker: str):
+def fresh_directory(out):
     """Yield a temporary directory to write the outputs into.  On success each entry written there
     replaces the entry of the same name in `out` (which is created if need be, and keeps its
-    permissions if it exists); nothing else in `out` is touched.  On any failure or interrupt the
-    temporary directory is removed and `out` is as it was.  A directory that rscasadi did not
-    write (no `marker` in it) is refused if an output would replace one of its files."""
+    permissions if it exists); nothing else in `out` is touched, and `out` gets the MARKER file.
+    On any failure or interrupt the temporary directory is removed and `out` is as it was.  A
+    directory without the MARKER (one rscasadi did not write, whatever files it holds) is refused
+    if an output would replace one of its files.  Temporary directories of killed runs are
+    removed first."""
     out = check_writable(out)
     try:
         if out.exists():
-            tmp = Path(tempfile.mkdtemp(prefix=".rscasadi-tmp.", dir=out))
+            remove_stale(out, TMP_PREFIX)
+            tmp = Path(tempfile.mkdtemp(prefix=f"{TMP_PREFIX}{os.getpid()}.", dir=out))
         else:
             out.parent.mkdir(parents=True, exist_ok=True)
-            tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+            remove_stale(out.parent, f".{out.name}{TMP_PREFIX}")
+            tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}{TMP_PREFIX}{os.getpid()}.", dir=out.parent))
     except OSError as exc:
         raise OutputError(f"cannot write into {out}: {exc.strerror}") from exc
     try:
         yield tmp
+        (tmp / MARKER).write_text(MARKER_TEXT)
         if not out.exists():
             umask = os.umask(0)
             os.umask(umask)
@@ -92,9 +125,11 @@ def fresh_directory(out, marker: str):
         if clash:
             raise OutputError(f"{out}: {', '.join(clash)} is of another kind (file or directory) than what "
                               f"rscasadi writes there; refusing to replace it")
-        if replaced and not (out / marker).exists():
-            raise OutputError(f"{out} was not written by rscasadi (no {marker}) and holds "
-                              f"{', '.join(replaced)}; refusing to replace them")
+        replaced = [name for name in replaced if name != MARKER]
+        if replaced and not (out / MARKER).is_file():
+            raise OutputError(f"{out} was not written by rscasadi (no {MARKER} file in it) and holds "
+                              f"{', '.join(replaced)}; refusing to replace them (choose another --out, or "
+                              "move them away)")
         _merge(tmp, out)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -16,9 +16,9 @@ from rscasadi.files import OutputError, fresh_directory, write_json
 from conftest import REFERENCE
 
 
-def _write(out, names, marker="done.json"):
-    with fresh_directory(out, marker) as tmp:
-        (tmp / marker).write_text("{}")
+def _write(out, names):
+    with fresh_directory(out) as tmp:
+        (tmp / "manifest.json").write_text("{}")
         for name in names:
             (tmp / name).parent.mkdir(parents=True, exist_ok=True)
             (tmp / name).write_text(f"new {name}")
@@ -33,7 +33,7 @@ def test_rerun_keeps_the_users_files_and_replaces_its_own(tmp_path):
     _write(out, ["a.txt", "sub/b.txt"])
     assert (out / "notes.txt").read_text() == "mine" and (out / "sub" / "mine.txt").read_text() == "mine too"
     assert (out / "a.txt").read_text() == "new a.txt"
-    assert sorted(p.name for p in out.iterdir()) == ["a.txt", "done.json", "notes.txt", "sub"]   # no temporary left
+    assert sorted(p.name for p in out.iterdir()) == [".rscasadi", "a.txt", "manifest.json", "notes.txt", "sub"]   # no temporary left
 
 
 def test_existing_empty_directory_keeps_its_permissions(tmp_path):
@@ -50,24 +50,88 @@ def test_failure_leaves_the_directory_as_it_was(tmp_path):
     before = {p.name: p.read_text() for p in out.iterdir()}
     for exc in (RuntimeError("boom"), KeyboardInterrupt()):
         with pytest.raises(type(exc)):
-            with fresh_directory(out, "done.json") as tmp:
+            with fresh_directory(out) as tmp:
                 (tmp / "a.txt").write_text("half")
                 raise exc
         assert {p.name: p.read_text() for p in out.iterdir()} == before
     with pytest.raises(RuntimeError):
-        with fresh_directory(tmp_path / "new", "done.json") as tmp:
+        with fresh_directory(tmp_path / "new") as tmp:
             (tmp / "x").write_text("half")
             raise RuntimeError
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
 
 
 def test_a_foreign_file_in_the_way_is_refused_untouched(tmp_path):
+    """A directory of the user's, even one holding a manifest.json of its own (what rscasadi's
+    outputs hold too), is not taken for rscasadi's: only the .rscasadi marker counts."""
     out = tmp_path / "out"
     out.mkdir()
     (out / "a.txt").write_text("the user's")
-    with pytest.raises(OutputError, match="not written by rscasadi.*a.txt"):
+    (out / "manifest.json").write_text('{"mine": true}')
+    with pytest.raises(OutputError, match="not written by rscasadi.*manifest.json"):
         _write(out, ["a.txt"])
-    assert [p.name for p in out.iterdir()] == ["a.txt"] and (out / "a.txt").read_text() == "the user's"
+    assert sorted(p.name for p in out.iterdir()) == ["a.txt", "manifest.json"]
+    assert (out / "a.txt").read_text() == "the user's" and (out / "manifest.json").read_text() == '{"mine": true}'
+
+
+def test_sigterm_and_kill_leave_no_temporary_behind(tmp_path):
+    """SIGTERM during a write: the command exits 143 and removes its temporary directory; one
+    killed (SIGKILL) leaves its temporary directory, which the next run into the same place
+    removes."""
+    import signal
+    import sys
+    import time
+    out = tmp_path / "out"
+    script = tmp_path / "slow.py"
+    script.write_text(f"""
+import sys, time
+from rscasadi import interrupt
+from rscasadi.files import fresh_directory
+interrupt.install()
+try:
+    with fresh_directory({str(out)!r}) as tmp:
+        (tmp / "a.txt").write_text("half")
+        print("writing", flush=True)
+        time.sleep(60)
+except KeyboardInterrupt:
+    sys.exit(143 if interrupt.terminated() else 130)
+""")
+    for sig, code in ((signal.SIGTERM, 143), (signal.SIGKILL, -9)):
+        p = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+        assert p.stdout.readline().strip() == "writing"
+        p.send_signal(sig)
+        assert p.wait(timeout=30) == code
+        left = [q.name for q in tmp_path.iterdir() if q.name.startswith(".out")]
+        assert bool(left) == (sig == signal.SIGKILL), left
+    _write(out, ["b.txt"])                          # the next run cleans what the killed one left
+    assert sorted(q.name for q in tmp_path.iterdir() if q.name != "slow.py") == ["out"]
+    assert sorted(q.name for q in out.iterdir()) == [".rscasadi", "b.txt", "manifest.json"]
+
+
+def test_a_corrupt_cache_entry_is_rebuilt_not_used(tmp_path, monkeypatch):
+    """A cached library changed after its build (garbage written over it, or truncated) is found
+    out by its SHA-256 record, rebuilt with a warning, and the rebuilt one loads; a stale build
+    folder of a killed compile is removed."""
+    import sys
+    from rscasadi.native.build import BUILD_PREFIX, cached_library
+    monkeypatch.setenv("RSCASADI_CACHE", str(tmp_path / "cache"))
+    sources = {"f.c": "double rsf_twice(double x) { return 2.0 * x; }\n"}
+    lib = cached_library(sources, ["-O1"], name="t", log=lambda m: None)
+    (lib.parent / f"{BUILD_PREFIX}999999999.x").mkdir()                 # a killed compile's (no such pid)
+    load = ("import ctypes, sys; f = ctypes.CDLL(sys.argv[1]).rsf_twice; f.restype = ctypes.c_double; "
+            "f.argtypes = [ctypes.c_double]; print(f(21.0))")
+    for damaged in (b"garbage" * 100, lib.read_bytes()[:1000]):       # overwritten, truncated
+        (lib.parent / "damaged").write_bytes(damaged)
+        (lib.parent / "damaged").replace(lib)
+        said = []
+        again = cached_library(sources, ["-O1"], name="t", log=said.append)
+        assert again == lib and any("does not match the record" in m for m in said), said
+        run = subprocess.run([sys.executable, "-c", load, str(again)], capture_output=True, text=True)
+        assert run.stdout.strip() == "42.0", run.stderr
+    quiet = []
+    cached_library(sources, ["-O1"], name="t", log=quiet.append, what="t", log_hit=True)
+    assert quiet == [f"cache hit: {lib} (t)"]
+    assert not list(lib.parent.glob(f"{BUILD_PREFIX}*"))
 
 
 def test_json_is_valid_without_nan_or_infinity(tmp_path):

@@ -264,7 +264,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
     except BuildError as exc:
         raise CodegenError(str(exc)) from None
     flags = [opt, "-std=c99"] + (native_flags() if native else [])
-    with fresh_directory(out, "manifest.json") as tmp:
+    with fresh_directory(out) as tmp:
         fns, omitted = functions(arm, prefix, bool(parametric), frames, external)
         header_gen = ca.CodeGenerator(HEADER.removesuffix(".h"), {"with_header": True})
         sources = []

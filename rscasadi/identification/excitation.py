@@ -302,7 +302,7 @@ def run(model_file, out, period: float = 10.0, harmonics: int = 5, rate: float =
     """`rscasadi excite`: design and check an excitation trajectory for `model_file` and write it,
     its exact feedforward and its figures into `out` (whole or not at all); returns its summary."""
     arm = load(model_file)
-    with fresh_directory(out, "excitation.json") as tmp:       # checked writable before the design
+    with fresh_directory(out) as tmp:       # checked writable before the design
         traj, ff, use, info = design(arm, period, harmonics, starts=starts, rate=rate, log=log)
         t = np.arange(int(round(period * rate)) + 1) / rate
         kappa, kappa_hand = condition_number(arm, traj), condition_number(arm, hand_picked(arm, period))

@@ -524,7 +524,7 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
         validation["log"] = here(validate)
     rep = report(ident, arm, validation, [here(f) for f in log_files])
     rep["model"] = here(model_file)
-    with fresh_directory(out, "report.json") as tmp:
+    with fresh_directory(out) as tmp:
         (tmp / "model.toml").write_text(f"# identified by rscasadi identify from {', '.join(rep['logs'])}\n"
                                          + to_toml(document(ident.model)))
         write_json(tmp / "report.json", rep, indent=2)

@@ -159,7 +159,7 @@ def run(model_file, log_files, out, validate=None, cutoff=None, log=print) -> di
         error = link_torque_error(identified, held_out, res["cutoff_hz"])
         report["validation"] = {"log": str(validate), "link_torque_relative_rms": error}
         log(f"validation on {validate}: link torques predicted within {100 * max(error):.2f} % RMS")
-    with fresh_directory(out, "report.json") as tmp:
+    with fresh_directory(out) as tmp:
         write_text(tmp / "model.toml", f"# the payload identified by rscasadi identify --only payload from "
                                        f"{', '.join(Path(f).name for f in log_files)}\n" + to_toml(document(identified.model)))
         write_json(tmp / "report.json", report, indent=2)

@@ -44,7 +44,7 @@ def _generate(functions: list, stem: str, header: dict, body: dict, out, opt: st
     sources[f"rscasadi_{stem}.c"] = Template((TEMPLATES / f"rscasadi_{stem}.c").read_text()).substitute(body)
     sources.update(guard_source())
     out = Path(out)
-    with fresh_directory(out, "manifest.json") as tmp:
+    with fresh_directory(out) as tmp:
         for file, text in sources.items():
             (tmp / file).write_text(text)
         cc = compiler()

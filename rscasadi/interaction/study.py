@@ -271,7 +271,7 @@ def study(arm: Arm, frame: str, theta0, out, gain: float = 50.0, threshold: floa
     result = {"model": str(arm.model.path), "frame": frame, "theta0": list(map(float, theta0)),
               "rotational_stiffness": rotational, "push": [], "wall": [], "reduced": {}}
     traces = {}
-    with fresh_directory(Path(out), "study.json") as tmp:
+    with fresh_directory(Path(out)) as tmp:
         for K in stiffnesses:
             design = "motor" if _passive_allows(arm, frame, theta0, K, rotational) else "link"
             log(f"(a) push 15 N at K = {K:g} N/m ({design} design)")

@@ -80,7 +80,7 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
     kernel, step_jacobian = step_kernel(arm, flags, cc, log)
     rti, hold = rti_function(arm, p, step_jacobian), hold_function(arm, p)
     out = Path(out)
-    with fresh_directory(out, "manifest.json") as tmp:
+    with fresh_directory(out) as tmp:
         gen = ca.CodeGenerator("mpc_rti.c", {"with_header": True})
         gen.add(rti)
         gen.add(hold)

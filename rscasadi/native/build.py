@@ -6,7 +6,10 @@ that shapes it (the sources, the compiler, the flags, the link arguments, CasADi
 it is rebuilt exactly when one of them changes and found again otherwise, across processes and
 runs.  A lock per library keeps two processes (sweep workers, test workers) from compiling the
 same one twice; the library is written under a temporary name and renamed, so no reader ever
-sees half of one.
+sees half of one.  Beside it a record of its SHA-256 and size, written at build time, is checked
+before every use: a library changed since (truncated by a full disk, overwritten, corrupted) is
+rebuilt with a warning, never loaded or shipped.  Build folders of runs that were killed are
+removed by the next run.
 
 `casadi_c(functions, name)` is the C of CasADi Functions under a fixed file name: CasADi
 prefixes its internal symbols with the file's name, so a name that varied (a pid, a temporary
@@ -27,6 +30,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import casadi as ca
+
+from rscasadi.files import remove_stale
 
 OPT_LEVELS = ("-O0", "-O1", "-O2", "-O3", "-Os")
 
@@ -83,10 +88,35 @@ def library_key(sources: dict, cc: list, flags, link) -> str:
     return digest.hexdigest()[:24]
 
 
+def _record(lib: Path) -> Path:
+    return lib.with_name(lib.name + ".sha256")
+
+
+def _fingerprint(lib: Path) -> str:
+    digest = hashlib.sha256()
+    with open(lib, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return f"{digest.hexdigest()} {lib.stat().st_size}"
+
+
+def intact(lib: Path) -> bool:
+    """Whether `lib` is the library its record describes (SHA-256 and size from its build)."""
+    try:
+        return _record(lib).read_text().strip() == _fingerprint(lib)
+    except OSError:
+        return False
+
+
+BUILD_PREFIX = ".build."
+
+
 def _compile(cc: list, flags, link, sources: dict, lib: Path):
-    """Each .c source to an object (in parallel; the headers beside them), then one shared library."""
+    """Each .c source to an object (in parallel; the headers beside them), then one shared library
+    and its record."""
     units = [name for name in sources if name.endswith(".c")]
-    with tempfile.TemporaryDirectory(dir=lib.parent) as d:
+    remove_stale(lib.parent, BUILD_PREFIX)
+    with tempfile.TemporaryDirectory(dir=lib.parent, prefix=f"{BUILD_PREFIX}{os.getpid()}.") as d:
         for name, text in sources.items():
             (Path(d) / name).write_text(text)
         procs = [(name, subprocess.Popen([*cc, *flags, "-fPIC", "-c", name, "-o", name + ".o"], cwd=d,
@@ -101,7 +131,10 @@ def _compile(cc: list, flags, link, sources: dict, lib: Path):
                              cwd=d, capture_output=True, text=True)
         if run.returncode != 0:
             raise BuildError(f"linking {lib.name} failed:\n{run.stderr[-2000:]}")
+        record = Path(d) / _record(lib).name
+        record.write_text(_fingerprint(part) + "\n")
         part.replace(lib)
+        record.replace(_record(lib))
 
 
 def cached_library(sources: dict, flags=(), link=(), name: str = "lib", what: str | None = None,
@@ -115,15 +148,19 @@ def cached_library(sources: dict, flags=(), link=(), name: str = "lib", what: st
     key = library_key(sources, cc, flags, link)
     directory = cache_dir() / "lib"
     lib = directory / f"{name}_{key}.so"
-    if lib.exists():
+    if lib.exists() and intact(lib):
         if what and log_hit:
             log(f"cache hit: {lib} ({what})")
         return lib
     with locked(directory / f"{name}_{key}.lock"):
-        if lib.exists():                        # built by another process while this one waited
+        if lib.exists() and intact(lib):        # built by another process while this one waited
             if what and log_hit:
                 log(f"cache hit: {lib} ({what})")
             return lib
+        if lib.exists():
+            log(f"warning: {lib} does not match the record of its build (corrupt, truncated or changed "
+                "since): rebuilding it")
+            lib.unlink()
         t0 = time.perf_counter()
         if what:
             log(f"compiling {what} ({' '.join(cc + flags)}) ...")

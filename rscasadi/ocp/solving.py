@@ -371,7 +371,7 @@ def run(problem, out, warm_file=None, log=print, print_level: int = 5, solver: s
     sol = solve(problem, warm, log=log, print_level=print_level)
     if sol["design"]:
         log("optimal design: " + ", ".join(f"{k} = {v:.6g}" for k, v in sol["design"].items()))
-    with fresh_directory(out, "solution.json") as tmp:
+    with fresh_directory(out) as tmp:
         if sol["design"]:                  # the arm the torques are for, as a complete model file
             designed = solution_arm(sol).model
             (tmp / "designed_model.toml").write_text(

@@ -111,7 +111,7 @@ def run(model_file, out, log=print) -> dict:
     arm = load(model_file)
     rng = np.random.default_rng(SEED)
     true_arm = perturbed_arm(arm, rng)                  # = true_arm_of(arm); rng goes on to the logs' noise
-    with fresh_directory(out, "summary.json") as tmp:
+    with fresh_directory(out) as tmp:
         log = showing_final_paths(log, tmp, Path(out))
         log(f"{stamp()} 1. rscasadi excite: identification and validation trajectories")
         designed = excitation.run(model_file, tmp / "excitation", period=10.0, harmonics=5, log=log)

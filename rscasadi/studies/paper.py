@@ -187,7 +187,7 @@ def run(trajectory_file, out, duration: float | None = None, sweeps: bool = True
     arm = load(traj.model_path)
     duration = duration or traj.duration
     t = np.linspace(0.0, duration, int(round(duration * 1000)) + 1)      # 1 kHz torque samples
-    with fresh_directory(out, "tracking.json") as tmp:
+    with fresh_directory(out) as tmp:
         log(f"[{time.perf_counter() - t0:5.1f} s] feedforward and open-loop simulation ({len(t)} samples)")
         ffs, sims, results = {}, {}, {}
         for m, red in METHODS.items():

@@ -136,7 +136,7 @@ def run(out, log=print) -> list:
         from rscasadi.mpc import study
         from rscasadi.files import fresh_directory, showing_final_paths
         from rscasadi.studies.identification_demo import true_arm_of
-        with tempfile.TemporaryDirectory() as build, fresh_directory(out / "mpc", "closed_loop.json") as tmp:
+        with tempfile.TemporaryDirectory() as build, fresh_directory(out / "mpc") as tmp:
             shown = showing_final_paths(showing_final_paths(log, tmp, out / "mpc"), build, "(a temporary build)")
             shown("MPC: generating the C controllers and running the closed-loop studies ...")
             res = study(PROBLEMS / "mpc_arm3.toml", build, log=shown, true_arm=true_arm_of(load(REFERENCE)),
@@ -158,7 +158,7 @@ def run(out, log=print) -> list:
             p = load_mpc_problem(PROBLEMS / problem)
             if p.solution is not None:                       # the reference this run has just solved
                 p = dataclasses.replace(p, solution=out / p.solution.relative_to(PROBLEMS.parent / "results"))
-            with tempfile.TemporaryDirectory() as build, fresh_directory(out / name, "closed_loop.json") as tmp:
+            with tempfile.TemporaryDirectory() as build, fresh_directory(out / name) as tmp:
                 generate_mpc(p, build, log=log)
                 res = task_study(p, build, log=log)
                 write_json(tmp / "closed_loop.json", res)
