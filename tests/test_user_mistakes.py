@@ -213,3 +213,26 @@ def test_the_options_a_new_user_got_wrong(capsys, argv, words):
         main(argv)
     err = capsys.readouterr().err.strip()
     assert exc.value.code == 2 and words in err and len(err.splitlines()) == 1, err
+
+
+@pytest.mark.parametrize("command,name,line,field", [
+    ("ocp", "ocp_min_time.toml", "[transcription]\n", "transcription.intervals"),
+    ("mpc", "mpc_arm3.toml", "\n", "horizon"),
+    ("mpc", "mpc_arm3.toml", "\n", "qp_iterations"),
+])
+def test_sizes_beyond_the_machine_are_refused_up_front(command, name, line, field, tmp_path, capsys):
+    """intervals = 100000000 took 23 GB before the kernel killed it; now refused at once with
+    the limit named, nothing written."""
+    import shutil
+    for f in ("arm3.toml", "trajectory_arm3.toml"):
+        shutil.copy(ROOT / "problems" / f, tmp_path / f)
+    text = (ROOT / "problems" / name).read_text()
+    key = field.split(".")[-1]
+    text = re.sub(rf"^{key} = .*$", "", text, flags=re.M)
+    text = text.replace(line, f"{line}{key} = 100000000\n", 1) if line.strip() else f"{key} = 100000000\n" + text
+    problem = tmp_path / name
+    problem.write_text(text)
+    assert main([command, str(problem), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert f"field '{field}'" in err and "at most" in err and "Traceback" not in err, err
+    assert not (tmp_path / "out").exists()

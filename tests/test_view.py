@@ -155,3 +155,29 @@ def test_view_reads_no_file_outside_the_robots_package(tmp_path, capsys):
     from rscasadi.view import scene_of
     scene = scene_of(tmp_path / "panda.toml")
     assert [v[0] for v in scene.visuals.get(7, [])] == ["mesh"]
+
+
+MALFORMED = {                                         # field, what replaces it
+    "t": ["abc", [], [1.0, 0.5], [0.0, 1e12], [0.0, None]],
+    "theta": [[[0.0]], [[0.0], [0.0, 1.0], []], [[None, None]] * 3, 5],
+    "model": [5, "/no/such/model.toml"],
+    "obstacles": ["ball", [{"kind": "sphere"}]],
+    "goal": ["x", {"frame": "nope", "position": [0, 0, 0]}],
+    "path": [{"points": "x"}],
+    "payload": ["x", {"mass": "heavy"}],
+}
+
+
+@pytest.mark.parametrize("field,value", [(k, v) for k, vs in MALFORMED.items() for v in vs])
+def test_a_malformed_solution_is_refused_by_field_without_a_traceback(field, value, tmp_path, capsys):
+    import json
+    data = json.loads(SOLUTION.read_text())
+    if field == "t" and isinstance(value, list) and len(value) == 2:
+        data["theta"] = [[0.0, 0.0]] * 3
+    data[field] = value
+    bad = tmp_path / "solution.json"
+    bad.write_text(json.dumps(data))
+    assert main(["view", str(bad), "--out", str(tmp_path / "x.html")]) == 2
+    err = capsys.readouterr().err
+    assert f"field '{field}'" in err and "Traceback" not in err, err
+    assert not (tmp_path / "x.html").exists()

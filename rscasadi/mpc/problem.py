@@ -22,6 +22,12 @@ JOINT_WEIGHTS, TASK_WEIGHTS = ("theta", "dtheta"), ("position", "velocity", "ori
 SOFT = 0.9                   # penalties start at this fraction of the psi and dphi limits (and of
                              # the link-angle range's half-width, about its middle)
 LINE_SEARCH = (1.0, 0.5, 0.25, 0.125)   # step sizes tried when sqp_iterations > 1
+# sizes refused before the work: the condensed QP's C grows as N^2 (20 intervals on 7 joints are
+# 30 MB of C, 6 CPU-minutes to compile), and every unrolled iteration adds to it
+MAX_SIZES = {"horizon": (50, "the condensed QP's C grows as horizon^2: 20 intervals on 7 joints are 30 MB of C"),
+             "substeps": (20, "each RK4 substep is unrolled into the C"),
+             "sqp_iterations": (10, "each SQP iteration is unrolled into the C"),
+             "qp_iterations": (100, "each interior-point iteration is unrolled into the C")}
 
 
 @dataclass
@@ -97,6 +103,8 @@ class MPCProblem:
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 fail(key, f"must be an integer >= 1, got {v!r}")
+            if v > MAX_SIZES[key][0]:
+                fail(key, f"at most {MAX_SIZES[key][0]}, got {v} ({MAX_SIZES[key][1]})")
         for key, v in self.weights.items():
             if key not in WEIGHTS:
                 fail(f"weights.{key}", f"unknown weight (allowed: {', '.join(WEIGHTS)})")

@@ -85,6 +85,9 @@ PATH_KEYS = {"frame", "points", "circle", "speed", "tolerance"}
 CIRCLE_KEYS = {"center", "radius", "normal", "turns"}
 PAYLOAD_KEYS = {"frame", "mass", "com", "inertia"}
 GOAL_KEYS = {"frame", "position", "rpy", "tolerance"}
+# sizes refused before the work: a 1e8-interval NLP takes tens of GB and is killed by the kernel
+MAX_INTERVALS, MAX_DEGREE, MAX_ROUNDS = 5000, 9, 20
+SIZES_WHY = "5000 intervals of degree 3 on 7 joints already take minutes and gigabytes; refine instead"
 TABLES = {"transcription": {"method", "degree", "intervals", "dynamics", "compiled", "condense", "parametric"},
           "verification": {"final_angle_tol", "final_speed_tol", "tracking_tol", "limit_tol", "clearance_tol"},
           "refinement": {"rounds"},
@@ -310,10 +313,13 @@ class Problem:
                                     ("solver.interface", s.interface, INTERFACES)):
             if value not in allowed:
                 fail(fld, f"must be one of {', '.join(allowed)}, got {value!r}")
-        for fld, value, lo in (("transcription.degree", tr.degree, 1), ("transcription.intervals", tr.intervals, 2),
-                               ("refinement.rounds", v.rounds, 0), ("solver.threads", s.threads, 0)):
+        for fld, value, lo, hi in (("transcription.degree", tr.degree, 1, MAX_DEGREE),
+                                   ("transcription.intervals", tr.intervals, 2, MAX_INTERVALS),
+                                   ("refinement.rounds", v.rounds, 0, MAX_ROUNDS), ("solver.threads", s.threads, 0, 1024)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo:
                 fail(fld, f"must be an integer >= {lo}, got {value!r}")
+            if value > hi:
+                fail(fld, f"{value} is more than this machine's solver can hold: at most {hi} ({SIZES_WHY})")
         for fld in ("compiled", "condense"):
             if not isinstance(getattr(tr, fld), bool):
                 fail(f"transcription.{fld}", f"must be true or false, got {getattr(tr, fld)!r}")

@@ -5,6 +5,7 @@ clearance is broken."""
 from __future__ import annotations
 
 import json
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -196,13 +197,15 @@ def scene_of(path, model=None) -> Scene:
             runs = [case["MPC (C)"] for case in cases
                     if isinstance(case.get("MPC (C)"), dict) and "theta" in case["MPC (C)"]]
             if runs:                                    # with the task's path, obstacles and payload
-                data = {"t": runs[0]["t"], "theta": runs[0]["theta"], "model": runs[0]["model"],
-                        **{k: v for k, v in {**data, **runs[0]}.items() if k in ("path", "obstacles", "payload")}}
+                with _field(path, "MPC (C)"):
+                    data = {"t": runs[0]["t"], "theta": runs[0]["theta"], "model": runs[0]["model"],
+                            **{k: v for k, v in {**data, **runs[0]}.items() if k in ("path", "obstacles", "payload")}}
         if not isinstance(data, dict) or not {"t", "theta", "model"} <= set(data):
             raise ModelFileError(f"{path}: not a solution.json or closed_loop.json (no t, theta, model)")
-        from rscasadi.ocp.solution import solution_arm
-        arm = Arm(load(model).model) if model is not None else solution_arm(data)
-        t, theta = np.asarray(data["t"], float), np.asarray(data["theta"], float)
+        t, theta = _checked_motion(path, data)
+        arm = _checked_arm(path, data, model)
+        if theta.shape[0] != arm.n:
+            raise ModelFileError(f"{path}: field 'theta': {theta.shape[0]} rows for the {arm.n}-joint arm of {arm.model.path}")
         times = np.arange(0.0, t[-1] + 1e-9, 1.0 / FPS)
         thetas = np.vstack([np.interp(times, t, row) for row in theta])
     visuals, skipped = _visuals(arm)
@@ -222,12 +225,65 @@ def scene_of(path, model=None) -> Scene:
     scene.obstacles = list(data.get("obstacles") or []) if data else []
     if data and data.get("path"):                       # the path asked for, beside the one flown
         from rscasadi.ocp.toolpath import ToolPath
-        scene.target = ToolPath.from_dict(data["path"]).sample()
+        with _field(path, "path"):
+            scene.target = ToolPath.from_dict(data["path"]).sample()
     if arm.model.payload is not None:
         f = arm.model.frame(arm.model.payload.frame)
         body = arm.model.payload.body
         scene.payload = (f.body, _homogeneous(f.R, f.p + f.R @ body.com), float(np.cbrt(body.mass / 2700.0)))
     return scene
+
+
+MAX_SECONDS = 3600.0          # the longest motion view animates (30 frames a second)
+
+
+@contextmanager
+def _field(path: Path, name: str):
+    """A malformed part of a result file as a ModelFileError naming the file and the field."""
+    try:
+        yield
+    except (TypeError, KeyError, ValueError, IndexError, AttributeError) as exc:
+        raise ModelFileError(f"{path}: field '{name}': malformed ({exc})") from None
+
+
+def _checked_motion(path: Path, data: dict) -> tuple[np.ndarray, np.ndarray]:
+    """t (K, finite, non-decreasing, from 0 to at most MAX_SECONDS) and theta (rows x K, finite)."""
+    def numbers(name, v, dims):
+        with _field(path, name):
+            a = np.asarray(v, dtype=float)
+        if a.ndim != dims or a.size == 0 or not np.all(np.isfinite(a)):
+            raise ModelFileError(f"{path}: field '{name}': expected {'a list' if dims == 1 else 'lists'} of finite "
+                                 f"numbers{'' if dims == 1 else ', one list per joint'}")
+        return a
+    t, theta = numbers("t", data["t"], 1), numbers("theta", data["theta"], 2)
+    if np.any(np.diff(t) < 0) or t[-1] - t[0] > MAX_SECONDS:
+        raise ModelFileError(f"{path}: field 't': expected times that do not decrease, at most {MAX_SECONDS:g} s long")
+    if theta.shape[1] != t.size:
+        raise ModelFileError(f"{path}: field 'theta': {theta.shape[1]} samples for {t.size} times")
+    return t - t[0], theta
+
+
+def _checked_arm(path: Path, data: dict, model) -> Arm:
+    """The arm of a result file (its model, payload and parameters), or `model`'s; its goal and
+    obstacles checked against it."""
+    from rscasadi.ocp.solution import solution_arm
+    if model is None and (not isinstance(data["model"], str) or not Path(data["model"]).is_file()):
+        raise ModelFileError(f"{path}: field 'model': expected the path of a model file, got {data['model']!r}")
+    if model is not None:
+        arm = Arm(load(model).model)
+    else:
+        with _field(path, "payload"):
+            arm = solution_arm(data)
+    goal = data.get("goal")
+    if goal:
+        if not isinstance(goal, dict) or goal.get("frame") not in [f.name for f in arm.model.frames] \
+                or np.shape(goal.get("position")) != (3,):
+            raise ModelFileError(f"{path}: field 'goal': expected a frame of {arm.model.path} and a position (3)")
+    with _field(path, "obstacles"):
+        from rscasadi.ocp.problem import Obstacle
+        for o in data.get("obstacles") or []:
+            Obstacle(o["kind"], o["center"], o["radius"], o["size"])
+    return arm
 
 
 def _broken(arm: Arm, thetas: np.ndarray, data: dict) -> np.ndarray:
