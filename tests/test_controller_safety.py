@@ -7,6 +7,7 @@ its last r), never NaN, never beyond a limit; the next good sample gets exactly 
 controller that never saw the bad one gets.  The ctypes wrappers refuse arrays of the wrong
 length or type before C sees them; a C harness runs the three controllers in one binary under
 valgrind."""
+import os
 import shutil
 import subprocess
 
@@ -243,13 +244,13 @@ def test_the_python_twins_refuse_an_init_and_act_only_after_one(arm):
     assert imp.init(x) == 0 and obs.init(x) == 0
 
 
-def test_three_controllers_in_one_binary_under_valgrind(mpc_dirs, interaction_dirs, tmp_path):
-    """tests/c/controllers_guard.c links the joint-space MPC, impedance controller and observer
-    of the 3-joint arm into one program (no symbol clashes) and feeds them NULL arrays, garbage
-    state memory and every bad value in every entry: all checks pass, and under valgrind (where
-    installed) no invalid read or write."""
+def test_four_controllers_in_one_binary_under_valgrind(mpc_dirs, interaction_dirs, built, tmp_path):
+    """tests/c/controllers_guard.c links the joint-space MPC, impedance controller, observer and
+    the arm library's guarded feedforward of the 3-joint arm into one program (no symbol
+    clashes) and feeds them NULL arrays, garbage state memory and every bad value in every entry:
+    all checks pass, and under valgrind (installed in CI) no invalid read or write."""
     dirs = {mpc_dirs["mpc_arm3"]: "rscasadi_mpc", interaction_dirs / "impedance_joint": "rscasadi_impedance",
-            interaction_dirs / "observer": "rscasadi_observer"}
+            interaction_dirs / "observer": "rscasadi_observer", built[0]: "rscasadi_arm"}
     exe = tmp_path / "guard"
     subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-O1", *[f"-I{d}" for d in dirs],
                     str(ROOT / "tests" / "c" / "controllers_guard.c"), *[f"-L{d}" for d in dirs],
@@ -257,7 +258,52 @@ def test_three_controllers_in_one_binary_under_valgrind(mpc_dirs, interaction_di
                    check=True)
     run = subprocess.run([str(exe)], capture_output=True, text=True)
     assert run.returncode == 0 and run.stdout.strip().endswith("0 failed"), run.stderr[-3000:]
+    if shutil.which("valgrind") is None and os.environ.get("CI") and os.geteuid() == 0 and shutil.which("apt-get"):
+        env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")          # CI on Debian installs it
+        subprocess.run(["apt-get", "update", "-qq"], env=env, capture_output=True, timeout=600)
+        subprocess.run(["apt-get", "install", "-y", "-qq", "valgrind"], env=env, capture_output=True, timeout=900)
     if shutil.which("valgrind") is None:
         pytest.skip("valgrind is not installed: the checks passed without it")
     check = subprocess.run(["valgrind", "--error-exitcode=9", str(exe)], capture_output=True, text=True)
     assert check.returncode == 0, check.stderr[-3000:]
+
+
+def test_the_guarded_feedforward_fuzzed(built):
+    """The arm library's ff_init / ff_step (the paper's feedforward with the failure policy) on a
+    desired motion with 40 % bad samples: a bad one returns FF_BAD_REFERENCE (7) and the holding
+    torque at the last good sample (from the library's own feedforward_step chain and the model's
+    inverse dynamics in Python), the next good one equals the unguarded chain that never saw the
+    bad sample; before init, FF_NOT_INITIALISED and zeros."""
+    from rscasadi.codegen import CompiledFeedforward, load_compiled
+    directory, _ = built
+    arm = rscasadi.load(ROOT / "problems" / "arm3.toml")
+    ff, raw = CompiledFeedforward(directory), load_compiled(directory)
+    z = np.zeros(3)
+    assert ff.step(THETA0, z, z, 1e-3)[1] == 8 and not np.any(ff.step(THETA0, z, z, 1e-3)[0])
+    with pytest.raises(ControllerError, match="FF_BAD_REFERENCE"):
+        ff.init([np.nan, 0.0, 0.0], z, z)
+    tau0 = ff.init(THETA0, z, z)
+    tau_raw, state = raw["feedforward_init"](THETA0, z, z)
+    assert np.max(np.abs(tau0 - np.array(tau_raw).ravel())) < 1e-12
+    rng, limit = np.random.default_rng(6), limit_arrays(arm.model)["tau"]
+    good_theta, h, codes = THETA0, 1e-3, []
+    for k in range(200):
+        t = (k + 1) * h
+        sample = [THETA0 + 0.3 * np.sin(t) * np.ones(3), 0.3 * np.cos(t) * np.ones(3), -0.3 * np.sin(t) * np.ones(3)]
+        if rng.random() < 0.4:
+            which = int(rng.integers(4))
+            if which < 3:
+                sample[which] = corrupt(rng, sample[which], BAD[:-1] + [1e5])      # 1e5 rad/s^2: absurd too
+                tau, code = ff.step(*sample, h)
+            else:
+                tau, code = ff.step(*sample, [np.nan, -1.0, 1.0, 10.0][int(rng.integers(4))])
+            psi = np.array(state).ravel()[:3]
+            assert code == 7 and np.max(np.abs(tau - holding(arm, np.r_[good_theta, good_theta + psi]))) < 1e-9
+        else:
+            tau, code = ff.step(*sample, h)
+            tau_raw, state = raw["feedforward_step"](state, *sample, h)
+            assert code == 0 and np.max(np.abs(tau - np.clip(np.array(tau_raw).ravel(), -limit, limit))) < 1e-12, k
+            good_theta = sample[0]
+        assert np.all(np.isfinite(tau)) and np.all(np.abs(tau) <= limit + 1e-12)
+        codes.append(code)
+    assert {0, 7} <= set(codes)

@@ -7,6 +7,7 @@ Compiled libraries are cached by a hash of their sources, compiler and flags.
 """
 from __future__ import annotations
 
+import ctypes
 import json
 import os
 import re
@@ -25,6 +26,7 @@ from rscasadi.model.checks import identifier
 from rscasadi.files import OutputError, fresh_directory, write_json
 from rscasadi.codegen.step_kernel import kernel_source
 from rscasadi.native.build import OPT_LEVELS, BuildError, cached_library, compiler, native_flags
+from rscasadi.native.loader import CompiledController, ControllerError
 
 IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,62}\Z")
 LIBRARY = "librscasadi_arm.so"
@@ -213,6 +215,33 @@ def functions(arm: Arm, prefix: str = "", parametric: bool = False, frames=(), e
     return fns, omitted
 
 
+FEEDFORWARD = "rscasadi_feedforward"
+TEMPLATES = Path(__file__).with_name("templates")
+ACCELERATION_BOUND = 1e3         # rad/s^2: the largest desired link acceleration the feedforward takes
+STEP_BOUNDS = (1e-6, 0.1)        # s: the sample times it takes
+
+
+def feedforward_controller(arm: Arm, fns: dict, prefix: str) -> dict:
+    """The sources of the guarded feedforward (templates/rscasadi_feedforward.*: ff_init, ff_step
+    around the library's feedforward_init and feedforward_step, with the controllers' failure
+    policy) and the guard header: file name -> text."""
+    from string import Template
+    from rscasadi.model.limits import limit_arrays, measurement_bounds
+    from rscasadi.native.controller import c_numbers, c_words, guard_source
+    n, p = arm.n, f"{prefix}_" if prefix else ""
+    lo, hi = measurement_bounds(arm.model)
+    tau = limit_arrays(arm.model)["tau"]
+    parts = [fns[k] for k in ("feedforward_init", "feedforward_step", "inverse_dynamics")]
+    values = {"n": n, "p": p, "P": p.upper(), "model": re.sub(r"[^A-Za-z0-9._-]", "_", Path(str(arm.model.path)).name),
+              "tau_limits": c_words(tau), "tau_max": c_numbers(tau), "theta_lo": c_words(lo[:n]),
+              "theta_hi": c_words(hi[:n]), "speed": c_words(hi[2 * n:3 * n]), "theta_lo_c": c_numbers(lo[:n]),
+              "theta_hi_c": c_numbers(hi[:n]), "speed_c": c_numbers(hi[2 * n:3 * n]), "accel": repr(ACCELERATION_BOUND),
+              "h_lo": repr(STEP_BOUNDS[0]), "h_hi": repr(STEP_BOUNDS[1]), "header": FEEDFORWARD + ".h",
+              "sz_w": max(f.sz_w() for f in parts) + 1, "sz_iw": max(f.sz_iw() for f in parts) + 1}
+    return {name: Template((TEMPLATES / name).read_text()).substitute(values)
+            for name in (FEEDFORWARD + ".h", FEEDFORWARD + ".c")} | guard_source()
+
+
 def _declare(header: Path, declarations: list):
     """Add the kernels' declarations to CasADi's header, inside its extern "C" block."""
     text = header.read_text()
@@ -287,9 +316,14 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
         (tmp / f"{HEADER.removesuffix('.h')}.c").unlink()        # only its header is used
         if kernels:
             _declare(tmp / HEADER, [k.header for k in kernels.values()])
+        texts = {src.name: src.read_text() for src in sources}
+        if not parametric:                          # the feedforward as a guarded controller
+            controller = feedforward_controller(arm, fns, prefix)
+            for name, text in controller.items():
+                (tmp / name).write_text(text)
+            texts.update(controller, **{HEADER: (tmp / HEADER).read_text()})
         try:
-            lib = cached_library({src.name: src.read_text() for src in sources}, flags, name="arm",
-                                 what=f"{len(sources)} sources", log=log, cc=cc,
+            lib = cached_library(texts, flags, name="arm", what=f"{len(sources)} sources", log=log, cc=cc,
                                  log_hit=True)
         except BuildError as exc:
             raise CodegenError(str(exc)) from None
@@ -297,7 +331,10 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
         manifest = {
             "model": str(getattr(arm.model, "path", "")),
             "header": HEADER,
-            "sources": [s.name for s in sources],
+            "sources": [s.name for s in sources] + ([FEEDFORWARD + ".c"] if not parametric else []),
+            "controllers": {"feedforward": {"header": FEEDFORWARD + ".h", "type": f"{prefix + '_' if prefix else ''}ff_t",
+                                            "init": f"{prefix + '_' if prefix else ''}ff_init",
+                                            "step": f"{prefix + '_' if prefix else ''}ff_step"}} if not parametric else {},
             "library": LIBRARY,
             "functions": {name: {"symbol": f.name(), "inputs": _io(f, False), "outputs": _io(f, True),
                                  "n_instructions": kernels[name].n_instructions if name in kernels else f.n_instructions()}
@@ -374,3 +411,38 @@ class Compiled:
 def load_compiled(directory) -> Compiled:
     """Load DIR/manifest.json's library back through casadi.external."""
     return Compiled(directory)
+
+
+class CompiledFeedforward(CompiledController):
+    """The guarded feedforward of a generated (constant) arm library through ctypes, its ff_t in
+    memory this object owns: init(theta_d, dtheta_d, ddtheta_d) -> tau (ControllerError if
+    refused), step(theta_d, dtheta_d, ddtheta_d, h) -> (tau, code): the controllers' failure policy
+    (templates/rscasadi_feedforward.h)."""
+
+    CODES = {0: "ok", 2: "FF_NOT_FINITE", 3: "FF_FAILED", 5: "FF_BAD_ARGUMENT", 7: "FF_BAD_REFERENCE",
+             8: "FF_NOT_INITIALISED"}
+
+    def __init__(self, directory):
+        manifest = json.loads((Path(directory) / "manifest.json").read_text())
+        if not manifest.get("controllers", {}).get("feedforward"):
+            raise ControllerError(f"{directory}: a parametric library has no guarded feedforward")
+        n = manifest["functions"]["feedforward_init"]["inputs"][0]["rows"]
+        prefix = f"{manifest['prefix']}_" if manifest.get("prefix") else ""
+        super().__init__(directory, f"{prefix}ff", sizes={"theta_d": n, "dtheta_d": n, "ddtheta_d": n, "tau": n})
+        self._step = getattr(self.lib, f"{prefix}ff_step")
+        self._step.argtypes = [ctypes.c_void_p] + [ctypes.POINTER(ctypes.c_double)] * 3 + [ctypes.c_double,
+                                                                                           ctypes.POINTER(ctypes.c_double)]
+
+    def _sample(self, theta_d, dtheta_d, ddtheta_d):
+        return [self.ptr(self.array(k, v)) for k, v in zip(("theta_d", "dtheta_d", "ddtheta_d"), (theta_d, dtheta_d, ddtheta_d))]
+
+    def init(self, theta_d, dtheta_d, ddtheta_d) -> np.ndarray:
+        tau = np.zeros(self.sizes["tau"])
+        self.started(self._init(self.c, *self._sample(theta_d, dtheta_d, ddtheta_d), self.ptr(tau)))
+        return tau
+
+    def step(self, theta_d, dtheta_d, ddtheta_d, h: float):
+        if not isinstance(h, (int, float, np.integer, np.floating)) or isinstance(h, bool):
+            raise ControllerError(f"{self.stem}: h must be a number of seconds, got {h!r}")
+        tau = np.zeros(self.sizes["tau"])
+        return tau, self._step(self.c, *self._sample(theta_d, dtheta_d, ddtheta_d), float(h), self.ptr(tau))

@@ -30,21 +30,22 @@ class CompiledController:
 
     CODES: dict = {}
 
-    def __init__(self, directory, stem: str):
+    def __init__(self, directory, stem: str, sizes: dict | None = None):
         directory = Path(directory)
         try:
             self.manifest = json.loads((directory / "manifest.json").read_text())
             self.lib = ctypes.CDLL(str(directory / self.manifest["library"]))
-        except (OSError, ValueError, KeyError) as exc:
+            self.sizes = self.manifest["sizes"] if sizes is None else sizes
+            sizeof, self._init = getattr(self.lib, f"{stem}_sizeof"), getattr(self.lib, f"{stem}_init")
+        except (OSError, ValueError, KeyError, AttributeError) as exc:
             raise ControllerError(f"{directory}: not a generated controller ({exc})") from None
-        self.sizes = self.manifest["sizes"]
         self.stem = stem
-        sizeof = getattr(self.lib, f"{stem}_sizeof")
         sizeof.restype = ctypes.c_size_t
         self.state = np.zeros(-(-sizeof() // 8))                       # 8-byte aligned
         self.c = ctypes.c_void_p(self.state.ctypes.data)
-        self._init, self._seconds = getattr(self.lib, f"{stem}_init"), getattr(self.lib, f"{stem}_step_seconds")
-        self._seconds.restype = ctypes.c_double
+        self._seconds = getattr(self.lib, f"{stem}_step_seconds", None)
+        if self._seconds is not None:
+            self._seconds.restype = ctypes.c_double
 
     def array(self, name: str, value, size: int | None = None) -> np.ndarray:
         """`value` as a contiguous float64 array of the manifest's size for `name` (or `size`);

@@ -1,4 +1,5 @@
-/* The three generated controllers (joint-space MPC, joint-space impedance, observer) of one arm
+/* The four generated controllers (joint-space MPC, joint-space impedance, observer, the arm
+ * library's guarded feedforward) of one arm
  * linked into one binary and fed what a broken sensor, a buggy caller or garbage memory gives:
  * NULL arrays, an uninitialised state, NaN, infinities and absurd numbers in every input.
  * Every output must be finite, every code the one the headers promise, and (run under valgrind
@@ -10,12 +11,14 @@
 #include "rscasadi_mpc.h"
 #include "rscasadi_impedance.h"
 #include "rscasadi_observer.h"
+#include "rscasadi_feedforward.h"
 
 #define N MPC_NU
 static int passed = 0, failed = 0;
 static mpc_t mpc;
 static impedance_t imp;
 static observer_t obs;
+static ff_t ff;
 
 static void check(int ok, const char *what, int i) {
   if (ok) ++passed;
@@ -42,6 +45,11 @@ int main(void) {
   memset(&mpc, 0xAB, sizeof mpc);
   memset(&imp, 0xAB, sizeof imp);
   memset(&obs, 0xAB, sizeof obs);
+  memset(&ff, 0xAB, sizeof ff);
+  check(ff_step(&ff, q_d, q_d, q_d, 1e-3, tau) == FF_NOT_INITIALISED && tau[0] == 0.0, "feedforward before init", 0);
+  check(ff_step(&ff, q_d, q_d, q_d, 1e-3, NULL) == FF_BAD_ARGUMENT && ff_init(NULL, q_d, q_d, q_d, tau) == FF_BAD_ARGUMENT,
+        "feedforward NULL", 0);
+  check(ff_init(&ff, NULL, q_d, q_d, tau) == FF_BAD_REFERENCE, "feedforward NULL sample", 0);
   for (int i = 0; i < N; ++i) tau[i] = 7.0;
   check(mpc_step(&mpc, x, ref, tau) == MPC_NOT_INITIALISED && tau[0] == 0.0, "mpc before init", 0);
   check(impedance_step(&imp, x, q_d, k, z, tau) == IMPEDANCE_NOT_INITIALISED && tau[0] == 0.0, "impedance before init", 0);
@@ -66,7 +74,8 @@ int main(void) {
     }
   check(mpc_init(&mpc, NULL) == MPC_BAD_MEASUREMENT, "mpc_init NULL x", 0);
 
-  check(mpc_init(&mpc, x) == 0 && impedance_init(&imp, x) == 0 && observer_init(&obs, x) == 0, "init", 0);
+  check(mpc_init(&mpc, x) == 0 && impedance_init(&imp, x) == 0 && observer_init(&obs, x) == 0
+        && ff_init(&ff, q_d, q_d, q_d, tau) == 0, "init", 0);
   check(mpc_step(&mpc, x, ref, tau) == 0 && finite_all(tau, N), "mpc good step", 0);
 
   /* every entry of every input, every bad value: the promised code, finite outputs, and the next
@@ -96,12 +105,17 @@ int main(void) {
       check(impedance_step(&imp, x, q_d, bk, z, tau) == IMPEDANCE_BAD_REFERENCE && finite_all(tau, N), "impedance stiffness", i);
       check(impedance_step(&imp, x, q_d, k, bz, tau) == IMPEDANCE_BAD_REFERENCE && finite_all(tau, N), "impedance damping", i);
       check(observer_step(&obs, x, bt, r) == OBSERVER_BAD_TORQUE && finite_all(r, OBSERVER_NQ), "observer torque", i);
+      check(ff_step(&ff, bq, q_d, q_d, 1e-3, tau) == FF_BAD_REFERENCE && finite_all(tau, N), "feedforward theta", i);
+      check(ff_step(&ff, q_d, bq, q_d, 1e-3, tau) == FF_BAD_REFERENCE && finite_all(tau, N), "feedforward speed", i);
+      check(ff_step(&ff, q_d, q_d, bq, 1e-3, tau) == FF_BAD_REFERENCE && finite_all(tau, N), "feedforward acceleration", i);
     }
     check(mpc_step(&mpc, x, NULL, tau) == MPC_BAD_REFERENCE && mpc_step(&mpc, NULL, ref, tau) == MPC_BAD_MEASUREMENT,
           "mpc NULL inputs", b);
     check(mpc_step(&mpc, x, ref, tau) == 0 && finite_all(tau, N), "mpc recovers", b);
     check(impedance_step(&imp, x, q_d, k, z, tau) == 0 && finite_all(tau, N), "impedance recovers", b);
     check(observer_step(&obs, x, t_applied, r) <= OBSERVER_COLLISION && finite_all(r, OBSERVER_NQ), "observer recovers", b);
+    check(ff_step(&ff, q_d, q_d, q_d, BAD[b], tau) == FF_BAD_REFERENCE && finite_all(tau, N), "feedforward h", b);
+    check(ff_step(&ff, q_d, q_d, q_d, 1e-3, tau) == 0 && finite_all(tau, N), "feedforward recovers", b);
   }
   printf("%d passed, %d failed\n", passed, failed);
   return failed != 0;
