@@ -132,9 +132,6 @@ URDF_CASES = [
                          '  <link name="l3">', '<axis xyz="1 0 0"/><limit lower="-3.1" upper="3.1" effort="1" '
                          'velocity="1"/></joint>\n  <link name="l3">').replace(
         'type="revolute"><parent link="l2"/>', 'type="prismatic"><parent link="l2"/>'), "elbow_pitch"),
-    (lambda u: u.replace('<link name="tool"/>', '<link name="tool"/><joint name="extra" type="revolute"><parent link="l1"/>'
-                         '<child link="side"/><axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/>'
-                         '</joint><link name="side"/>'), "extra"),
     (lambda u: u.replace('<link name="tool"/>', ''), "tool"),
     (lambda u: u.replace('ixx="0.012"', 'ixx="-0.012"'), "l1"),
     (lambda u: u.replace('<robot name="arm3">', '<robot name="arm3"><link'), "arm3.urdf"),

@@ -43,6 +43,26 @@ def _vector(ctx, fld, value, size):
     return np.array([_number(ctx, f"{fld}[{i}]", v) for i, v in enumerate(value)])
 
 
+def _rotation(ctx, fld, value) -> np.ndarray:
+    """A rotation matrix written as three rows of three numbers: orthonormal to 1e-9, det +1."""
+    if not isinstance(value, list) or len(value) != 3:
+        ctx.fail(fld, f"expected three rows of three numbers (a rotation matrix), got {value!r}")
+    R = np.array([_vector(ctx, f"{fld}[{i}]", row, 3) for i, row in enumerate(value)])
+    if np.max(np.abs(R @ R.T - np.eye(3))) > 1e-9 or np.linalg.det(R) < 0:
+        ctx.fail(fld, "not a rotation matrix (orthonormal rows, determinant +1, to 1e-9)")
+    return R
+
+
+def orientation(ctx, t: dict, rpy_key: str, matrix_key: str, where: str = ""):
+    """(rpy, R): a placement's rotation, given as roll-pitch-yaw or, exactly, as a matrix (the
+    form rscasadi writes where no roll-pitch-yaw gives the rotation back exactly); not both."""
+    if rpy_key in t and matrix_key in t:
+        ctx.fail(f"{where}{matrix_key}", f"give {rpy_key} or {matrix_key}, not both")
+    if matrix_key in t:
+        return None, _rotation(ctx, f"{where}{matrix_key}", t[matrix_key])
+    return _vector(ctx, f"{where}{rpy_key}", t.get(rpy_key, [0.0, 0.0, 0.0]), 3), None
+
+
 def _table(ctx, fld, value, allowed, required=()):
     if not isinstance(value, dict):
         ctx.fail(fld, f"expected a table, got {value!r}")

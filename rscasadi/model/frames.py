@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from rscasadi.model.checks import _body, _Ctx, _number, _table, _vector
-from rscasadi.model.types import BASE, BODY_KEYS, Capsule, Collision, Frame, Payload, rpy_matrix, rpy_of
+from rscasadi.model.checks import _body, _Ctx, _number, _table, _vector, orientation
+from rscasadi.model.types import BASE, BODY_KEYS, Capsule, Collision, Frame, Payload, rotation_document, rpy_matrix, rpy_of
 
-FRAME_KEYS = {"parent", "xyz", "rpy"}
+FRAME_KEYS = {"parent", "xyz", "rpy", "R"}
 
 
 def link_frames(model) -> tuple:
@@ -41,8 +41,8 @@ def user_frames(ctx, raw, frames: tuple) -> tuple:
         if not isinstance(t["parent"], str):
             ctx.fail(f"{fld}.parent", f"expected the name of a frame, got {t['parent']!r}")
         xyz = _vector(ctx, f"{fld}.xyz", t.get("xyz", [0.0, 0.0, 0.0]), 3)
-        rpy = _vector(ctx, f"{fld}.rpy", t.get("rpy", [0.0, 0.0, 0.0]), 3)
-        pending[name] = (t["parent"], xyz, rpy_matrix(rpy))
+        rpy, R = orientation(ctx, t, "rpy", "R", f"{fld}.")
+        pending[name] = (t["parent"], xyz, rpy_matrix(rpy) if R is None else R)
     out = dict(known)
     while pending:
         ready = [name for name, (parent, *_) in pending.items() if parent in out]
@@ -71,11 +71,8 @@ def frames_document(model) -> dict:
                 raise ValueError(f"{model.path}: frame {f.name!r} would take the place of the link-list form's own "
                                  "frame of that name")
             continue
-        rpy = rpy_of(f.R)
-        if rpy is None:
-            raise ValueError(f"{model.path}: frame {f.name!r}: its rotation has no exact roll-pitch-yaw")
         parent = BASE if f.body == 0 else model.joints[f.body - 1].name
-        doc[f.name] = {"parent": parent, "xyz": [float(v) for v in f.p], "rpy": [float(v) for v in rpy]}
+        doc[f.name] = {"parent": parent, "xyz": [float(v) for v in f.p], **rotation_document(f.R, "rpy", "R")}
     return doc
 
 

@@ -12,19 +12,23 @@ from pathlib import Path
 import numpy as np
 
 from rscasadi.model.checks import (ACTUATOR_KEYS, _body, _Ctx, _number, _table, _vector,  # noqa: F401
-                                   actuator, field_checker, joint_context, read_toml)
+                                   actuator, field_checker, joint_context, orientation, read_toml)
 from rscasadi.model.frames import (collision, collision_document, frames_document, link_frames, payload,
                                    payload_document, user_frames)
 from rscasadi.model.types import (BASE, BODIES, BODY_KEYS, DEFAULT_GRAVITY, JOINT_KEYS, TOP_KEYS, ArmModel,  # noqa: F401
-                                  Body, Joint, ModelFileError, inertia_problem, rpy_matrix, rpy_of)
+                                  Body, Joint, ModelFileError, inertia_problem, rotation_document, rpy_matrix,
+                                  rpy_of)
 
 def _joint(path, idx, raw, names) -> Joint:
     ctx = joint_context(path, idx, raw)
     t = _table(ctx, "", raw, JOINT_KEYS,
-               ("name", "origin_xyz", "origin_rpy", "gear_ratio", "sea", "link", "slow_rotor", "fast_rotor"))
+               ("name", "origin_xyz", "gear_ratio", "sea", "link", "slow_rotor", "fast_rotor"))
+    if "origin_rpy" not in t and "origin_R" not in t:
+        ctx.fail("origin_rpy", "missing required field (or origin_R, a rotation matrix)")
+    rpy, R = orientation(ctx, t, "origin_rpy", "origin_R")
     return Joint(origin_xyz=_vector(ctx, "origin_xyz", t["origin_xyz"], 3),
-                 origin_rpy=_vector(ctx, "origin_rpy", t["origin_rpy"], 3),
-                 link=_body(ctx, "link", t["link"]), **actuator(ctx, t, names))
+                 origin_rpy=rpy if R is None else (rpy_of(R) if rpy_of(R) is not None else np.full(3, np.nan)),
+                 origin_R=R, link=_body(ctx, "link", t["link"]), **actuator(ctx, {k: v for k, v in t.items()}, names))
 
 
 def parse(data: dict, path: str = "<memory>") -> ArmModel:
@@ -93,12 +97,9 @@ def document(model: ArmModel) -> dict:
     """The link-list form (docs/user-guide/model.md section 4) of any model, URDF-based ones included."""
     joints = []
     for jt in model.joints:
-        rpy = rpy_of(jt.R)
-        if rpy is None:
-            raise ModelFileError(f"{model.path}: joint {jt.name!r}: its rotation has no exact roll-pitch-yaw")
         limits = {k: (list(v) if isinstance(v, tuple) else v) for k, v in jt.limits.items()}
         joints.append({"name": jt.name, "origin_xyz": [float(x) for x in jt.origin_xyz],
-                       "origin_rpy": [float(x) for x in rpy], "gear_ratio": jt.gear_ratio,
+                       **rotation_document(jt.R, "origin_rpy", "origin_R"), "gear_ratio": jt.gear_ratio,
                        "sea": {"k1": jt.k1, "k3": jt.k3, "d": jt.d},
                        "gear_loss": {"b": jt.b, "c": jt.c, "eps": jt.eps}, **({"limits": limits} if limits else {}),
                        **{b: body_document(getattr(jt, b)) for b in BODIES}})

@@ -12,7 +12,7 @@ import numpy as np
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
 TOP_KEYS = {"name", "gravity", "joints", "frames", "payload", "collision"}
-JOINT_KEYS = {"name", "origin_xyz", "origin_rpy", "gear_ratio", "sea", "gear_loss", "limits",
+JOINT_KEYS = {"name", "origin_xyz", "origin_rpy", "origin_R", "gear_ratio", "sea", "gear_loss", "limits",
               "link", "slow_rotor", "fast_rotor"}
 BODY_KEYS = {"mass", "com", "inertia"}
 SEA_KEYS = {"k1", "k3", "d"}
@@ -172,13 +172,16 @@ class ArmModel:
         return np.array([getattr(jt, attr) for jt in self.joints], dtype=float)
 
 
-def inertia_problem(inertia: np.ndarray, rtol: float = 1e-12) -> str | None:
-    """Why a 3x3 inertia about the centre of mass is not physical, or None."""
+def inertia_problem(inertia: np.ndarray, rtol: float = 1e-12, point_mass: bool = False) -> str | None:
+    """Why a 3x3 inertia about the centre of mass is not physical, or None: not finite, a
+    principal moment <= 0 (< 0 where `point_mass` allows a URDF link's point mass or a tool frame
+    of no size: zero moments), or moments breaking the triangle inequality (no body has them)."""
     if not np.all(np.isfinite(inertia)):
         return "has a value that is not finite"
     eig = np.linalg.eigvalsh(inertia)
-    if eig[0] <= 0.0:
-        return f"not positive definite (principal moments {eig.tolist()})"
+    if eig[0] < -rtol * max(abs(eig[-1]), 1e-300) if point_mass else eig[0] <= 0.0:
+        return (f"not positive semidefinite (principal moments {eig.tolist()})" if point_mass
+                else f"not positive definite (principal moments {eig.tolist()})")
     if eig[2] > eig[0] + eig[1] + rtol * eig[-1]:
         return f"principal moments {eig.tolist()} break the triangle inequality"
     return None
@@ -192,3 +195,12 @@ def rpy_of(R) -> np.ndarray | None:
         warnings.simplefilter("ignore")
         rpy = Rotation.from_matrix(R).as_euler("xyz")
     return rpy if np.max(np.abs(rpy_matrix(rpy) - R)) <= 1e-12 else None
+
+
+def rotation_document(R, rpy_key: str, matrix_key: str) -> dict:
+    """A rotation as a model file writes it: its roll-pitch-yaw where they give it back to 1e-12,
+    else the matrix itself (three rows), so every written file reads back the same rotation."""
+    rpy = rpy_of(R)
+    if rpy is not None:
+        return {rpy_key: [float(x) for x in rpy]}
+    return {matrix_key: [[float(v) for v in row] for row in np.asarray(R, float)]}

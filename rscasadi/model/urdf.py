@@ -10,6 +10,8 @@ frame turned by the same R_a: L_j = L_urdf R_a.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -18,7 +20,8 @@ from rscasadi.model.checks import ACTUATOR_KEYS, _Ctx, _number, _table, _vector,
 from rscasadi.model.frames import collision, payload, user_frames
 from rscasadi.model.types import DEFAULT_GRAVITY, ArmModel, Body, Frame, Joint, ModelFileError, inertia_problem, rpy_of
 
-URDF_TOP_KEYS = {"name", "urdf", "tip", "locked", "gravity", "joints", "frames", "payload", "collision"}
+URDF_TOP_KEYS = {"name", "urdf", "tip", "locked", "lock_others", "gravity", "joints", "frames", "payload",
+                 "collision"}
 MOVING = ("revolute", "continuous")
 
 
@@ -40,11 +43,46 @@ def _homogeneous(R, p):
     return T
 
 
+SNAP = 1e-8      # rad: an angle this close to a multiple of pi/2 is that multiple (CAD writes 1.57079632679 or 1.57079633)
+
+
+def snap_angle(a: float) -> float:
+    """a, or the multiple of pi/2 within SNAP of it (exactly as np.pi / 2 * k)."""
+    k = round(a / (np.pi / 2))
+    return float(np.pi / 2 * k) if abs(a - np.pi / 2 * k) <= SNAP else float(a)
+
+
+def snapped(path) -> tuple:
+    """The URDF's text with every <origin rpy> angle within SNAP of a multiple of pi/2 snapped
+    to it (an exported 1.57079632679 rad rotation has entries of 5e-12 where 0 is meant: no
+    folding, 64 % more instructions, and no exact roll-pitch-yaw to write back); and how many
+    angles were snapped."""
+    from lxml import etree
+    tree = etree.parse(str(path), etree.XMLParser(remove_blank_text=True))
+    count = 0
+    for origin in tree.iter("origin"):
+        rpy = origin.get("rpy")
+        if rpy is None:
+            continue
+        try:
+            angles = [float(v) for v in rpy.split()]
+        except ValueError:
+            continue                                              # yourdfpy names the bad value
+        new = [snap_angle(a) for a in angles]
+        count += sum(a != b for a, b in zip(angles, new))
+        origin.set("rpy", " ".join(repr(a) for a in new))
+    return etree.tostring(tree), count
+
+
 def _load(path, ctx):
+    import io
+
     import yourdfpy
     try:
-        return yourdfpy.URDF.load(str(path), load_meshes=False, build_scene_graph=False,
-                                  load_collision_meshes=False, build_collision_scene_graph=False)
+        text, _ = snapped(path)
+        return yourdfpy.URDF.load(io.BytesIO(text), load_meshes=False, build_scene_graph=False,
+                                  load_collision_meshes=False, build_collision_scene_graph=False,
+                                  mesh_dir=str(Path(path).parent))
     except OSError as exc:
         ctx.fail("urdf", f"cannot read URDF {path}: {exc.strerror or exc}")
     except Exception as exc:                                     # lxml syntax errors, missing elements
@@ -60,7 +98,7 @@ def _link_spatial(urdf_path, link) -> np.ndarray:
     if not np.isfinite(inertial.mass) or inertial.mass < 0.0:
         raise ModelFileError(f"{where}: mass must be >= 0, got {inertial.mass!r}")
     I = np.asarray(inertial.inertia if inertial.inertia is not None else np.zeros((3, 3)), float)
-    problem = inertia_problem(I)
+    problem = inertia_problem(I, point_mass=True)          # the merged body's is checked positive definite
     if problem:
         raise ModelFileError(f"{where}: inertia {problem}")
     T = np.asarray(inertial.origin if inertial.origin is not None else np.eye(4), float)
@@ -131,8 +169,9 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
             jctx.fail("name", f"joint {act['name']!r} is both actuated and locked")
         actuators[act["name"]] = (idx, act)
 
-    chain, bodies, tip_body = _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuators,
-                                         data.get("tip"), ctx)
+    lock_others = _number(ctx, "lock_others", data.get("lock_others", 0.0))
+    chain, bodies, tip_body, held_at = _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked,
+                                                  actuators, data.get("tip"), ctx, lock_others)
     order = [act_name for act_name in actuators]
     if [jt.name for jt in chain] != order:
         ctx.fail("joints", f"[[joints]] must list the chain's moving joints base to tip: "
@@ -166,7 +205,7 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
                             limits=limits, origin_R=R_J, **act))
         R_prev = R_a
         axes.append(R_a)
-    extra = {"urdf": str(urdf_path), "tip_link": tip_body, "locked": dict(locked),
+    extra = {"urdf": str(urdf_path), "tip_link": tip_body, "locked": held_at,
              "links": [b["links"] for b in bodies]}
     # each URDF link's frame on its chain body: L_j = L_urdf R_a, so a pose T in L_urdf is R_a^T T in L_j
     frames = tuple(Frame(name, b, axes[b].T @ T[:3, :3], axes[b].T @ T[:3, 3])
@@ -205,11 +244,24 @@ def _collision_primitives(urdf_path, link) -> list:
     return out
 
 
-def _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuators, tip, ctx):
-    """Walk the URDF tree from its root: the chain of moving joints, and for every chain body
+def _path_joints(robot, links_by_name, target: str) -> list:
+    """The joints on the path from the URDF's root link to `target`, root first."""
+    parent_joint = {jt.child: jt for jt in robot.robot.joints}
+    path, link = [], target
+    while link in parent_joint:
+        path.append(parent_joint[link])
+        link = parent_joint[link].parent
+    return path[::-1]
+
+
+def _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuators, tip, ctx, lock_others: float = 0.0):
+    """Walk the URDF tree from its root: the chain of moving joints on the path from the root to
+    the tip (`tip`, else the child link of the last actuated joint), and for every chain body
     (0 = base, j = link of moving joint j) its merged spatial inertia in its URDF frame, the
     names of the links merged into it, and (T_joint) the transform from it to the origin of
-    the next moving joint."""
+    the next moving joint.  Moving joints off that path (a whole robot's head, other arm,
+    fingers) are held at their [locked] position, else at `lock_others`: those hanging from the
+    fixed base cannot move the chain, those hanging from its links add their mass there."""
     children = {}
     for jt in robot.robot.joints:
         if jt.parent not in links_by_name or jt.child not in links_by_name:
@@ -222,8 +274,29 @@ def _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuator
         ctx.fail("urdf", f"{urdf_path}: expected one root link, found {roots}")
     if tip is not None and (not isinstance(tip, str) or tip not in links_by_name):
         ctx.fail("tip", f"no link {tip!r} in {urdf_path}")
+    target = tip if tip is not None else joints_by_name[list(actuators)[-1]].child
+    on_path = {jt.name for jt in _path_joints(robot, links_by_name, target)}
+    off = [name for name in actuators if name not in on_path]
+    if off:
+        ctx.fail("joints", f"{urdf_path}: {', '.join(repr(n) for n in off)} not on the path from {roots[0]!r} to the "
+                           f"tip {target!r}: actuate the joints of one chain (tip = its last link)")
+    held = lambda jt: jt.type not in MOVING + ("prismatic",) or jt.name in actuators or jt.name in locked  # noqa: E731
+    unlisted = [jt.name for jt in _path_joints(robot, links_by_name, target) if not held(jt)]
+    if tip is None:                     # where the chain ends is not said: the joints below it must be
+        below, todo = [], [target]
+        while todo:
+            for jt in children.get(todo.pop(), []):
+                below += [] if held(jt) else [jt.name]
+                todo.append(jt.child)
+        unlisted += below
+    if unlisted:
+        ctx.fail("joints", f"{urdf_path}: the moving joints {', '.join(repr(n) for n in unlisted)} on the path from "
+                           f"{roots[0]!r} to the chain's last link {target!r}{' or below it' if tip is None else ''} "
+                           "have no [[joints]] entry and are not locked: give each an actuator, hold it under "
+                           "[locked], or end the chain at a link with tip = \"LINK\" (every moving joint off the "
+                           "path from the root to the tip is then held at lock_others)")
     bodies = [{"M": np.zeros((6, 6)), "links": [], "T_joint": None, "T_links": []}]
-    chain = []
+    chain, held_at = [], {}                                   # held_at: every held moving joint's position
     tip_body = None
     stack = [(roots[0], 0, np.eye(4))]                        # (link, chain body, transform body frame -> link)
     while stack:
@@ -240,27 +313,22 @@ def _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuator
             if jt.name in locked and jt.type not in MOVING + ("prismatic",):
                 ctx.fail(f"locked.{jt.name}", f"{urdf_path}: joint {jt.name!r} is {jt.type}: only revolute, "
                                               f"continuous and prismatic joints can be locked")
-            if jt.type == "fixed" or jt.name in locked:
-                motion = np.eye(4) if jt.type == "fixed" else _joint_motion(urdf_path, jt, float(locked[jt.name]))
-                stack.append((jt.child, b, T @ origin @ motion))
-                continue
-            if jt.type not in MOVING:
+            if jt.name in actuators and jt.type not in MOVING:
                 ctx.fail("urdf", f"{urdf_path}: joint {jt.name!r} is {jt.type}: only revolute and continuous "
                                  f"joints can be actuated (lock it under 'locked' to hold it fixed)")
-            if jt.name not in actuators:
-                ctx.fail("joints", f"{urdf_path}: joint {jt.name!r} ({jt.type}) moves but has no [[joints]] "
-                                   f"entry and is not locked")
-            if bodies[b]["T_joint"] is not None:
-                ctx.fail("urdf", f"{urdf_path}: link {link_name!r} is a branch point (moving joints "
-                                 f"{bodies[b]['next']!r} and {jt.name!r}): only serial chains are supported; "
-                                 f"lock one branch")
+            if jt.name not in actuators:                          # fixed, locked, or off the chain: held
+                if jt.type in MOVING + ("prismatic",):
+                    held_at[jt.name] = float(locked.get(jt.name, lock_others))
+                    motion = _joint_motion(urdf_path, jt, held_at[jt.name])
+                else:                                             # fixed (floating, planar: at their origin)
+                    motion = np.eye(4)
+                stack.append((jt.child, b, T @ origin @ motion))
+                continue
             bodies[b]["T_joint"], bodies[b]["next"] = T @ origin, jt.name
             chain.append(jt)
             bodies.append({"M": np.zeros((6, 6)), "links": [], "T_joint": None, "T_links": []})
             stack.append((jt.child, len(bodies) - 1, np.eye(4)))
-    if not chain:
-        ctx.fail("joints", f"{urdf_path} has no moving joint to actuate")
     if tip is not None and tip_body != len(bodies) - 1:
         beyond = [jt.name for jt in chain[tip_body:]]
         ctx.fail("tip", f"joints {beyond} lie beyond the tip link {tip!r}: lock them or move the tip")
-    return chain, bodies, tip_body
+    return chain, bodies, tip_body, held_at

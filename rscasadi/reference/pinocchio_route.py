@@ -78,8 +78,9 @@ class PinocchioRoute:
 
 
 def urdf_model(model) -> "pin.Model":
-    """Pinocchio's own model of a URDF-based model's URDF, the locked joints removed at their
-    locked values (buildReducedModel): the links only, its frames the URDF's links."""
+    """Pinocchio's own model of a URDF-based model's URDF, the held joints (locked, and those off
+    the chain at lock_others) removed at their values (buildReducedModel): the links only, its
+    frames the URDF's links."""
     full = pin.buildModelFromUrdf(model.extra["urdf"])
     q0, lock_ids = pin.neutral(full), []
     for name, value in model.extra["locked"].items():

@@ -1,0 +1,136 @@
+"""A real robot's description on the first day: a whole-robot URDF (Baxter: torso, head, two
+7-joint arms, grippers; as shipped by the example-robot-data package) as a sub-chain with only
+the actuator table, CAD-truncated right angles, point-mass tool links, and rotations that no
+roll-pitch-yaw writes back exactly."""
+import copy
+
+import numpy as np
+import pytest
+
+import rscasadi
+from conftest import ROOT, dm, random_state, to_toml
+from rscasadi import ModelFileError
+from rscasadi.reference.pinocchio_route import PinocchioRoute
+
+BAXTER = ROOT / "tests" / "data" / "baxter_description" / "urdf" / "baxter.urdf"
+LEFT = ["left_s0", "left_s1", "left_e0", "left_e1", "left_w0", "left_w1", "left_w2"]
+
+
+def actuator(name: str, big: bool) -> dict:
+    rotor = lambda m, i: {"mass": m, "com": [0.0, 0.0, 0.0], "inertia": [i, i, 1.6 * i, 0.0, 0.0, 0.0]}  # noqa: E731
+    return {"name": name, "gear_ratio": 100.0, "sea": {"k1": 3000.0 if big else 800.0, "d": 3.0 if big else 0.8},
+            "gear_loss": {"b": 1.0}, "limits": {"tau": 0.5 if big else 0.15, "dphi": 2.0, "psi": 0.1},
+            "slow_rotor": rotor(0.3, 2e-4), "fast_rotor": rotor(0.2, 1.5e-5)}
+
+
+def sidecar(**over) -> dict:
+    """The only thing a user writes for Baxter's left arm: the actuator table and the tip."""
+    return {"name": "baxter-left-sea", "urdf": str(BAXTER), "tip": "left_gripper",
+            "joints": [actuator(j, k < 4) for k, j in enumerate(LEFT)], **over}
+
+
+def write(tmp_path, doc, name="baxter.toml"):
+    path = tmp_path / name
+    path.write_text(to_toml(doc))
+    return path
+
+
+def test_the_left_arm_of_a_whole_robot_from_the_actuator_table_alone(tmp_path):
+    """No locking by hand: the head, the right arm and the fingers are held at lock_others (0);
+    the chain equals Pinocchio's own parse of the whole URDF, those joints removed by its
+    buildReducedModel, to 1e-9 (the right angles snapped here differ from its 1.57079632679 by
+    5e-12)."""
+    arm = rscasadi.load(write(tmp_path, sidecar()))
+    assert [jt.name for jt in arm.model.joints] == LEFT
+    held = arm.model.extra["locked"]
+    assert {"head_pan", "right_s0", "right_w2", "l_gripper_l_finger_joint"} <= set(held) and set(held.values()) == {0.0}
+    route, rng, fd = PinocchioRoute.from_urdf(arm.model), np.random.default_rng(3), arm.forward_dynamics()
+    for _ in range(3):
+        x, tau = random_state(rng, 7, 2.0), rng.normal(size=7)
+        ours = np.concatenate([dm(v) for v in fd(*x, tau)])
+        theirs = np.concatenate(route.forward_dynamics(*x, tau))
+        assert np.max(np.abs(ours - theirs)) < 1e-9 * np.max(np.abs(theirs))
+
+
+def test_truncated_right_angles_fold_as_exact_ones(tmp_path, monkeypatch):
+    """Baxter writes pi/2 as 1.57079632679 (33 times) and 1.57079633: snapped, its forward dynamics
+    has as few instructions as the same URDF written with exact right angles; unsnapped it has
+    two thirds more (the test can tell)."""
+    import rscasadi.model.urdf as urdf
+    text = BAXTER.read_text()
+    exact = text.replace("1.57079632679", repr(np.pi / 2)).replace("1.57079633", repr(np.pi / 2))
+    exact = exact.replace("3.14159265359", repr(np.pi))
+    (tmp_path / "exact.urdf").write_text(exact)
+    counts = {name: rscasadi.load(write(tmp_path, sidecar(urdf=str(u)), f"{name}.toml")).forward_dynamics().n_instructions()
+              for name, u in (("cad", BAXTER), ("exact", tmp_path / "exact.urdf"))}
+    assert counts["cad"] == counts["exact"], counts
+    monkeypatch.setattr(urdf, "SNAP", 0.0)
+    unsnapped = rscasadi.load(write(tmp_path, sidecar(), "raw.toml")).forward_dynamics().n_instructions()
+    assert unsnapped > 1.3 * counts["exact"], (unsnapped, counts)
+
+
+def test_every_written_model_reads_back_the_same_rotations(tmp_path):
+    """A joint placed at a gimbal-locked rotation (no roll-pitch-yaw gives it back to 1e-12) and a
+    frame likewise: the link-list form writes them as origin_R and R, and reading that back gives
+    the same rotations; a matrix that is no rotation is refused by name."""
+    import tomllib
+    from rscasadi.model.modelfile import document, parse
+    from rscasadi.model.types import rpy_matrix, rpy_of
+    R = rpy_matrix([2.2, np.pi / 2 + 3e-10, 2.3])
+    assert rpy_of(R) is None                                  # what made identify fail to write model.toml
+    with open(ROOT / "problems" / "arm3.toml", "rb") as fh:
+        doc = tomllib.load(fh)
+    del doc["joints"][1]["origin_rpy"]
+    doc["joints"][1]["origin_R"] = R.tolist()
+    doc["frames"] = {"tool": {"parent": "elbow_pitch", "xyz": [0.3, 0.0, 0.0], "R": R.tolist()}}
+    model = parse(copy.deepcopy(doc))
+    written = document(model)
+    assert "origin_R" in written["joints"][1] and "R" in written["frames"]["tool"]
+    again = parse(copy.deepcopy(written))
+    assert all(np.max(np.abs(a.R - b.R)) == 0.0 for a, b in zip(model.joints, again.joints))
+    assert np.max(np.abs(again.frame("tool").R - model.frame("tool").R)) < 1e-15
+    doc["joints"][1]["origin_R"] = (2 * R).tolist()
+    with pytest.raises(ModelFileError, match="origin_R.*not a rotation matrix"):
+        parse(copy.deepcopy(doc))
+
+
+def test_missing_joints_are_named_all_at_once(tmp_path):
+    """Two joints of the arm left out of the table: one message names both; with no tip, the
+    fingers below the last joint are named too, with the way out (tip)."""
+    doc = sidecar()
+    doc["joints"] = [jt for jt in doc["joints"] if jt["name"] not in ("left_e1", "left_w1")]
+    with pytest.raises(ModelFileError, match="'left_e1', 'left_w1'"):
+        rscasadi.load(write(tmp_path, doc))
+    doc = sidecar()
+    del doc["tip"]
+    with pytest.raises(ModelFileError, match="'l_gripper_l_finger_joint', 'l_gripper_r_finger_joint'.*tip") as err:
+        rscasadi.load(write(tmp_path, doc))
+    assert "right_s0" not in str(err.value)                  # the other arm is no concern of this one
+    doc = sidecar(locked={"l_gripper_l_finger_joint": 0.01, "l_gripper_r_finger_joint": -0.01})
+    del doc["tip"]
+    held = rscasadi.load(write(tmp_path, doc)).model.extra["locked"]
+    assert held["l_gripper_l_finger_joint"] == 0.01 and held["head_pan"] == 0.0
+
+
+def test_a_point_mass_tool_link_is_a_frame_and_a_negative_inertia_is_not(tmp_path):
+    """Baxter's left_gripper: 0.1 g with zero inertia (a tool point): accepted, its mass merged
+    and its frame kept; a link with a negative principal moment is still refused by name."""
+    arm = rscasadi.load(write(tmp_path, sidecar()))
+    assert "left_gripper" in arm.frames()
+    bad = BAXTER.read_text().replace('<mass value="0.0001"/>\n      <inertia ixx="0"', '<mass value="0.0001"/>\n      <inertia ixx="-1e-6"', 1)
+    assert bad != BAXTER.read_text()
+    (tmp_path / "bad.urdf").write_text(bad)
+    with pytest.raises(ModelFileError, match="not positive semidefinite"):
+        rscasadi.load(write(tmp_path, sidecar(urdf=str(tmp_path / "bad.urdf")), "bad.toml"))
+
+
+def test_info_and_view_take_the_whole_robot(tmp_path, capsys):
+    """The commands a new user runs first: info prints the 7 joints; view draws the arm, names
+    the meshes it cannot read (they are not shipped here) and ends without a traceback."""
+    from rscasadi.cli import main
+    model = write(tmp_path, sidecar())
+    assert main(["info", str(model)]) == 0
+    assert "left_w2" in capsys.readouterr().out
+    assert main(["view", str(model), "--out", str(tmp_path / "view.html")]) in (0, None)
+    out = capsys.readouterr().out
+    assert "skipped mesh" in out and (tmp_path / "view.html").stat().st_size > 10000
