@@ -77,8 +77,12 @@ def cmd_paper(args):
 def cmd_ocp(args):
     from rscasadi.ocp import run
     sol = run(args.problem, args.out, warm_file=args.warm, log=lambda msg: print(msg, flush=True),
-              print_level=0 if args.quiet else 5, solver=args.solver)
-    print(f"wrote {Path(args.out) / 'solution.json'}")
+              print_level=0 if args.quiet else (10 if args.verbose else 5), solver=args.solver)
+    verdict = ("verified on the complete model" if sol["success"] else
+               "NOT verified: the solver failed" if not sol["solver_success"] else
+               "NOT verified: the replay on the complete model misses its tolerances")
+    print(f"rscasadi ocp: wrote {Path(args.out) / 'solution.json'}, {sol['status']}, "
+          f"{sol['t'][-1]:.4f} s of motion; {verdict}")
     return 0 if sol["success"] else 1
 
 
@@ -250,6 +254,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="results/ocp")
     p.add_argument("--warm", default=None, help="a previous solution.json to start from")
     p.add_argument("--quiet", action="store_true", help="no solver iteration log")
+    p.add_argument("--verbose", action="store_true", help="the solver's whole log (fatrop: its iterative refinement too)")
     p.add_argument("--solver", choices=("ipopt", "fatrop"), help="override the problem file's [solver] name")
     p.set_defaults(func=cmd_ocp)
     p = sub.add_parser("mpc", help="generate a nonlinear MPC (multiple shooting, SQP or real-time iteration on the "

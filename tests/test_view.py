@@ -181,3 +181,22 @@ def test_a_malformed_solution_is_refused_by_field_without_a_traceback(field, val
     err = capsys.readouterr().err
     assert f"field '{field}'" in err and "Traceback" not in err, err
     assert not (tmp_path / "x.html").exists()
+
+
+def test_the_view_shows_the_motion_to_its_last_instant(tmp_path):
+    """T = 0.3635 s: the animation's last frame is at T (it was 0.333 s: the arm never drawn at
+    the goal), with the arm posed at the solution's last angles."""
+    import json
+    from rscasadi.view import scene_of
+    data = json.loads(SOLUTION.read_text())
+    t = np.asarray(data["t"], float)
+    data["t"] = (t * 0.3635 / t[-1]).tolist()
+    path = tmp_path / "solution.json"
+    path.write_text(json.dumps(data))
+    scene = scene_of(path)
+    assert scene.times[-1] == pytest.approx(0.3635, abs=1e-12) and np.all(np.diff(scene.times) <= 1 / 30 + 1e-12)
+    last = scene_of(path)
+    end = np.asarray(data["theta"], float)[:, -1]
+    from rscasadi.view.scene import _poses
+    from rscasadi.ocp.solution import solution_arm
+    assert np.allclose(last.poses[-1], _poses(solution_arm(data), end[:, None])[0], atol=1e-12)

@@ -61,7 +61,7 @@ def spatial_from_parameters(v):
 
 
 def names(model: ArmModel) -> list[str]:
-    """The names of the parameter vector p, in its order (docs/user-guide/model.md section 7)."""
+    """The names of the parameter vector p, in its order (docs/user-guide/model.md section 6)."""
     out = []
     for jt in model.joints:
         out += [f"{jt.name}.{body}.{q}" for body in BODIES for q in INERTIAL]

@@ -57,7 +57,7 @@ class Body:
 
     @property
     def balanced(self) -> bool:
-        """Centre of mass on the z axis and inertia symmetric about it (MODEL.md section 3)."""
+        """Centre of mass on the z axis and inertia symmetric about it (docs/user-guide/model.md section 3)."""
         I = self.inertia
         return (self.com[0] == 0.0 and self.com[1] == 0.0 and I[0, 0] == I[1, 1]
                 and I[0, 1] == 0.0 and I[0, 2] == 0.0 and I[1, 2] == 0.0)
@@ -95,7 +95,7 @@ class Joint:
 
     @property
     def rotor_inertia(self) -> float:
-        """B_j = Izz_O(S_j) + mu_j^2 Izz_O(F_j) (MODEL.md section 3)."""
+        """B_j = Izz_O(S_j) + mu_j^2 Izz_O(F_j) (docs/user-guide/model.md section 3)."""
         return float(self.slow_rotor.inertia_origin[2, 2]
                      + self.gear_ratio ** 2 * self.fast_rotor.inertia_origin[2, 2])
 

@@ -157,7 +157,10 @@ def cached_library(sources: dict, flags=(), link=(), name: str = "lib", what: st
             if what and log_hit:
                 log(f"cache hit: {lib} ({what})")
             return lib
-        if lib.exists():
+        if lib.exists() and not _record(lib).exists():
+            log(f"note: {lib} has no record of its build (an older rscasadi's): rebuilding it")
+            lib.unlink()
+        elif lib.exists():
             log(f"warning: {lib} does not match the record of its build (corrupt, truncated or changed "
                 "since): rebuilding it")
             lib.unlink()

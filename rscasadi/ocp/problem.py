@@ -51,7 +51,7 @@ The TOML file, every field checked and named in errors:
                                          # Above 1, a process forked after the solve hangs if
                                          # it solves on more than 1 too (libgomp): spawn them
     barrier = "monotone"                 # fatrop's barrier rule: monotone, its only one (accepted
-                                         # for older files; docs/design/fatrop.md)
+                                         # for older files)
     [design]                             # parameters the optimiser chooses, constant over time
     "elbow_pitch.sea.k1" = [300.0, 3000.0]
 

@@ -22,7 +22,7 @@ def options(problem: Problem, tr: Transcription, print_level: int, extra: dict |
     extra = extra or {}
     if problem.solver.name == "fatrop":
         return {**tr.structure(), "print_time": False, "expand": False,
-                "fatrop": {"print_level": 10 if print_level else 0, "tol": 1e-8, "max_iter": 1000,
+                "fatrop": {"print_level": (10 if print_level > 5 else 5) if print_level else 0, "tol": 1e-8, "max_iter": 1000,
                            # condensed, a smaller first barrier: min time 33-37 iterations instead of
                            # 40-53 (N = 50-200), min effort 18-20 instead of 19-22; lifted: no gain
                            "mu_init": 1e-2 if tr.condensed else 1e-1, **extra}}

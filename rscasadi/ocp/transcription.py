@@ -103,7 +103,7 @@ class Transcription:
         return ca.vertcat(q[2], q[3], *self._call("forward_dynamics", *q, u, pf=pf))
 
     def _residual(self, x, a, u, pf):
-        """Implicit dynamics: M ddq + c - Q = 0 (MODEL.md section 3) from the inverse dynamics; the
+        """Implicit dynamics: M ddq + c - Q = 0 (docs/user-guide/model.md section 3) from the inverse dynamics; the
         rotor rows mu (u - tau_id) are generalized forces like the link rows (N m)."""
         n, q = self.n, ca.vertsplit(x, self.n)
         tau_id, T_id = self._call("inverse_dynamics", *q, a[:n], a[n:], pf=pf)

@@ -68,7 +68,7 @@ class Numeric:
         return self.model.joints[self.n - k]
 
     def sea(self, theta, phi, dtheta, dphi):
-        """T_K(psi) + T_B(dpsi), T_B2(dphi) per joint (eq. 21; MODEL.md section 2), public order."""
+        """T_K(psi) + T_B(dpsi), T_B2(dphi) per joint (eq. 21; docs/user-guide/model.md section 2), public order."""
         m = self.model
         psi, dpsi = np.asarray(phi) - theta, np.asarray(dphi) - dtheta
         T = m.column("k1") * psi + m.column("k3") * psi ** 3 + m.column("d") * dpsi
@@ -264,7 +264,7 @@ class Numeric:
 
 
 class ReducedNumeric(Numeric):
-    """The DLR/Spong reduced model (MODEL.md section 3): the rotors of joint k ride rigidly on
+    """The DLR/Spong reduced model (docs/user-guide/model.md section 3): the rotors of joint k ride rigidly on
     link k+1 (merged into its spatial inertia about O_{k+1}) and spin with inertia B_k alone."""
 
     def frames(self, theta, phi, dtheta, dphi):

@@ -21,6 +21,8 @@ def write_gif(scene, out: Path, fps: int = 15):
     slow = max(1.0, 2.0 / max(float(scene.times[-1]), 1e-9))
     step = max(1, int(round((len(scene.times) - 1) / max(scene.times[-1] * slow * fps, 1))))
     motion = list(range(0, len(scene.times), step)) or [0]
+    if motion[-1] != len(scene.times) - 1:              # the motion to its last instant
+        motion.append(len(scene.times) - 1)
     rate = max(1, round((len(motion) - 1) / max(float(scene.times[-1]) * slow, 1e-9))) if len(motion) > 1 else fps
     frames = motion + [len(scene.times) - 1] * (rate // 2)
 

@@ -206,7 +206,7 @@ def scene_of(path, model=None) -> Scene:
         arm = _checked_arm(path, data, model)
         if theta.shape[0] != arm.n:
             raise ModelFileError(f"{path}: field 'theta': {theta.shape[0]} rows for the {arm.n}-joint arm of {arm.model.path}")
-        times = np.arange(0.0, t[-1] + 1e-9, 1.0 / FPS)
+        times = np.linspace(0.0, t[-1], int(np.ceil(t[-1] * FPS - 1e-9)) + 1)     # FPS or a little more, to the end
         thetas = np.vstack([np.interp(times, t, row) for row in theta])
     visuals, skipped = _visuals(arm)
     scene = Scene(f"{path.parent.name}/{path.name}" if text is not None else path.name, times, _poses(arm, thetas),
