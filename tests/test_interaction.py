@@ -478,3 +478,14 @@ def test_the_interaction_study_writes_its_evidence(tmp_path):
     assert r["reduced"]["classical_series_stiffness_percent"] < -20             # what the compensation buys
     assert r["timing"]["impedance_step"]["median_us"] > 0
     assert {"study.md", "study.json", "study.png"} <= {p.name for p in (tmp_path / "study").iterdir()}
+
+
+def test_a_flag_before_the_contact_is_a_false_alarm_not_a_negative_delay():
+    """A flag at 0.2 s and again from 0.55 s with the contact at 0.5 s: flagged 50 ms after the
+    contact, a false alarm at 0.2 s (was reported as 'flagged after -300 ms')."""
+    from rscasadi.interaction.study import _first_flags
+    t = np.arange(0, 1, 0.05)
+    flagged = (np.abs(t - 0.2) < 1e-9) | (t >= 0.55 - 1e-9)
+    flag, false_alarm = _first_flags(t, flagged, 0.5)
+    assert flag == pytest.approx(0.55) and false_alarm == pytest.approx(0.2)
+    assert np.isnan(_first_flags(t, t < 0.1, 0.5)[0])

@@ -138,6 +138,14 @@ def wall(arm: Arm, frame: str, theta0, stiffness: float, wall_stiffness: float, 
             "chatter_percent": 100 * np.ptp(fz[last]) / expected, "trace": (run["t"], fz)}
 
 
+def _first_flags(t, flagged, contact: float) -> tuple[float, float]:
+    """The first flag at or after the contact (NaN: never), and the first one before it (a false
+    alarm; NaN: none)."""
+    after, before = flagged & (t >= contact), flagged & (t < contact)
+    return (float(t[np.argmax(after)]) if after.any() else np.nan,
+            float(t[np.argmax(before)]) if before.any() else np.nan)
+
+
 def collision(arm: Arm, frame: str, theta0, stiffness: float = 300.0, gap: float = 0.03, travel: float = 0.12,
               gain: float = 50.0, threshold: float = 1.0, seconds: float = 1.5, rotational: float = 50.0,
               zeta: float = 0.7, **design) -> dict:
@@ -156,10 +164,10 @@ def collision(arm: Arm, frame: str, theta0, stiffness: float = 300.0, gap: float
     t, r, true = run["t"][:-1], run["r"], run["true"]               # r, true: at the start of samples 2..
     contact = t[int(np.argmax(np.abs(true).max(axis=1) > 0))]
     flagged = np.abs(r).max(axis=1) > threshold
-    flag = t[int(np.argmax(flagged))] if flagged.any() else np.nan
+    flag, false_alarm = _first_flags(t, flagged, contact)
     late = t > contact + 0.1
     mean_r, mean_true = r[late].mean(0), true[late].mean(0)
-    return {"contact_s": contact, "flag_s": flag, "delay_ms": 1e3 * (flag - contact),
+    return {"contact_s": contact, "flag_s": flag, "delay_ms": 1e3 * (flag - contact), "false_alarm_s": false_alarm,
             "free_max_Nm": float(np.abs(r[t < contact]).max()), "threshold_Nm": threshold,
             "error_percent": 100 * np.linalg.norm(mean_r - mean_true) / np.linalg.norm(mean_true),
             "force_N": float(np.linalg.norm(run["f"][run["t"] > contact + 0.1, :3].mean(0)))}
@@ -200,17 +208,17 @@ def collision_feedforward(arm: Arm, frame: str, trajectory, gain: float = 50.0, 
         meas = encoders(x)
         r = obs.step(meas, tau)[:n]
         contact = contact if contact is not None else ((i + 1) * DT if np.any(f) else None)
-        flag = flag if flag is not None else ((i + 1) * DT if obs.collision else None)
-        rows.append(np.r_[(i + 1) * DT, r, np.array(jac(x[:n]))[:3].T @ f[:3]])
+        rows.append(np.r_[(i + 1) * DT, r, np.array(jac(x[:n]))[:3].T @ f[:3], obs.collision])
         tau = np.clip(ff["tau"][:, i + 1] - (kp * (ff["phi"][:, i + 1] - meas[n:2 * n])
                                              + kd * (ff["dphi"][:, i + 1] - meas[3 * n:])) / mu, -limit, limit)
     rows = np.array(rows)
     if contact is None:
         raise ValueError(f"collision: the {frame!r} never reached the wall")
+    flag, false_alarm = _first_flags(rows[:, 0], rows[:, -1] > 0, contact)
+    rows = rows[:, :-1]
     window = (rows[:, 0] > contact + 0.1) & (rows[:, 0] < contact + 0.3)
     mean_r, mean_true = rows[window, 1:n + 1].mean(0), rows[window, n + 1:].mean(0)
-    return {"contact_s": contact, "flag_s": np.nan if flag is None else flag,
-            "delay_ms": np.nan if flag is None else 1e3 * (flag - contact),
+    return {"contact_s": contact, "flag_s": flag, "delay_ms": 1e3 * (flag - contact), "false_alarm_s": false_alarm,
             "free_max_Nm": float(np.abs(rows[rows[:, 0] < contact, 1:n + 1]).max()), "threshold_Nm": threshold,
             "error_percent": 100 * np.linalg.norm(mean_r - mean_true) / np.linalg.norm(mean_true),
             "torque_Nm": float(np.linalg.norm(mean_true))}
@@ -324,10 +332,12 @@ def study_table(r: dict) -> str:
               f"{w['lost_contact_ms']:.0f} ms, {w['bounces']}, {w['bounce_um']:.1f} um | {w['chatter_percent']:.3f} % |"
               for w in r["wall"]]
     lines += ["", f"## (c) A collision during a motion (momentum observer, {r['observer_gain']:g} 1/s)", "",
-              "| motion | contact at | flagged after | largest residual before (N m) | threshold (N m) | "
-              "torque error (averaged) |", "|---|---|---|---|---|---|"]
-    lines += [f"| {name} | {c['contact_s']:.3f} s | {c['delay_ms']:.0f} ms | {c['free_max_Nm']:.2f} | "
-              f"{c['threshold_Nm']:g} | {c['error_percent']:.2f} % |" for name, c in r["collision"].items()]
+              "| motion | contact at | flagged after | false alarm before it | largest residual before (N m) | "
+              "threshold (N m) | torque error (averaged) |", "|---|---|---|---|---|---|---|"]
+    lines += [f"| {name} | {c['contact_s']:.3f} s | "
+              + ("never" if not np.isfinite(c["delay_ms"]) else f"{c['delay_ms']:.0f} ms") + " | "
+              + ("none" if not np.isfinite(c.get("false_alarm_s", np.nan)) else f"at {c['false_alarm_s']:.3f} s") + " | "
+              f"{c['free_max_Nm']:.2f} | {c['threshold_Nm']:g} | {c['error_percent']:.2f} % |" for name, c in r["collision"].items()]
     d = r["reduced"]
     lines += ["", "## (d) Designed on the complete or the reduced (DLR/Spong) model, K = 1000 N/m", "",
               "| design model | push error | push overshoot | wall error |", "|---|---|---|---|"]
