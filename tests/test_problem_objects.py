@@ -91,3 +91,14 @@ def test_an_mpc_problem_in_python_equals_its_file():
         dataclasses.replace(built, horizon=0).check()
     with pytest.raises(ModelFileError, match=r"<MPCProblem>: field 'weights.speed'"):
         MPCProblem(read.model, weights={"speed": 1.0}).check()
+
+
+def test_a_goal_in_python_as_the_file_writes_it():
+    """Goal.from_rpy takes the file's roll-pitch-yaw (the constructor a rotation matrix): the same
+    rotation as the [goal] table's."""
+    import numpy as np
+    from rscasadi.model.types import rpy_matrix
+    from rscasadi.ocp.problem import Goal
+    g = Goal.from_rpy("tool", [0.5, 0.0, 0.3], [0.1, -0.2, 0.3], position_tol=2e-3)
+    assert np.array_equal(g.R, rpy_matrix(np.array([0.1, -0.2, 0.3]))) and g.position_tol == 2e-3
+    assert Goal.from_rpy("tool", [0.5, 0.0, 0.3]).R is None

@@ -111,6 +111,13 @@ class Goal:
         self.position = np.asarray(self.position, float).ravel()
         self.R = None if self.R is None else np.asarray(self.R, float)
 
+    @classmethod
+    def from_rpy(cls, frame: str, position, rpy=None, **tolerances) -> "Goal":
+        """The goal as the problem file writes it: the rotation by roll, pitch, yaw (rad, URDF
+        convention), or none."""
+        from rscasadi.model.types import rpy_matrix
+        return cls(frame, position, None if rpy is None else rpy_matrix(np.asarray(rpy, float)), **tolerances)
+
 
 @dataclass
 class Obstacle:
@@ -453,7 +460,6 @@ def read_path(fail, t: dict) -> ToolPath:
 
 def _goal(fail, t: dict) -> Goal:
     """The [goal] table: frame, position, optional rpy (URDF convention) and tolerance."""
-    from rscasadi.model.types import rpy_matrix
     for key in t:
         if key not in GOAL_KEYS:
             fail(f"goal.{key}", f"unknown key (allowed: {', '.join(sorted(GOAL_KEYS))})")
@@ -466,8 +472,8 @@ def _goal(fail, t: dict) -> Goal:
     tol = t.get("tolerance", {})
     if not isinstance(tol, dict) or set(tol) - {"position", "angle"}:
         fail("goal.tolerance", f"expected {{ position = m, angle = rad }}, got {tol!r}")
-    return Goal(t["frame"], vec["position"], rpy_matrix(vec["rpy"]) if "rpy" in vec else None,
-                **{f"{k}_tol": _number(fail, f"goal.tolerance.{k}", v, True) for k, v in tol.items()})
+    return Goal.from_rpy(t["frame"], vec["position"], vec.get("rpy"),
+                         **{f"{k}_tol": _number(fail, f"goal.tolerance.{k}", v, True) for k, v in tol.items()})
 
 
 def read_obstacles(fail, raw) -> tuple:
