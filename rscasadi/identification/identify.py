@@ -209,17 +209,40 @@ class LeastSquares:
     info: np.ndarray            # Fisher information of beta (inverse covariance)
     sigma: np.ndarray           # residual standard deviation of every block
     condition: float
+    cov_segments: np.ndarray | None = None     # the spread of beta over resampled stretches of the logs
+    cov_filter: np.ndarray | None = None       # how far beta moves with the filter's cut-off
 
     @property
-    def cov(self) -> np.ndarray:
-        """The inverse of the information, computed in equilibrated coordinates (its diagonal
-        spans many decades: a spring's k3 column is psi^3)."""
+    def cov_noise(self) -> np.ndarray:
+        """The inverse of the information (what the noise alone allows), computed in equilibrated
+        coordinates (its diagonal spans many decades: a spring's k3 column is psi^3)."""
         d = 1.0 / np.sqrt(np.maximum(np.diag(self.info), 1e-300))
         return d[:, None] * np.linalg.inv(d[:, None] * self.info * d[None, :]) * d[None, :]
 
+    @property
+    def cov(self) -> np.ndarray:
+        """The covariance reported: the noise's, or the segment bootstrap's where it is larger
+        along a direction (model error and filtering make stretches of the log disagree more
+        than white noise would): both are positive semidefinite, and their elementwise larger
+        diagonal is kept with the noise's correlations."""
+        cov = self.cov_noise
+        if self.cov_segments is not None:
+            scale = np.sqrt(np.maximum(np.diag(self.cov_segments), np.diag(cov)) / np.maximum(np.diag(cov), 1e-300))
+            cov = scale[:, None] * cov * scale[None, :]
+        return cov if self.cov_filter is None else cov + self.cov_filter
+
     def std_of(self, c) -> float | None:
+        """The standard deviation of c . th: the larger of the noise's and the segment
+        bootstrap's variance, plus the cut-off's (the estimate's move between two cut-offs)."""
         d = self.base.functional(c)
-        return None if d is None else float(np.sqrt(max(d @ self.cov @ d, 0.0)))
+        if d is None:
+            return None
+        var = d @ self.cov_noise @ d
+        if self.cov_segments is not None:
+            var = max(var, d @ self.cov_segments @ d)
+        if self.cov_filter is not None:
+            var += d @ self.cov_filter @ d
+        return float(np.sqrt(max(var, 0.0)))
 
 
 def structural_base(arm: Arm, unknowns: Unknowns, samples: int = 200, reduced: bool = False) -> BaseParameters:
@@ -237,7 +260,7 @@ def excitation_rank(rows_: Rows, base: BaseParameters, rtol: float = 1e-10) -> i
     return int(np.linalg.matrix_rank(A, tol=rtol * np.sqrt(A.shape[0])))
 
 
-def least_squares(rows_: Rows, base: BaseParameters, th_nominal: np.ndarray) -> LeastSquares:
+def least_squares(rows_: Rows, base: BaseParameters, th_nominal: np.ndarray, bootstrap: bool = True) -> LeastSquares:
     """Weighted least squares in the base parameters.  Each block (a joint's motor-torque rows,
     its spring rows, ...) is weighted by 1 / its residual RMS, re-estimated twice; the weights
     start from, and are floored at 1e-4 of, the block's torque under the nominal model, so that
@@ -257,7 +280,36 @@ def least_squares(rows_: Rows, base: BaseParameters, th_nominal: np.ndarray) -> 
     res_w = Aw @ beta - rows_.y * w
     s2 = float(np.sum(res_w ** 2) / dof) * _correlation_inflation(res_w, rows_.block)
     sv = np.linalg.svd(Aw / np.linalg.norm(Aw, axis=0), compute_uv=False)
-    return LeastSquares(base, beta, Aw.T @ Aw / s2, sigma, float(sv[0] / sv[-1]))
+    return LeastSquares(base, beta, Aw.T @ Aw / s2, sigma, float(sv[0] / sv[-1]),
+                        segment_bootstrap(Aw, rows_.y * w, rows_.t) if bootstrap else None)
+
+
+SEGMENTS = 12            # stretches of the logs the bootstrap resamples
+UNCERTAIN = 0.3          # a parameter whose std exceeds this fraction of its estimate is flagged
+FILTER_PROBE = 0.8       # the second cut-off, as a fraction of the first, whose estimate tells the filter's effect
+WEAK_CONDITION = 200.0   # a log whose regression is worse conditioned is warned about
+BOOTSTRAP = 200          # resamples
+
+
+def segment_bootstrap(Aw: np.ndarray, yw: np.ndarray, t: np.ndarray, seed: int = 0) -> np.ndarray | None:
+    """The covariance of the weighted least-squares estimate over SEGMENTS stretches of the logs
+    drawn with replacement (a block bootstrap: each stretch keeps its filtered, coloured
+    residual whole, so model error that differs along the motion shows as spread); None where
+    a resample cannot determine every combination."""
+    edges = np.quantile(t, np.linspace(0, 1, SEGMENTS + 1))
+    seg = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, SEGMENTS - 1)
+    G = np.array([Aw[seg == k].T @ Aw[seg == k] for k in range(SEGMENTS)])
+    g = np.array([Aw[seg == k].T @ yw[seg == k] for k in range(SEGMENTS)])
+    d = 1.0 / np.sqrt(np.maximum(np.diag(G.sum(0)), 1e-300))            # equilibrated, as cov_noise
+    rng, betas = np.random.default_rng(seed), []
+    for _ in range(BOOTSTRAP):
+        counts = np.bincount(rng.integers(SEGMENTS, size=SEGMENTS), minlength=SEGMENTS)
+        Gb, gb = np.tensordot(counts, G, 1), counts @ g
+        try:
+            betas.append(d * np.linalg.solve(d[:, None] * Gb * d[None, :], d * gb))
+        except np.linalg.LinAlgError:
+            return None
+    return np.cov(np.array(betas).T)
 
 
 def _correlation_inflation(res, block) -> float:
@@ -422,6 +474,10 @@ def identify(arm: Arm, logs: list[Log], reduced: bool = False, fc: float | None 
                        f"(rscasadi excite designs one)")
     check_moving(rows_, arm, ", ".join(lg.path for lg in logs))
     ls = least_squares(rows_, base, th_nominal)
+    # what filtering does to the estimate: again at a lower cut-off (still above the SEA modes)
+    probe = combine([rows(arm, prepare(log, FILTER_PROBE * fc), unknowns, reduced) for log in logs])
+    moved = ls.beta - least_squares(probe, base, th_nominal, bootstrap=False).beta
+    ls.cov_filter = np.outer(moved, moved)
     th, status = physical_fit(arm, unknowns, ls, th_nominal)
     return Identification(unknowns, ls, th, th_nominal, identified_model(arm, unknowns, th), fc, why, rows_, status)
 
@@ -449,7 +505,18 @@ def report(ident: Identification, arm: Arm, validation: dict | None, log_files: 
         reflected[jt.name] = {"nominal": float(reflected_inertia(u, arm.model, j) @ ident.th_nominal),
                               "estimate": est, "std": s}
     residual = {label: float(s) for label, s in zip(ident.rows.labels, ident.ls.sigma)}
+    uncertain = {name: float(s / abs(est)) for name, est, s in zip(u.names, ident.th, std)
+                 if np.isfinite(s) and abs(est) > 0 and s > UNCERTAIN * abs(est)}
+    warnings = []
+    if ident.ls.condition > WEAK_CONDITION:
+        warnings.append(f"a weak log: condition number {ident.ls.condition:.3g} > {WEAK_CONDITION:g} (a designed "
+                        "excitation gives about 40): the estimates can be far off their standard deviations; log "
+                        "a longer, richer motion (rscasadi excite designs one)")
+    if uncertain:
+        warnings.append(f"{len(uncertain)} parameters uncertain by more than {UNCERTAIN:.0%} of their estimate "
+                        f"(report.json: uncertain): " + ", ".join(sorted(uncertain, key=uncertain.get, reverse=True)[:6]))
     return {
+        "warnings": warnings, "uncertain": uncertain,
         "model": str(arm.model.path), "logs": [str(f) for f in log_files],
         "cutoff_hz": ident.cutoff_hz, "cutoff_why": ident.cutoff_why,
         "condition_number": ident.ls.condition, "physical_fit": ident.fit_status, "base_parameters": base,
@@ -459,7 +526,9 @@ def report(ident: Identification, arm: Arm, validation: dict | None, log_files: 
         "residual_rms": residual,
         "fit": predict(ident.rows, ident.th),
         "validation": validation,
-        "notes": "std from the residual covariance of the weighted least squares in the base parameters; "
+        "notes": "std: the larger of the weighted least squares' noise covariance (inflated for the residual's "
+                 "colour) and the spread over resampled stretches of the logs (a segment bootstrap, which model "
+                 "error widens), plus how far the estimate moves when the cut-off is lowered by 20 % (filtering); "
                  "null where a parameter is identifiable only in combination with others (see base_parameters). "
                  "Balanced rotors are identified as balanced (mass, mz, Ixx = Iyy, Izz).",
     }
@@ -524,6 +593,8 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
         validation["log"] = here(validate)
     rep = report(ident, arm, validation, [here(f) for f in log_files])
     rep["model"] = here(model_file)
+    for warning in rep["warnings"]:
+        log(f"warning: {warning}")
     with fresh_directory(out) as tmp:
         (tmp / "model.toml").write_text(f"# identified by rscasadi identify from {', '.join(rep['logs'])}\n"
                                          + to_toml(document(ident.model)))
