@@ -121,6 +121,12 @@ def cmd_mpc(args):
         print(f"wrote {out / 'closed_loop.json'} and closed_loop.png")
 
 
+def cmd_simulate(args):
+    from rscasadi.identification.synthetic import simulate_log
+    simulate_log(args.model, args.trajectory, args.out, rate=args.rate, noise=args.noise, perturb=args.perturb,
+                 true_model=args.true_model, log=lambda msg: print(msg, flush=True))
+
+
 def cmd_view(args):
     from rscasadi.view import scene_of, write_gif, write_html
     for target in [args.out] + ([args.gif] if args.gif else []):
@@ -201,7 +207,8 @@ def cmd_impedance(args):
 
 def cmd_excite(args):
     from rscasadi.identification.excitation import run
-    run(args.model, args.out, period=args.period, harmonics=args.harmonics, log=lambda msg: print(msg, flush=True))
+    run(args.model, args.out, period=args.period, harmonics=args.harmonics, starts=args.starts, samples=args.samples,
+        max_iter=args.max_iter, log=lambda msg: print(msg, flush=True))
 
 
 def cmd_identify(args):
@@ -285,7 +292,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--period", type=positive(float), default=10.0, help="period of the Fourier series (s), default 10")
     p.add_argument("--harmonics", type=positive(int, least=3), default=5,
                    help="harmonics per joint (at least 3: the rest conditions take two), default 5")
+    p.add_argument("--starts", type=positive(int), default=3, help="deterministic starts, the best kept (default 3; "
+                   "fewer: faster)")
+    p.add_argument("--samples", type=positive(int, least=10), default=None, help="points the limits and the "
+                   "information are taken at (default max(60, 12 x harmonics); fewer: faster, coarser)")
+    p.add_argument("--max-iter", type=positive(int), default=500, help="IPOPT iterations per start (default 500)")
     p.set_defaults(func=cmd_excite)
+    p = sub.add_parser("simulate", help="a synthetic log of the arm along a trajectory, to try identification")
+    p.add_argument("model")
+    p.add_argument("trajectory", help="trajectory file (rscasadi excite's trajectory.toml, or start/amplitude)")
+    p.add_argument("--out", required=True, help="the log to write (CSV: t,theta_j,phi_j,tau_j)")
+    p.add_argument("--rate", type=positive(float), default=1000.0, help="samples per second (default 1000)")
+    p.add_argument("--noise", type=positive(float, zero=True), default=0.005,
+                   help="torque noise, a fraction of each joint's torque limit (default 0.005)")
+    p.add_argument("--perturb", type=positive(int, zero=True), default=None, metavar="SEED",
+                   help="log a different arm of the family (every parameter off by 10-40 %%, cubic springs and "
+                        "Coulomb loss added), drawn with this seed")
+    p.add_argument("--true-model", default=None, metavar="FILE", help="write the arm that was simulated here")
+    p.set_defaults(func=cmd_simulate)
     p = sub.add_parser("identify", help="identify the complete model from logs (CSV: t,theta_j,phi_j,tau_j[,T_j])")
     p.add_argument("model", help="model file: kinematics, gear ratios and the starting guess")
     p.add_argument("logs", nargs="+", help="one or more logs")

@@ -305,3 +305,21 @@ def test_a_weak_log_is_warned_about_and_its_uncertainty_is_honest(synthetic, arm
     for jt in arm3.model.joints:
         k1 = good["parameters"][f"{jt.name}.sea.k1"]
         assert k1["std"] < 0.05 * k1["estimate"], (jt.name, k1)
+
+
+def test_simulate_writes_a_log_identify_reads(tmp_path, capsys):
+    """rscasadi simulate: a log in the documented format from a model and a trajectory file, of a
+    perturbed arm of the family whose model file it writes too; bad paths refused by name."""
+    from rscasadi.identification.logs import read_log
+    traj = ROOT / "problems" / "trajectory_arm3.toml"
+    assert main(["simulate", str(REFERENCE), str(traj), "--out", str(tmp_path / "log.csv"), "--rate", "500",
+                 "--perturb", "4", "--true-model", str(tmp_path / "true.toml")]) in (0, None)
+    lg = read_log(tmp_path / "log.csv", 3)
+    assert lg.t.size == 1001 and np.all(np.isfinite(lg.tau)) and np.ptp(lg.theta[0]) > 0.9
+    true, nominal = rscasadi.load(tmp_path / "true.toml"), rscasadi.load(REFERENCE)
+    assert true.model.joints[0].k1 != nominal.model.joints[0].k1 and true.model.joints[0].k3 > 0
+    assert "wrote" in capsys.readouterr().out
+    assert main(["simulate", str(REFERENCE), str(traj), "--out", str(tmp_path)]) == 2
+    assert "is a directory" in capsys.readouterr().err
+    assert main(["simulate", str(ROOT / "problems" / "panda_sea.toml"), str(traj), "--out", str(tmp_path / "x.csv")]) == 2
+    assert "3 joints" in capsys.readouterr().err and not (tmp_path / "x.csv").exists()

@@ -43,6 +43,7 @@ TORQUE_NOISE = 0.005
 MAX_CONDITION = 1e5  # a design above this is refused (a hand-picked bump on every joint: ~1e9)
 MIN_SWEEP = 0.1      # every joint sweeps at least this fraction of its angle range
 STARTS = 3           # deterministic starts; the best checked design is kept
+PROGRESS_S = 5.0     # seconds between progress lines of a start
 
 
 def _basis(period, K, t):
@@ -124,7 +125,7 @@ class ExcitationError(CheckError):
     """No designed trajectory passed its checks; the message names each start's cause."""
 
 
-def _design_problem(arm: Arm, period: float, K: int, margin: float, M: int):
+def _design_problem(arm: Arm, period: float, K: int, margin: float, M: int, max_iter: int = 500, log=print):
     """The design NLP over (a, b, q0) and its bounds: min log tr A^-1 subject to rest at t = 0 and
     the limits at the M sample points (IPOPT, exact Hessian)."""
     n = arm.n
@@ -147,11 +148,57 @@ def _design_problem(arm: Arm, period: float, K: int, margin: float, M: int):
     fin = lambda v: np.where(np.isfinite(v), v, 1e20)
     bound = np.r_[margin * lvec(fin(lim["tau"])), margin * lvec(fin(lim["psi"])), margin * lvec(fin(lim["dphi"]))]
     room = (1 - margin) * (hi - lo) / 2
-    solver = ca.nlpsol("excite", "ipopt", {"x": ca.vertcat(ca.vec(a), ca.vec(b), q0), "f": f, "g": cons}, {
-        "ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 500, "ipopt.tol": 1e-8})
+    x = ca.vertcat(ca.vec(a), ca.vec(b), q0)
+    progress = _Progress(x.shape[0], cons.shape[0], log)
+    solver = ca.nlpsol("excite", "ipopt", {"x": x, "f": f, "g": cons}, {
+        "ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": max_iter, "ipopt.tol": 1e-8,
+        "iteration_callback": progress})
+    solver.progress = progress                                 # kept alive with the solver
     bounds = {"lbg": np.r_[np.zeros(3 * n), -bound, lvec(lo + room)], "ubg": np.r_[np.zeros(3 * n), bound, lvec(hi - room)],
               "lbx": np.r_[-np.inf * np.ones(2 * n * K), lo], "ubx": np.r_[np.inf * np.ones(2 * n * K), hi]}
     return solver, bounds, r
+
+
+class _Progress(ca.Callback):
+    """IPOPT's iterations as a progress line every PROGRESS_S seconds: the start, the iteration,
+    the objective (log tr A^-1) and the time so far."""
+
+    def __init__(self, nx: int, ng: int, log):
+        ca.Callback.__init__(self)
+        self.nx, self.ng, self.log = nx, ng, log
+        self.reset("")
+        self.construct("excite_progress", {})
+
+    def reset(self, label: str):
+        import time
+        self.label, self.k, self.t0, self.last = label, 0, time.perf_counter(), time.perf_counter()
+
+    def get_n_in(self):
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self):
+        return 1
+
+    def get_name_in(self, i):
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i):
+        return "ret"
+
+    def get_sparsity_in(self, i):
+        name = ca.nlpsol_out(i)
+        size = {"f": 1, "x": self.nx, "lam_x": self.nx, "g": self.ng, "lam_g": self.ng}.get(name, 0)
+        return ca.Sparsity.dense(size) if size else ca.Sparsity(0, 0)
+
+    def eval(self, arg):
+        import time
+        self.k += 1
+        now = time.perf_counter()
+        if now - self.last >= PROGRESS_S:
+            self.last = now
+            self.log(f"excitation: {self.label}iteration {self.k}, log tr(A^-1) {float(arg[1]):.4g}, "
+                     f"{now - self.t0:.0f} s")
+        return [0]
 
 
 def _start(arm: Arm, K: int, seed: int):
@@ -181,18 +228,21 @@ def check_design(arm: Arm, traj: Trajectory, t, kappa: float, max_condition: flo
 
 
 def design(arm: Arm, period: float = 10.0, harmonics: int = 5, margin: float = 0.85, samples: int | None = None,
-           starts: int = STARTS, rate: float = 1000.0, max_condition: float = MAX_CONDITION,
+           starts: int = STARTS, rate: float = 1000.0, max_condition: float = MAX_CONDITION, max_iter: int = 500,
            log=print) -> tuple[Trajectory, dict, dict, dict]:
     """The best checked design of `starts` deterministic starts: (trajectory, its exact
-    feedforward, the limits' use, info).  Raises ExcitationError when no start passes."""
+    feedforward, the limits' use, info).  Raises ExcitationError when no start passes.  Fewer
+    `starts`, `samples` (the points the design's limits and information are taken at) or
+    `max_iter` trade the design's quality for time."""
     n, K = arm.n, harmonics
     M = samples or max(60, 12 * K)
-    solver, bounds, r = _design_problem(arm, period, K, margin, M)
+    solver, bounds, r = _design_problem(arm, period, K, margin, M, max_iter, log)
     t = np.arange(int(round(period * rate)) + 1) / rate
     log(f"excitation: {n} joints, {K} harmonics, period {period} s, {M} samples, {r} base parameters; "
         f"{starts} starts")
     tried, best = [], None
     for seed in range(1, starts + 1):
+        solver.progress.reset(f"start {seed}/{starts}: ")
         res = solver(x0=_start(arm, K, seed), **bounds)
         stats = solver.stats()
         raise_if_interrupted(stats)
@@ -298,12 +348,13 @@ def hand_picked(arm: Arm, period: float, amplitude: float = 0.5) -> Trajectory:
 
 
 def run(model_file, out, period: float = 10.0, harmonics: int = 5, rate: float = 1000.0, starts: int = STARTS,
-        log=print) -> dict:
+        samples: int | None = None, max_iter: int = 500, log=print) -> dict:
     """`rscasadi excite`: design and check an excitation trajectory for `model_file` and write it,
     its exact feedforward and its figures into `out` (whole or not at all); returns its summary."""
     arm = load(model_file)
     with fresh_directory(out) as tmp:       # checked writable before the design
-        traj, ff, use, info = design(arm, period, harmonics, starts=starts, rate=rate, log=log)
+        traj, ff, use, info = design(arm, period, harmonics, samples=samples, starts=starts, rate=rate,
+                                     max_iter=max_iter, log=log)
         t = np.arange(int(round(period * rate)) + 1) / rate
         kappa, kappa_hand = condition_number(arm, traj), condition_number(arm, hand_picked(arm, period))
         log(f"excitation: condition number {kappa:.4g} (hand-picked bump of 0.5 rad: {kappa_hand:.4g})")

@@ -48,13 +48,16 @@ def header(n: int, torque_sensor: bool = False) -> list[str]:
 
 def write_log(path, log: Log):
     """Write `log` as CSV with the header `header` gives."""
+    import io
+    from rscasadi.files import write_text
     n = log.n
     data = [log.t, *log.theta, *log.phi, *log.tau] + ([*log.T] if log.T is not None else [])
     rows = np.vstack(data).T
-    with open(path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(header(n, log.T is not None))
-        w.writerows([[repr(float(v)) for v in row] for row in rows])
+    text = io.StringIO(newline="")
+    w = csv.writer(text)
+    w.writerow(header(n, log.T is not None))
+    w.writerows([[repr(float(v)) for v in row] for row in rows])
+    write_text(path, text.getvalue())                     # whole or not at all
 
 
 def read_log(path, n: int, min_samples: int = 50) -> Log:

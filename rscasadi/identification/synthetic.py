@@ -11,6 +11,7 @@ integrated with RK4 at 4 substeps per sample, inside one CasADi mapaccum.
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -109,3 +110,42 @@ def record(true_arm: Arm, nominal_arm: Arm, trajectory, rate: float = 1000.0, rn
     tau_logged = tau_applied + rng.normal(0, 1, tau_applied.shape) * (torque_noise * limits)[:, None]
     log = Log("<synthetic>", t, meas[:n], meas[n:2 * n], tau_logged)
     return log, {"t": t, "x": states[:4 * n], "tau": tau_applied}
+
+
+def simulate_log(model, trajectory, out, rate: float = 1000.0, noise: float = 0.005, perturb: int | None = None,
+                 true_model=None, log=print) -> Path:
+    """`rscasadi simulate`: the log (docs/user-guide/identification.md's format) that the arm of
+    `model`, or with `perturb` (a seed) a different arm of its family (every parameter off by
+    10-40 %, a cubic spring and Coulomb loss added: perturbed_arm), records along `trajectory`
+    (a trajectory file: rscasadi excite's, or a start-amplitude file) under the nominal
+    feedforward and a motor-side PD, with torque noise of `noise` times each torque limit; the
+    true arm's model file into `true_model` if given."""
+    import time
+    from rscasadi.dynamics.arm import load
+    from rscasadi.files import check_writable, write_text
+    from rscasadi.identification.logs import write_log
+    from rscasadi.model.modelfile import document, to_toml
+    from rscasadi.sim.trajectory import load_trajectory
+    out = Path(out)
+    for target in [out] + ([Path(true_model)] if true_model else []):
+        if target.is_dir():
+            raise OSError(21, "is a directory: give a file name", str(target))
+        check_writable(target.resolve().parent)
+    if not (rate > 0 and np.isfinite(rate)) or not (noise >= 0 and np.isfinite(noise)):
+        raise ValueError(f"simulate: --rate {rate!r} must be > 0 and --noise {noise!r} >= 0")
+    nominal = load(model)
+    traj = load_trajectory(trajectory)
+    if traj.n != nominal.n:
+        raise ValueError(f"{trajectory}: {traj.n} joints, the model {model} has {nominal.n}")
+    rng = np.random.default_rng(0 if perturb is None else perturb)
+    true = nominal if perturb is None else perturbed_arm(nominal, rng)
+    log(f"simulating {true.model.name} along {Path(trajectory).name}: {traj.duration:g} s at {rate:g} Hz ...")
+    t0 = time.perf_counter()
+    lg, _ = record(true, nominal, traj, rate=rate, rng=rng, torque_noise=noise)
+    write_log(out, lg)
+    if true_model:
+        write_text(true_model, f"# the arm that recorded {out.name} (rscasadi simulate --perturb {perturb})\n"
+                   + to_toml(document(true.model)))
+    log(f"wrote {out} ({lg.t.size} samples, {time.perf_counter() - t0:.1f} s)"
+        + (f" and {true_model}" if true_model else ""))
+    return out
