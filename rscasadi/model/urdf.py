@@ -256,7 +256,7 @@ def _path_joints(robot, links_by_name, target: str) -> list:
 
 def _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuators, tip, ctx, lock_others: float = 0.0):
     """Walk the URDF tree from its root: the chain of moving joints on the path from the root to
-    the tip (`tip`, else the child link of the last actuated joint), and for every chain body
+    the tip (`tip`, else the child link of the deepest actuated joint), and for every chain body
     (0 = base, j = link of moving joint j) its merged spatial inertia in its URDF frame, the
     names of the links merged into it, and (T_joint) the transform from it to the origin of
     the next moving joint.  Moving joints off that path (a whole robot's head, other arm,
@@ -274,7 +274,10 @@ def _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuator
         ctx.fail("urdf", f"{urdf_path}: expected one root link, found {roots}")
     if tip is not None and (not isinstance(tip, str) or tip not in links_by_name):
         ctx.fail("tip", f"no link {tip!r} in {urdf_path}")
-    target = tip if tip is not None else joints_by_name[list(actuators)[-1]].child
+    # where no tip is given the chain ends below the deepest actuated joint (whatever their order
+    # in the file: the order is checked by the caller, with its own message)
+    target = tip if tip is not None else max((joints_by_name[name].child for name in actuators),
+                                             key=lambda link: len(_path_joints(robot, links_by_name, link)))
     on_path = {jt.name for jt in _path_joints(robot, links_by_name, target)}
     off = [name for name in actuators if name not in on_path]
     if off:
