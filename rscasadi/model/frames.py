@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from rscasadi.model.checks import _body, _Ctx, _number, _table, _vector, orientation
-from rscasadi.model.types import BASE, BODY_KEYS, Capsule, Collision, Frame, Payload, rotation_document, rpy_matrix, rpy_of
+from rscasadi.model.types import BASE, BODY_KEYS, Capsule, Collision, Frame, Payload, rotation_document, rpy_matrix
 
 FRAME_KEYS = {"parent", "xyz", "rpy", "R"}
 

@@ -106,7 +106,7 @@ def _mesh_file(urdf: Path, name: str) -> tuple[Path | None, str]:
     if name.startswith("file://"):
         name = name[len("file://"):]
     if Path(name).suffix.lower() not in MESHES:
-        return None, f"not an STL, OBJ or DAE mesh"
+        return None, "not an STL, OBJ or DAE mesh"
     if not name.startswith("package://"):
         if Path(name).is_absolute():
             return None, f"an absolute path (outside the robot's package {root})"
