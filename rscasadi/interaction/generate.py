@@ -21,7 +21,7 @@ from rscasadi.dynamics.statics import holding_torque
 from rscasadi.model.limits import limit_arrays, measurement_bounds, torque_bounds
 from rscasadi.interaction.impedance import impedance_boxes
 from rscasadi.native.build import cached_library, compiler
-from rscasadi.native.controller import DAMPING_RATIO_BOUND, STIFFNESS_BOUND, c_numbers, c_words, guard_source
+from rscasadi.native.controller import DAMPING_RATIO_BOUND, STIFFNESS_BOUND, boxes, c_numbers, c_words, guard_source
 from rscasadi.native.loader import CompiledController
 
 TEMPLATES = Path(__file__).with_name("templates")
@@ -57,11 +57,6 @@ def _generate(functions: list, stem: str, header: dict, body: dict, out, opt: st
     return manifest
 
 
-def _boxes(values: dict, words: bool = False) -> dict:
-    """Bounds as C initialisers (or, `words`, as a header comment's numbers)."""
-    return {k: (c_words if words else c_numbers)(v) for k, v in values.items()}
-
-
 def _model_name(arm: Arm) -> str:
     """The model file's name for a C comment: only characters that cannot end one."""
     return re.sub(r"[^A-Za-z0-9._-]", "_", Path(str(arm.model.path)).name)
@@ -83,17 +78,17 @@ def generate_observer(model, out, gain, sample_time: float = 1e-3, threshold: fl
         raise ValueError(f"observer: --threshold {threshold!r} N m must be > 0")
     header["threshold"] = f"{threshold:g}" if np.isfinite(threshold) else "none (INFINITY)"
     x_lo, x_hi = measurement_bounds(arm.model)
-    boxes = {"x_lo": x_lo, "x_hi": x_hi, "tau_lo": -torque_bounds(arm.model), "tau_hi": torque_bounds(arm.model)}
-    header.update(_boxes(boxes, words=True))
+    box = {"x_lo": x_lo, "x_hi": x_hi, "tau_lo": -torque_bounds(arm.model), "tau_hi": torque_bounds(arm.model)}
+    header.update(boxes(box, words=True))
     body = {"dt": repr(float(sample_time)), "gains": ", ".join(repr(float(k)) for k in K),
-            "threshold": repr(float(threshold)) if np.isfinite(threshold) else "INFINITY", **_boxes(boxes)}
+            "threshold": repr(float(threshold)) if np.isfinite(threshold) else "INFINITY", **boxes(box)}
     manifest = {"model": str(arm.model.path),
                 "api": {"observer_sizeof": [], "observer_init": ["obs", "x_measured"],
                         "observer_step": ["obs", "x_measured", "tau_applied", "r_out"],
                         "observer_step_seconds": ["obs"]},
                 "sizes": {"x": 4 * n, "tau": n, "r": 2 * n}, "gain": K.tolist(), "sample_time": sample_time,
                 "threshold": threshold if np.isfinite(threshold) else None,
-                "guard": {k: v.tolist() for k, v in boxes.items()}}
+                "guard": {k: v.tolist() for k, v in box.items()}}
     return _generate([observer_terms(arm)], "observer", header, body, out, opt, log, manifest)
 
 
@@ -111,7 +106,7 @@ def generate_impedance(model, out, frame: str | None, design: str = "motor", opt
     n = arm.n
     nref, nk = (12, 6) if frame is not None else (n, n)
     limits = limit_arrays(arm.model)["tau"]
-    boxes = impedance_boxes(arm.model, frame)
+    box = impedance_boxes(arm.model, frame)
     texts = {"motor": "on motor positions, q_bar(phi) solves phi = q_bar + psi(T(q_bar)) and\n"
                       " * the motors ask the springs for T(q_bar) - D dphi: passive, and at rest the stiffness seen\n"
                       " * is the commanded one, the springs' compliance included.",
@@ -125,15 +120,15 @@ def generate_impedance(model, out, frame: str | None, design: str = "motor", opt
               "stiffness": (f"translational N/m (3), rotational N m/rad (3{'' if n >= 6 else '; not used below 6 joints'})"
                             if cartesian else f"N m/rad ({n})"),
               "nref_k": nk, "tau_limits": c_words(limits), "k_max": f"{STIFFNESS_BOUND:g}",
-              "z_max": f"{DAMPING_RATIO_BOUND:g}", **_boxes({k: boxes[k] for k in ("x_lo", "x_hi", "ref_lo", "ref_hi")}, True)}
-    body = {"limits": c_numbers(limits), "passive": int(design == "motor"), **_boxes(boxes)}
+              "z_max": f"{DAMPING_RATIO_BOUND:g}", **boxes({k: box[k] for k in ("x_lo", "x_hi", "ref_lo", "ref_hi")}, True)}
+    body = {"limits": c_numbers(limits), "passive": int(design == "motor"), **boxes(box)}
     reference = "pose_desired" if cartesian else "q_desired"
     manifest = {"model": str(arm.model.path), "frame": frame, "design": design,
                 "api": {"impedance_sizeof": [], "impedance_init": ["c", "x_measured"],
                         "impedance_step": ["c", "x_measured", reference, "stiffness", "damping_ratio", "tau_out"],
                         "impedance_step_seconds": ["c"]},
                 "sizes": {"x": 4 * n, reference: nref, "stiffness": nk, "damping_ratio": nk, "tau": n},
-                "guard": {k: v.tolist() for k, v in boxes.items()}}
+                "guard": {k: v.tolist() for k, v in box.items()}}
     return _generate([impedance_law(arm, frame, design=design), holding_torque(arm, "impedance_hold")], "impedance",
                      header, body, out, opt, log, manifest)
 

@@ -18,7 +18,7 @@ from rscasadi.mpc.formulation import controller_arm, hold_function, n_params, re
 from rscasadi.mpc.problem import mpc_model, mpc_problem
 from rscasadi.model.limits import limit_arrays, measurement_bounds
 from rscasadi.native.build import cached_library, compiler, native_flags
-from rscasadi.native.controller import c_numbers, c_words, guard_source, task_reference_bounds
+from rscasadi.native.controller import boxes, c_words, guard_source, task_reference_bounds
 
 TEMPLATES = Path(__file__).with_name("templates")
 
@@ -101,7 +101,7 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
             h=p.interval, iters=iters, reference=reference, target=target, ntarget=n_target,
             nparams=n_params(arm), np=n_params(arm) - n, task=int(p.task_space),
             sz_w=max(rti.sz_w(), hold.sz_w()) + 1, sz_iw=max(rti.sz_iw(), hold.sz_iw()) + 1,
-            **{k: c_words(v) for k, v in guard.items()}, tau_limits=c_words(guard["tau_max"]))
+            **boxes(guard, words=True), tau_limits=c_words(guard["tau_max"]))
         (tmp / "rscasadi_mpc.h").write_text(header)
         names, values = arm.parameters()
         free = arm.free or []
@@ -109,7 +109,7 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
         mass_index = free.index("payload.mass") if "payload.mass" in free else -1
         (tmp / "rscasadi_mpc.c").write_text(Template((TEMPLATES / "rscasadi_mpc.c").read_text()).substitute(
             nominal=", ".join(repr(v) for v in nominal) or "0.0", mass_index=mass_index,
-            **{k: c_numbers(v) for k, v in guard.items()}))
+            **boxes(guard)))
         for name, text in guard_source().items():
             (tmp / name).write_text(text)
         sources = {name: (tmp / name).read_text()

@@ -33,6 +33,11 @@ def c_words(values) -> str:
     return ", ".join(f"{v:.4g}" for v in np.ravel(np.asarray(values, float)))
 
 
+def boxes(values: dict, words: bool = False) -> dict:
+    """Named bounds as C initialisers (c_numbers), or with `words` as a header comment's numbers."""
+    return {k: (c_words if words else c_numbers)(v) for k, v in values.items()}
+
+
 def task_reference_bounds(rows: int) -> tuple[np.ndarray, np.ndarray]:
     """(lo, hi) of a task-space reference column: p (3), v (3) and, with 15 rows, vec(R) (9)."""
     hi = np.concatenate([np.full(3, POSITION_BOUND), np.full(3, VELOCITY_BOUND), np.full(rows - 6, ROTATION_BOUND)])
