@@ -65,7 +65,7 @@ def opt_flag(text: str) -> str:
 
 def cmd_info(args):
     from rscasadi.studies.model_report import model_report
-    print(model_report(args.model), end="")
+    print(model_report(args.model, collision=args.collision), end="")
 
 
 def cmd_paper(args):
@@ -228,6 +228,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
     p = sub.add_parser("info", help="summarise a model file")
     p.add_argument("model")
+    p.add_argument("--collision", action="store_true",
+                   help="list every capsule kept clear of obstacles (link, ends, radius) and the links with none")
     p.set_defaults(func=cmd_info)
     p = sub.add_parser("codegen", help="generate and compile C for a model's functions")
     p.add_argument("model")

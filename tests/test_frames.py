@@ -289,7 +289,7 @@ def panda_with_primitives(tmp_path_factory):
     model = (ROOT / "problems" / "panda_sea.toml").read_text().replace('urdf = "urdf/panda.urdf"', 'urdf = "panda.urdf"')
     own = re.search(r"\[collision\].*?\n\n", model, re.S)                 # the model's own table, replaced
     model = model.replace(own.group(0), '[collision]\nmargin = 0.01\ntip = "panda_hand_tcp"\n'
-                          'links = { panda_link3 = 0.06, panda_link5 = "urdf", panda_link7 = 0.04 }\n\n')
+                          'links = { panda_link3 = 0.06, panda_link5 = "urdf", panda_link7 = "urdf" }\n\n')
     (d / "panda.toml").write_text(model)
     return d
 
@@ -300,7 +300,7 @@ def test_urdf_cylinders_and_spheres_are_the_links_geometry(panda_with_primitives
     capsule from joint to joint."""
     arm = rscasadi.load(panda_with_primitives / "panda.toml")
     by_link = {c.link: c for c in arm.model.collision.capsules}
-    assert set(by_link) == {"panda_link3", "panda_link5", "panda_link7"}
+    assert set(by_link) == {"panda_link3", "panda_link5", "panda_link7", "panda_leftfinger", "panda_rightfinger"}
     assert by_link["panda_link5"].radius == 0.06 and by_link["panda_link7"].radius == 0.05
     assert np.allclose(by_link["panda_link3"].a, 0.0)                 # a capsule from the joint's origin
     ref = PinocchioURDF(arm.model)
@@ -328,5 +328,5 @@ def test_urdf_cylinders_and_spheres_are_the_links_geometry(panda_with_primitives
 def test_urdf_geometry_asked_for_where_there_is_none_is_refused(panda_with_primitives, tmp_path):
     text = (panda_with_primitives / "panda.toml").read_text().replace('panda_link3 = 0.06', 'panda_link3 = "urdf"')
     (panda_with_primitives / "no_primitives.toml").write_text(text)
-    with pytest.raises(rscasadi.ModelFileError, match=r"no_primitives.toml.*'collision.links.panda_link3'.*no cylinder"):
+    with pytest.raises(rscasadi.ModelFileError, match=r"no_primitives.toml.*'collision.links.panda_link3'.*no <collision>"):
         rscasadi.load(panda_with_primitives / "no_primitives.toml")

@@ -1,4 +1,5 @@
-"""Clearance between the arm's capsules and obstacles (spheres, axis-aligned boxes).
+"""Clearance between the arm's capsules (the [collision] table's and the payload's sphere,
+rscasadi.model.collision.capsules) and obstacles (spheres, axis-aligned boxes).
 
 For the optimiser, smooth and conservative: each capsule is covered by spheres centred along
 its segment, spaced s <= r and of radius sqrt(r^2 + (s/2)^2) (the union contains the capsule);
@@ -16,6 +17,7 @@ import casadi as ca
 import numpy as np
 
 from rscasadi.dynamics.kinematics import body_poses
+from rscasadi.model.collision import capsules, margin
 
 BETA_PER_M = 2000.0          # softplus sharpness (1/m): it overestimates max(x, 0) by at most 0.35 mm
 
@@ -27,8 +29,11 @@ def _softplus(x, beta):
 def covering_spheres(capsule) -> tuple[np.ndarray, float]:
     """Centres (k x 3, in the capsule's body frame) and radius of spheres whose union holds it."""
     a, b, r = np.asarray(capsule.a, float), np.asarray(capsule.b, float), capsule.radius
-    k = max(2, math.ceil(np.linalg.norm(b - a) / r) + 1)
-    s = np.linalg.norm(b - a) / (k - 1)
+    length = float(np.linalg.norm(b - a))
+    if length == 0.0:                                    # a sphere
+        return a[None, :], r
+    k = max(2, math.ceil(length / r) + 1)
+    s = length / (k - 1)
     return np.linspace(a, b, k), math.sqrt(r ** 2 + (s / 2) ** 2)
 
 
@@ -44,16 +49,16 @@ def _sphere_distance(p, rho, obstacle):
 
 def clearances(model, obstacles, theta):
     """Every covering sphere's smooth clearance to every obstacle, less the margin (>= 0: clear)."""
-    if model.collision is None or not obstacles:
+    if not capsules(model) or not obstacles:
         return ca.DM.zeros(0)
     poses = body_poses(model, theta)
     rows = []
-    for capsule in model.collision.capsules:
+    for capsule in capsules(model):
         R, o = poses[capsule.body]
         centres, rho = covering_spheres(capsule)
         for centre in centres:
             p = o + R @ ca.DM(centre)
-            rows += [_sphere_distance(p, rho, obstacle) - model.collision.margin for obstacle in obstacles]
+            rows += [_sphere_distance(p, rho, obstacle) - margin(model) for obstacle in obstacles]
     return ca.vertcat(*rows)
 
 
@@ -71,13 +76,13 @@ def exact_clearance(model, obstacles) -> ca.Function:
     """theta -> the smallest distance between the capsules and the obstacles, less the margin
     (each segment sampled every r / 8): what the verification checks at every replay sample."""
     theta = ca.SX.sym("theta", model.n)
-    if model.collision is None or not obstacles:
+    if not capsules(model) or not obstacles:
         return ca.Function("exact_clearance", [theta], [ca.SX(np.inf)])
     poses = body_poses(model, theta)
     gaps = []
-    for capsule in model.collision.capsules:
+    for capsule in capsules(model):
         R, o = poses[capsule.body]
         k = max(2, math.ceil(8 * np.linalg.norm(np.asarray(capsule.b) - capsule.a) / capsule.radius) + 1)
         for point in np.linspace(capsule.a, capsule.b, k):
             gaps += [_exact_distance(o + R @ ca.DM(point), obstacle) - capsule.radius for obstacle in obstacles]
-    return ca.Function("exact_clearance", [theta], [ca.mmin(ca.vertcat(*gaps)) - model.collision.margin])
+    return ca.Function("exact_clearance", [theta], [ca.mmin(ca.vertcat(*gaps)) - margin(model)])

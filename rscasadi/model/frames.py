@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from rscasadi.model.checks import _body, _Ctx, _number, _table, _vector, orientation
-from rscasadi.model.types import BASE, BODY_KEYS, Capsule, Collision, Frame, Payload, rotation_document, rpy_matrix
+from rscasadi.model.types import BASE, BODY_KEYS, Frame, Payload, rotation_document, rpy_matrix
 
 FRAME_KEYS = {"parent", "xyz", "rpy", "R"}
 
@@ -78,16 +78,18 @@ def frames_document(model) -> dict:
 
 def payload(ctx, raw, frames: tuple) -> Payload | None:
     """The [payload] table: `frame` (a frame on a moving link) and the body's mass, com and
-    inertia (about the com) in that frame, as a link's."""
+    inertia (about the com) in that frame, as a link's; `radius` (m, optional) the sphere about
+    its com that must keep clear of obstacles."""
     if raw is None:
         return None
-    t = _table(ctx, "payload", raw, BODY_KEYS | {"frame"}, ("frame",) + tuple(sorted(BODY_KEYS)))
+    t = _table(ctx, "payload", raw, BODY_KEYS | {"frame", "radius"}, ("frame",) + tuple(sorted(BODY_KEYS)))
     known = {f.name: f for f in frames}
     if not isinstance(t["frame"], str) or t["frame"] not in known:
         ctx.fail("payload.frame", f"no frame {t['frame']!r} (frames: {', '.join(known)})")
     if known[t["frame"]].body == 0:
         ctx.fail("payload.frame", f"frame {t['frame']!r} is on the fixed base: a payload rides on a moving link")
-    return Payload(t["frame"], _body(ctx, "payload", {k: t[k] for k in BODY_KEYS}))
+    radius = _number(ctx, "payload.radius", t["radius"], positive=True) if "radius" in t else None
+    return Payload(t["frame"], _body(ctx, "payload", {k: t[k] for k in BODY_KEYS}), radius)
 
 
 def payload_document(model) -> dict | None:
@@ -97,72 +99,14 @@ def payload_document(model) -> dict | None:
     b = model.payload.body
     I = b.inertia
     return {"frame": model.payload.frame, "mass": float(b.mass), "com": [float(c) for c in b.com],
-            "inertia": [float(I[0, 0]), float(I[1, 1]), float(I[2, 2]), float(I[0, 1]), float(I[0, 2]), float(I[1, 2])]}
+            "inertia": [float(I[0, 0]), float(I[1, 1]), float(I[2, 2]), float(I[0, 1]), float(I[0, 2]), float(I[1, 2])],
+            **({"radius": float(model.payload.radius)} if model.payload.radius is not None else {})}
 
 
-COLLISION_KEYS = {"margin", "tip", "links"}
-
-
-def collision(ctx, raw, joints, frames: tuple, default_tip: str | None, urdf: dict | None = None) -> Collision | None:
-    """The [collision] table: `links` (a frame name -> the capsule radius of the link that
-    carries it), `margin` (m), `tip` (the frame where the last link's capsule ends).  A link's
-    capsule runs from its joint's origin to the next joint's origin (the last link's to `tip`),
-    unless the URDF gives that link cylinders or spheres (`urdf`: link name -> capsules (a, b, r)
-    in its frame), which are then its geometry; `"urdf"` instead of a radius asks for them."""
-    if raw is None:
-        return None
-    urdf = urdf or {}
-    t = _table(ctx, "collision", raw, COLLISION_KEYS, ("links",))
-    known = {f.name: f for f in frames}
-    n = len(joints)
-    margin = _number(ctx, "collision.margin", t.get("margin", 0.0), nonneg=True)
-    tip = t.get("tip", default_tip)
-    links = _table(ctx, "collision.links", t["links"], set(t["links"]))
-    capsules, bodies = [], {}
-    for name, radius in links.items():
-        fld = f"collision.links.{name}"
-        if name not in known:
-            ctx.fail(fld, f"no frame {name!r} (frames: {', '.join(known)})")
-        frame = known[name]
-        body = frame.body
-        if body == 0:
-            ctx.fail(fld, f"{name!r} is on the fixed base, which does not move")
-        if body in bodies:
-            ctx.fail(fld, f"{bodies[body]!r} of the same link has its geometry already")
-        bodies[body] = name
-        if name in urdf:                                                  # the URDF's cylinders and spheres
-            if radius != "urdf":
-                _number(ctx, fld, radius, positive=True)
-            capsules += [Capsule(name, body, frame.R @ a + frame.p, frame.R @ b + frame.p, r) for a, b, r in urdf[name]]
-            continue
-        if radius == "urdf":
-            ctx.fail(fld, f"the URDF gives {name!r} no cylinder or sphere <collision> (boxes and meshes are not "
-                          "read): give a capsule radius")
-        r = _number(ctx, fld, radius, positive=True)
-        if body < n:
-            end = np.asarray(joints[body].origin_xyz, float)               # the next joint's origin
-        else:
-            if tip is None or tip not in known:
-                ctx.fail("collision.tip", f"the last link's capsule needs the frame where it ends, got {tip!r}")
-            if known[tip].body != n:
-                ctx.fail("collision.tip", f"frame {tip!r} is not on the last link")
-            end = np.asarray(known[tip].p, float)
-        capsules.append(Capsule(name, body, np.zeros(3), end, r))
-    return Collision(margin, tuple(capsules), tip, {k: v for k, v in links.items()})
-
-
-def collision_document(model) -> dict | None:
-    """The [collision] table of `model`, or None."""
-    c = model.collision
-    if c is None:
-        return None
-    return {"margin": c.margin, **({"tip": c.tip} if c.tip else {}), "links": dict(c.links)}
-
-
-def holding(model, frame=None, mass=None, com=None, inertia=None):
+def holding(model, frame=None, mass=None, com=None, inertia=None, radius=None):
     """`model` with its payload set or changed: fields not given keep the model's payload's (a
-    model without one needs them all); `inertia` as in a model file (Ixx, Iyy, Izz, Ixy, Ixz,
-    Iyz, about the com).  A ValueError names the field."""
+    model without one needs them all but `radius`); `inertia` as in a model file (Ixx, Iyy, Izz,
+    Ixy, Ixz, Iyz, about the com); `radius` its collision sphere's.  A ValueError names the field."""
     import dataclasses
 
     from rscasadi.model.types import Body, inertia_problem
@@ -185,13 +129,7 @@ def holding(model, frame=None, mass=None, com=None, inertia=None):
     problem = inertia_problem(I)
     if com.shape != (3,) or not np.all(np.isfinite(com)) or problem:
         raise ValueError(f"payload: {'com is not 3 finite numbers' if not problem else 'inertia ' + problem}")
-    return dataclasses.replace(model, payload=Payload(frame, Body(mass, com, I)))
-
-
-def with_collision(model, raw: dict, where):
-    """`model` with its [collision] table replaced by `raw` (as a problem file may give it); errors
-    name `where` and the field."""
-    import dataclasses
-    tip = model.collision.tip if model.collision is not None else model.extra.get("tip_link_name")
-    return dataclasses.replace(model, collision=collision(_Ctx(where), raw, model.joints, model.frames, tip,
-                                                          model.extra.get("collision_geometry")))
+    radius = old.radius if radius is None and old is not None else radius
+    if radius is not None and not (isinstance(radius, (int, float)) and np.isfinite(radius) and radius > 0):
+        raise ValueError(f"payload.radius: must be a number > 0, got {radius!r}")
+    return dataclasses.replace(model, payload=Payload(frame, Body(mass, com, I), None if radius is None else float(radius)))

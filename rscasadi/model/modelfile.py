@@ -13,8 +13,8 @@ import numpy as np
 
 from rscasadi.model.checks import (ACTUATOR_KEYS, _body, _Ctx, _number, _table, _vector,  # noqa: F401
                                    actuator, field_checker, joint_context, orientation, read_toml)
-from rscasadi.model.frames import (collision, collision_document, frames_document, link_frames, payload,
-                                   payload_document, user_frames)
+from rscasadi.model.collision import collision, collision_document
+from rscasadi.model.frames import frames_document, link_frames, payload, payload_document, user_frames
 from rscasadi.model.types import (BASE, BODIES, BODY_KEYS, DEFAULT_GRAVITY, JOINT_KEYS, TOP_KEYS, ArmModel,  # noqa: F401
                                   Body, Joint, ModelFileError, inertia_problem, rotation_document, rpy_matrix,
                                   rpy_of)

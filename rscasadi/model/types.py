@@ -138,9 +138,11 @@ class Collision:
 
 @dataclass(frozen=True)
 class Payload:
-    """A rigid body held at a frame (a tool, a load): its inertial parameters in that frame."""
+    """A rigid body held at a frame (a tool, a load): its inertial parameters in that frame, and
+    the radius of the sphere about its com that keeps clear of obstacles (None: not checked)."""
     frame: str
     body: Body
+    radius: float | None = None
 
 
 @dataclass(frozen=True)

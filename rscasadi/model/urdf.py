@@ -17,7 +17,8 @@ from scipy.spatial.transform import Rotation
 
 from rscasadi.spatial import spatial_inertia, transform_inertia
 from rscasadi.model.checks import ACTUATOR_KEYS, _Ctx, _number, _table, _vector, actuator, joint_context
-from rscasadi.model.frames import collision, payload, user_frames
+from rscasadi.model.collision import collision
+from rscasadi.model.frames import payload, user_frames
 from rscasadi.model.types import DEFAULT_GRAVITY, ArmModel, Body, Frame, Joint, ModelFileError, inertia_problem, rpy_of
 
 URDF_TOP_KEYS = {"name", "urdf", "tip", "locked", "lock_others", "gravity", "joints", "frames", "payload",
@@ -213,18 +214,18 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
     frames = user_frames(ctx, data.get("frames"), frames)
     tip_link = data.get("tip") or next((lk for lk in reversed(bodies[-1]["links"])), None)
     extra["tip_link_name"] = tip_link                          # where the last link's capsule ends by default
-    extra["collision_geometry"] = {lk: geometry for b in bodies for lk in b["links"]
-                                   if (geometry := _collision_primitives(urdf_path, links_by_name[lk]))}
+    extra["collision_geometry"] = {lk: shapes for b in bodies for lk in b["links"]
+                                   if (shapes := _collision_shapes(urdf_path, links_by_name[lk]))}
     return ArmModel(data["name"], gravity, tuple(joints), path, extra, frames=frames,
                     payload=payload(ctx, data.get("payload"), frames),
                     collision=collision(ctx, data.get("collision"), joints, frames, tip_link,
-                                        extra["collision_geometry"]))
+                                        extra["collision_geometry"], urdf_path))
 
 
-def _collision_primitives(urdf_path, link) -> list:
-    """A URDF link's <collision> cylinders and spheres as capsules (a, b, radius) in the link's
-    frame: a cylinder's axis is its z, and the capsule of its radius over its length holds it;
-    a sphere is a capsule of no length.  Boxes and meshes are left out (None of them: [])."""
+def _collision_shapes(urdf_path, link) -> list:
+    """A URDF link's <collision> shapes (kind, T in the link's frame, data): ("cylinder", T,
+    (radius, length)), ("sphere", T, radius), ("box", T, size), ("mesh", T, (file name, scale));
+    read as capsules only where [collision] asks for them (rscasadi.model.collision)."""
     out = []
     for c in link.collisions or ():
         T = np.asarray(c.origin if c.origin is not None else np.eye(4), float)
@@ -232,15 +233,21 @@ def _collision_primitives(urdf_path, link) -> list:
         if g is None or not np.all(np.isfinite(T)):
             continue
         if g.cylinder is not None:
-            r, length = float(g.cylinder.radius), float(g.cylinder.length)
-            half = T[:3, :3] @ np.array([0.0, 0.0, length / 2])
-            out.append((T[:3, 3] - half, T[:3, 3] + half, r))
+            shape, sizes = ("cylinder", T, (float(g.cylinder.radius), float(g.cylinder.length))), [g.cylinder.radius]
         elif g.sphere is not None:
-            out.append((T[:3, 3].copy(), T[:3, 3].copy(), float(g.sphere.radius)))
-    for a, b, r in out:
-        if not (np.isfinite(r) and r > 0 and np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
-            raise ModelFileError(f"{urdf_path}: link {link.name!r}, <collision>: a cylinder or sphere with a "
-                                 f"radius that is not a positive number ({r!r})")
+            shape, sizes = ("sphere", T, float(g.sphere.radius)), [g.sphere.radius]
+        elif g.box is not None:
+            shape, sizes = ("box", T, np.asarray(g.box.size, float)), list(np.ravel(g.box.size))
+        elif g.mesh is not None:
+            scale = np.ones(3) if g.mesh.scale is None else np.broadcast_to(np.asarray(g.mesh.scale, float), 3).copy()
+            shape, sizes = ("mesh", T, (str(g.mesh.filename), scale)), list(np.abs(scale))
+        else:
+            continue
+        sizes = np.asarray(sizes, float)
+        if sizes.size == 0 or not (np.all(np.isfinite(sizes)) and np.all(sizes > 0)):
+            raise ModelFileError(f"{urdf_path}: link {link.name!r}, <collision>: a {shape[0]} whose sizes are not "
+                                 f"positive numbers ({sizes.tolist()!r})")
+        out.append(shape)
     return out
 
 

@@ -83,7 +83,7 @@ TOP = {"model", "objective", "theta_start", "theta_end", "duration", "max_durati
        "payload", "path", "collision"}
 PATH_KEYS = {"frame", "points", "circle", "speed", "tolerance"}
 CIRCLE_KEYS = {"center", "radius", "normal", "turns"}
-PAYLOAD_KEYS = {"frame", "mass", "com", "inertia"}
+PAYLOAD_KEYS = {"frame", "mass", "com", "inertia", "radius"}
 GOAL_KEYS = {"frame", "position", "rpy", "tolerance"}
 # sizes refused before the work: a 1e8-interval NLP takes tens of GB and is killed by the kernel
 MAX_INTERVALS, MAX_DEGREE, MAX_ROUNDS = 5000, 9, 20
@@ -507,7 +507,7 @@ def check_against_model(problem: Problem, model):
             raise ModelFileError(f"{problem.path}: field '{str(exc).split(':')[0]}': "
                                  f"{str(exc).split(':', 1)[-1].strip()}") from None
     if t.collision is not None:
-        from rscasadi.model.frames import with_collision
+        from rscasadi.model.collision import with_collision
         model = with_collision(model, t.collision, problem.path if problem.path is not None else "<Problem>")
     if t.obstacles and model.collision is None:
         raise ModelFileError(f"{problem.path}: field 'obstacles': {model.path} has no [collision] table "

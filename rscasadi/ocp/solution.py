@@ -14,7 +14,8 @@ import numpy as np
 from rscasadi.dynamics.arm import Arm
 from rscasadi.dynamics.collision import exact_clearance
 from rscasadi.files import write_json
-from rscasadi.model.frames import holding, with_collision
+from rscasadi.model.collision import with_collision
+from rscasadi.model.frames import holding
 from rscasadi.model.modelfile import read
 from rscasadi.model.parameters import with_values
 from rscasadi.sim.simulation import simulate_held

@@ -20,7 +20,8 @@ import numpy as np
 from rscasadi.native.build import compiler
 from rscasadi.native.parallel import available_cores, openmp_flags, set_threads
 from rscasadi.dynamics.arm import Arm
-from rscasadi.model.frames import holding, with_collision
+from rscasadi.model.collision import with_collision
+from rscasadi.model.frames import holding
 from rscasadi.model.modelfile import ModelFileError, document, read, to_toml
 from rscasadi.model.parameters import family, value, with_values
 from rscasadi.dynamics.statics import rest_state  # noqa: F401  (exported by rscasadi.ocp)

@@ -1,12 +1,34 @@
-"""`rscasadi info`: a model's rotor inertias, couplings and static holding torques, in Markdown."""
+"""`rscasadi info`: a model's rotor inertias, couplings and static holding torques, and with
+`--collision` every capsule kept clear of obstacles, in Markdown."""
 from __future__ import annotations
 
 import numpy as np
 
 from rscasadi.dynamics.arm import load
+from rscasadi.model.collision import capsules
 
 
-def model_report(path) -> str:
+def collision_report(model) -> list:
+    """Every capsule that keeps clear of obstacles (the [collision] table's and the payload's),
+    its ends in its link's frame, and the links with none."""
+    lines = ["", "## Collision geometry", ""]
+    caps = capsules(model)
+    if not caps:
+        return lines + ["No [collision] table and no payload radius: obstacles cannot be checked.", ""]
+    margin = model.collision.margin if model.collision is not None else 0.0
+    lines += [f"{len(caps)} capsules, margin {margin:g} m; ends a, b in the frame of the link their joint moves (m):",
+              "", "| link (joint) | from | a | b | radius |", "|---|---|---|---|---|"]
+    name = ["base"] + [jt.name for jt in model.joints]
+    fmt = lambda v: "[" + ", ".join(f"{x:.4f}" for x in v) + "]"  # noqa: E731
+    lines += [f"| {b} ({name[c.body]}) | {c.link} | {fmt(c.a)} | {fmt(c.b)} | {c.radius:.4f} |"
+              for b in range(1, model.n + 1) for c in caps if c.body == b]
+    bare = [name[b] for b in range(1, model.n + 1) if not any(c.body == b for c in caps)]
+    if bare:
+        lines += ["", f"Links with no geometry (never checked against obstacles): {', '.join(bare)}."]
+    return lines + [""]
+
+
+def model_report(path, collision: bool = False) -> str:
     """A Markdown summary of a model: rotor inertias, couplings and the static holding torques."""
     arm = load(path)
     n, m = arm.n, arm.model
@@ -28,4 +50,6 @@ def model_report(path) -> str:
     lines += ["", "Static holding at that pose: SEA torque T (N m), deflection psi = T/k1 (rad), motor torque tau (N m):",
               "", "| j | T | psi | tau |", "|---|---|---|---|"]
     lines += [f"| {j + 1} | {T[j]:.4g} | {psi[j]:.4g} | {tau[j]:.4g} |" for j in range(n)]
+    if collision:
+        lines += collision_report(m)
     return "\n".join(lines) + "\n"

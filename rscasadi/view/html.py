@@ -84,8 +84,9 @@ def commands(scene) -> list:
         put(g.Cylinder(2 * half, 0.045), COLOURS["rotor"], _path(f"body{parent}", f"rotor{j}"),
             _align_y(axis[:3, 0], axis[:3, 1]), opacity=0.8)
     if scene.payload is not None:
-        body, T, size = scene.payload
-        put(g.Box([size, size, size]), COLOURS["payload"], _path(f"body{body}", "payload"), T)
+        body, T, size, kind = scene.payload
+        shape = g.Sphere(size / 2) if kind == "sphere" else g.Box([size, size, size])
+        put(shape, COLOURS["payload"], _path(f"body{body}", "payload"), T)
     if scene.path is not None and len(scene.path) > 1:
         out.append(SetObject(g.Line(g.PointsGeometry(scene.path.T), g.LineBasicMaterial(color=COLOURS["path"])),
                              path=_path("world", "tool_path")))

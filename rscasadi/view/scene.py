@@ -14,6 +14,7 @@ import numpy as np
 from rscasadi.dynamics.arm import Arm, load
 from rscasadi.dynamics.collision import exact_clearance
 from rscasadi.dynamics.kinematics import body_poses, frame_pose
+from rscasadi.model.meshes import mesh_file
 from rscasadi.model.types import ModelFileError
 
 FPS = 30
@@ -24,7 +25,7 @@ class Scene:
     """Everything to draw: `links` per body (1..n) a list of capsules (a, b in the body frame,
     radius), `rotors` per joint (its origin and axis in its parent body's frame), `poses` per
     animation frame per body (4x4 in the world), `broken` per frame (a limit or clearance),
-    `path` (k x 3 tool positions), `goal`, `obstacles`, `payload` (body, 4x4 in it, size);
+    `path` (k x 3 tool positions), `goal`, `obstacles`, `payload` (body, 4x4 in it, size, "sphere" or "box");
     `visuals` per body its URDF visual geometries (kind, data, 4x4 in the body frame): a body
     that has any is drawn with them instead of its capsules; `skipped`: the meshes not read
     (file name, why: only files inside the robot's package are)."""
@@ -70,58 +71,6 @@ def _links(arm: Arm) -> dict:
     return shapes
 
 
-MESHES = (".stl", ".obj", ".dae")
-
-
-def package_root(urdf: Path) -> Path:
-    """The robot's package: the nearest folder holding a package.xml, the URDF's own or up to
-    three above it (a robot-description package), else the URDF's folder.  `view` reads meshes
-    only inside it."""
-    folder = urdf.resolve().parent
-    for root in (folder, *folder.parents[:3]):
-        if (root / "package.xml").is_file():
-            return root
-    return folder
-
-
-def _inside(path: Path, root: Path) -> Path | None:
-    """path if it is a regular mesh file inside root once every link is followed, else None."""
-    import stat
-    try:
-        real = path.resolve(strict=True)
-        mode = real.stat().st_mode
-    except (OSError, RuntimeError):
-        return None
-    if not real.is_relative_to(root) or not stat.S_ISREG(mode) or real.suffix.lower() not in MESHES:
-        return None
-    return real
-
-
-def _mesh_file(urdf: Path, name: str) -> tuple[Path | None, str]:
-    """A visual's mesh file inside the robot's package (package_root), and why not where none:
-    relative to the URDF, or a package:// name found under the package's root (with or without
-    the package's own name).  Absolute paths, names climbing out of the package, links that
-    leave it, special files and files that are not STL, OBJ or DAE are never read."""
-    root = package_root(urdf)
-    if name.startswith("file://"):
-        name = name[len("file://"):]
-    if Path(name).suffix.lower() not in MESHES:
-        return None, "not an STL, OBJ or DAE mesh"
-    if not name.startswith("package://"):
-        if Path(name).is_absolute():
-            return None, f"an absolute path (outside the robot's package {root})"
-        found = _inside(urdf.resolve().parent / name, root)
-        return (found, "") if found else (None, f"not a mesh file inside the robot's package {root}")
-    parts = Path(name[len("package://"):]).parts
-    if ".." in parts:
-        return None, f"climbs out of the robot's package {root}"
-    for k in range(len(parts)):                         # with or without the package's own name
-        found = _inside(root.joinpath(*parts[k:]), root)
-        if found:
-            return found, ""
-    return None, f"not found inside the robot's package {root} (a package.xml marks its root)"
-
-
 def _visuals(arm: Arm) -> tuple[dict, list]:
     """Per body the URDF's visual geometries (a URDF model): meshes found inside the robot's
     package (STL, OBJ, DAE) and boxes, cylinders and spheres, each with its pose in the body
@@ -144,7 +93,7 @@ def _visuals(arm: Arm) -> tuple[dict, list]:
             if g is None:
                 continue
             if g.mesh is not None:
-                path, why = _mesh_file(Path(urdf), g.mesh.filename)
+                path, why = mesh_file(Path(urdf), g.mesh.filename)
                 if path is None:
                     skipped.append((g.mesh.filename, why))
                     continue
@@ -230,7 +179,9 @@ def scene_of(path, model=None) -> Scene:
     if arm.model.payload is not None:
         f = arm.model.frame(arm.model.payload.frame)
         body = arm.model.payload.body
-        scene.payload = (f.body, _homogeneous(f.R, f.p + f.R @ body.com), float(np.cbrt(body.mass / 2700.0)))
+        radius = arm.model.payload.radius                # its collision sphere, else a cube of aluminium
+        size = (2 * radius, "sphere") if radius else (float(np.cbrt(body.mass / 2700.0)), "box")
+        scene.payload = (f.body, _homogeneous(f.R, f.p + f.R @ body.com), *size)
     return scene
 
 

@@ -1,0 +1,214 @@
+"""The arm's collision geometry: capsules on its links, and the payload's sphere.
+
+    [collision]
+    margin = 0.02                                # m, kept from every obstacle
+    tip = "tool"                                 # where the last link's default capsule ends
+    links = { upper_arm = 0.05, hand = "urdf" }  # per link: a capsule radius, or "urdf"
+    [[collision.capsules]]                       # added on any link, in a frame's coordinates
+    frame = "tool"
+    a = [0.0, 0.0, 0.0]
+    b = [0.0, 0.0, 0.12]
+    radius = 0.03
+
+A link given a radius has one capsule from its joint's origin to the next joint's origin (the
+last link's to `tip`), whatever the URDF says; a link given "urdf" has the URDF's collision
+geometry of every URDF link merged into it (a fixed or locked child's too): a cylinder as the
+capsule of its radius over its length, a sphere as a capsule of no length, a box as one to four
+capsules along its longest edge, a mesh as the capsule that holds its vertices.  Each holds
+its shape, so a clearance measured on the capsules is never more than the true one.  A URDF
+model without `links` takes the URDF's geometry of every moving link that has some.  A mesh
+that cannot be read (not shipped, outside the robot's package) is an error naming it: a link
+is never left out silently.  A payload with a `radius` adds a sphere of that radius about its
+centre of mass.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from rscasadi.model.checks import _Ctx, _number, _table, _vector
+from rscasadi.model.meshes import bounding_capsule, mesh_file, vertices
+from rscasadi.model.types import Capsule, Collision
+
+COLLISION_KEYS = {"margin", "tip", "links", "capsules"}
+CAPSULE_KEYS = {"frame", "a", "b", "radius"}
+MAX_BOX_CAPSULES = 4
+
+
+# ----------------------------------------------------------------------------- URDF shapes as capsules
+
+def box_capsules(T: np.ndarray, size) -> list:
+    """Capsules (a, b, r) holding a box of edge lengths `size` placed at T: the box is cut across
+    its middle edge into k <= 4 slabs of a near-square section, each held by the capsule along
+    the longest edge whose radius is its section's half-diagonal."""
+    size = np.asarray(size, float)
+    order = np.argsort(size)[::-1]                       # longest, middle, shortest edge
+    L, W, H = size[order]
+    k = int(min(MAX_BOX_CAPSULES, max(1, round(W / H)) if H > 0 else MAX_BOX_CAPSULES))
+    r = math.hypot(W / (2 * k), H / 2)
+    axis, across = T[:3, :3][:, order[0]], T[:3, :3][:, order[1]]
+    out = []
+    for i in range(k):
+        c = T[:3, 3] + across * W * ((i + 0.5) / k - 0.5)
+        out.append((c - axis * L / 2, c + axis * L / 2, max(r, 1e-9)))
+    return out
+
+
+def shape_capsules(urdf_path, shape) -> list:
+    """One URDF collision shape (kind, T in its link's frame, data) as capsules in that frame; a
+    ValueError says why a mesh cannot be used."""
+    kind, T, data = shape
+    if kind == "cylinder":
+        r, length = data
+        half = T[:3, :3] @ np.array([0.0, 0.0, length / 2])
+        return [(T[:3, 3] - half, T[:3, 3] + half, r)]
+    if kind == "sphere":
+        return [(T[:3, 3].copy(), T[:3, 3].copy(), data)]
+    if kind == "box":
+        return box_capsules(T, data)
+    filename, scale = data
+    path, why = mesh_file(urdf_path, filename)
+    if path is None:
+        raise ValueError(why)
+    points = (vertices(path) * scale) @ T[:3, :3].T + T[:3, 3]
+    return [bounding_capsule(points)]
+
+
+# ----------------------------------------------------------------------------- the [collision] table
+
+def collision(ctx, raw, joints, frames: tuple, default_tip: str | None, urdf: dict | None = None,
+              urdf_path=None) -> Collision | None:
+    """The [collision] table (module docstring); `urdf` maps a URDF link's name to its collision
+    shapes (none for a link-list model)."""
+    if raw is None:
+        return None
+    urdf = urdf or {}
+    t = _table(ctx, "collision", raw, COLLISION_KEYS)
+    known = {f.name: f for f in frames}
+    margin = _number(ctx, "collision.margin", t.get("margin", 0.0), nonneg=True)
+    tip = t.get("tip", default_tip)
+    if "links" in t or not urdf:
+        links = dict(_table(ctx, "collision.links", t.get("links", {}), set(t.get("links", {}))))
+    else:                                        # every moving link the URDF gives geometry
+        first = {}
+        for f in frames:
+            if f.body != 0 and f.name in urdf and urdf[f.name]:
+                first.setdefault(f.body, f.name)
+        links = {name: "urdf" for name in first.values()}
+    capsules, bodies = [], {}
+    for name, value in links.items():
+        fld = f"collision.links.{name}"
+        if name not in known:
+            ctx.fail(fld, f"no frame {name!r} (frames: {', '.join(known)})")
+        body = known[name].body
+        if body == 0:
+            ctx.fail(fld, f"{name!r} is on the fixed base, which does not move")
+        if body in bodies:
+            ctx.fail(fld, f"{bodies[body]!r} of the same link has its geometry already")
+        bodies[body] = name
+        if value == "urdf":
+            capsules += _urdf_geometry(ctx, fld, name, body, frames, urdf, urdf_path)
+        else:
+            capsules.append(_joint_capsule(ctx, fld, name, body, _number(ctx, fld, value, positive=True),
+                                           joints, known, tip))
+    for i, entry in enumerate(_list(ctx, "collision.capsules", t.get("capsules", []))):
+        capsules.append(_given_capsule(ctx, f"collision.capsules[{i}]", entry, known))
+    if not capsules:
+        ctx.fail("collision", "no link has geometry: give `links` (a capsule radius or \"urdf\" per link) or "
+                              "[[collision.capsules]]")
+    return Collision(margin, tuple(capsules), tip, links)
+
+
+def _list(ctx, fld, value) -> list:
+    if not isinstance(value, list):
+        ctx.fail(fld, f"expected an array of tables ([[{fld}]]), got {value!r}")
+    return value
+
+
+def _urdf_geometry(ctx, fld, name, body, frames, urdf, urdf_path) -> list:
+    """The capsules of every URDF link merged into `body`, in the body's frame."""
+    out = []
+    for f in frames:
+        if f.body != body or f.user:
+            continue
+        for shape in urdf.get(f.name, ()):
+            try:
+                pieces = shape_capsules(urdf_path, shape)
+            except ValueError as exc:
+                ctx.fail(fld, f"URDF link {f.name!r}: collision mesh {shape[2][0]!r} {exc}; give {name!r} a capsule "
+                              "radius here instead, or ship the mesh inside the robot's package")
+            out += [Capsule(f.name, body, f.R @ a + f.p, f.R @ b + f.p, float(r)) for a, b, r in pieces]
+    if not out:
+        ctx.fail(fld, f"the URDF gives the link of {name!r} no <collision> geometry: give a capsule radius")
+    return out
+
+
+def _joint_capsule(ctx, fld, name, body, radius, joints, known, tip) -> Capsule:
+    """The capsule from the link's joint origin to the next joint's (the last link's to `tip`)."""
+    if body < len(joints):
+        end = np.asarray(joints[body].origin_xyz, float)
+    else:
+        if tip is None or tip not in known:
+            ctx.fail("collision.tip", f"the last link's capsule needs the frame where it ends, got {tip!r}")
+        if known[tip].body != len(joints):
+            ctx.fail("collision.tip", f"frame {tip!r} is not on the last link")
+        end = np.asarray(known[tip].p, float)
+    return Capsule(name, body, np.zeros(3), end, radius)
+
+
+def _given_capsule(ctx, fld, entry, known) -> Capsule:
+    t = _table(ctx, fld, entry, CAPSULE_KEYS, ("frame", "radius"))
+    name = t["frame"]
+    if not isinstance(name, str) or name not in known:
+        ctx.fail(f"{fld}.frame", f"no frame {name!r} (frames: {', '.join(known)})")
+    f = known[name]
+    if f.body == 0:
+        ctx.fail(f"{fld}.frame", f"{name!r} is on the fixed base, which does not move")
+    a = _vector(ctx, f"{fld}.a", t.get("a", [0.0, 0.0, 0.0]), 3)
+    b = _vector(ctx, f"{fld}.b", t.get("b", list(a)), 3)
+    r = _number(ctx, f"{fld}.radius", t["radius"], positive=True)
+    return Capsule(name, f.body, f.R @ a + f.p, f.R @ b + f.p, r)
+
+
+def collision_document(model) -> dict | None:
+    """The [collision] table of `model` in the form any model file reads back: the margin and
+    every capsule, in its body's frame given by the frame it was named by."""
+    c = model.collision
+    if c is None:
+        return None
+    known = {f.name: f for f in model.frames}
+    out = []
+    for cap in c.capsules:
+        f = known[cap.link]
+        out.append({"frame": cap.link, "a": [float(v) for v in f.R.T @ (cap.a - f.p)],
+                    "b": [float(v) for v in f.R.T @ (cap.b - f.p)], "radius": float(cap.radius)})
+    return {"margin": c.margin, "links": {}, "capsules": out}
+
+
+def with_collision(model, raw: dict, where):
+    """`model` with its [collision] table replaced by `raw` (as a problem file may give it); errors
+    name `where` and the field."""
+    tip = model.collision.tip if model.collision is not None else model.extra.get("tip_link_name")
+    return dataclasses.replace(model, collision=collision(_Ctx(where), raw, model.joints, model.frames, tip,
+                                                          model.extra.get("collision_geometry"),
+                                                          model.extra.get("urdf")))
+
+
+# ----------------------------------------------------------------------------- what keeps clear
+
+def capsules(model) -> tuple:
+    """Every capsule that must keep clear of obstacles: the [collision] table's and the payload's
+    sphere (about its centre of mass, when it has a radius)."""
+    out = tuple(model.collision.capsules) if model.collision is not None else ()
+    held = model.payload
+    if held is not None and held.radius is not None:
+        f = model.frame(held.frame)
+        centre = f.R @ np.asarray(held.body.com, float) + f.p
+        out += (Capsule(f"payload ({held.frame})", f.body, centre, centre.copy(), float(held.radius)),)
+    return out
+
+
+def margin(model) -> float:
+    return model.collision.margin if model.collision is not None else 0.0
