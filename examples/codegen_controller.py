@@ -35,13 +35,12 @@ def main(argv=None):
     s = np.array(arm.forward_dynamics()(*x)[0]).ravel()
     print(f"forward dynamics, C against CasADi: {np.max(np.abs(c - s)):.1e}")
 
-    # a C program on the library: examples/controller.c
-    k1 = [str(jt.k1) for jt in arm.model.joints]
+    # a C program on the library: examples/controller.c (n and the springs from the header)
     exe = out / "controller"
     subprocess.run([*compiler(), "-std=c99", "-O2", f"-I{out / 'arm3'}", str(ROOT / "examples" / "controller.c"),
                     f"-L{out / 'arm3'}", "-lrscasadi_arm", f"-Wl,-rpath,{(out / 'arm3').resolve()}", "-lm",
                     "-o", str(exe)], check=True)
-    run = subprocess.run([str(exe), *k1, args.seconds], capture_output=True, text=True, check=True)
+    run = subprocess.run([str(exe), args.seconds], capture_output=True, text=True, check=True)
     print(run.stdout.strip().splitlines()[-1])                 # the largest tracking error
     return float(np.max(np.abs(c - s))), run.stdout
 

@@ -1,4 +1,6 @@
-/* The generated Cartesian impedance controller holding the reference arm's tool, pushed, in C.
+/* The generated Cartesian impedance controller holding an arm's tool, pushed, in C, for any arm:
+ * the number of joints and the springs come from the generated header (ARM_NQ, ARM_K1); the arm
+ * needs a frame called `tool`.  It starts at theta = (0, 0.3, -0.5, 0, 0.3, -0.5, ...) rad.
  *
  * The tool is held at its start pose with a commanded stiffness K (N/m); from 0.3 s on a force F
  * pushes it.  The plant is the complete model with the push in its forward dynamics
@@ -13,18 +15,19 @@
  *           -Lbuild/arm3_tool -Lbuild/impedance -lrscasadi_arm -lrscasadi_impedance \
  *           -Wl,-rpath,build/arm3_tool -Wl,-rpath,build/impedance -lm -o impedance
  * run:   ./impedance [K [FZ [SECONDS]]]     (default 1000 N/m, -15 N downwards, 2.5 s)
- * prints every 10 ms: t tool[3] tau[3], then the tool's displacement at the end against F / K. */
+ * prints every 10 ms: t tool[3] tau[ARM_NQ], then the tool's displacement at the end against
+ * F / K; a refusal says why on stderr (exit 1). */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include "rscasadi_arm.h"
 #include "rscasadi_impedance.h"
 
-#define N 3
+#define N ARM_NQ
 #define MAX_STEPS 20000
 static const double DT = 1e-3;
-static const double K1[N] = {1200.0, 1000.0, 600.0};         /* the springs of problems/arm3.toml, N m/rad */
-static const double THETA0[N] = {0.0, 0.3, -0.5};
+static const double K1[N] = ARM_K1;                          /* the model file's springs, N m/rad */
+static double theta0(int i) { return i % 3 == 1 ? 0.3 : i % 3 == 2 ? -0.5 : 0.0; }   /* rad */
 static impedance_t controller;
 
 static void xdot(const double *x, const double *tau, const double *f, double *dx) {
@@ -89,20 +92,30 @@ int main(int argc, char **argv) {
   }
   double x[4 * N] = {0}, tau[N], pose[12], p[3], p0[3];
   const double stiffness[6] = {K, K, K, 0.0, 0.0, 0.0}, zeta[6] = {0.7, 0.7, 0.7, 0.7, 0.7, 0.7};
-  for (int i = 0; i < N; ++i) x[i] = THETA0[i];
+  for (int i = 0; i < N; ++i) x[i] = theta0(i);
   rest(x);
   tool(x, pose + 3, pose);                               /* hold the start pose: p, then R */
   for (int i = 0; i < 3; ++i) p0[i] = pose[i];
-  if (impedance_init(&controller, x) != 0) return 1;
+  const int refused = impedance_init(&controller, x);
+  if (refused) {
+    fprintf(stderr, "%s: impedance_init refused the resting state (code %d)\n", argv[0], refused);
+    return 1;
+  }
   for (long k = 0; k < steps; ++k) {
     double f[6] = {0};
     if (k * DT >= 0.3) f[2] = FZ;
-    if (impedance_step(&controller, x, pose, stiffness, zeta, tau) != 0) return 1;
+    const int code = impedance_step(&controller, x, pose, stiffness, zeta, tau);
+    if (code) {
+      fprintf(stderr, "%s: impedance_step returned %d at t = %.3f s\n", argv[0], code, k * DT);
+      return 1;
+    }
     for (int s = 0; s < 4; ++s) advance(x, tau, f, DT / 4.0);
     if ((k + 1) % 10 == 0) {
       double R[9];
       tool(x, R, p);
-      printf("%.3f %.6f %.6f %.6f %.5f %.5f %.5f\n", (k + 1) * DT, p[0], p[1], p[2], tau[0], tau[1], tau[2]);
+      printf("%.3f %.6f %.6f %.6f", (k + 1) * DT, p[0], p[1], p[2]);
+      for (int i = 0; i < N; ++i) printf(" %.5f", tau[i]);
+      printf("\n");
     }
   }
   double R[9];

@@ -24,7 +24,10 @@
 #include "rscasadi_arm.h"
 #include "rscasadi_mpc.h"
 
-#define N 3
+#define N ARM_NQ
+#if ARM_NQ != 3 || MPC_NU != 3
+#error "this example flies problems/mpc_arm3_tool.toml's path from its start pose: build it on that 3-joint arm"
+#endif
 #define RATE_HZ 1000
 #define MAX_STEPS 20000
 #define POINTS 3
@@ -130,7 +133,12 @@ int main(int argc, char **argv) {
   const double dt = 1.0 / RATE_HZ, h = 0.01;     /* the problem file's sample time and interval */
   double x[4 * N] = {0}, tau[N], reference[MPC_NREF], p[3], max_err = 0.0, max_off = 0.0;
   for (int i = 0; i < N; ++i) x[i] = x[N + i] = THETA_START[i];   /* springs undeflected: settled first */
-  if (mpc_init(&controller, x) != 0 || mpc_set_payload_mass(&controller, 0.0) != 0) return 1;
+  int code = mpc_init(&controller, x);
+  if (code == 0) code = mpc_set_payload_mass(&controller, 0.0);
+  if (code != 0) {
+    fprintf(stderr, "%s: mpc_init or mpc_set_payload_mass refused (code %d)\n", argv[0], code);
+    return 1;
+  }
   for (long k = 0; k < steps; ++k) {
     const double t = k * dt - SETTLE;                   /* the path's clock */
     for (int j = 0; j < MPC_HORIZON; ++j) {
@@ -142,7 +150,10 @@ int main(int argc, char **argv) {
       for (int i = 0; i < 3; ++i) col[3 + i] = (ahead[i] - behind[i]) / (2.0 * eps);
     }
     const double t0 = now();
-    if (mpc_step(&controller, x, reference, tau) != 0) return 1;
+    if ((code = mpc_step(&controller, x, reference, tau)) != 0) {
+      fprintf(stderr, "%s: mpc_step returned %d at t = %.3f s (rscasadi_mpc.h: the failure policy)\n", argv[0], code, t);
+      return 1;
+    }
     step_times[k] = now() - t0;
     advance(x, tau, dt);
     tool(x, p);

@@ -111,16 +111,26 @@ def built(tmp_path_factory, private_cache):
     return out, generate(REFERENCE, out, opt="-O1", log=lambda m: None)
 
 
+@pytest.fixture(scope="session")
+def panda_built(tmp_path_factory, private_cache):
+    """The Panda (7 joints) generated and compiled (-O1): its directory."""
+    from rscasadi.codegen import generate
+    out = tmp_path_factory.mktemp("gen") / "panda"
+    generate(ROOT / "problems" / "panda_sea.toml", out, opt="-O1", log=lambda m: None)
+    return out
+
+
 def cc():
     return shutil.which("cc") or shutil.which("gcc")
 
 
-def build_example(name: str, exe, libraries: dict):
+def build_example(name: str, exe, libraries: dict, defines=()):
     """Compile examples/NAME.c as a user would (-std=c99 -Wall -Wextra -Werror -O2) against the
     generated `libraries` ({directory: library name, as in -l}) into `exe`; returns exe."""
     import subprocess
     dirs = list(libraries)
-    subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", *[f"-I{d}" for d in dirs],
+    subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", *[f"-D{d}" for d in defines],
+                    *[f"-I{d}" for d in dirs],
                     str(ROOT / "examples" / f"{name}.c"), *[f"-L{d}" for d in dirs],
                     *[f"-l{lib}" for lib in libraries.values()], *[f"-Wl,-rpath,{d}" for d in dirs], "-lm",
                     "-o", str(exe)], check=True)

@@ -415,16 +415,14 @@ def test_the_panda_controller_with_its_step_kernel_equals_the_casadi_function(pa
         x = x + rng.normal(0, 1e-4, x.shape)
 
 
-def test_the_mpc_example_runs_the_panda_valgrind_clean(panda_mpc_dir, tmp_path):
+def test_the_mpc_example_runs_the_panda_valgrind_clean(panda_mpc_dir, panda_built, tmp_path):
     """examples/mpc.c built on the Panda's model and MPC (N = MPC_NU = 7): it tracks, prints 7
     angles and torques within the limits, and under valgrind makes no error, leaks nothing and
     allocates the same for 20 and 30 steps (no step allocates)."""
     import shutil
     import subprocess
     from conftest import build_example
-    from rscasadi.codegen import generate
-    arm_dir = tmp_path / "panda_arm"
-    generate(ROOT / "problems" / "panda_sea.toml", arm_dir, opt="-O1", log=lambda m: None)
+    arm_dir = panda_built
     exe = build_example("mpc", tmp_path / "mpc_panda", {arm_dir: "rscasadi_arm", panda_mpc_dir: "rscasadi_mpc"})
     interval = str(load_mpc_problem(PANDA).interval)
     run = subprocess.run([str(exe), interval, "0.7"], capture_output=True, text=True, check=True)

@@ -242,6 +242,24 @@ def feedforward_controller(arm: Arm, fns: dict, prefix: str) -> dict:
             for name in (FEEDFORWARD + ".h", FEEDFORWARD + ".c")} | guard_source()
 
 
+def arm_macros(arm: Arm, prefix: str) -> str:
+    """The arm's size and the model file's numbers as C macros, so programs are written for any
+    arm: PREFIX_ARM_NQ (joints), _NX (state entries), and initialisers of ARM_NQ numbers."""
+    from rscasadi.model.limits import limit_arrays
+    m, p = arm.model, f"{prefix}_" if prefix else ""
+    tau = limit_arrays(m)["tau"]
+
+    def numbers(v):
+        return "{" + ", ".join(repr(float(x)) for x in v) + "}"
+    return (f"\n/* The arm: its size and its model file's numbers (initialisers of {p}ARM_NQ entries). */\n"
+            f"#define {p}ARM_NQ {m.n}                 /* joints */\n"
+            f"#define {p}ARM_NX {4 * m.n}             /* state x = (theta, phi, dtheta, dphi) */\n"
+            f"#define {p}ARM_GEAR_RATIO {numbers(m.column('gear_ratio'))}  /* mu: motor turns per link turn */\n"
+            f"#define {p}ARM_K1 {numbers(m.column('k1'))}  /* SEA stiffness, N m/rad */\n"
+            f"#define {p}ARM_TAU_MAX {numbers(np.where(np.isfinite(tau), tau, 0.0))}  /* motor torque limit, "
+            "N m; 0: none */\n\n")
+
+
 def _declare(header: Path, declarations: list):
     """Add the kernels' declarations to CasADi's header, inside its extern "C" block."""
     text = header.read_text()
@@ -314,8 +332,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
                     fh.write(kernels[name].body)
         header_gen.generate(str(tmp) + os.sep)
         (tmp / f"{HEADER.removesuffix('.h')}.c").unlink()        # only its header is used
-        if kernels:
-            _declare(tmp / HEADER, [k.header for k in kernels.values()])
+        _declare(tmp / HEADER, [arm_macros(arm, prefix)] + [k.header for k in kernels.values()])
         texts = {src.name: src.read_text() for src in sources}
         if not parametric:                          # the feedforward as a guarded controller
             controller = feedforward_controller(arm, fns, prefix)
