@@ -101,10 +101,11 @@ def cmd_mpc(args):
     generate_mpc(args.problem, args.out, opt=args.opt, log=lambda msg: print(msg, flush=True), model=args.model,
                  native=args.native)
     if args.study is not None and mpc_problem(args.problem).task_space:
-        from rscasadi.mpc import task_study
+        from rscasadi.mpc import plot_task_study, task_study
         res = task_study(args.problem, args.out, plant_mass=args.plant_payload, log=lambda msg: print(msg, flush=True))
         write_json(Path(args.out) / "closed_loop.json", res)
-        print(f"wrote {Path(args.out) / 'closed_loop.json'}")
+        plot_task_study(res, Path(args.out) / "closed_loop.png")
+        print(f"wrote {Path(args.out) / 'closed_loop.json'} and closed_loop.png")
     elif args.study is not None:
         import os
         traces = {}

@@ -300,6 +300,11 @@ def test_task_space_mpc_keeps_clear_and_learns_the_payload(tool_mpc_dir, tmp_pat
     assert modelled["min_clearance"] > 0 and modelled["max_path_distance"] < 0.02
     assert all(r["max_limit_violation"] == 0 for r in (modelled, untold, told))
     assert untold["final_error"] > 0.3e-3 and told["final_error"] < 0.05e-3
+    assert modelled["label"].startswith("as modelled") and "not told" in untold["label"]
+    M.plot_task_study(res, tmp_path / "study.png")
+    assert (tmp_path / "study.png").stat().st_size > 20000
+    same = M.task_study(TOOL, tool_mpc_dir, plant_mass=load_mpc_problem(TOOL).payload["mass"], log=lambda m: None)
+    assert set(same) == {"path", "obstacles", "as_modelled"}          # no case repeats another
     p = load_mpc_problem(TOOL)
     blind = dataclasses.replace(p, weights={**p.weights, "obstacles": 0.0})
     M.generate_mpc(blind, tmp_path / "blind", opt="-O1", log=lambda m: None)

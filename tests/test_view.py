@@ -200,3 +200,28 @@ def test_the_view_shows_the_motion_to_its_last_instant(tmp_path):
     from rscasadi.view.scene import _poses
     from rscasadi.ocp.solution import solution_arm
     assert np.allclose(last.poses[-1], _poses(solution_arm(data), end[:, None])[0], atol=1e-12)
+
+
+def test_the_page_frames_an_arm_far_from_the_origin(chromium, tmp_path):
+    """Baxter's left arm sits about a metre to the side of the URDF's root: the page looks at it,
+    not at the origin. The arm (links and rotors, everything not background, floor or text)
+    spans a good part of the window and its centre is near the window's; the GIF frames it too."""
+    import sys
+    sys.path.insert(0, str(ROOT / "tests"))
+    from test_whole_robot import sidecar
+    from rscasadi.model.modelfile import to_toml
+    model = tmp_path / "baxter.toml"
+    model.write_text(to_toml(sidecar()))
+    page = tmp_path / "baxter.html"
+    assert main(["view", str(model), "--out", str(page), "--gif", str(tmp_path / "baxter.gif")]) in (0, None)
+    img = screenshot(chromium, page, 0.0, tmp_path / "baxter.png")
+    arm = (img.max(axis=2) - img.min(axis=2) > 0.12) | (img.max(axis=2) < 0.7)     # coloured or dark: drawn
+    arm[-40:, :] = False                                                          # the clock's text
+    arm[:30, -260:] = False                                                       # MeshCat's controls button
+    rows, cols = np.nonzero(arm)
+    h, w = arm.shape
+    assert np.ptp(cols) > 0.35 * w and np.ptp(rows) > 0.15 * h, (np.ptp(cols), np.ptp(rows))
+    assert abs(np.mean(cols) / w - 0.5) < 0.2 and abs(np.mean(rows) / h - 0.5) < 0.25
+    from PIL import Image
+    gif = Image.open(tmp_path / "baxter.gif")
+    assert gif.size == (800, 600)

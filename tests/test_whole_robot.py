@@ -134,3 +134,98 @@ def test_info_and_view_take_the_whole_robot(tmp_path, capsys):
     assert main(["view", str(model), "--out", str(tmp_path / "view.html")]) in (0, None)
     out = capsys.readouterr().out
     assert "skipped mesh" in out and (tmp_path / "view.html").stat().st_size > 10000
+
+
+def test_a_new_users_first_day_on_a_whole_robot_end_to_end(tmp_path, capsys):
+    """Baxter's left arm from the actuator table, a margin and a held part with a radius, through
+    info --collision, codegen, a tool-goal OCP around a ball (short horizon), view (page and GIF),
+    simulate and identify, without a traceback. The OCP's clearance is measured on the capsules
+    the solver used (the hand's cylinders, the fingers' boxes, the part's sphere), and re-checked
+    here on the URDF's true shapes placed by Pinocchio (coal's cylinders and boxes) and the part's
+    sphere: never less clear than reported, and outside the margin at every node."""
+    import json
+
+    import pinocchio as pin
+    from rscasadi.cli import main
+    from rscasadi.model.collision import capsules
+    from rscasadi.reference.pinocchio_route import configuration, urdf_model
+    doc = sidecar(collision={"margin": 0.02})
+    for k, jt in enumerate(doc["joints"]):          # strong enough to hold the arm; springs well damped
+        jt["limits"]["tau"] = 1.0 if k < 4 else 0.15
+        jt["sea"]["d"] = 40.0 if k < 4 else 10.0
+    model = write(tmp_path, doc)
+    assert main(["info", str(model), "--collision"]) in (0, None)
+    out = capsys.readouterr().out
+    assert "l_gripper_r_finger_tip" in out and "left_gripper_base_link" in out
+    assert main(["codegen", str(model), "--out", str(tmp_path / "c"), "--opt=-O1", "--frames", "left_gripper"]) in (0, None)
+    assert "#define ARM_NQ 7" in (tmp_path / "c" / "rscasadi_arm.h").read_text()
+    part = {"frame": "left_gripper", "mass": 0.5, "com": [0.0, 0.0, 0.04], "inertia": [5e-4, 5e-4, 5e-4, 0.0, 0.0, 0.0],
+            "radius": 0.04}
+    ball = {"center": [0.47, 1.03, -0.06], "radius": 0.08}
+    start = [0.0, -0.5, 0.0, 1.0, 0.0, 0.6, 0.0]
+    (tmp_path / "ocp.toml").write_text(f"""model = "{model}"
+objective = "min_effort"
+theta_start = {start}
+duration = 1.0
+payload = {{ frame = "left_gripper", mass = 0.5, com = [0.0, 0.0, 0.04], inertia = [5e-4, 5e-4, 5e-4, 0, 0, 0], radius = 0.04 }}
+[goal]
+frame = "left_gripper"
+position = [0.230, 1.145, -0.107]
+tolerance = {{ position = 1e-3 }}
+[[obstacles]]
+sphere = {{ center = {ball["center"]}, radius = {ball["radius"]} }}
+[transcription]
+intervals = 8
+compiled = false
+[refinement]
+rounds = 0
+""")
+    main(["ocp", str(tmp_path / "ocp.toml"), "--out", str(tmp_path / "ocp"), "--quiet"])
+    sol = json.loads((tmp_path / "ocp" / "solution.json").read_text())
+    assert sol["solver_success"], sol["status"]
+    reported = sol["verification"]["min_clearance"]
+    assert reported > -2e-3                            # the replay between the 8 nodes stays at the margin
+    # the true shapes, independently: Pinocchio's parse of the URDF's collision geometry
+    arm = rscasadi.load(model)
+    pm = urdf_model(arm.model)
+    pdata = pm.createData()
+    import re
+    stripped = tmp_path / "stripped.urdf"          # its meshes are not shipped here: only the base has them
+    stripped.write_text(re.sub(r"<collision>(?:(?!</collision>).)*<mesh(?:(?!</collision>).)*</collision>", "",
+                               BAXTER.read_text(), flags=re.S))
+    geom = pin.buildGeomFromUrdf(pm, str(stripped), pin.GeometryType.COLLISION)
+    gdata = geom.createData()
+    c, R_ball, margin = np.array(ball["center"]), ball["radius"], 0.02
+    moving = {name for name in arm.frames() if arm.model.frame(name).body > 0}
+    theta = np.array(sol["theta"])
+    for th in theta.T:
+        pin.updateGeometryPlacements(pm, pdata, geom, gdata, configuration(pm, th))
+        pin.updateFramePlacements(pm, pdata)
+        gaps = []
+        for i, obj in enumerate(geom.geometryObjects):
+            if pm.frames[obj.parentFrame].name not in moving:
+                continue
+            M, g = gdata.oMg[i], obj.geometry
+            q = M.rotation.T @ (c - M.translation)                     # the ball's centre in the shape's frame
+            if type(g).__name__ == "Box":
+                nearest = np.clip(q, -np.asarray(g.halfSide), np.asarray(g.halfSide))
+            else:                                                      # a cylinder about z
+                radial = np.linalg.norm(q[:2])
+                scale = min(1.0, g.radius / radial) if radial > 0 else 0.0
+                nearest = np.array([q[0] * scale, q[1] * scale, np.clip(q[2], -g.halfLength, g.halfLength)])
+            gaps.append(np.linalg.norm(q - nearest) - R_ball)
+        F = pdata.oMf[pm.getFrameId("left_gripper")]
+        gaps.append(np.linalg.norm(F.translation + F.rotation @ part["com"] - c) - part["radius"] - R_ball)
+        assert min(gaps) - margin >= reported - 1e-9 and min(gaps) >= margin - 1e-6, (min(gaps), reported)
+    from rscasadi.ocp.solution import solution_arm
+    assert any(c.link.startswith("payload") for c in capsules(solution_arm(sol).model))
+    assert main(["view", str(tmp_path / "ocp" / "solution.json"), "--out", str(tmp_path / "view.html"),
+                 "--gif", str(tmp_path / "view.gif")]) in (0, None)
+    assert (tmp_path / "view.gif").read_bytes()[:6] in (b"GIF89a", b"GIF87a")
+    traj = tmp_path / "traj.toml"
+    traj.write_text(to_toml({"model": str(model), "period": 2.0, "duration": 4.0, "start": start,
+                             "amplitude": [0.6, 0.3, 0.8, 0.5, 0.9, 0.5, 1.0]}))
+    assert main(["simulate", str(model), str(traj), "--out", str(tmp_path / "log.csv"), "--rate", "200",
+                 "--perturb", "3"]) in (0, None)
+    assert main(["identify", str(model), str(tmp_path / "log.csv"), "--out", str(tmp_path / "ident")]) in (0, None)
+    assert rscasadi.load(tmp_path / "ident" / "model.toml").n == 7

@@ -2,7 +2,8 @@
 rscasadi.model.collision.capsules) and obstacles (spheres, axis-aligned boxes).
 
 For the optimiser, smooth and conservative: each capsule is covered by spheres centred along
-its segment, spaced s <= r and of radius sqrt(r^2 + (s/2)^2) (the union contains the capsule);
+its segment, spaced s <= max(r, 3 cm) and of radius sqrt(r^2 + (s/2)^2) (the union contains
+the capsule);
 a sphere's distance to an obstacle sphere is |p - c| - R, to a box the norm of softplus(|p - c|
 - h) per axis less its largest excess over max(., 0): never more than the true distance outside
 the box and <= 0 inside, so a clearance the optimiser sees as positive is a true one.
@@ -19,6 +20,7 @@ import numpy as np
 from rscasadi.dynamics.kinematics import body_poses
 from rscasadi.model.collision import capsules, margin
 
+MIN_SPACING = 0.03           # m: the covering spheres' spacing on capsules thinner than that
 BETA_PER_M = 2000.0          # softplus sharpness (1/m): it overestimates max(x, 0) by at most 0.35 mm
 
 
@@ -27,12 +29,14 @@ def _softplus(x, beta):
 
 
 def covering_spheres(capsule) -> tuple[np.ndarray, float]:
-    """Centres (k x 3, in the capsule's body frame) and radius of spheres whose union holds it."""
+    """Centres (k x 3, in the capsule's body frame) and radius of spheres whose union holds it,
+    spaced at most max(r, MIN_SPACING) apart: a thin capsule (a finger's box) gets a few spheres a
+    few millimetres fatter rather than many."""
     a, b, r = np.asarray(capsule.a, float), np.asarray(capsule.b, float), capsule.radius
     length = float(np.linalg.norm(b - a))
     if length == 0.0:                                    # a sphere
         return a[None, :], r
-    k = max(2, math.ceil(length / r) + 1)
+    k = max(2, math.ceil(length / max(r, MIN_SPACING)) + 1)
     s = length / (k - 1)
     return np.linspace(a, b, k), math.sqrt(r ** 2 + (s / 2) ** 2)
 

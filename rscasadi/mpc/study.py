@@ -194,7 +194,7 @@ class FrameReference:
 
 
 def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bool = False, settle: float = 0.2,
-                     quantised: bool = True, log=print) -> dict:
+                     quantised: bool = True, log=print, label: str | None = None) -> dict:
     """The task-space MPC (its problem's `[path]` from rest at theta_start, or the frame's motion in
     its `solution`) on the arm holding a payload of `plant_mass` kg (None: the problem's), at the
     problem's sample rate with quantised encoders: `told`, the controller is given that mass
@@ -202,7 +202,8 @@ def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bo
     then the reference runs and the arm holds its end for 0.2 s.  Returns the frame's largest and
     RMS distance from the reference point of its time, the largest distance from the reference
     curve, the final error, the largest limit violation, the smallest clearance to the obstacles
-    (exact) and the time per step in C."""
+    (exact) and the time per step in C; `trace` every 10 ms (the error, the step time); `label`
+    names the case in the log line."""
     from rscasadi.dynamics.collision import exact_clearance
     from rscasadi.dynamics.statics import rest_state
     from rscasadi.model.frames import holding
@@ -260,8 +261,12 @@ def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bo
            "max_limit_violation": max(violation, 0.0), "min_clearance": None if clearance is None else gap,
            "min_clearance_at_s": gap_at,
            "step_median_s": float(np.median(times)), "step_worst_s": float(np.max(times)),
-           "model": str(p.model), "t": (np.arange(len(thetas)) * every * dt).tolist(), "theta": np.array(thetas).T.tolist()}
-    log(f"payload {res['plant_mass']:.2f} kg, {'told' if told else 'not told'}: the frame within "
+           "model": str(p.model), "t": (np.arange(len(thetas)) * every * dt).tolist(), "theta": np.array(thetas).T.tolist(),
+           "trace": {"t": ((np.arange(len(e)) + 1) * dt - settle)[every - 1::every].tolist(),
+                     "error": e[every - 1::every].tolist(), "step_s": np.asarray(times)[every - 1::every].tolist()}}
+    if label is None:
+        label = f"payload {res['plant_mass']:.2f} kg, {'told' if told else 'not told'}"
+    log(f"{label}: the frame within "
         f"{res['max_error'] * 1e3:.2f} mm of its reference (RMS {res['rms_error'] * 1e3:.2f} mm), "
         f"{res['max_path_distance'] * 1e3:.2f} mm of its curve, {res['final_error'] * 1e3:.2f} mm at the end, "
         f"limit violation {res['max_limit_violation']:.1e}"
@@ -289,12 +294,44 @@ def task_study(problem, mpc_dir, plant_mass: float | None = None, log=print) -> 
            "obstacles": [{"kind": o.kind, "center": o.center.tolist(), "radius": o.radius,
                           "size": None if o.size is None else o.size.tolist()} for o in p.obstacles]}
     from rscasadi.model.frames import holding, payload_document
-    for case, mass, told in (("as_modelled", None, False), ("untold_payload", plant_mass, False),
-                             ("told_payload", plant_mass, True)):
-        run = task_closed_loop(p, mpc_dir, mass, told, log=log)
+    modelled = model.payload.body.mass
+    cases = [("as_modelled", None, False, f"as modelled (payload {modelled:.2f} kg)")]
+    if abs(plant_mass - modelled) > 1e-9 * max(1.0, modelled):
+        cases += [("untold_payload", plant_mass, False, f"payload {plant_mass:.2f} kg, not told"),
+                  ("told_payload", plant_mass, True, f"payload {plant_mass:.2f} kg, told")]
+    else:
+        log(f"the plant's payload ({plant_mass:.2f} kg) is the modelled one: the untold and told cases would "
+            "repeat the first; give another mass (rscasadi mpc --plant-payload) to see one the model lacks")
+    for case, mass, told, label in cases:
+        run = task_closed_loop(p, mpc_dir, mass, told, log=log, label=label)
         run["payload"] = payload_document(holding(model, mass=run["plant_mass"]))
+        run["label"] = label
         out[case] = {"MPC (C)": run}
     return out
+
+
+def plot_task_study(res: dict, path: Path):
+    """The task-space study's cases: the frame's distance from its reference over time, and the C
+    MPC's time per step against the sample time's budget of 1 ms."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    runs = {k: v["MPC (C)"] for k, v in res.items() if isinstance(v, dict) and "MPC (C)" in v}
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4))
+    for case, run in runs.items():
+        tr = run["trace"]
+        axes[0].plot(tr["t"], 1e3 * np.asarray(tr["error"]), lw=1, label=run.get("label", case))
+        axes[1].plot(tr["t"], 1e6 * np.asarray(tr["step_s"]), ".", ms=2, label=run.get("label", case))
+    axes[0].axvline(0.0, color="0.6", lw=0.8)
+    axes[0].set(xlabel="t (s; the reference starts at 0)", ylabel="frame's distance from its reference (mm)",
+                title="task-space MPC, quantised encoders")
+    axes[1].axhline(1000.0, color="r", lw=1, label="1 ms (1 kHz)")
+    axes[1].set(xlabel="t (s)", ylabel="mpc_step in C (us)", title="time per step (every 10th)")
+    for ax in axes:
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def study(problem, build, identified_model=None, true_arm: Arm | None = None, log=print,

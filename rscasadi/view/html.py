@@ -102,6 +102,8 @@ def commands(scene) -> list:
         T[:3, 3] = ob["center"]
         shape = g.Sphere(ob["radius"]) if ob["kind"] == "sphere" else g.Box(ob["size"])
         put(shape, COLOURS["obstacle"], _path("world", f"obstacle{i}"), T, opacity=0.6)
+    out.append(SetObject(g.LineSegments(g.PointsGeometry(floor_lines(scene).T), g.LineBasicMaterial(color=0xB8BEC8)),
+                         path=_path("world", "floor")))
     # a red marker at the base, shown (scaled up) in the frames where a limit or clearance is broken
     put(g.Sphere(0.03), COLOURS["broken"], _path("world", "broken"), np.diag([1e-6, 1e-6, 1e-6, 1.0]))
     for body in range(scene.poses.shape[1]):
@@ -143,6 +145,9 @@ function run(b64) {{
 viewer.set_property(["Background"], "top_color", [1.0, 1.0, 1.0]);
 viewer.set_property(["Background"], "bottom_color", [0.85, 0.88, 0.92]);
 viewer.set_property(["Cameras", "default", "rotated", "<object>"], "position", {camera});
+viewer.controls.target.set({target});                 // the orbit turns about the scene's centre
+viewer.controls.update();
+viewer.set_property(["Grid"], "visible", false);      // the scene's own floor grid instead
 function at_hash() {{
   var m = /t=([0-9.eE+-]+)/.exec(location.hash);
   var t = m ? parseFloat(m[1]) : 0.0;
@@ -164,13 +169,39 @@ def write_html(scene, out: Path):
     viewer = (Path(meshcat.__file__).parent / "viewer" / "dist" / "main.min.js").read_text()
     calls = "\n".join(f'run("{_packed(c)}");' for c in commands(scene))
     title = "".join(ch for ch in scene.title if ch.isalnum() or ch in "._-/ ")
+    position, target, _ = framing(scene)
     write_text(out, PAGE.format(title=title, viewer=viewer, commands=calls, duration=float(scene.times[-1]),
-                                camera=json.dumps(camera(scene))))
+                                camera=json.dumps(_rotated(position)), target=", ".join(map(repr, _rotated(target)))))
 
 
-def camera(scene) -> list:
-    """The camera in MeshCat's rotated frame (y up): looking at the arm from the front, right and
-    above, far enough to see its reach."""
-    reach = max(float(np.max(np.linalg.norm(scene.poses[:, :, :3, 3], axis=2))), 0.3)
-    x, y, z = 1.6 * reach, -1.6 * reach, 1.1 * reach                     # world: front right, above
+FOV_DEG = 75.0                          # MeshCat's camera's vertical field of view
+VIEW_DIRECTION = np.array([1.0, -1.0, 0.75]) / np.linalg.norm([1.0, -1.0, 0.75])   # front, right, above
+
+
+def floor_lines(scene, spacing: float = 0.1) -> np.ndarray:
+    """Segments (2k x 3) of a floor grid under the scene: just below everything shown (and no
+    higher than z = 0), reaching a little beyond it, every `spacing` m."""
+    from rscasadi.view.scene import bounds
+    lo, hi = bounds(scene)
+    z = float(min(lo[2], 0.0)) - 1e-3
+    x0, y0 = np.floor((lo[:2] - 0.2) / spacing) * spacing
+    x1, y1 = np.ceil((hi[:2] + 0.2) / spacing) * spacing
+    xs, ys = np.arange(x0, x1 + spacing / 2, spacing), np.arange(y0, y1 + spacing / 2, spacing)
+    seg = [[(x, y0, z), (x, y1, z)] for x in xs] + [[(x0, y, z), (x1, y, z)] for y in ys]
+    return np.array(seg, float).reshape(-1, 3)
+
+
+def framing(scene) -> tuple[np.ndarray, np.ndarray, float]:
+    """Where the camera stands and what it looks at (world frame) so that everything the scene
+    shows at any instant fits the view (bounds), and the floor's height: just under all of it."""
+    from rscasadi.view.scene import bounds
+    lo, hi = bounds(scene)
+    centre, radius = (lo + hi) / 2, max(float(np.linalg.norm(hi - lo)) / 2, 0.2)
+    distance = 1.1 * radius / np.sin(np.radians(FOV_DEG) / 2)
+    return centre + distance * VIEW_DIRECTION, centre, float(min(lo[2], 0.0)) - 1e-3
+
+
+def _rotated(p) -> list:
+    """A world point in MeshCat's rotated (y up) frame."""
+    x, y, z = (float(v) for v in p)
     return [x, z, -y]

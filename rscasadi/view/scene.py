@@ -250,3 +250,27 @@ def _broken(arm: Arm, thetas: np.ndarray, data: dict) -> np.ndarray:
         gap = np.array(exact_clearance(arm.model, obstacles).map(thetas.shape[1])(thetas)).ravel()
         broken |= gap < -1e-4
     return broken
+
+
+def bounds(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """The box (lowest, highest corner, world frame) holding everything the scene shows at any
+    instant: every capsule of every link (its radius included), the rotors, the obstacles, the
+    payload, the paths and the goal; what a view must frame and must not clip."""
+    pts, pad = [], []
+    for body, capsules in scene.links.items():
+        for a, b, r in capsules:
+            ends = scene.poses[:, body] @ np.array([[*a, 1.0], [*b, 1.0]]).T      # (frames, 4, 2)
+            pts.append(ends[:, :3].transpose(0, 2, 1).reshape(-1, 3))
+            pad.append(np.full(len(pts[-1]), r))
+    for ob in scene.obstacles:
+        c = np.asarray(ob["center"], float)
+        h = np.full(3, ob["radius"]) if ob["kind"] == "sphere" else np.asarray(ob["size"], float) / 2
+        pts.append(np.array([c - h, c + h]))
+        pad.append(np.zeros(2))
+    for extra in (scene.path, scene.target, None if scene.goal is None else np.atleast_2d(scene.goal)):
+        if extra is not None:
+            pts.append(np.asarray(extra, float).reshape(-1, 3))
+            pad.append(np.zeros(len(pts[-1])))
+    P, R = np.vstack(pts), np.concatenate(pad)[:, None]
+    return np.min(P - R, axis=0), np.max(P + R, axis=0)
+
