@@ -56,7 +56,7 @@ def _solids(scene):
     """Per body the solids that ride on it, in its frame: ("tube"/"ball"/"faces", data)."""
     out = {}
     for body, capsules in scene.links.items():
-        if body in scene.visuals:
+        if not scene.draws_capsules(body):
             continue
         for a, b, r in capsules:
             out.setdefault(body, []).append(("tube", (np.asarray(a, float), np.asarray(b, float), r)))

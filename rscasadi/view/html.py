@@ -67,7 +67,7 @@ def commands(scene) -> list:
                 geometry = g.Sphere(data[0])
             put(geometry, COLOURS["link"], _path(f"body{body}", f"visual{i}"), T)
     for body, capsules in scene.links.items():
-        if body in scene.visuals:
+        if not scene.draws_capsules(body):
             continue
         for i, (a, b, r) in enumerate(capsules):
             length = float(np.linalg.norm(b - a))

@@ -27,8 +27,9 @@ class Scene:
     animation frame per body (4x4 in the world), `broken` per frame (a limit or clearance),
     `path` (k x 3 tool positions), `goal`, `obstacles`, `payload` (body, 4x4 in it, size, "sphere" or "box");
     `visuals` per body its URDF visual geometries (kind, data, 4x4 in the body frame): a body
-    that has any is drawn with them instead of its capsules; `skipped`: the meshes not read
-    (file name, why: only files inside the robot's package are)."""
+    that has any is drawn with them instead of its capsules, unless one of its meshes was
+    skipped (`incomplete`: then its capsules are drawn too, so nothing is missing); `skipped`:
+    the meshes not read (file name, why: only files inside the robot's package are)."""
     title: str
     times: np.ndarray
     poses: np.ndarray                          # (frames, n + 1, 4, 4)
@@ -42,6 +43,11 @@ class Scene:
     target: np.ndarray | None = None
     visuals: dict = field(default_factory=dict)
     skipped: list = field(default_factory=list)
+    incomplete: set = field(default_factory=set)
+
+    def draws_capsules(self, body: int) -> bool:
+        """Whether `body` is drawn by its capsules: it has no visuals, or some were skipped."""
+        return body not in self.visuals or body in self.incomplete
 
 
 def _homogeneous(R, p) -> np.ndarray:
@@ -95,7 +101,7 @@ def _visuals(arm: Arm) -> tuple[dict, list]:
             if g.mesh is not None:
                 path, why = mesh_file(Path(urdf), g.mesh.filename)
                 if path is None:
-                    skipped.append((g.mesh.filename, why))
+                    skipped.append((g.mesh.filename, why, frame.body))
                     continue
                 scale = np.ones(3) if g.mesh.scale is None else np.broadcast_to(np.asarray(g.mesh.scale, float), 3)
                 shape = ("mesh", str(path), T @ np.diag([*scale, 1.0]))
@@ -159,7 +165,8 @@ def scene_of(path, model=None) -> Scene:
         thetas = np.vstack([np.interp(times, t, row) for row in theta])
     visuals, skipped = _visuals(arm)
     scene = Scene(f"{path.parent.name}/{path.name}" if text is not None else path.name, times, _poses(arm, thetas),
-                  _links(arm), _rotors(arm), _broken(arm, thetas, data), visuals=visuals, skipped=skipped)
+                  _links(arm), _rotors(arm), _broken(arm, thetas, data), visuals=visuals,
+                  skipped=[(name, why) for name, why, _ in skipped], incomplete={body for *_, body in skipped})
     if data:                                            # the tool's path: the goal's frame, else the arm's tip
         goal = data.get("goal")
         if goal:
