@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -369,7 +370,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv=None):
+def main(argv=None, exit_on_interrupt: bool = False):
+    """Run the command in argv; its exit code.  exit_on_interrupt (the `rscasadi` command): after
+    Ctrl-C or SIGTERM end the process at once, inside the handler, once every `finally` has run:
+    the interrupted solve's native objects are then never torn down (a fatrop solver stopped
+    mid-solve crashes in its destructor)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     interrupt.install()                     # Ctrl-C inside a solver stops the command, not just the solver
@@ -380,6 +385,10 @@ def main(argv=None):
         if isinstance(exc, KeyboardInterrupt) or interrupt.happened():
             word, code = ("terminated", 143) if interrupt.terminated() else ("interrupted", 130)
             print(f"rscasadi: {word}; nothing half-written was kept", file=sys.stderr)
+            if exit_on_interrupt:
+                sys.stdout.flush()
+                sys.stderr.flush()
+                os._exit(code)
             return code
         if isinstance(exc, (ModelFileError, OutputError, CheckError, ValueError)):
             print(f"rscasadi: error: {exc}", file=sys.stderr)
@@ -392,5 +401,10 @@ def main(argv=None):
     return code or 0
 
 
+def entry(argv=None):
+    """The `rscasadi` command: main's exit code (an interrupt ends the process in main)."""
+    sys.exit(main(argv, exit_on_interrupt=True))
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

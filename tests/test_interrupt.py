@@ -46,8 +46,8 @@ def endless(*args, **kwargs):                       # a fatrop solve that would 
     opts["fatrop"].update(tol=1e-300, max_iter=10 ** 6, acceptable_iter=10 ** 6)
     return opts
 solvers.options = endless
-from rscasadi.cli import main
-sys.exit(main(sys.argv[1:]))
+from rscasadi.cli import entry
+entry(sys.argv[1:])
 """
 
 
