@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rscasadi.model.checks import _body, _Ctx, _number, _table, _vector, orientation
+from rscasadi.model.checks import _body, _number, _table, _vector, orientation
 from rscasadi.model.types import BASE, BODY_KEYS, Frame, Payload, rotation_document, rpy_matrix
 
 FRAME_KEYS = {"parent", "xyz", "rpy", "R"}

@@ -97,7 +97,6 @@ def bounding_capsule(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]
     r = float(rho.max()) if rho.max() > 0 else 1e-9
     reach = np.sqrt(np.maximum(r ** 2 - rho ** 2, 0.0))       # how far along the axis a point may lie from an end
     lo, hi = float(np.min(t + reach)), float(np.max(t - reach))
-    if lo > hi:                                                 # a sphere holds them all
+    if lo > hi:                          # any point between them holds them all: a sphere
         lo = hi = 0.5 * (lo + hi)
-        r = float(np.max(np.linalg.norm(d - np.outer(np.full(len(t), lo), axis), axis=1)))
     return c + lo * axis, c + hi * axis, r * (1 + 1e-9) + 1e-12
