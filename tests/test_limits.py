@@ -51,15 +51,16 @@ def test_the_ocp_and_the_mpc_studies_share_the_figure():
 @pytest.fixture(scope="module")
 def narrow_yaw(tmp_path_factory):
     """The reference arm with the shoulder yaw's range narrowed to +-0.3 rad, and its MPC with the
-    link-angle penalty on and off."""
+    link-angle penalty on and off, and with hard limits (no penalty)."""
     from rscasadi.mpc import generate_mpc
     d = tmp_path_factory.mktemp("narrow_yaw")
     model = arm3_with(d, "tau = 0.6, dphi = 4.0, psi = 0.15, theta = [-0.3, 0.3]")
     out = {}
-    for name, weight in (("on", None), ("off", 0.0)):
+    for name, weight, kind in (("on", None, "soft"), ("off", 0.0, "soft"), ("hard", 0.0, "hard")):
         extra = "" if weight is None else f"angle_limits = {weight}\n"
         problem = d / f"mpc_{name}.toml"
-        problem.write_text(f'model = "{model.name}"\nhorizon = 10\ninterval = 0.01\nsubsteps = 5\n[weights]\n{extra}')
+        problem.write_text(f'model = "{model.name}"\nhorizon = 10\ninterval = 0.01\nsubsteps = 5\n'
+                           f'angle_limits = "{kind}"\n[weights]\n{extra}')
         out[name] = (problem, d / f"mpc_{name}")
         generate_mpc(problem, out[name][1], opt="-O1", log=lambda m: None)
     return out
@@ -75,6 +76,21 @@ def test_the_mpc_keeps_the_link_angles_in_their_range(narrow_yaw):
     free = reach_pose(narrow_yaw["off"][0], narrow_yaw["off"][1], target, seconds=1.5)
     assert kept["max_limit_violation"] < 0.01, kept["max_limit_violation"]
     assert free["final_angle_error"] < 0.01 and free["max_limit_violation"] > 0.4
+
+
+def test_hard_angle_limits_hold_the_range_to_its_end(narrow_yaw):
+    """With `angle_limits = "hard"` (and no penalty) the link goes to the end of its range and no
+    further (the plant between the plan's interval ends: within 0.1 % of the range), on a step
+    beyond it and on a fast swing back across it; a target inside the range is reached."""
+    from rscasadi.mpc.study import reach_pose
+    problem, out = narrow_yaw["hard"]
+    beyond = reach_pose(problem, out, [0.6, 0.0, 0.0], seconds=1.5)
+    assert beyond["max_limit_violation"] < 1e-3
+    assert 0.3 - 1e-3 < 0.6 - beyond["final_angle_error"] and beyond["final_angle_error"] < 0.3 + 1e-3
+    back = reach_pose(problem, out, [-0.45, 0.0, 0.0], seconds=1.5, start=[0.2, 0.0, 0.0])
+    assert back["max_limit_violation"] < 1e-3
+    inside = reach_pose(problem, out, [0.2, 0.3, -0.2], seconds=1.5)
+    assert inside["final_angle_error"] < 1e-3
 
 
 def test_the_mpc_refuses_a_joint_without_a_torque_limit(tmp_path):

@@ -71,10 +71,72 @@ def test_a_nan_measurement_keeps_the_plan_and_says_so(mpc_dir, arm3):
     assert np.max(np.abs(runs[0][0] - runs[1][0])) < 1e-12
 
 
-def _qpoases(H, g, lo, hi):
-    qp = ca.conic("reference", "qpoases", {"h": ca.Sparsity.dense(*H.shape), "a": ca.Sparsity(0, H.shape[0])},
+def _qpoases(H, g, lo, hi, A=None, lba=None, uba=None):
+    A = np.zeros((0, H.shape[0])) if A is None else A
+    qp = ca.conic("reference", "qpoases", {"h": ca.Sparsity.dense(*H.shape), "a": ca.Sparsity.dense(*A.shape)},
                   {"printLevel": "none"})
-    return np.array(qp(h=H, g=g, lbx=lo, ubx=hi)["x"]).ravel()
+    rows = {} if lba is None else {"lba": lba, "uba": uba}
+    return np.array(qp(h=H, g=g, a=A, lbx=lo, ubx=hi, **rows)["x"]).ravel()
+
+
+def test_hard_angle_rows_are_exact_where_they_can_hold_and_least_excess_where_not(tmp_path):
+    """The QP of the hard link-angle limits (`angle_limits = "hard"`) on the reference arm with a
+    +-0.3 rad shoulder yaw, on cold steps towards targets beyond the range: from rest the rows
+    can hold, and the interior-point result equals qpOASES' with the rows as hard constraints
+    (the exact penalty is exact); from a fast approach they cannot, and its elastic objective
+    (the least excess, then the cost) equals qpOASES' optimum on the elastic QP (whose solution
+    is not unique: the saturated torques leave some flat)."""
+    from test_limits import arm3_with
+    from rscasadi.mpc.formulation import HARD_PRICE
+    model = arm3_with(tmp_path, "tau = 0.6, dphi = 4.0, psi = 0.15, theta = [-0.3, 0.3]")
+    arm = load(model)
+    p = M.MPCProblem(model, horizon=10, interval=0.01, substeps=5, angle_limits="hard", weights={"angle_limits": 0.0})
+    n, N = arm.n, p.horizon
+    F, _ = M.interval_functions(arm, p.interval, p.substeps)
+    limits = M.limit_arrays(arm)
+    xm, ref = ca.MX.sym("x", 4 * n), ca.MX.sym("r", 2 * n, N)
+    X, U = ca.MX.sym("X", 4 * n, N + 1), ca.MX.sym("U", n, N)
+    posture, mass = ca.MX.sym("posture", n), ca.MX.sym("m", 0)
+    lin = M._Linearisation(F, M.stage_residual(arm, p, limits), p, xm, ref, X, U, posture, mass)
+    C, cl, cu = lin.angle_rows(X, limits)
+    tm = np.tile(limits["tau"], N)
+    lo, hi = -tm - ca.vec(U), tm - ca.vec(U)
+    d = M.box_qp(lin.H, lin.g, lo, hi, 30, (C, cl, cu), HARD_PRICE)
+    qp = ca.Function("qp", [xm, ref, X, U, posture], [lin.H, lin.g, lo, hi, ca.densify(C), cl, cu, d])
+    rows = C.shape[0]
+    assert C.shape == (n * N, n * N)                          # a row per joint (each has a range) and interval end
+    for start, speed, target, holds in ((0.27, 0.0, 0.6, True), (0.29, 0.0, 0.9, True), (-0.28, 0.0, -0.8, True),
+                                        (0.28, 8.0, 0.6, False), (-0.25, -10.0, -0.4, False)):
+        x = rest_state(arm, [start, 0.0, 0.0])
+        x[2 * n] = x[3 * n] = speed
+        Xh, Uh = hold_function(arm, p)(x, x[:n])
+        R = np.vstack([np.tile(np.array([target, 0.0, 0.0])[:, None], (1, N)), np.zeros((n, N))])
+        H, g, lo_v, hi_v, Cv, cl_v, cu_v, dv = (np.array(v) for v in qp(x, R, Xh, Uh, x[:n]))
+        dv = dv.ravel()
+        if holds:
+            d_ref = _qpoases(H, g, lo_v, hi_v, Cv, cl_v, cu_v)
+            assert np.max(np.r_[Cv @ d_ref - cu_v.ravel(), cl_v.ravel() - Cv @ d_ref]) > -1e-9, \
+                "the case must press against the range"
+        else:
+            c = np.max(np.abs(g)) + np.max(np.diag(H))            # box_qp's scaling, and the unit-norm rows
+            size = np.linalg.norm(Cv, axis=1)
+            Cn, m = Cv / size[:, None], len(g)
+            He = np.block([[H / c, np.zeros((m, rows))], [np.zeros((rows, m)), np.zeros((rows, rows))]])
+            A = np.block([[Cn, -np.eye(rows)], [Cn, np.eye(rows)]])
+            e = _qpoases(He, np.r_[g.ravel() / c, HARD_PRICE * np.ones(rows)], np.r_[lo_v.ravel(), np.zeros(rows)],
+                         np.r_[hi_v.ravel(), np.full(rows, np.inf)], A, np.r_[np.full(rows, -np.inf), cl_v.ravel() / size],
+                         np.r_[cu_v.ravel() / size, np.full(rows, np.inf)])
+            assert np.max(e[m:]) > 1e-3, "the case must be one where the range cannot hold"
+
+            def excess(d):
+                return np.maximum(0, np.maximum(Cn @ d - cu_v.ravel() / size, cl_v.ravel() / size - Cn @ d))
+
+            def cost(d):                               # the elastic objective: flat along some torques
+                return 0.5 * d @ (H / c) @ d + g.ravel() / c @ d + HARD_PRICE * np.sum(excess(d))
+            assert cost(dv) <= cost(e[:m]) * (1 + 1e-9)
+            assert np.sum(excess(dv)) == pytest.approx(np.sum(e[m:]), rel=1e-6)
+            continue
+        assert np.max(np.abs(dv - d_ref)) < 1e-6 * max(1.0, np.max(np.abs(d_ref)))
 
 
 def test_qp_step_equals_an_active_set_solver_on_a_cold_step_to_a_far_pose(arm3):

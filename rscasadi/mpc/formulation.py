@@ -15,7 +15,9 @@ dtheta_ref_k|^2 + w_tau |tau_k|^2, and a penalty w_limits (|c| - 0.9 c_max)^2 on
 deflection psi and the slow-side speed dphi beyond 90 % of their limits, and w_angle_limits on the
 link angles beyond 90 % of their range's half-width about its middle (Gauss-Newton on the part
 active at the linearisation point); the motor torques are hard bounds (every joint must give
-its torque limit: mpc_model refuses a model without one).  In task space the
+its torque limit: mpc_model refuses a model without one).  With angle_limits = "hard" the
+plan's link angles theta_k (linear in dU) are rows of the QP within the range itself, each with
+an exact L1 penalty on its excess (box_qp), so the QP stays feasible.  In task space the
 tracking terms are the frame's: w_position |p_k - p_ref_k|^2 + w_velocity |J dtheta_k -
 v_ref_k|^2 (+ w_orientation |skew(R_ref^T R_k)|^2), and w_posture |theta_k - theta_posture|^2
 holds a redundant arm's null space (the posture: the measured angles at mpc_init, or set).
@@ -170,14 +172,43 @@ class _Linearisation:
         """dX = (E_k + G_k dU_{<k})_k."""
         return ca.horzcat(*[E + ca.mtimes(G, dU[:G.shape[1]]) for E, G in zip(self.E, self.G)])
 
+    def angle_rows(self, X, limits: dict):
+        """The plan's link angles at the interval ends k = 1..N as rows of the QP: (C, cl, cu) with
+        theta_k = X_k + E_k + G_k dU within [theta_lo, theta_hi] (joints with a range; an open
+        end at HARD_OPEN rad), C block lower triangular."""
+        lo, hi = hard_range(limits)
+        joints = [j for j in range(len(lo)) if np.isfinite(limits["theta_lo"][j]) or np.isfinite(limits["theta_hi"][j])]
+        if not joints:
+            return None
+        nU = self.H.shape[0]
+        C = ca.vertcat(*[ca.horzcat(G[joints, :], ca.MX(len(joints), nU - G.shape[1])) for G in self.G[1:]])
+        at = ca.vertcat(*[(X[joints, k] + E[joints]) for k, E in enumerate(self.E) if k >= 1])
+        N = len(self.E) - 1
+        return C, np.tile(lo[joints], N) - at, np.tile(hi[joints], N) - at
 
-def rollout(Fx, residual, p: MPCProblem, xm, ref, U, posture, mass):
+
+HARD_OPEN = 1e3      # rad: the missing end of a one-sided range, for the hard link-angle rows
+HARD_PRICE = 1e4     # the exact penalty per unit excess of a (unit-norm) row in box_qp's scaled QP
+HARD_MERIT = 1e10    # the line search's price per rad beyond a hard range (sqp_iterations > 1)
+
+
+def hard_range(limits: dict):
+    """The link-angle ranges the hard rows hold, an open end at -+HARD_OPEN."""
+    return (np.where(np.isfinite(limits["theta_lo"]), limits["theta_lo"], -HARD_OPEN),
+            np.where(np.isfinite(limits["theta_hi"]), limits["theta_hi"], HARD_OPEN))
+
+
+def rollout(Fx, residual, p: MPCProblem, limits: dict, xm, ref, U, posture, mass):
     """The NLP's cost along the plan's states simulated from the measured state, and those states:
     the measure of progress of the line search (a condensed, hence gap-free, merit function)."""
     xs, total = [xm], 0.5 * p.weights["tau"] * ca.sumsqr(U)
+    lo, hi = hard_range(limits) if p.angle_limits == "hard" else (None, None)
+    n = U.shape[0]
     for k in range(p.horizon):
         xs.append(Fx(xs[-1], U[:, k], mass))
         total += 0.5 * ca.sumsqr(residual(xs[-1], ref[:, k], posture)[0])
+        if lo is not None:
+            total += HARD_MERIT * ca.sum1(ca.fmax(xs[-1][:n] - hi, 0) + ca.fmax(lo - xs[-1][:n], 0))
     return total, ca.horzcat(*xs)
 
 
@@ -188,42 +219,82 @@ def _max_step(v, dv, fraction: float):
     return ca.fmin(1.0, fraction * ca.mmin(ratios))
 
 
+MU_MIN = 1e-14      # the scaled QP's complementarity at which the interior-point iterate is kept
+
+
 @functools.lru_cache(maxsize=None)
-def _ipm_iteration(m: int) -> ca.Function:
-    """One Mehrotra predictor-corrector iteration (Nocedal & Wright, alg. 16.4) of box_qp on the
-    (scaled) QP of size m, as straight-line SX: the reduced KKT matrix is factored once (Cholesky)
-    and its factor serves both the predictor and the corrector."""
+def _ipm_iteration(m: int, rows: tuple = ()) -> ca.Function:
+    """One Mehrotra predictor-corrector iteration (Nocedal & Wright, alg. 16.4) of `box_qp` on the
+    (scaled) QP of size m, as straight-line SX.  Every inequality is A_i v >= b_i with a slack
+    s_i and a dual z_i; the Newton step solves (Q + A' Z S^-1 A) dv = -r_d - A' S^-1 (r_c + Z r_p)
+    (eq. 16.62), reduced onto d: the row penalties t enter diagonally and are eliminated, so one
+    Cholesky factor of an m x m matrix serves the predictor and the corrector.
+    rows: the sparsity pattern ((row, column) pairs) of C in the rows cl <= C d <= cu, softened
+    by t >= 0 at the price rho 1't: the inequalities cu - C d + t >= 0, C d + t - cl >= 0, t >= 0."""
     H, g, lo, hi, d, sl, su, zl, zu = (ca.SX.sym(name, *shape) for name, shape in (
         ("H", (m, m)), ("g", (m, 1)), ("lo", (m, 1)), ("hi", (m, 1)), ("d", (m, 1)),
         ("sl", (m, 1)), ("su", (m, 1)), ("zl", (m, 1)), ("zu", (m, 1))))
-    rd, rl, ru = ca.mtimes(H, d) + g - zl + zu, d - lo - sl, hi - d - su
-    mu = (ca.dot(sl, zl) + ca.dot(su, zu)) / (2 * m)
-    R = ca.chol(H + ca.diag(zl / sl + zu / su))                       # R' R = K
+    p = (max(r for r, _ in rows) + 1) if rows else 0
+    C = ca.SX.sym("C", ca.Sparsity.triplet(p, m, [r for r, _ in rows], [c for _, c in rows]))
+    cl, cu, rho, t, s3, s4, z3, z4, zt = (ca.SX.sym(name, *shape) for name, shape in (
+        ("cl", (p, 1)), ("cu", (p, 1)), ("rho", (1, 1)), ("t", (p, 1)), ("s3", (p, 1)), ("s4", (p, 1)),
+        ("z3", (p, 1)), ("z4", (p, 1)), ("zt", (p, 1))))
+    Cd = ca.mtimes(C, d)
+    rd = ca.mtimes(H, d) + g - zl + zu + ca.mtimes(C.T, z3 - z4)           # dual residuals
+    rt = rho - z3 - z4 - zt
+    rp = (d - lo - sl, hi - d - su, cu - Cd + t - s3, Cd + t - cl - s4)     # primal residuals
+    pairs = ((sl, zl), (su, zu), (s3, z3), (s4, z4), (t, zt))
+    mu = sum(ca.dot(s, z) for s, z in pairs) / (2 * m + 3 * p)
+    D = [z / s for s, z in pairs]
+    Ktt = D[2] + D[3] + D[4]
+    R = ca.chol(H + ca.diag(D[0] + D[1]) + (ca.mtimes(C.T, ca.mtimes(ca.diag((4 * D[2] * D[3] + (D[2] + D[3]) * D[4]) / Ktt), C))
+                                            if p else 0))
 
-    def newton(sigma_mu, cl, cu):                                     # the reduced KKT system, eq. (16.58)
-        rhs = -rd + (sigma_mu - sl * zl - cl - zl * rl) / sl - (sigma_mu - su * zu - cu - zu * ru) / su
-        dd = ca.solve(R, ca.solve(R.T, rhs))
-        dsl, dsu = dd + rl, ru - dd
-        return dd, dsl, dsu, (sigma_mu - sl * zl - cl - zl * dsl) / sl, (sigma_mu - su * zu - cu - zu * dsu) / su
+    def newton(sigma_mu, corrections):                                # eq. (16.62), reduced
+        rc = [s * z + c - sigma_mu for (s, z), c in zip(pairs, corrections)]
+        w = [(rc[i] + pairs[i][1] * rp[i]) / pairs[i][0] for i in range(4)] + [rc[4] / t]
+        rhs_d = -rd - w[0] + w[1] + ca.mtimes(C.T, w[2] - w[3])
+        rhs_t = -rt - w[2] - w[3] - w[4]
+        dd = ca.solve(R, ca.solve(R.T, rhs_d - ca.mtimes(C.T, (D[3] - D[2]) * rhs_t / Ktt)))
+        Cdd = ca.mtimes(C, dd)
+        dt = (rhs_t - (D[3] - D[2]) * Cdd) / Ktt
+        ds = (dd + rp[0], rp[1] - dd, rp[2] - Cdd + dt, rp[3] + Cdd + dt, dt)
+        return dd, dt, ds, [-(rc[i] + pairs[i][1] * ds[i]) / pairs[i][0] for i in range(5)]
 
-    def longest(dsl, dsu, dzl, dzu, fraction):
-        return ca.fmin(ca.fmin(_max_step(sl, dsl, fraction), _max_step(su, dsu, fraction)),
-                       ca.fmin(_max_step(zl, dzl, fraction), _max_step(zu, dzu, fraction)))
+    def longest(ds, dz, fraction):
+        a = ca.SX(1.0)
+        for (s, z), dsi, dzi in zip(pairs, ds, dz):
+            if s.shape[0]:
+                a = ca.fmin(a, ca.fmin(_max_step(s, dsi, fraction), _max_step(z, dzi, fraction)))
+        return a
 
-    dd, dsl, dsu, dzl, dzu = newton(0, 0, 0)                          # predictor (affine scaling)
-    a = longest(dsl, dsu, dzl, dzu, 1)
-    mu_aff = (ca.dot(sl + a * dsl, zl + a * dzl) + ca.dot(su + a * dsu, zu + a * dzu)) / (2 * m)
-    dd, dsl, dsu, dzl, dzu = newton((mu_aff / mu) ** 3 * mu, dsl * dzl, dsu * dzu)     # corrector
-    a = longest(dsl, dsu, dzl, dzu, 0.995)
-    return ca.Function("box_qp_iteration", [H, g, lo, hi, d, sl, su, zl, zu],
-                       [d + a * dd, sl + a * dsl, su + a * dsu, zl + a * dzl, zu + a * dzu], {"cse": True})
+    zero = [0] * 5
+    dd, dt, ds, dz = newton(0, zero)                                  # predictor (affine scaling)
+    a = longest(ds, dz, 1)
+    mu_aff = sum(ca.dot(s + a * dsi, z + a * dzi) for (s, z), dsi, dzi in zip(pairs, ds, dz)) / (2 * m + 3 * p)
+    dd, dt, ds, dz = newton((mu_aff / mu) ** 3 * mu, [dsi * dzi for dsi, dzi in zip(ds, dz)])   # corrector
+    a = longest(ds, dz, 0.995)
+    state = [d, sl, su, zl, zu] + ([t, s3, s4, z3, z4, zt] if p else [])
+    steps = [dd, ds[0], ds[1], dz[0], dz[1]] + ([dt, ds[2], ds[3], dz[2], dz[3], dz[4]] if p else [])
+    data = [H, g, lo, hi] + ([C, cl, cu, rho] if p else [])
+    new = [v + a * dv for v, dv in zip(state, steps)]
+    # converged (or broken down): keep the iterate; later iterations would divide by ~0
+    total = sum(ca.sum1(v) for v in new)
+    go = ca.logic_and(mu > MU_MIN, total - total == 0)
+    return ca.Function("box_qp_iteration", data + state, [ca.if_else(go, v, v0) for v, v0 in zip(new, state)],
+                       {"cse": True})
 
 
-def box_qp(H, g, lo, hi, iterations: int):
+def box_qp(H, g, lo, hi, iterations: int, rows=None, rho: float = 1e4):
     """min 1/2 d' H d + g' d subject to lo <= d <= hi: `iterations` primal-dual interior-point
     iterations with Mehrotra's predictor-corrector (`_ipm_iteration`), slacks for both bounds, the
     QP scaled to O(1) first.  Fixed work and no allocation in C.  On this MPC's cold steps to far
     poses it reaches qpOASES' solution to 3e-9 in 15 iterations (tests/test_mpc.py).
+    rows = (C, cl, cu): also cl <= C d <= cu, each row with an exact (L1) penalty on its excess
+    (Fletcher's elastic mode): the QP stays feasible when the rows cannot all hold, and where
+    they can its solution is the one with the rows hard, as long as rho (per row, each row
+    scaled to a unit norm, in the scaled objective's units) exceeds the row's
+    multiplier.
     Why not a generated solver: CasADi's qrqp returned bound-violating 'successes' on these QPs
     (CasADi issue #3141), DAQP's generated C allocates in every call, and projected Newton without
     a line search cycles (with one it stalls at this conditioning, ~1e8)."""
@@ -231,11 +302,23 @@ def box_qp(H, g, lo, hi, iterations: int):
     c = ca.mmax(ca.fabs(g)) + ca.mmax(ca.diag(H))
     H, g = H / c, g / c
     d = ca.fmin(ca.fmax(ca.MX.zeros(m), lo), hi)
-    sl, su, zl, zu = (ca.MX.ones(m) for _ in range(4))
-    iteration = _ipm_iteration(m)
+    state = [d] + [ca.MX.ones(m) for _ in range(4)]
+    data = [H, g, lo, hi]
+    pattern = ()
+    if rows is not None:
+        C, cl, cu = rows
+        size = ca.fmax(ca.sqrt(ca.sum2(C * C)), 1e-12)                    # each row to a unit norm
+        C, cl, cu = ca.mtimes(ca.diag(1 / size), C), cl / size, cu / size
+        Cd = ca.mtimes(C, d)
+        t = ca.fmax(ca.fmax(Cd - cu, cl - Cd), 0) + 1                     # the rows hold with slack 1
+        state += [t, cu - Cd + t, Cd + t - cl] + [rho / 3 * ca.MX.ones(C.shape[0]) for _ in range(3)]   # r_t = 0
+        data += [C, cl, cu, rho]
+        Cs = C.sparsity()
+        pattern = tuple(zip(Cs.get_triplet()[0], Cs.get_triplet()[1]))
+    iteration = _ipm_iteration(m, pattern)
     for _ in range(iterations):
-        d, sl, su, zl, zu = iteration(H, g, lo, hi, d, sl, su, zl, zu)
-    return ca.fmin(ca.fmax(d, lo), hi)
+        state = iteration(*data, *state)
+    return ca.fmin(ca.fmax(state[0], lo), hi)
 
 
 def shifted(Z, alpha: float):
@@ -262,7 +345,8 @@ def rti_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None = No
     tau_max = np.tile(limits["tau"], N)
     for _ in range(p.sqp_iterations):
         lin = _Linearisation(F, residual, p, xm, ref, X, U, posture, mass)
-        dU = box_qp(lin.H, lin.g, -tau_max - ca.vec(U), tau_max - ca.vec(U), p.qp_iterations)
+        rows = lin.angle_rows(X, limits) if p.angle_limits == "hard" else None
+        dU = box_qp(lin.H, lin.g, -tau_max - ca.vec(U), tau_max - ca.vec(U), p.qp_iterations, rows, HARD_PRICE)
         dX = lin.step(dU)
         if p.sqp_iterations == 1:                                         # RTI: the full step
             X, U = X + dX, U + ca.reshape(dU, n, N)
@@ -271,12 +355,12 @@ def rti_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None = No
         # cost, else the shortest; the states become that rollout (the gaps close), and its cost
         # is the next iteration's reference
         if phi0 is None:
-            phi0 = rollout(Fx, residual, p, xm, ref, U, posture, mass)[0]
+            phi0 = rollout(Fx, residual, p, limits, xm, ref, U, posture, mass)[0]
         dU = ca.reshape(dU, n, N)
         alpha = ca.MX(LINE_SEARCH[-1])
-        phi_new, X_new = rollout(Fx, residual, p, xm, ref, U + alpha * dU, posture, mass)
+        phi_new, X_new = rollout(Fx, residual, p, limits, xm, ref, U + alpha * dU, posture, mass)
         for a in reversed(LINE_SEARCH[:-1]):
-            phi, Xa = rollout(Fx, residual, p, xm, ref, U + a * dU, posture, mass)
+            phi, Xa = rollout(Fx, residual, p, limits, xm, ref, U + a * dU, posture, mass)
             better = phi < phi0
             alpha, phi_new, X_new = ca.if_else(better, a, alpha), ca.if_else(better, phi, phi_new), ca.if_else(better, Xa, X_new)
         X, U, phi0 = X_new, U + alpha * dU, phi_new

@@ -14,8 +14,9 @@ from rscasadi.ocp.problem import PAYLOAD_KEYS, read_obstacles, read_path
 from rscasadi.ocp.toolpath import ToolPath
 
 TOP = {"model", "trajectory", "sample_time", "horizon", "interval", "substeps", "sqp_iterations", "qp_iterations",
-       "weights", "frame", "orientation", "path", "obstacles", "payload", "theta_start", "solution", "parametric"}
+       "weights", "frame", "orientation", "path", "obstacles", "payload", "theta_start", "solution", "parametric", "angle_limits"}
 PARAMETRIC = ("none", "family")
+ANGLE_LIMITS = ("soft", "hard")
 WEIGHTS = {"theta": 1e5, "dtheta": 1.0, "tau": 1e-3, "limits": 1e5, "angle_limits": 1e8,
            "position": 1e6, "velocity": 10.0, "orientation": 1e3, "posture": 1.0, "obstacles": 1e8}
 JOINT_WEIGHTS, TASK_WEIGHTS = ("theta", "dtheta"), ("position", "velocity", "orientation", "posture")
@@ -42,7 +43,9 @@ class MPCProblem:
     frame's motion in it is the study's reference).  `obstacles` are soft (the model's [collision]
     capsules); `payload` sets or changes the model's payload, whose mass is a run-time parameter;
     `parametric` "family": every nonzero parameter of the model is one too (mpc_set_parameters:
-    an identified arm of the family without recompiling).  Build it in Python or read it with `load_mpc_problem`; `check()` applies the file's rules.
+    an identified arm of the family without recompiling).  `angle_limits` "hard": the plan's link
+    angles also stay inside their ranges at every interval end, as rows of the QP with an exact
+    penalty (when the arm cannot stop in time, the least excess); "soft": the penalty alone.  Build it in Python or read it with `load_mpc_problem`; `check()` applies the file's rules.
     `path`: the file it came from."""
     model: Path
     trajectory: Path | None = None
@@ -62,6 +65,7 @@ class MPCProblem:
     theta_start: np.ndarray | None = None
     solution: Path | None = None
     parametric: str = "none"
+    angle_limits: str = "soft"
 
     def __post_init__(self):
         self.model = Path(self.model)
@@ -136,6 +140,8 @@ class MPCProblem:
                 fail("solution", f"no file {self.solution}")
         if self.parametric not in PARAMETRIC:
             fail("parametric", f"must be one of {', '.join(PARAMETRIC)}, got {self.parametric!r}")
+        if self.angle_limits not in ANGLE_LIMITS:
+            fail("angle_limits", f"must be one of {', '.join(ANGLE_LIMITS)}, got {self.angle_limits!r}")
         if self.theta_start is not None and not np.all(np.isfinite(self.theta_start)):
             fail("theta_start", f"expected finite numbers, got {self.theta_start!r}")
         return self

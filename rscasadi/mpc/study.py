@@ -36,8 +36,8 @@ def plant_step(plant: Arm, dt: float) -> ca.Function:
     return ca.Function("advance", [xs, us], [z])
 
 
-def reach_pose(problem, mpc_dir, theta_target, seconds: float = 1.0, plant: Arm | None = None) -> dict:
-    """From rest at theta = 0 to a target pose with the C MPC's mpc_step_to, on the problem's arm
+def reach_pose(problem, mpc_dir, theta_target, seconds: float = 1.0, plant: Arm | None = None, start=None) -> dict:
+    """From rest at theta = 0 (or `start`) to a target pose with the C MPC's mpc_step_to, on the problem's arm
     (or `plant`), exact measurements: final angle error and speed, largest limit violation
     (fraction of the limit beyond it), the torques and the time per step."""
     p = mpc_problem(problem)
@@ -46,7 +46,7 @@ def reach_pose(problem, mpc_dir, theta_target, seconds: float = 1.0, plant: Arm 
     n, advance = arm.n, plant_step(arm, p.sample_time)
     target = np.asarray(theta_target, float)
     mpc = CompiledMPC(mpc_dir)
-    x = rest_state(arm, np.zeros(n))
+    x = rest_state(arm, np.zeros(n) if start is None else np.asarray(start, float))
     mpc.init(x)
     violation, taus, times = 0.0, [], []
     for _ in range(int(round(seconds / p.sample_time))):
