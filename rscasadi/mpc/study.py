@@ -12,7 +12,7 @@ from rscasadi.mpc.compiled import CODES, CompiledMPC
 from rscasadi.model.limits import max_violation
 from rscasadi.mpc.formulation import limit_arrays
 from rscasadi.mpc.generate import generate_mpc
-from rscasadi.mpc.problem import mpc_problem
+from rscasadi.mpc.problem import MPCProblem, mpc_problem
 
 
 def heavier_tip(arm: Arm, factor: float = 1.2) -> Arm:
