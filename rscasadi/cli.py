@@ -38,6 +38,14 @@ def positive(kind, zero: bool = False, least=None):
     return parse
 
 
+def fraction(text: str) -> float:
+    """An argparse type: a number in (0, 1]."""
+    value = positive(float)(text)
+    if value > 1:
+        raise argparse.ArgumentTypeError(f"must be at most 1, got {text!r}")
+    return value
+
+
 def names_list(text: str) -> list:
     """A comma-separated list of names, none empty."""
     names = [t.strip() for t in text.split(",")]
@@ -210,7 +218,8 @@ def cmd_impedance(args):
 def cmd_excite(args):
     from rscasadi.identification.excitation import run
     run(args.model, args.out, period=args.period, harmonics=args.harmonics, starts=args.starts, samples=args.samples,
-        max_iter=args.max_iter, log=lambda msg: print(msg, flush=True))
+        max_iter=args.max_iter, hessian=args.hessian, margin=args.margin, max_condition=args.max_condition,
+        log=lambda msg: print(msg, flush=True))
 
 
 def cmd_identify(args):
@@ -301,6 +310,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--samples", type=positive(int, least=10), default=None, help="points the limits and the "
                    "information are taken at (default max(60, 12 x harmonics); fewer: faster, coarser)")
     p.add_argument("--max-iter", type=positive(int), default=500, help="IPOPT iterations per start (default 500)")
+    p.add_argument("--hessian", choices=("limited-memory", "exact"), default="limited-memory",
+                   help="IPOPT's Hessian: limited-memory (default; cheap iterations) or exact (dear ones)")
+    p.add_argument("--margin", type=fraction, default=0.85, help="fraction of each limit the design may use "
+                   "(default 0.85; the exact feedforward is then scaled into the limits)")
+    p.add_argument("--max-condition", type=positive(float), default=1e5, help="the largest condition number "
+                   "accepted (default 1e5)")
     p.set_defaults(func=cmd_excite)
     p = sub.add_parser("simulate", help="a synthetic log of the arm along a trajectory, to try identification")
     p.add_argument("model")
@@ -402,7 +417,10 @@ def main(argv=None, exit_on_interrupt: bool = False):
 
 
 def entry(argv=None):
-    """The `rscasadi` command: main's exit code (an interrupt ends the process in main)."""
+    """The `rscasadi` command: main's exit code (an interrupt ends the process in main).  A crash
+    in native code (a solver's C) prints every thread's Python stack to stderr (faulthandler)."""
+    import faulthandler
+    faulthandler.enable()
     sys.exit(main(argv, exit_on_interrupt=True))
 
 

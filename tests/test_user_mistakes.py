@@ -171,7 +171,9 @@ from rscasadi.cli import build_parser  # noqa: E402
 
 OPTIONS = {   # command, required arguments, option -> predicate of an accepted value
     ("excite", ("m.toml", "--out", "o")): {"--period": lambda v: 0 < v < float("inf"),
-                                           "--harmonics": lambda v: isinstance(v, int) and v >= 3},
+                                           "--harmonics": lambda v: isinstance(v, int) and v >= 3,
+                                           "--margin": lambda v: 0 < v <= 1,
+                                           "--max-condition": lambda v: 0 < v < float("inf")},
     ("identify", ("m.toml", "log.csv", "--out", "o")): {"--cutoff": lambda v: 0 < v < float("inf")},
     ("paper", ()): {"--duration": lambda v: 0 < v < float("inf")},
     ("mpc", ("p.toml",)): {"--study": lambda v: 0 <= v < float("inf"), "--opt": lambda v: v.startswith("-O")},

@@ -16,7 +16,8 @@ model gives the regressor rows and the limits:
 
 The design minimises tr(A^-1), A = sum Y^T Y / M (A-optimal: the sum of the relative variances
 of the base parameters, which also bounds the condition number, kappa <= tr(A) tr(A^-1)), with
-IPOPT and its exact Hessian from a few deterministic starts.  Each result is scaled down until
+IPOPT (a limited-memory Hessian by default, or the exact one) from a few deterministic starts; a
+start ends when the criterion stalls (STALL).  Each result is scaled down until
 the exact feedforward (the paper's pipeline) respects every limit, then checked: every joint
 sweeps at least MIN_SWEEP of its angle range and kappa stays below MAX_CONDITION.  The best
 checked design is kept; if none passes, ExcitationError names each start's cause.
@@ -37,13 +38,17 @@ from rscasadi.files import CheckError, fresh_directory, write_json
 from rscasadi.model.parameters import n_linear
 from rscasadi.identification.identify import Unknowns, prior_scale, structural_base
 from rscasadi.identification.regressor import regressor, spring_regressor
-from rscasadi.interrupt import raise_if_interrupted
+from rscasadi.interrupt import happened, raise_if_interrupted
 
 TORQUE_NOISE = 0.005
 MAX_CONDITION = 1e5  # a design above this is refused (a hand-picked bump on every joint: ~1e9)
 MIN_SWEEP = 0.1      # every joint sweeps at least this fraction of its angle range
 STARTS = 3           # deterministic starts; the best checked design is kept
 PROGRESS_S = 5.0     # seconds between progress lines of a start
+HESSIANS = ("limited-memory", "exact")
+STALL = (10, 1e-3)   # a start ends when log tr(A^-1) fell by less than 1e-3 (0.1 % of tr A^-1) in 10
+                     # iterations: limited-memory (L-BFGS) iterations approach the optimum slowly and
+                     # never reach IPOPT's tolerance
 
 
 def _basis(period, K, t):
@@ -63,8 +68,8 @@ def _basis(period, K, t):
 
 
 def _sample_function(arm: Arm, unknowns: Unknowns, columns, col_scale, weights):
-    """(q, dq, ddq, d3q, d4q) -> weighted, scaled base rows (2n x r) and tau, psi, dphi, for one
-    sample.  psi = T/k1 of the rigid motion, its time derivatives by forward AD along the motion."""
+    """(q, dq, ddq, d3q, d4q) -> weighted, scaled base rows (2n x r), and -> tau, psi, dphi, for
+    one sample.  psi = T/k1 of the rigid motion, its time derivatives by forward AD along the motion."""
     n = arm.n
     q, dq, ddq, d3q, d4q = (ca.SX.sym(s, n) for s in ("q", "dq", "ddq", "d3q", "d4q"))
     inv = arm.inverse_dynamics()
@@ -79,7 +84,9 @@ def _sample_function(arm: Arm, unknowns: Unknowns, columns, col_scale, weights):
     Ys = spring_regressor(arm)(q, phi, dq, dphi) @ ca.DM(unknowns.E)
     rows = ca.vertcat(Y[:n, :], Y[n:, :] - Ys)[:, columns]
     rows = ca.diag(ca.DM(weights)) @ rows @ ca.diag(ca.DM(col_scale))
-    return ca.Function("sample", [q, dq, ddq, d3q, d4q], [rows, tau, psi, dphi])
+    inputs = [q, dq, ddq, d3q, d4q]
+    # two Functions: the limits' Jacobian (the NLP's dearest part) then never differentiates the rows
+    return ca.Function("sample_rows", inputs, [rows]), ca.Function("sample_limits", inputs, [tau, psi, dphi])
 
 
 def _limits(arm: Arm):
@@ -91,14 +98,32 @@ def _limits(arm: Arm):
     return lim, lo, hi
 
 
-def _singular_values(arm: Arm, traj: Trajectory, samples: int = 400) -> np.ndarray:
-    """Singular values of the weighted, scaled base regressor of the design model along traj
-    (one period), normalised by the number of samples like A = Z Z^T / M."""
-    g, _ = _design_parts(arm)
+def _svd(arm: Arm, traj: Trajectory, samples: int = 400):
+    """Singular values (normalised by the number of samples like A = Z Z^T / M) and right singular
+    vectors (rows, in the base parameters) of the weighted, scaled base regressor of the design
+    model along traj (one period)."""
+    (g, _), _ = _design_parts(arm)
     t = np.linspace(0, traj.period, samples, endpoint=False)
-    rows = np.array(g.map(samples)(*traj(t))[0])
+    rows = np.array(g.map(samples)(*traj(t)))
     Z = rows.reshape(2 * arm.n, samples, -1).reshape(-1, rows.shape[1] // samples)
-    return np.linalg.svd(Z, compute_uv=False) / np.sqrt(samples)
+    _, sv, Vt = np.linalg.svd(Z, full_matrices=False)
+    return sv / np.sqrt(samples), Vt
+
+
+def _singular_values(arm: Arm, traj: Trajectory, samples: int = 400) -> np.ndarray:
+    return _svd(arm, traj, samples)[0]
+
+
+def weakest(arm: Arm, traj: Trajectory, share: float = 0.1) -> tuple[list[tuple[str, float]], float]:
+    """The least determined direction of the design: the base parameters (named by their
+    independent unknown) that make up more than `share` of it, with their weights, and the
+    condition number without it."""
+    sv, Vt = _svd(arm, traj)
+    _, base = _design_parts(arm)
+    names = [base.names[i] for i in base.independent]
+    v = Vt[-1] ** 2
+    order = [i for i in np.argsort(-v) if v[i] > share]
+    return [(names[i], float(v[i])) for i in order], float(sv[0] / sv[-2]) if len(sv) > 1 else float("nan")
 
 
 def condition_number(arm: Arm, traj: Trajectory, samples: int = 400) -> float:
@@ -109,7 +134,7 @@ def condition_number(arm: Arm, traj: Trajectory, samples: int = 400) -> float:
 
 @functools.lru_cache(maxsize=8)
 def _design_parts(arm: Arm):
-    """The design model's sample function and the base parameters (built once per arm)."""
+    """The design model's sample functions (rows, limits) and the base parameters (built once per arm)."""
     unknowns = Unknowns.of(arm.model)
     base = structural_base(arm, unknowns)
     th_nom = unknowns.from_p(arm.parameters()[1][:n_linear(arm.model)])
@@ -121,22 +146,31 @@ def _design_parts(arm: Arm):
     return _sample_function(arm, unknowns, list(base.independent), col_scale, weights), base
 
 
+ADVICE = ("What to change: a longer --period or more --harmonics (slower, richer motions); "
+          "--margin closer to 1 if the limits allow; a parameter the limits cannot excite (a light "
+          "wrist's cubic spring term k3, say) can be accepted with a larger --max-condition: "
+          "identify then reports it as uncertain")
+
+
 class ExcitationError(CheckError):
     """No designed trajectory passed its checks; the message names each start's cause."""
 
 
-def _design_problem(arm: Arm, period: float, K: int, margin: float, M: int, max_iter: int = 500, log=print):
+def _design_problem(arm: Arm, period: float, K: int, margin: float, M: int, max_iter: int = 500, log=print,
+                    hessian: str = "limited-memory"):
     """The design NLP over (a, b, q0) and its bounds: min log tr A^-1 subject to rest at t = 0 and
-    the limits at the M sample points (IPOPT, exact Hessian)."""
+    the limits at the M sample points (IPOPT; `hessian` "limited-memory" or "exact")."""
     n = arm.n
-    g, base = _design_parts(arm)
+    (g_rows, g_limits), base = _design_parts(arm)
     r = base.rank
     lim, lo, hi = _limits(arm)
     t = np.linspace(0, period, M, endpoint=False)
     B = _basis(period, K, t)
     a, b, q0 = ca.MX.sym("a", n, K), ca.MX.sym("b", n, K), ca.MX.sym("q0", n)
-    Q = [(q0 @ ca.DM.ones(1, M) if d == 0 else 0) + a @ ca.DM(B[d][0]) + b @ ca.DM(B[d][1]) for d in range(5)]
-    rows, tau, psi, dphi = g.map(M)(*Q)
+    Q = _series(a, b, q0, B)
+    rows = g_rows.map(M)(*Q)
+    x = ca.vertcat(ca.vec(a), ca.vec(b), q0)
+    limits = _limit_function(g_limits, B, n, K)(x)
     Z = ca.reshape(rows.T, r, 2 * n * M)
     A = Z @ Z.T / M
     # A-optimal: tr(A^-1) is the sum of the (column-scaled, so relative) parameter variances; it
@@ -144,19 +178,49 @@ def _design_problem(arm: Arm, period: float, K: int, margin: float, M: int, max_
     f = ca.log(ca.trace(ca.solve(A, ca.DM.eye(r))))
     lvec = lambda v: np.repeat(v, M)                           # limits per sample, joint-major after vec
     rest = ca.vertcat(ca.sum2(a), b @ ca.DM(np.arange(1, K + 1)), a @ ca.DM(np.arange(1, K + 1) ** 2))
-    cons = ca.vertcat(rest, ca.vec(tau.T), ca.vec(psi.T), ca.vec(dphi.T), ca.vec(Q[0].T))
+    cons = ca.vertcat(rest, limits, ca.vec(Q[0].T))
     fin = lambda v: np.where(np.isfinite(v), v, 1e20)
     bound = np.r_[margin * lvec(fin(lim["tau"])), margin * lvec(fin(lim["psi"])), margin * lvec(fin(lim["dphi"]))]
     room = (1 - margin) * (hi - lo) / 2
-    x = ca.vertcat(ca.vec(a), ca.vec(b), q0)
     progress = _Progress(x.shape[0], cons.shape[0], log)
     solver = ca.nlpsol("excite", "ipopt", {"x": x, "f": f, "g": cons}, {
         "ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": max_iter, "ipopt.tol": 1e-8,
-        "iteration_callback": progress})
+        "ipopt.hessian_approximation": hessian, "iteration_callback": progress})
     solver.progress = progress                                 # kept alive with the solver
     bounds = {"lbg": np.r_[np.zeros(3 * n), -bound, lvec(lo + room)], "ubg": np.r_[np.zeros(3 * n), bound, lvec(hi - room)],
               "lbx": np.r_[-np.inf * np.ones(2 * n * K), lo], "ubx": np.r_[np.inf * np.ones(2 * n * K), hi]}
     return solver, bounds, r
+
+
+def _series(a, b, q0, B):
+    """The Fourier series and its first four time derivatives at the samples (n x M each)."""
+    M = B[0][0].shape[1]
+    return [(q0 @ ca.DM.ones(1, M) if d == 0 else 0) + a @ ca.DM(B[d][0]) + b @ ca.DM(B[d][1]) for d in range(5)]
+
+
+def _limit_function(g_limits, B, n: int, K: int) -> ca.Function:
+    """x = (vec a, vec b, q0) -> (vec tau', vec psi', vec dphi') at the M samples, with its Jacobian
+    assembled by the chain rule: each sample's (3n x 5n) Jacobian of g_limits times the basis,
+    d vec(Q_d) / dx = (B_d' kron I_n) (a constant).  CasADi's own AD of the mapped samples takes
+    a forward sweep of the whole map per coefficient: four fifths of the design's time on 7 joints."""
+    M = B[0][0].shape[1]
+    u = [ca.SX.sym(f"u{d}", n) for d in range(5)]
+    jac = ca.Function("sample_limits_jacobian", u, [ca.jacobian(ca.vertcat(*g_limits(*u)), ca.vertcat(*u))])
+    a, b, q0 = ca.MX.sym("a", n, K), ca.MX.sym("b", n, K), ca.MX.sym("q0", n)
+    x = ca.vertcat(ca.vec(a), ca.vec(b), q0)
+    Q = _series(a, b, q0, B)
+    tau, psi, dphi = g_limits.map(M)(*Q)
+    out = ca.vertcat(ca.vec(tau.T), ca.vec(psi.T), ca.vec(dphi.T))
+    eye = np.eye(n)
+    dQ = [np.hstack([np.kron(B[d][0].T, eye), np.kron(B[d][1].T, eye), np.kron(np.ones((M, 1)), eye) * (d == 0)])
+          for d in range(5)]                                          # d vec(Q_d) / dx, rows j + n s
+    J_samples = jac.map(M)(*Q)                                        # 3n x 5n M: sample s, then d
+    J = sum(ca.mtimes(ca.diagcat(*[J_samples[:, (5 * s + d) * n:(5 * s + d + 1) * n] for s in range(M)]),
+                      ca.DM(ca.sparsify(ca.DM(dQ[d])))) for d in range(5))     # rows i + 3n s
+    order = [i * M + s for s in range(M) for i in range(3 * n)]       # to vec(tau'), vec(psi'), vec(dphi')
+    perm = np.argsort(order)
+    jac_x = ca.Function("jac_limits", [x, ca.MX.sym("out", out.shape)], [J[perm.tolist(), :]])
+    return ca.Function("limits", [x], [out], {"custom_jacobian": jac_x, "jac_penalty": 0, "never_inline": True})
 
 
 class _Progress(ca.Callback):
@@ -172,6 +236,7 @@ class _Progress(ca.Callback):
     def reset(self, label: str):
         import time
         self.label, self.k, self.t0, self.last = label, 0, time.perf_counter(), time.perf_counter()
+        self.history, self.stalled = [], False
 
     def get_n_in(self):
         return ca.nlpsol_n_out()
@@ -193,12 +258,15 @@ class _Progress(ca.Callback):
     def eval(self, arg):
         import time
         self.k += 1
+        f = float(arg[1])
         now = time.perf_counter()
         if now - self.last >= PROGRESS_S:
             self.last = now
-            self.log(f"excitation: {self.label}iteration {self.k}, log tr(A^-1) {float(arg[1]):.4g}, "
-                     f"{now - self.t0:.0f} s")
-        return [0]
+            self.log(f"excitation: {self.label}iteration {self.k}, log tr(A^-1) {f:.4g}, {now - self.t0:.0f} s")
+        self.history.append(f)
+        span, drop = STALL
+        self.stalled = len(self.history) > span and self.history[-span - 1] - f < drop
+        return [1 if self.stalled else 0]                      # 1: IPOPT stops (User_Requested_Stop)
 
 
 def _start(arm: Arm, K: int, seed: int):
@@ -223,20 +291,26 @@ def check_design(arm: Arm, traj: Trajectory, t, kappa: float, max_condition: flo
     out = [f"joint {jt.name} sweeps {100 * s:.2g} % of its angle range (at least {100 * MIN_SWEEP:g} % needed)"
            for jt, s in zip(arm.model.joints, sweep) if s < MIN_SWEEP]
     if kappa > max_condition:
-        out.append(f"condition number {kappa:.3g} above {max_condition:.3g}")
+        names, rest = weakest(arm, traj)
+        out.append(f"condition number {kappa:.3g} above {max_condition:.3g}; least determined: "
+                   + ", ".join(f"{name} ({100 * w:.0f} %)" for name, w in names)
+                   + f" (without that direction {rest:.3g})")
     return out
 
 
 def design(arm: Arm, period: float = 10.0, harmonics: int = 5, margin: float = 0.85, samples: int | None = None,
            starts: int = STARTS, rate: float = 1000.0, max_condition: float = MAX_CONDITION, max_iter: int = 500,
-           log=print) -> tuple[Trajectory, dict, dict, dict]:
+           hessian: str = "limited-memory", log=print) -> tuple[Trajectory, dict, dict, dict]:
     """The best checked design of `starts` deterministic starts: (trajectory, its exact
     feedforward, the limits' use, info).  Raises ExcitationError when no start passes.  Fewer
     `starts`, `samples` (the points the design's limits and information are taken at) or
-    `max_iter` trade the design's quality for time."""
+    `max_iter` trade the design's quality for time; `hessian` "exact" takes IPOPT's exact Hessian
+    (fewer, much dearer iterations: on 7 joints worse designs in the same time)."""
     n, K = arm.n, harmonics
     M = samples or max(60, 12 * K)
-    solver, bounds, r = _design_problem(arm, period, K, margin, M, max_iter, log)
+    if hessian not in HESSIANS:
+        raise ValueError(f"hessian: must be one of {', '.join(HESSIANS)}, got {hessian!r}")
+    solver, bounds, r = _design_problem(arm, period, K, margin, M, max_iter, log, hessian)
     t = np.arange(int(round(period * rate)) + 1) / rate
     log(f"excitation: {n} joints, {K} harmonics, period {period} s, {M} samples, {r} base parameters; "
         f"{starts} starts")
@@ -245,7 +319,8 @@ def design(arm: Arm, period: float = 10.0, harmonics: int = 5, margin: float = 0
         solver.progress.reset(f"start {seed}/{starts}: ")
         res = solver(x0=_start(arm, K, seed), **bounds)
         stats = solver.stats()
-        raise_if_interrupted(stats)
+        if happened() or not solver.progress.stalled:          # a stop of our own is no Ctrl-C
+            raise_if_interrupted(stats)
         w = np.array(res["x"]).ravel()
         a = w[:n * K].reshape(n, K, order="F")
         b = w[n * K:2 * n * K].reshape(n, K, order="F")
@@ -259,25 +334,28 @@ def design(arm: Arm, period: float = 10.0, harmonics: int = 5, margin: float = 0
             problems = check_design(arm, traj, t, kappa, max_condition)
         except ExcitationError as exc:
             kappa, variance, problems = float("nan"), float("nan"), [str(exc)]
-        entry = {"start": seed, "status": stats["return_status"], "iterations": int(stats["iter_count"]),
+        status = "Stalled" if solver.progress.stalled else stats["return_status"]
+        entry = {"start": seed, "status": status, "iterations": int(stats["iter_count"]),
                  "condition_number": kappa if np.isfinite(kappa) else None, "refused": problems}
         tried.append(entry)
-        log(f"excitation: start {seed}/{starts}: IPOPT {_worded(stats['return_status'])} after "
+        log(f"excitation: start {seed}/{starts}: IPOPT {_worded(status)} after "
             f"{entry['iterations']} iterations, condition number {kappa:.4g}"
             + (f"; refused: {'; '.join(problems)}" if problems else ""))
         if not problems and (best is None or variance < best[3]):
             best = (traj, ff, use, variance, entry)
     if best is None:
         raise ExcitationError(f"{arm.model.path}: no excitation design passed its checks: "
-                              + " | ".join(f"start {e['start']}: {'; '.join(e['refused'])}" for e in tried))
+                              + " | ".join(f"start {e['start']}: {'; '.join(e['refused'])}" for e in tried)
+                              + ". " + ADVICE)
     traj, ff, use, _, entry = best
     return traj, ff, use, {"status": entry["status"], "iterations": entry["iterations"], "start": entry["start"],
-                           "starts": tried, "samples": M, "base_parameters": r}
+                           "starts": tried, "samples": M, "base_parameters": r, "hessian": hessian}
 
 
 def _worded(status: str) -> str:
     """IPOPT's return status as what it means for a design."""
     return {"Solve_Succeeded": "converged", "Solved_To_Acceptable_Level": "converged to its acceptable tolerance",
+            "Stalled": f"stopped: log tr(A^-1) fell by less than {STALL[1]:g} in {STALL[0]} iterations",
             "Maximum_Iterations_Exceeded": "stopped at its iteration limit (the design is checked below)"
             }.get(status, status)
 
@@ -348,13 +426,15 @@ def hand_picked(arm: Arm, period: float, amplitude: float = 0.5) -> Trajectory:
 
 
 def run(model_file, out, period: float = 10.0, harmonics: int = 5, rate: float = 1000.0, starts: int = STARTS,
-        samples: int | None = None, max_iter: int = 500, log=print) -> dict:
+        samples: int | None = None, max_iter: int = 500, hessian: str = "limited-memory", margin: float = 0.85,
+        max_condition: float = MAX_CONDITION, log=print) -> dict:
     """`rscasadi excite`: design and check an excitation trajectory for `model_file` and write it,
     its exact feedforward and its figures into `out` (whole or not at all); returns its summary."""
     arm = load(model_file)
     with fresh_directory(out) as tmp:       # checked writable before the design
         traj, ff, use, info = design(arm, period, harmonics, samples=samples, starts=starts, rate=rate,
-                                     max_iter=max_iter, log=log)
+                                     max_iter=max_iter, hessian=hessian, margin=margin, max_condition=max_condition,
+                                     log=log)
         t = np.arange(int(round(period * rate)) + 1) / rate
         kappa, kappa_hand = condition_number(arm, traj), condition_number(arm, hand_picked(arm, period))
         log(f"excitation: condition number {kappa:.4g} (hand-picked bump of 0.5 rad: {kappa_hand:.4g})")
