@@ -46,13 +46,22 @@ def arm():
     return rscasadi.load(ARM3_TOOL)
 
 
+PROBLEMS = {name: ROOT / "problems" / f"{name}.toml" for name in ("mpc_arm3", "mpc_arm3_tool")}
+
+
 @pytest.fixture(scope="module")
 def mpc_dirs(tmp_path_factory):
+    """The shipped MPC problems' controllers, and mpc_arm3's with hard link-angle limits."""
     from rscasadi.mpc import generate_mpc
+    hard = tmp_path_factory.mktemp("hard") / "mpc_arm3_hard.toml"
+    text = PROBLEMS["mpc_arm3"].read_text().replace('model = "', f'model = "{ROOT / "problems"}/')
+    hard.write_text(text.replace("[weights]", 'angle_limits = "hard"\n[weights]', 1).replace(
+        'trajectory = "', f'trajectory = "{ROOT / "problems"}/'))
+    PROBLEMS["mpc_arm3_hard"] = hard
     out = {}
-    for name in ("mpc_arm3", "mpc_arm3_tool"):
+    for name, problem in PROBLEMS.items():
         out[name] = tmp_path_factory.mktemp(name) / "mpc"
-        generate_mpc(ROOT / "problems" / f"{name}.toml", out[name], opt="-O1", log=lambda m: None)
+        generate_mpc(problem, out[name], opt="-O1", log=lambda m: None)
     return out
 
 
@@ -66,14 +75,16 @@ def interaction_dirs(tmp_path_factory, arm):
     return d
 
 
-@pytest.mark.parametrize("name", ["mpc_arm3", "mpc_arm3_tool"])
+@pytest.mark.parametrize("name", ["mpc_arm3", "mpc_arm3_tool", "mpc_arm3_hard"])
 def test_the_mpc_fuzzed_gives_safe_torques_and_recovers(mpc_dirs, name):
     """200 samples, 40 % of them with a bad entry in the measurement, the reference or the target:
     MPC_BAD_MEASUREMENT (6) or MPC_BAD_REFERENCE (7), the holding torque of the last good state;
-    every good sample's torque equals a clean twin's to the last bit."""
+    every good sample's torque equals a clean twin's to the last bit.  Also with hard link-angle
+    limits (QP rows)."""
     from rscasadi.mpc import CompiledMPC
     from rscasadi.mpc.problem import load_mpc_problem
-    p = load_mpc_problem(ROOT / "problems" / f"{name}.toml")
+    p = load_mpc_problem(PROBLEMS[name])
+    assert p.angle_limits == ("hard" if name.endswith("hard") else "soft")
     arm = rscasadi.load(p.model)
     c, twin, rng = CompiledMPC(mpc_dirs[name]), CompiledMPC(mpc_dirs[name]), np.random.default_rng(4)
     rows, N = c.sizes["reference"]
