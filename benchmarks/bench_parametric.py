@@ -23,7 +23,7 @@ import numpy as np  # noqa: E402
 from common import stamp, chain_arm, write_results  # noqa: E402
 import rscasadi  # noqa: E402
 from rscasadi.codegen import generate  # noqa: E402
-from rscasadi.codegen.generate import family  # noqa: E402
+from rscasadi.dynamics.arm import Arm  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -74,7 +74,7 @@ def main():
     for n, arm in arms.items():
         names, values = arm.parameters()
         md.append(f"| {n} | {arm.forward_dynamics().n_instructions()} | {arm.forward_dynamics(True).n_instructions()} | "
-                  f"{family(arm).forward_dynamics(True).n_instructions()} | {len(names)} | "
+                  f"{Arm.family(arm.model).forward_dynamics(True).n_instructions()} | {len(names)} | "
                   f"{int(np.sum(np.asarray(values) == 0))} |")
     fig, ax = plt.subplots(figsize=(7, 3.2))
     labels = [f"n={n} {name}" for n in arms for name in libs[n, "constant"][1]]

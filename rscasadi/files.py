@@ -8,12 +8,14 @@ import shutil
 import tempfile
 from pathlib import Path
 
+from rscasadi.errors import Error
 
-class OutputError(RuntimeError):
+
+class OutputError(Error, RuntimeError):
     """The output directory cannot be written or replaced."""
 
 
-class CheckError(RuntimeError):
+class CheckError(Error, RuntimeError):
     """A result failed its own check (a designed trajectory, a fit, a study): nothing is written."""
 
 
@@ -161,15 +163,23 @@ def finite_json(obj):
     return obj
 
 
-def write_text(path, text: str):
-    """The project's one file writer: `text` into `path`, written whole or not at all."""
+@contextlib.contextmanager
+def replacing(path):
+    """The project's one atomic write: a temporary name beside `path` to write to, which replaces
+    `path` whole when the block ends normally and is removed otherwise."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
-        tmp.write_text(text)
+        yield tmp
         tmp.replace(path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def write_text(path, text: str):
+    """`text` into `path`, written whole or not at all."""
+    with replacing(path) as tmp:
+        tmp.write_text(text)
 
 
 def write_json(path, obj, indent: int = 1):

@@ -71,6 +71,19 @@ def test_a_nan_measurement_keeps_the_plan_and_says_so(mpc_dir, arm3):
     assert np.max(np.abs(runs[0][0] - runs[1][0])) < 1e-12
 
 
+def _symbolic_qp(arm, p):
+    """The condensed QP of problem p on arm as a linearisation of symbols: (lin, limits, (x,
+    reference, X, U, posture))."""
+    n, N = arm.n, p.horizon
+    F, _ = M.interval_functions(arm, p.interval, p.substeps)
+    limits = M.limit_arrays(arm)
+    xm, ref = ca.MX.sym("x", 4 * n), ca.MX.sym("r", 2 * n, N)
+    X, U = ca.MX.sym("X", 4 * n, N + 1), ca.MX.sym("U", n, N)
+    posture, mass = ca.MX.sym("posture", n), ca.MX.sym("m", 0)
+    lin = M._Linearisation(F, M.stage_residual(arm, p, limits), p, xm, ref, X, U, posture, mass)
+    return lin, limits, (xm, ref, X, U, posture)
+
+
 def _qpoases(H, g, lo, hi, A=None, lba=None, uba=None):
     A = np.zeros((0, H.shape[0])) if A is None else A
     qp = ca.conic("reference", "qpoases", {"h": ca.Sparsity.dense(*H.shape), "a": ca.Sparsity.dense(*A.shape)},
@@ -92,12 +105,7 @@ def test_hard_angle_rows_are_exact_where_they_can_hold_and_least_excess_where_no
     arm = load(model)
     p = M.MPCProblem(model, horizon=10, interval=0.01, substeps=5, angle_limits="hard", weights={"angle_limits": 0.0})
     n, N = arm.n, p.horizon
-    F, _ = M.interval_functions(arm, p.interval, p.substeps)
-    limits = M.limit_arrays(arm)
-    xm, ref = ca.MX.sym("x", 4 * n), ca.MX.sym("r", 2 * n, N)
-    X, U = ca.MX.sym("X", 4 * n, N + 1), ca.MX.sym("U", n, N)
-    posture, mass = ca.MX.sym("posture", n), ca.MX.sym("m", 0)
-    lin = M._Linearisation(F, M.stage_residual(arm, p, limits), p, xm, ref, X, U, posture, mass)
+    lin, limits, (xm, ref, X, U, posture) = _symbolic_qp(arm, p)
     C, cl, cu = lin.angle_rows(X, limits)
     tm = np.tile(limits["tau"], N)
     lo, hi = -tm - ca.vec(U), tm - ca.vec(U)
@@ -144,12 +152,7 @@ def test_qp_step_equals_an_active_set_solver_on_a_cold_step_to_a_far_pose(arm3):
     active; ill-conditioned): the interior-point iterations land on qpOASES' solution."""
     p = load_mpc_problem(PROBLEM)
     n, N = arm3.n, p.horizon
-    F, _ = M.interval_functions(arm3, p.interval, p.substeps)
-    limits = M.limit_arrays(arm3)
-    xm, ref = ca.MX.sym("x", 4 * n), ca.MX.sym("r", 2 * n, N)
-    X, U = ca.MX.sym("X", 4 * n, N + 1), ca.MX.sym("U", n, N)
-    posture, mass = ca.MX.sym("posture", n), ca.MX.sym("m", 0)
-    lin = M._Linearisation(F, M.stage_residual(arm3, p, limits), p, xm, ref, X, U, posture, mass)
+    lin, limits, (xm, ref, X, U, posture) = _symbolic_qp(arm3, p)
     tm = np.tile(limits["tau"], N)
     lo, hi = -tm - ca.vec(U), tm - ca.vec(U)
     qp = ca.Function("qp", [xm, ref, X, U, posture], [lin.H, lin.g, lo, hi, M.box_qp(lin.H, lin.g, lo, hi, p.qp_iterations)])

@@ -19,7 +19,7 @@ import numpy as np
 
 from rscasadi.dynamics.feedforward import feedforward_functions
 from rscasadi.dynamics.arm import Arm, load
-from rscasadi.model.parameters import family as parameter_family, tied_balanced
+from rscasadi.model.parameters import tied_balanced
 from rscasadi.dynamics.kinematics import REFERENCES
 from rscasadi.model.parameters import gear_ratios
 from rscasadi.model.checks import identifier
@@ -274,13 +274,6 @@ def _io(f: ca.Function, out: bool):
     return [{"name": names[i], "rows": sp(i).size1(), "cols": sp(i).size2()} for i in range(n)]
 
 
-def family(arm: Arm) -> Arm:
-    """The arm with p made of the parameters that are not zero in its model file: a zero (a
-    balanced rotor's centre, a product of inertia, k3, gravity along x on a level base) is part of
-    the family's structure and folded into the C like the constant C's numbers, and a balanced
-    rotor stays one (its Iyy is its Ixx: written in the joint frame, no sin and cos of phi)."""
-    return Arm(arm.model, free=parameter_family(arm.model)[0], tie_balanced=True)
-
 
 def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print, parametric: bool | str = False,
              native: bool = False, frames=(), external=()) -> dict:
@@ -302,7 +295,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
     if parametric not in (False, True, "all", "family"):
         raise CodegenError(f"parametric {parametric!r} not one of all, family")
     if parametric == "family":
-        arm = family(arm)
+        arm = Arm.family(arm.model)
     frames, external = list(frames), list(external)
     check_frames(arm, frames, external)
     out = Path(out).resolve()

@@ -7,7 +7,8 @@ import numpy as np
 from rscasadi.dynamics import kinematics, recursions as rec
 from rscasadi.model.checks import identifier
 from rscasadi.model.modelfile import ArmModel, read
-from rscasadi.model.parameters import Physics, gear_ratios, names as parameter_names, nominal as parameter_nominal
+from rscasadi.model.parameters import (Physics, family as parameter_family, gear_ratios, names as parameter_names,
+                                       nominal as parameter_nominal)
 
 STATE = ["theta", "phi", "dtheta", "dphi"]
 
@@ -30,6 +31,14 @@ class Arm:
         self.tie_balanced = tie_balanced          # Physics.partial: balanced rotors stay balanced
         self._functions = {}
         self.physics = Physics.constant(model)
+
+    @staticmethod
+    def family(model: ArmModel) -> "Arm":
+        """The arm with p made of the parameters that are not zero in its model file
+        (model.parameters.family): a zero (a balanced rotor's centre, a product of inertia, k3,
+        gravity along x on a level base) is part of the family's structure, folded into the C
+        like a constant arm's numbers; a balanced rotor stays one (Iyy = Ixx, in the joint frame)."""
+        return Arm(model, free=parameter_family(model)[0], tie_balanced=True)
 
     def _physics_of(self, p) -> Physics:
         return (Physics.of(self.model, p) if self.free is None

@@ -17,7 +17,7 @@ import casadi as ca
 import numpy as np
 
 from rscasadi.codegen import rk4
-from rscasadi.sim.simulation import feedforward
+from rscasadi.sim.simulation import feedforward, motor_pd_gains
 from rscasadi.dynamics.arm import Arm
 from rscasadi.model.modelfile import Body, inertia_problem
 from rscasadi.identification.logs import Log
@@ -96,9 +96,7 @@ def record(true_arm: Arm, nominal_arm: Arm, trajectory, rate: float = 1000.0, rn
     ff = feedforward(nominal_arm, trajectory, t_ff)
     interp = lambda Y: np.vstack([np.interp(t, t_ff, row) for row in Y])
     ref = np.vstack([interp(ff["tau"]), interp(ff["phi"]), interp(ff["dphi"])])
-    B = np.array([jt.rotor_inertia for jt in nominal_arm.model.joints])
-    w = 2 * np.pi * 4.0                                              # 4 Hz motor-position loop
-    gains = (B * w ** 2, 2 * 0.8 * B * w)
+    gains = motor_pd_gains(nominal_arm.model)                        # a 4 Hz motor-position loop
     step = _closed_loop_step(true_arm, dt, substeps, gains)
     x0 = np.concatenate([ff["x0"], ff["x0"][n:2 * n]])               # nominal static equilibrium
     states, meas = step.mapaccum(N)(x0, ref)

@@ -183,7 +183,7 @@ def collision_feedforward(arm: Arm, frame: str, trajectory, gain: float = 50.0, 
     momentum observer (gain 1/s, fed the torque of the sample before): the largest link torque
     before the contact, the flag's delay (a link torque above `threshold` N m), its torques
     averaged over 0.1-0.3 s after the contact against J^T f."""
-    from rscasadi.sim.simulation import feedforward
+    from rscasadi.sim.simulation import feedforward, motor_pd_gains
     n = arm.n
     seconds = trajectory.duration if seconds is None else seconds
     t = np.arange(0.0, seconds + DT / 2, DT)
@@ -195,8 +195,7 @@ def collision_feedforward(arm: Arm, frame: str, trajectory, gain: float = 50.0, 
     plane = Contact(frame, k=wall_stiffness, c=2 * 0.4 * np.sqrt(wall_stiffness * 1.0), mu=0.2, point=p_hit,
                     normal=-v_hit / np.linalg.norm(v_hit))
     plant = plant_with_contacts(arm, World(contacts=(plane,)), DT, 8)
-    mu, B, w = arm.model.column("gear_ratio"), np.array([jt.rotor_inertia for jt in arm.model.joints]), 2 * np.pi * motor_hz
-    kp, kd = B * w ** 2, 2 * 0.8 * B * w
+    mu, (kp, kd) = arm.model.column("gear_ratio"), motor_pd_gains(arm.model, motor_hz)
     limit = np.array([jt.limits.get("tau", np.inf) for jt in arm.model.joints])
     encoders, x, tau = Encoders(arm), ff["x0"].copy(), ff["tau"][:, 0]
     obs = MomentumObserver(arm, gain, DT, threshold)

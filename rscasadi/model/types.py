@@ -10,6 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rscasadi.errors import Error
+
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
 TOP_KEYS = {"name", "gravity", "joints", "frames", "payload", "collision"}
 JOINT_KEYS = {"name", "origin_xyz", "origin_rpy", "origin_R", "gear_ratio", "sea", "gear_loss", "limits",
@@ -21,7 +23,7 @@ LIMIT_KEYS = {"tau", "dphi", "psi", "theta"}
 BODIES = ("link", "slow_rotor", "fast_rotor")
 
 
-class ModelFileError(ValueError):
+class ModelFileError(Error, ValueError):
     """A model file breaks a rule of docs/user-guide/model.md section 4."""
 
 

@@ -44,7 +44,6 @@ import numpy as np
 from rscasadi.dynamics.arm import Arm
 from rscasadi.dynamics.collision import clearances
 from rscasadi.model.limits import limit_arrays as model_limits
-from rscasadi.model.parameters import family
 from rscasadi.mpc.problem import SOFT, LINE_SEARCH, MPCProblem
 
 
@@ -53,7 +52,7 @@ def controller_arm(model, parametric: str = "none") -> Arm:
     "family": every parameter not zero in the model (model.parameters.family), the payload's
     mass among them."""
     if parametric == "family":
-        return Arm(model, free=family(model)[0], tie_balanced=True)
+        return Arm.family(model)
     return Arm(model, free=["payload.mass"]) if model.payload is not None else Arm(model)
 
 

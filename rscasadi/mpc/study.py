@@ -74,7 +74,7 @@ def closed_loop(problem, mpc_dir, duration: float | None = None, tip_factor: flo
     time per step (measured in C); `traces`, if given, receives per controller the time, the error
     over time and (MPC) the step times, for `plot_closed_loop`."""
     from rscasadi.sim.sensors import quanta              # the same encoders as the identification logs
-    from rscasadi.sim.simulation import feedforward
+    from rscasadi.sim.simulation import feedforward, motor_pd_gains
     from rscasadi.sim.trajectory import load_trajectory
     p = mpc_problem(problem)
     nominal = load(p.model if model is None else model)
@@ -88,9 +88,7 @@ def closed_loop(problem, mpc_dir, duration: float | None = None, tip_factor: flo
     advance = plant_step(plant, dt)
     mu = nominal.model.column("gear_ratio")
     q_link, q_motor = quanta(mu)
-    B = np.array([jt.rotor_inertia for jt in nominal.model.joints])
-    wn = 2 * np.pi * 4.0
-    kp, kd = B * wn ** 2, 2 * 0.8 * B * wn
+    kp, kd = motor_pd_gains(nominal.model)
     limits = limit_arrays(plant)
     mpc = CompiledMPC(mpc_dir)
     results = {}
@@ -291,8 +289,7 @@ def task_study(problem, mpc_dir, plant_mass: float | None = None, log=print) -> 
         plant_mass = held.get("mass")
     plant_mass = 10 * model.payload.body.mass if plant_mass is None else plant_mass
     out = {"path": None if p.tool_path is None else p.tool_path.to_dict(),
-           "obstacles": [{"kind": o.kind, "center": o.center.tolist(), "radius": o.radius,
-                          "size": None if o.size is None else o.size.tolist()} for o in p.obstacles]}
+           "obstacles": [o.to_dict() for o in p.obstacles]}
     from rscasadi.model.frames import holding, payload_document
     modelled = model.payload.body.mass
     cases = [("as_modelled", None, False, f"as modelled (payload {modelled:.2f} kg)")]

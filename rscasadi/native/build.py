@@ -31,12 +31,13 @@ from pathlib import Path
 
 import casadi as ca
 
+from rscasadi.errors import Error
 from rscasadi.files import remove_stale
 
 OPT_LEVELS = ("-O0", "-O1", "-O2", "-O3", "-Os")
 
 
-class BuildError(RuntimeError):
+class BuildError(Error, RuntimeError):
     """A C compiler is missing, or a source does not compile or link."""
 
 

@@ -9,10 +9,12 @@ from pathlib import Path
 
 import numpy as np
 
+from rscasadi.errors import Error
+
 _DP = ctypes.POINTER(ctypes.c_double)
 
 
-class ControllerError(ValueError):
+class ControllerError(Error, ValueError):
     """An array of the wrong length or type for a generated controller, a controller that cannot
     be loaded, or an init that C refused (`code`: its return code); the message names the
     argument and the manifest's size, or the code."""

@@ -132,6 +132,15 @@ class Obstacle:
         self.center = np.asarray(self.center, float).ravel()
         self.size = None if self.size is None else np.asarray(self.size, float).ravel()
 
+    def to_dict(self) -> dict:
+        """As solution.json and the studies' results write it."""
+        return {"kind": self.kind, "center": self.center.tolist(), "radius": self.radius,
+                "size": None if self.size is None else self.size.tolist()}
+
+    @staticmethod
+    def from_dict(d: dict) -> "Obstacle":
+        return Obstacle(d["kind"], d["center"], d["radius"], d.get("size"))
+
 
 @dataclass
 class Task:

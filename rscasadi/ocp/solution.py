@@ -101,7 +101,7 @@ def verify(solution: dict, substeps: int = 20, tol: float = 1e-10) -> dict:
             report["goal_angle_error"] = float(np.arccos(np.clip(c, -1.0, 1.0)))
     if solution.get("obstacles"):                                      # clear of them, between the nodes too
         from rscasadi.ocp.problem import Obstacle
-        obstacles = [Obstacle(o["kind"], o["center"], o["radius"], o["size"]) for o in solution["obstacles"]]
+        obstacles = [Obstacle.from_dict(o) for o in solution["obstacles"]]
         gap = np.array(exact_clearance(arm.model, obstacles).map(sim["theta"].shape[1])(sim["theta"])).ravel()
         report["min_clearance"] = float(gap.min())
         report["interval_clearance"] = gap[1:].reshape(len(t) - 1, substeps).min(axis=1).tolist()

@@ -196,8 +196,7 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
             "payload": problem.task.payload, "collision": problem.task.collision,
             "path": None if path is None else path.to_dict(),
             "path_arc": None if out["arc"] is None else out["arc"].tolist(),
-            "obstacles": [{"kind": o.kind, "center": o.center.tolist(), "radius": o.radius,
-                           "size": None if o.size is None else o.size.tolist()} for o in problem.task.obstacles],
+            "obstacles": [o.to_dict() for o in problem.task.obstacles],
             "goal": None if goal is None else {"frame": goal.frame, "position": goal.position.tolist(),
                                                "R": None if goal.R is None else goal.R.tolist(),
                                                "position_tol": goal.position_tol, "angle_tol": goal.angle_tol}})

@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rscasadi.files import replacing
 from rscasadi.model.modelfile import ModelFileError, field_checker, read, read_toml
 from rscasadi.ocp.problem import SWEEPABLE, check_against_model, load_problem
 
@@ -145,13 +146,11 @@ def _read_done(csv_path: Path, keys: list) -> dict:
 
 
 def _write_csv(csv_path: Path, keys: list, rows: list):
-    tmp = csv_path.with_suffix(f".csv.{os.getpid()}.part")
-    with open(tmp, "w", newline="") as fh:
+    with replacing(csv_path) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=["point", *keys, *COLUMNS[1:]], extrasaction="ignore")
         w.writeheader()
         for row in sorted(rows, key=lambda r: int(r["point"])):
             w.writerow(row)
-    os.replace(tmp, csv_path)
 
 
 def _bar(done: int, total: int, width: int = 30) -> str:
@@ -253,7 +252,6 @@ def _plot(out: Path, keys: list, rows: list):
     if other:
         ax.legend(fontsize=7)
     fig.tight_layout()
-    tmp = out / f".sweep.{os.getpid()}.png"
-    fig.savefig(tmp, dpi=120)
+    with replacing(out / "sweep.png") as tmp:
+        fig.savefig(tmp, dpi=120, format="png")
     plt.close(fig)
-    os.replace(tmp, out / "sweep.png")

@@ -101,6 +101,17 @@ def trajectory_record(arm: Arm, t, X) -> dict:
 
 # ------------------------------------------------------------------ feedforward along a trajectory
 
+MOTOR_PD_HZ, MOTOR_PD_ZETA = 4.0, 0.8     # the motor-position loop around a feedforward
+
+
+def motor_pd_gains(model, hz: float = MOTOR_PD_HZ, zeta: float = MOTOR_PD_ZETA) -> tuple:
+    """(kp, kd) per joint of the motor-position PD that runs around a feedforward (slow side,
+    divided by the gear ratio at the motor): each rotor's inertia B as a mass-spring-damper at
+    `hz` with damping ratio `zeta`, kp = B w^2, kd = 2 zeta B w."""
+    B, w = np.array([jt.rotor_inertia for jt in model.joints]), 2 * np.pi * hz
+    return B * w ** 2, 2 * zeta * B * w
+
+
 def feedforward(arm: Arm, trajectory, t, reduced: bool = False) -> dict:
     """Motor torques that make the arm follow the expected link motion: the paper's cascade of
     the whole-arm inverse dynamics (eq. 26), the spring law integrated by the trapezoidal rule

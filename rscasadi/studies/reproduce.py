@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from rscasadi.dynamics.arm import Arm, load
+from rscasadi.errors import Error
 from rscasadi.files import OutputError, check_writable, write_json, write_text
 from rscasadi.model.modelfile import ModelFileError
 from rscasadi.studies.model_report import model_report
@@ -46,7 +47,7 @@ def interaction_study(name: str, out: Path, log=print) -> str:
             f"{max(c['delay_ms'] for c in r['collision'].values()):.0f} ms at most")
 
 
-class PartFailed(RuntimeError):
+class PartFailed(Error, RuntimeError):
     """A part of the main job did not pass its own check."""
 
 

@@ -240,7 +240,7 @@ def _checked_arm(path: Path, data: dict, model) -> Arm:
     with _field(path, "obstacles"):
         from rscasadi.ocp.problem import Obstacle
         for o in data.get("obstacles") or []:
-            Obstacle(o["kind"], o["center"], o["radius"], o["size"])
+            Obstacle.from_dict(o)
     return arm
 
 
@@ -253,7 +253,7 @@ def _broken(arm: Arm, thetas: np.ndarray, data: dict) -> np.ndarray:
             broken |= (thetas[j] < lo - 1e-9) | (thetas[j] > hi + 1e-9)
     if data and data.get("obstacles") and arm.model.collision is not None:
         from rscasadi.ocp.problem import Obstacle
-        obstacles = [Obstacle(o["kind"], o["center"], o["radius"], o["size"]) for o in data["obstacles"]]
+        obstacles = [Obstacle.from_dict(o) for o in data["obstacles"]]
         gap = np.array(exact_clearance(arm.model, obstacles).map(thetas.shape[1])(thetas)).ravel()
         broken |= gap < -1e-4
     return broken

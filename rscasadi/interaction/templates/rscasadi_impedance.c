@@ -15,12 +15,6 @@ typedef char casadi_int_is_long_long[sizeof(casadi_int) == sizeof(long long) ? 1
 typedef char work_fits[sizeof(((impedance_t *)0)->w) >= sizeof(casadi_real) * (impedance_SZ_W > impedance_hold_SZ_W ? impedance_SZ_W : impedance_hold_SZ_W) ? 1 : -1];
 typedef char iwork_fits[sizeof(((impedance_t *)0)->iw) >= sizeof(casadi_int) * (impedance_SZ_IW > impedance_hold_SZ_IW ? impedance_SZ_IW : impedance_hold_SZ_IW) ? 1 : -1];
 
-static double now(void) {
-  struct timespec t;
-  clock_gettime(CLOCK_MONOTONIC, &t);
-  return t.tv_sec + 1e-9 * t.tv_nsec;
-}
-
 size_t impedance_sizeof(void) { return sizeof(impedance_t); }
 
 double impedance_step_seconds(const impedance_t *c) { return c ? c->last_step_seconds : 0.0; }
@@ -72,8 +66,8 @@ static int step(impedance_t *c, const double *x, const double *reference, const 
 int impedance_step(impedance_t *c, const double *x_measured, const double *reference, const double *stiffness,
                    const double *damping_ratio, double *tau_out) {
   if (!tau_out) return IMPEDANCE_BAD_ARGUMENT;
-  const double t0 = now();
+  const double t0 = rscasadi_now();
   const int code = step(c, x_measured, reference, stiffness, damping_ratio, tau_out);
-  if (c) c->last_step_seconds = now() - t0;
+  if (c) c->last_step_seconds = rscasadi_now() - t0;
   return code;
 }

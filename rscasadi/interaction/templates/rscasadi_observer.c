@@ -13,12 +13,6 @@ static const double TAU_LO[OBSERVER_NU] = {${tau_lo}}, TAU_HI[OBSERVER_NU] = {${
 typedef char casadi_int_is_long_long[sizeof(casadi_int) == sizeof(long long) ? 1 : -1];
 typedef char work_fits[sizeof(((observer_t *)0)->w) >= sizeof(casadi_real) * observer_terms_SZ_W ? 1 : -1];
 
-static double now(void) {
-  struct timespec t;
-  clock_gettime(CLOCK_MONOTONIC, &t);
-  return t.tv_sec + 1e-9 * t.tv_nsec;
-}
-
 size_t observer_sizeof(void) { return sizeof(observer_t); }
 
 double observer_step_seconds(const observer_t *obs) { return obs ? obs->last_step_seconds : 0.0; }
@@ -83,8 +77,8 @@ static int step(observer_t *obs, const double *x_measured, const double *tau_app
 
 int observer_step(observer_t *obs, const double *x_measured, const double *tau_applied, double *r_out) {
   if (!r_out) return OBSERVER_BAD_ARGUMENT;
-  const double t0 = now();
+  const double t0 = rscasadi_now();
   const int code = step(obs, x_measured, tau_applied, r_out);
-  if (obs) obs->last_step_seconds = now() - t0;
+  if (obs) obs->last_step_seconds = rscasadi_now() - t0;
   return code;
 }

@@ -17,12 +17,6 @@ typedef char casadi_int_is_long_long[sizeof(casadi_int) == sizeof(long long) ? 1
 typedef char work_fits[sizeof(((mpc_t *)0)->w) >= sizeof(casadi_real) * (mpc_rti_SZ_W > mpc_hold_SZ_W ? mpc_rti_SZ_W : mpc_hold_SZ_W) ? 1 : -1];
 typedef char iwork_fits[sizeof(((mpc_t *)0)->iw) >= sizeof(casadi_int) * (mpc_rti_SZ_IW > mpc_hold_SZ_IW ? mpc_rti_SZ_IW : mpc_hold_SZ_IW) ? 1 : -1];
 
-static double now(void) {
-  struct timespec t;
-  clock_gettime(CLOCK_MONOTONIC, &t);
-  return t.tv_sec + 1e-9 * t.tv_nsec;
-}
-
 size_t mpc_sizeof(void) { return sizeof(mpc_t); }
 
 double mpc_step_seconds(const mpc_t *c) { return c ? c->last_step_seconds : 0.0; }
@@ -121,9 +115,9 @@ static int step(mpc_t *c, const double *x_measured, const double *reference, dou
 
 int mpc_step(mpc_t *c, const double *x_measured, const double *reference, double *tau_out) {
   if (!tau_out) return MPC_BAD_ARGUMENT;
-  const double t0 = now();
+  const double t0 = rscasadi_now();
   const int flag = step(c, x_measured, reference, tau_out);
-  if (c) c->last_step_seconds = now() - t0;
+  if (c) c->last_step_seconds = rscasadi_now() - t0;
   return flag;
 }
 

@@ -6,12 +6,23 @@
  *     every box) is refused with a code, and the output is the safe one its header names (the
  *     holding torque of the last good state, within the limits), never NaN, never beyond a limit;
  *   - the controller is not changed by a refused sample: the next good one is acted on as usual.
+ * Also the clock their *_step_seconds read.
  * Everything here is static, so any number of generated controllers link into one binary. */
 #ifndef RSCASADI_GUARD_H
 #define RSCASADI_GUARD_H
 #include <math.h>
 
 #define RSCASADI_READY 0x52534341          /* "RSCA": set by a successful init, cleared by a failed one */
+
+#if defined(_POSIX_C_SOURCE) && _POSIX_C_SOURCE >= 199309L   /* the controllers' sources, not their users */
+#include <time.h>
+/* seconds on CLOCK_MONOTONIC: a step's duration is the difference of two readings */
+static inline double rscasadi_now(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return t.tv_sec + 1e-9 * t.tv_nsec;
+}
+#endif
 
 /* 1 if lo[i] <= v[i] <= hi[i] for every i (a NaN fails every comparison); 0 for a NULL array */
 static inline int rscasadi_within(const double *v, const double *lo, const double *hi, int n) {
