@@ -20,6 +20,8 @@ from conftest import problem
     ({"transcription": {"degree": 0}}, "transcription.degree"),
     ({"transcription": {"dynamics": "magic"}}, "transcription.dynamics"),
     ({"transcription": {"knots": 3}}, "transcription.knots"),
+    ({"transcription": {"limit_margin": 0.5}}, "transcription.limit_margin"),
+    ({"transcription": {"limit_margin": -0.01}}, "transcription.limit_margin"),
 ])
 def test_bad_problem_file_names_the_field(pitch_arm, over, field):
     path = problem(pitch_arm, "bad.toml", **over)

@@ -218,3 +218,32 @@ def test_codesign_writes_the_designed_arm_beside_its_solution(pitch_arm, tmp_pat
                                  max_duration=5.0, transcription={"intervals": sol["intervals"]}))
     ref = solve_once(fixed, w=sol["mesh"], warm=sol, **QUIET)
     assert ref["success"] and abs(ref["t"][-1] - sol["t"][-1]) < 1e-5 * sol["t"][-1]
+
+
+def test_a_limit_margin_keeps_the_motion_between_the_nodes_inside(tmp_path):
+    """The reference arm's minimum-time motion rides its speed limits: on 30 intervals the replay
+    passes a limit between the collocation points (by 4.8e-3 of it, more than limit_tol); with
+    limit_margin = 0.01 held in reserve at the points it stays inside, for about 1 % more time."""
+    sols = {}
+    for margin in (0.0, 0.01):
+        path = tmp_path / f"margin_{margin}.toml"
+        path.write_text(f"""model = "{REFERENCE}"
+objective = "min_time"
+theta_start = [0.0, 0.3, -0.5]
+theta_end = [0.8, 0.9, -1.2]
+duration = 1.0
+max_duration = 5.0
+[transcription]
+intervals = 30
+compiled = false
+condense = false
+limit_margin = {margin}
+""")
+        p = load_problem(path)
+        sol = solve_once(p, **QUIET)
+        assert sol["success"], sol["status"]
+        sols[margin] = (sol, verify(sol))
+    (plain, plain_replay), (kept, kept_replay) = sols[0.0], sols[0.01]
+    assert plain_replay["max_limit_violation"] > 1e-3
+    assert kept_replay["max_limit_violation"] <= 1e-6
+    assert 1.0 <= kept["t"][-1] / plain["t"][-1] < 1.02

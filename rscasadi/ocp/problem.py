@@ -88,7 +88,8 @@ GOAL_KEYS = {"frame", "position", "rpy", "tolerance"}
 # sizes refused before the work: a 1e8-interval NLP takes tens of GB and is killed by the kernel
 MAX_INTERVALS, MAX_DEGREE, MAX_ROUNDS = 5000, 9, 20
 SIZES_WHY = "5000 intervals of degree 3 on 7 joints already take minutes and gigabytes; refine instead"
-TABLES = {"transcription": {"method", "degree", "intervals", "dynamics", "compiled", "condense", "parametric"},
+TABLES = {"transcription": {"method", "degree", "intervals", "dynamics", "compiled", "condense", "parametric",
+                             "limit_margin"},
           "verification": {"final_angle_tol", "final_speed_tol", "tracking_tol", "limit_tol", "clearance_tol"},
           "refinement": {"rounds"},
           "solver": {"name", "hessian", "interface", "threads", "barrier"}}
@@ -182,7 +183,9 @@ class TranscriptionOptions:
     interval's collocation solved inside the NLP's functions (needs compiled); `parametric`
     none | family: the model's nonzero parameters (model.parameters.family) enter the compiled
     NLP as parameters, so every arm with the same zeros (an identified one, another payload's)
-    reuses it."""
+    reuses it.  `limit_margin`: the fraction of each psi and dphi limit, and of each link-angle
+    range, the NLP holds in reserve at its collocation points, so that the motion between them
+    (what the replay checks) stays inside the true limits; the motor torques keep theirs."""
     method: str = "radau"
     degree: int = 3
     intervals: int = 100
@@ -190,6 +193,7 @@ class TranscriptionOptions:
     compiled: bool = True
     condense: bool = True
     parametric: str = "none"
+    limit_margin: float = 0.0
 
 
 @dataclass
@@ -341,6 +345,8 @@ class Problem:
                 fail(f"transcription.{fld}", f"must be true or false, got {getattr(tr, fld)!r}")
         for fld in ("final_angle_tol", "final_speed_tol", "tracking_tol", "limit_tol", "clearance_tol"):
             _number(fail, f"verification.{fld}", getattr(v, fld), True)
+        if _number(fail, "transcription.limit_margin", tr.limit_margin, False) < 0 or tr.limit_margin >= 0.5:
+            fail("transcription.limit_margin", f"must be in [0, 0.5), got {tr.limit_margin!r}")
         if s.hessian != "exact" and s.name == "fatrop":
             fail("solver.hessian", "fatrop needs the exact Hessian; use name = \"ipopt\" for limited-memory")
         if tr.condense and not tr.compiled:

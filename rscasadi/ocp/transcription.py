@@ -339,13 +339,21 @@ class Transcription:
         return {"x": w, "f": f, "g": g, "p": P}, lbg, ubg
 
     def _limit(self, key):
-        return np.array([jt.limits.get(key, np.inf) for jt in self.model.joints])
+        """A psi or dphi limit per joint (inf: none), less the transcription's limit_margin."""
+        return (1 - self.p.transcription.limit_margin) * np.array([jt.limits.get(key, np.inf) for jt in self.model.joints])
+
+    def _range(self):
+        """The link-angle ranges (lo, hi), each narrowed by limit_margin of its width at both ends."""
+        inf, m = np.inf, self.p.transcription.limit_margin
+        lo = np.array([jt.limits.get("theta", (-inf, inf))[0] for jt in self.model.joints])
+        hi = np.array([jt.limits.get("theta", (-inf, inf))[1] for jt in self.model.joints])
+        inset = np.where(np.isfinite(hi - lo), m * (hi - lo) / 2, 0.0)
+        return lo + inset, hi - inset
 
     def _path_bounds(self):
         """Bounds of one stage's path rows: gap rows and dynamics = 0, then the limits."""
-        n, inf = self.n, np.inf
-        lo_th = np.array([jt.limits.get("theta", (-inf, inf))[0] for jt in self.model.joints])
-        hi_th = np.array([jt.limits.get("theta", (-inf, inf))[1] for jt in self.model.joints])
+        n = self.n
+        lo_th, hi_th = self._range()
         psi, dphi = self._limit("psi"), self._limit("dphi")
         eq = np.zeros(self.nx + (0 if self.condensed else 2 * n * self.m))
         lo = [eq, -psi, -dphi[self.geared]] + [np.r_[lo_th, -psi, -dphi]] * len(self.interior)
@@ -360,7 +368,7 @@ class Transcription:
 
     def structure(self) -> dict:
         """fatrop's manual structure: per stage nx, nu and the number of non-gap constraints."""
-        n, N = self.n, self.N
+        N = self.N
         n_path = self._n_path()
         ng = [n_path + self.n_start] + [n_path] * (N - 1)
         ng.append(len(self._end_bounds()[0]))
@@ -371,11 +379,11 @@ class Transcription:
         """Simple bounds: theta and dphi limits on every state point, tau limits, T and design boxes."""
         n, N, jts = self.n, self.N, self.model.joints
         lo_q, hi_q = np.full(4 * n, -np.inf), np.full(4 * n, np.inf)
+        lo_q[:n], hi_q[:n] = self._range()
+        dphi = self._limit("dphi")
         for j, jt in enumerate(jts):
-            if "theta" in jt.limits:
-                lo_q[j], hi_q[j] = jt.limits["theta"]
             if "dphi" in jt.limits and j not in self.geared:             # geared: a row (_geared_speeds)
-                lo_q[3 * n + j], hi_q[3 * n + j] = -jt.limits["dphi"], jt.limits["dphi"]
+                lo_q[3 * n + j], hi_q[3 * n + j] = -dphi[j], dphi[j]
         lo_z = ([1e-3] if self.nT else []) + [b[0] for b in self.p.task.design.values()] + [0.0] * self.ns
         hi_z = (([max_duration] if self.nT else []) + [b[1] for b in self.p.task.design.values()]
                 + ([self.tool_path.length] if self.ns else []))           # 0 <= s <= L
@@ -385,6 +393,10 @@ class Transcription:
         lo_x, hi_x = np.concatenate([lo_q, lo_z]), np.concatenate([hi_q, hi_z])
         lb = np.concatenate([np.tile(np.concatenate([lo_x, lo_u]), N), lo_x])
         ub = np.concatenate([np.tile(np.concatenate([hi_x, hi_u]), N), hi_x])
+        if self.p.transcription.limit_margin:       # the start and the end may lie in the reserve
+            for at in (slice(0, n), slice(len(lb) - len(lo_x), len(lb) - len(lo_x) + n)):
+                lb[at] = [jt.limits.get("theta", (-np.inf, np.inf))[0] for jt in jts]
+                ub[at] = [jt.limits.get("theta", (-np.inf, np.inf))[1] for jt in jts]
         return lb, ub
 
     def parameters(self, theta_start, theta_end, duration, effort_weight, w, theta_ref=None, p_fixed=(), scale=1.0):
