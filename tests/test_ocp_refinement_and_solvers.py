@@ -1,6 +1,5 @@
 """Optimal control, second round: fatrop against IPOPT, mesh refinement driven by the replay,
 implicit dynamics that converges like the explicit form, co-design of actuator parameters."""
-import dataclasses
 import json
 
 import numpy as np
