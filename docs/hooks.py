@@ -1,4 +1,5 @@
 """mkdocs hook: the benchmarks page gathers results/bench_*.md, each under its commit and date."""
+import re
 import subprocess
 from pathlib import Path
 
@@ -14,6 +15,8 @@ def _stamp(path: Path) -> str:
 
 
 def _demoted(text: str) -> str:
+    """Headings one level down; links relative to results/ made relative to the page."""
+    text = re.sub(r"\]\((?!https?:|/|#)([^)]+)\)", r"](results/\1)", text)
     return "\n".join("#" + line if line.startswith("#") else line for line in text.splitlines())
 
 

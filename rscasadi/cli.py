@@ -72,18 +72,18 @@ def opt_flag(text: str) -> str:
     return text
 
 
-def cmd_info(args):
+def _cmd_info(args):
     from rscasadi.studies.model_report import model_report
     print(model_report(args.model, collision=args.collision), end="")
 
 
-def cmd_paper(args):
+def _cmd_paper(args):
     from rscasadi.studies.paper import run
     run(args.trajectory, args.out, duration=args.duration, sweeps=not args.no_sweep,
         log=lambda msg: print(msg, flush=True), ocp_problem=args.ocp or None)
 
 
-def cmd_ocp(args):
+def _cmd_ocp(args):
     from rscasadi.ocp import run
     sol = run(args.problem, args.out, warm_file=args.warm, log=lambda msg: print(msg, flush=True),
               print_level=0 if args.quiet else (10 if args.verbose else 5), solver=args.solver)
@@ -95,14 +95,14 @@ def cmd_ocp(args):
     return 0 if sol["success"] else 1
 
 
-def cmd_sweep(args):
+def _cmd_sweep(args):
     from rscasadi.ocp.sweep import run
     res = run(args.sweep, args.out, scheduler=args.scheduler, workers=args.workers,
               log=lambda msg: print(msg, flush=True))
     return 0 if res["solved"] == len(res["rows"]) else 1
 
 
-def cmd_mpc(args):
+def _cmd_mpc(args):
     from rscasadi.mpc import closed_loop, generate_mpc, plot_closed_loop
     from rscasadi.mpc.problem import mpc_problem
     from rscasadi.files import check_writable
@@ -131,13 +131,13 @@ def cmd_mpc(args):
         print(f"wrote {out / 'closed_loop.json'} and closed_loop.png")
 
 
-def cmd_simulate(args):
+def _cmd_simulate(args):
     from rscasadi.identification.synthetic import simulate_log
     simulate_log(args.model, args.trajectory, args.out, rate=args.rate, noise=args.noise, perturb=args.perturb,
                  true_model=args.true_model, log=lambda msg: print(msg, flush=True))
 
 
-def cmd_view(args):
+def _cmd_view(args):
     from rscasadi.view import scene_of, write_gif, write_html
     for target in [args.out] + ([args.gif] if args.gif else []):
         parent = Path(target).resolve().parent
@@ -153,7 +153,7 @@ def cmd_view(args):
         print(f"wrote {args.gif}")
 
 
-def cmd_reproduce(args):
+def _cmd_reproduce(args):
     from rscasadi.studies.reproduce import run
     summary = run(args.out, log=lambda msg: print(msg, flush=True))
     failed = [name for name, state, _ in summary if state != "ok"]
@@ -162,7 +162,7 @@ def cmd_reproduce(args):
         return 1
 
 
-def cmd_codegen(args):
+def _cmd_codegen(args):
     from rscasadi.codegen import generate
     t0 = time.perf_counter()
     manifest = generate(args.model, args.out, prefix=args.prefix, opt=args.opt,
@@ -176,7 +176,7 @@ def cmd_codegen(args):
           f"({time.perf_counter() - t0:.1f} s)")
 
 
-def cmd_observer(args):
+def _cmd_observer(args):
     from rscasadi.files import check_writable
     from rscasadi.interaction import generate_observer
     if args.gain * args.sample_time >= 1.0:
@@ -187,7 +187,7 @@ def cmd_observer(args):
                       log=lambda msg: print(msg, flush=True))
 
 
-def cmd_impedance(args):
+def _cmd_impedance(args):
     from rscasadi.files import check_writable
     from rscasadi.interaction import generate_impedance
     log = lambda msg: print(msg, flush=True)  # noqa: E731
@@ -215,14 +215,14 @@ def cmd_impedance(args):
           short=args.short, opt=args.opt, log=log)
     return 0
 
-def cmd_excite(args):
+def _cmd_excite(args):
     from rscasadi.identification.excitation import run
     run(args.model, args.out, period=args.period, harmonics=args.harmonics, starts=args.starts, samples=args.samples,
         max_iter=args.max_iter, hessian=args.hessian, margin=args.margin, max_condition=args.max_condition,
         log=lambda msg: print(msg, flush=True))
 
 
-def cmd_identify(args):
+def _cmd_identify(args):
     if args.only == "payload":
         from rscasadi.identification.payload import run as run_payload
         run_payload(args.model, args.logs, args.out, validate=args.validate, cutoff=args.cutoff,
@@ -234,6 +234,7 @@ def cmd_identify(args):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The `rscasadi` command's parser: one subcommand per job, every option checked by its type."""
     parser = Parser(prog="rscasadi", description="Rotor-separated FS-SEA arm dynamics in CasADi")
     parser.add_argument("--version", action="version", version=f"rscasadi {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
@@ -241,7 +242,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("model")
     p.add_argument("--collision", action="store_true",
                    help="list every capsule kept clear of obstacles (link, ends, radius) and the links with none")
-    p.set_defaults(func=cmd_info)
+    p.set_defaults(func=_cmd_info)
     p = sub.add_parser("codegen", help="generate and compile C for a model's functions")
     p.add_argument("model")
     p.add_argument("--out", required=True, help="directory for the sources, header, library and manifest.json")
@@ -260,7 +261,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--external", type=names_list, default=[],
                    help="comma-separated frames at which the dynamics take a wrench [force; moment] "
                         "(forward_dynamics_external, inverse_dynamics_external)")
-    p.set_defaults(func=cmd_codegen)
+    p.set_defaults(func=_cmd_codegen)
     p = sub.add_parser("paper", help="reproduce the paper's simulation (Figs. 5-11), the cascade study and sweeps")
     p.add_argument("--trajectory", default=str(TRAJECTORY), help="expected-trajectory file (names its model)")
     p.add_argument("--out", default="results/paper")
@@ -268,7 +269,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-sweep", action="store_true", help="skip the parameter sweeps")
     p.add_argument("--ocp", default=str(PROBLEMS / "ocp_tracking.toml"),
                    help="tracking OCP problem for method (c) (empty string: skip)")
-    p.set_defaults(func=cmd_paper)
+    p.set_defaults(func=_cmd_paper)
     p = sub.add_parser("ocp", help="solve an optimal-control problem file, verify it, write solution.json and plots")
     p.add_argument("problem")
     p.add_argument("--out", default="results/ocp")
@@ -276,7 +277,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no solver iteration log")
     p.add_argument("--verbose", action="store_true", help="the solver's whole log (fatrop: its iterative refinement too)")
     p.add_argument("--solver", choices=("ipopt", "fatrop"), help="override the problem file's [solver] name")
-    p.set_defaults(func=cmd_ocp)
+    p.set_defaults(func=_cmd_ocp)
     p = sub.add_parser("mpc", help="generate a nonlinear MPC (multiple shooting, SQP or real-time iteration on the "
                                    "complete model) as C")
     p.add_argument("problem", help="MPC problem file (TOML)")
@@ -292,13 +293,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "its path with the problem's payload, and with --plant-payload kg untold and told")
     p.add_argument("--plant-payload", type=positive(float), default=None, metavar="KG",
                    help="task-space study: the payload the arm really holds (default: 10 times the problem's)")
-    p.set_defaults(func=cmd_mpc)
+    p.set_defaults(func=_cmd_mpc)
     p = sub.add_parser("sweep", help="solve an optimal-control problem over a grid of parameters, in parallel on Dask")
     p.add_argument("sweep", help="sweep file (TOML): problem and [grid]")
     p.add_argument("--out", default="results/sweep")
     p.add_argument("--scheduler", help="address of an existing Dask scheduler (default: a local cluster)")
     p.add_argument("--workers", type=positive(int), help="local cluster size (default: this machine's cores)")
-    p.set_defaults(func=cmd_sweep)
+    p.set_defaults(func=_cmd_sweep)
     p = sub.add_parser("excite", help="design a periodic excitation trajectory for identification")
     p.add_argument("model")
     p.add_argument("--out", required=True, help="directory for trajectory.toml, feedforward.csv, excitation.json")
@@ -316,7 +317,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "(default 0.85; the exact feedforward is then scaled into the limits)")
     p.add_argument("--max-condition", type=positive(float), default=1e5, help="the largest condition number "
                    "accepted (default 1e5)")
-    p.set_defaults(func=cmd_excite)
+    p.set_defaults(func=_cmd_excite)
     p = sub.add_parser("simulate", help="a synthetic log of the arm along a trajectory, to try identification")
     p.add_argument("model")
     p.add_argument("trajectory", help="trajectory file (rscasadi excite's trajectory.toml, or start/amplitude)")
@@ -328,7 +329,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="log a different arm of the family (every parameter off by 10-40 %%, cubic springs and "
                         "Coulomb loss added), drawn with this seed")
     p.add_argument("--true-model", default=None, metavar="FILE", help="write the arm that was simulated here")
-    p.set_defaults(func=cmd_simulate)
+    p.set_defaults(func=_cmd_simulate)
     p = sub.add_parser("identify", help="identify the complete model from logs (CSV: t,theta_j,phi_j,tau_j[,T_j])")
     p.add_argument("model", help="model file: kinematics, gear ratios and the starting guess")
     p.add_argument("logs", nargs="+", help="one or more logs")
@@ -339,13 +340,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reduced", action="store_true", help="identify the DLR/Spong reduced model instead (ablation)")
     p.add_argument("--only", choices=["payload"], default=None,
                    help="identify only the model file's [payload], everything else held at the file's values")
-    p.set_defaults(func=cmd_identify)
+    p.set_defaults(func=_cmd_identify)
     p = sub.add_parser("view", help="a solution.json or a model file as a 3D animation in one HTML file (offline)")
     p.add_argument("result", help="a solution.json (rscasadi ocp) or a model file")
     p.add_argument("--out", required=True, help="the HTML file to write (open it as view.html#t=0.35 for 0.35 s)")
     p.add_argument("--gif", default=None, help="also an animated GIF, for documents")
     p.add_argument("--model", default=None, help="draw this model file instead of the solution's")
-    p.set_defaults(func=cmd_view)
+    p.set_defaults(func=_cmd_view)
     p = sub.add_parser("controller", help="generate an interaction controller or observer as C")
     kinds = p.add_subparsers(dest="kind", required=True, parser_class=Parser)
     q = kinds.add_parser("observer", help="the generalised-momentum observer of external torques (complete model)")
@@ -357,7 +358,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="observer_step returns OBSERVER_COLLISION (1) while a link's |r| exceeds this (N m)")
     q.add_argument("--out", required=True, help="directory for the sources, header, library and manifest.json")
     q.add_argument("--opt", default="-O2", type=opt_flag, help="optimisation flag (default -O2)")
-    q.set_defaults(func=cmd_observer)
+    q.set_defaults(func=_cmd_observer)
     q = kinds.add_parser("impedance", help="the impedance controller through the SEAs (complete model), or its study")
     q.add_argument("model")
     where = q.add_mutually_exclusive_group(required=True)
@@ -378,10 +379,10 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--trajectory", default=None, metavar="FILE",
                    help="with --study: also a collision during this trajectory's feedforward motion")
     q.add_argument("--short", action="store_true", help="with --study: fewer and shorter cases")
-    q.set_defaults(func=cmd_impedance)
+    q.set_defaults(func=_cmd_impedance)
     p = sub.add_parser("reproduce", help="the main job: everything the project reproduces, into --out")
     p.add_argument("--out", default="results")
-    p.set_defaults(func=cmd_reproduce)
+    p.set_defaults(func=_cmd_reproduce)
     return parser
 
 

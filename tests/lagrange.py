@@ -59,7 +59,7 @@ class Lagrange:
         return ddq[:self.model.n], ddq[self.model.n:]
 
     def inverse(self, theta, phi, dtheta, dphi, ddtheta, ddphi):
-        """(tau, T) per MODEL.md section 3."""
+        """(tau, T) by the paper's equations of motion (docs/user-guide/model.md)."""
         M, c = self.mass_bias(theta, phi, dtheta, dphi)
         lhs = M @ np.r_[ddtheta, ddphi] + c
         T, TB2, mu = self._Q(theta, phi, dtheta, dphi, 0)

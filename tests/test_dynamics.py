@@ -123,7 +123,7 @@ def test_mass_matrix_structure(request):
 
 
 def test_reference_coupling_is_the_elbow_rotor(arm3):
-    """On the reference arm only S_23 = Izz(S_3) - mu_3 Izz(F_3) survives (MODEL.md, issue 4)."""
+    """On the reference arm only S_23 = Izz(S_3) - mu_3 Izz(F_3) survives (docs/user-guide/model.md, the reference arm)."""
     M = np.array(arm3.mass_matrix()(np.array([0.3, -0.7, 1.1]), np.array([0.31, -0.69, 1.12])))
     S = M[:3, 3:]
     assert S[1, 2] == pytest.approx(2.5e-4 - 80 * 1.6e-5, rel=1e-12)

@@ -58,3 +58,19 @@ def test_the_demo_writes_what_it_reports_and_valid_json(demo):
     assert (out / "identified" / "validation.png").stat().st_size > 10_000
     import rscasadi                      # physically consistent: the model file loader checks every body
     assert rscasadi.load(out / "identified" / "model.toml").n == 3
+
+
+def test_a_main_job_whose_parts_fail_says_so_part_by_part(tmp_path, monkeypatch):
+    """Every part runs or is skipped on its own; the summary (with each part's time, the date
+    and the machine) is written even when every part fails."""
+    import rscasadi.studies.reproduce as reproduce
+    missing = tmp_path / "no-problems"
+    monkeypatch.setattr(reproduce, "PROBLEMS", missing)
+    monkeypatch.setattr(reproduce, "REFERENCE", missing / "arm3.toml")
+    monkeypatch.setattr(reproduce, "TRAJECTORY", missing / "trajectory_arm3.toml")
+    summary = reproduce.run(tmp_path / "out", log=lambda m: None)
+    written = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert [p["part"] for p in written["parts"]] == [s[0] for s in summary]
+    assert {p["status"] for p in written["parts"]} == {"FAILED", "skipped"}
+    assert written["run"].startswith("Run of ") and written["seconds"] >= 0
+    assert all(("no-problems" in p["produced"]) == (p["status"] == "FAILED") for p in written["parts"])

@@ -57,7 +57,7 @@ def _inertial(body, R):
 
 
 def reference_urdf(model) -> str:
-    """The reference arm as a URDF, written by hand from MODEL.md's numbers, with joints 2 and 3
+    """The reference arm as a URDF, written by hand from problems/arm3.toml's numbers, with joints 2 and 3
     turning about -y of an unrotated joint frame (instead of z of a frame turned by Rx(pi/2)),
     so the link frames of the URDF differ from ours by Rx(pi/2); plus a massless tool link on a
     fixed joint and a locked prismatic joint, which must change nothing."""

@@ -66,8 +66,8 @@ static rsk_v rsk_div(rsk_v a, rsk_v b) { int i; for (i = 0; i < 4; ++i) a.x[i] /
 
 
 def lanes_c(f: ca.Function, name: str, shared=()) -> str:
-    """`static void name(const double **arg, double **res)`: f at four points, arg[i][4 k + l] the
-    nonzero k of input i at point l (one copy, arg[i][k], for i in `shared`), res alike.
+    """`static void name(const double **arg, double **res)`: f at four points, `arg[i][4 k + l]` the
+    nonzero k of input i at point l (one copy, `arg[i][k]`, for i in `shared`), res alike.
     Needs PRELUDE once before it in the same file."""
     if not f.is_a("SXFunction"):
         raise TypeError(f"{f.name()}: lanes_c needs an SX Function")

@@ -43,6 +43,8 @@ BLOCK = 32          # columns accumulated at once (8 AVX2 registers; the last bl
 
 
 class Kernel(NamedTuple):
+    """The structured step-Jacobian kernel: CasADi Functions, the C that calls them, its header."""
+
     functions: list          # SX Functions for CasADi to generate into the kernel's file
     body: str                # the kernel's C (after them), with its CasADi-style interface
     header: str              # its declarations and work sizes

@@ -1,0 +1,1 @@
+"""The arm as CasADi Functions: the recursions, kinematics, statics, feedforward and collision distances."""

@@ -22,6 +22,8 @@ from rscasadi.spatial import H, Xup, as_casadi, base_acceleration, base_pose, co
 
 @dataclass
 class Segment:
+    """One joint of the chain: its placement in the parent, its link's and rotors' spatial inertias."""
+
     R: np.ndarray            # J_j relative to the parent frame
     l: np.ndarray            # J_j origin in the parent frame
     M: np.ndarray            # spatial inertia of link j (eq. 11), link frame

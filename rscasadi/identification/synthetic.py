@@ -112,7 +112,7 @@ def record(true_arm: Arm, nominal_arm: Arm, trajectory, rate: float = 1000.0, rn
 
 def simulate_log(model, trajectory, out, rate: float = 1000.0, noise: float = 0.005, perturb: int | None = None,
                  true_model=None, log=print) -> Path:
-    """`rscasadi simulate`: the log (docs/user-guide/identification.md's format) that the arm of
+    """`rscasadi simulate`: the log (docs/user-guide/logs.md's format) that the arm of
     `model`, or with `perturb` (a seed) a different arm of its family (every parameter off by
     10-40 %, a cubic spring and Coulomb loss added: perturbed_arm), records along `trajectory`
     (a trajectory file: rscasadi excite's, or a start-amplitude file) under the nominal

@@ -91,6 +91,7 @@ ACTUATOR_KEYS = {"name", "gear_ratio", "sea", "gear_loss", "limits", "slow_rotor
 
 
 def joint_context(path, idx, raw) -> _Ctx:
+    """The context naming joint idx (and its name, if the raw table has one) of the file at path."""
     name = raw.get("name") if isinstance(raw, dict) else None
     return _Ctx(path, (idx, name if isinstance(name, str) else None))
 

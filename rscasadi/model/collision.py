@@ -211,4 +211,5 @@ def capsules(model) -> tuple:
 
 
 def margin(model) -> float:
+    """The model's collision margin in m (0 without a [collision] table)."""
     return model.collision.margin if model.collision is not None else 0.0

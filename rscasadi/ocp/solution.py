@@ -120,6 +120,7 @@ def verify(solution: dict, substeps: int = 20, tol: float = 1e-10) -> dict:
 
 
 def plot_solution(sol: dict, arm: Arm, out: Path):
+    """out.png and out.pdf: angles, deflections, torques and speeds of a solution over time."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

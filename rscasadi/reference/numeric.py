@@ -16,10 +16,12 @@ z3 = np.array([0.0, 0.0, 1.0])
 
 
 def tilde(v):
+    """The cross-product matrix of a 3-vector: tilde(v) @ w = v x w."""
     return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
 
 
 def Rz(q):
+    """The rotation by q about z."""
     c, s = np.cos(q), np.sin(q)
     return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
 

@@ -18,6 +18,8 @@ from rscasadi.model.urdf import axis_rotation
 
 
 class PinocchioRoute:
+    """The arm as a Pinocchio tree with the rotors as bodies of their own: the independent oracle."""
+
     def __init__(self, model, stages=None, gravity=None):
         """stages: per joint (placement SE3 in the parent joint frame, joint model, link Inertia,
         rotation from the joint frame to J_j, whose z is the axis); default: from `model`."""

@@ -1,0 +1,1 @@
+"""Simulation: the plant, trajectories, sensors and contacts."""

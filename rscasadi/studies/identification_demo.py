@@ -106,6 +106,7 @@ def check(summary: dict) -> None:
 
 
 def run(model_file, out, log=print) -> dict:
+    """The identification demo into out: excitation, logs of a perturbed arm, the fit, held-out validation."""
     t0 = time.perf_counter()
     stamp = lambda: f"[{time.perf_counter() - t0:5.1f} s]"
     arm = load(model_file)

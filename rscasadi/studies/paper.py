@@ -36,6 +36,7 @@ def tracking(arm: Arm, traj: Trajectory, t, reduced: bool) -> tuple[dict, dict]:
 
 
 def errors(sim, theta_d) -> dict:
+    """Per joint the largest and the RMS tracking error of a simulation (rad)."""
     e = sim["theta"] - theta_d
     return {"max_error": np.max(np.abs(e), axis=1).tolist(), "rms_error": np.sqrt(np.mean(e ** 2, axis=1)).tolist()}
 
@@ -47,6 +48,7 @@ def _save(fig, out: Path, stem: str):
 
 
 def figures(out: Path, arm: Arm, t, theta_d, sims: dict):
+    """The paper's figures 5-11: the expected motion and each joint's tracking under each feedforward."""
     names = [jt.name for jt in arm.model.joints]
     fig, ax = plt.subplots(figsize=(7, 4))
     for j, name in enumerate(names):
@@ -72,6 +74,7 @@ def figures(out: Path, arm: Arm, t, theta_d, sims: dict):
 
 
 def tables(out: Path, model_file: str, results: dict, n: int):
+    """tracking.json, .csv and .md: the errors of each feedforward method per joint."""
     write_json(out / "tracking.json", {"model": model_file, "methods": results}, indent=2)
     rows = ["method,joint,max_error_rad,rms_error_rad"]
     md = ["| method | joint | max error (rad) | RMS error (rad) |", "|---|---|---|---|"]
@@ -182,6 +185,8 @@ def ocp_method(problem_file, arm: Arm, t, log):
 
 def run(trajectory_file, out, duration: float | None = None, sweeps: bool = True, log=print,
         ocp_problem=None) -> dict:
+    """The paper's simulation into out: each feedforward method on the complete model, its
+    figures and tables, and (with sweeps) where rotor separation matters."""
     t0 = time.perf_counter()
     traj = load_trajectory(trajectory_file)
     arm = load(traj.model_path)

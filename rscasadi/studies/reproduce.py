@@ -3,13 +3,14 @@ optimal-control problems, the identification demo, the closed-loop MPC studies a
 interaction studies, each part checked; a summary of what each produced."""
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import numpy as np
 
 from rscasadi.dynamics.arm import Arm, load
 from rscasadi.errors import Error
-from rscasadi.files import OutputError, check_writable, write_json, write_text
+from rscasadi.files import OutputError, check_writable, run_stamp, write_json, write_text
 from rscasadi.model.modelfile import ModelFileError
 from rscasadi.studies.model_report import model_report
 
@@ -87,20 +88,23 @@ def shelf_comparison(out: Path, log=print) -> str:
 
 def run(out, log=print) -> list:
     """The main job into `out`: every part runs (those that need a failed one are skipped).
-    Returns and prints a summary: (part, "ok" | "FAILED" | "skipped", what it produced or why)."""
+    Returns and prints a summary: (part, "ok" | "FAILED" | "skipped", what it produced or why),
+    and writes it with each part's wall time, the date, machine and commit to `out/summary.json`."""
     out = check_writable(out)
-    summary = []
+    summary, seconds = [], {}
 
     def part(name, work, needs=()):
         missing = [n for n in needs if not any(s[0] == n and s[1] == "ok" for s in summary)]
         if missing:
             summary.append((name, "skipped", f"needs {', '.join(missing)}"))
             return
+        start = time.perf_counter()
         try:
             summary.append((name, "ok", work()))
         except (PartFailed, ModelFileError, OutputError, ValueError, RuntimeError) as exc:
             log(f"rscasadi reproduce: {name} FAILED: {exc}")
             summary.append((name, "FAILED", str(exc)))
+        seconds[name] = time.perf_counter() - start
 
     def model():
         (out / "model.md").parent.mkdir(parents=True, exist_ok=True)
@@ -189,7 +193,11 @@ def run(out, log=print) -> list:
          needs=("ocp panda_shelf",))
     for name in INTERACTION_ARMS:
         part(f"interaction {name}", lambda name=name: interaction_study(name, out / "interaction", log))
+    write_json(out / "summary.json", {
+        "run": run_stamp(), "seconds": sum(seconds.values()),
+        "parts": [{"part": name, "status": state, "produced": what, "seconds": seconds.get(name, 0.0)}
+                  for name, state, what in summary]})
     log(f"\nrscasadi reproduce into {out}:")
     for name, state, what in summary:
-        log(f"  {name:28s} {state:8s} {what}")
+        log(f"  {name:28s} {state:8s} {seconds.get(name, 0.0):6.0f} s  {what}")
     return summary

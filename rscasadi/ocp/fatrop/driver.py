@@ -60,6 +60,7 @@ class _Problem(ctypes.Structure):
 
 
 def casadi_dir() -> Path:
+    """The installed casadi package's directory (its headers and fatrop's library)."""
     return Path(ca.__file__).parent
 
 
