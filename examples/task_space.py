@@ -32,7 +32,7 @@ def main(argv=None):
     assert np.allclose(T_free - T, J.T @ f)                           # the wrench's share is J^T f
 
     # the same tool orientation 5 cm lower, as close to theta as the limits allow
-    res = rscasadi.inverse_kinematics(arm, tool, R, p.ravel() - [0.0, 0.0, 0.05], theta_guess=theta)
+    res = rscasadi.inverse_kinematics(arm, tool, position=p.ravel() - [0.0, 0.0, 0.05], R=R, theta_guess=theta)
     print(f"inverse kinematics: {res['status']}, position error {res['position_error']:.1e} m")
     return {"T_free": T_free, "T": T, "J": J, "ik": res}
 

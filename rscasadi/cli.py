@@ -66,9 +66,11 @@ def float_list(text: str) -> list:
 
 
 def opt_flag(text: str) -> str:
-    """An optimisation flag for the C compiler: -O0..-O3, -Os, -Og, -Oz or -Ofast, nothing else."""
-    if text not in ("-O0", "-O1", "-O2", "-O3", "-Os", "-Og", "-Oz", "-Ofast"):
-        raise argparse.ArgumentTypeError(f"{text!r} is not one of -O0, -O1, -O2, -O3, -Os, -Og, -Oz, -Ofast")
+    """An optimisation flag for the C compiler, one the library takes (`OPT_LEVELS`)."""
+    from rscasadi.native.build import OPT_LEVELS
+    if text not in OPT_LEVELS:
+        raise argparse.ArgumentTypeError(f"{text!r} is not one of {', '.join(OPT_LEVELS)}"
+                                         + (" (-Ofast's -ffast-math would drop the NaN checks)" if text == "-Ofast" else ""))
     return text
 
 

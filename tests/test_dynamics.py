@@ -111,7 +111,7 @@ def test_mass_matrix_structure(request):
         B = np.array([jt.rotor_inertia for jt in arm.model.joints])
         for _ in range(3):
             x = random_state(rng, n)
-            M, Mr = np.array(arm.mass_matrix()(x[0], x[1])), np.array(arm.mass_matrix(True)(x[0], x[1]))
+            M, Mr = np.array(arm.mass_matrix()(x[0], x[1])), np.array(arm.mass_matrix(reduced=True)(x[0], x[1]))
             scale = np.max(np.abs(M))
             assert np.allclose(M, M.T, rtol=0, atol=1e-14 * scale)
             assert np.allclose(M[n:, n:], np.diag(B), rtol=0, atol=1e-14 * scale)

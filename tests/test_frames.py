@@ -223,7 +223,7 @@ def test_inverse_kinematics_reaches_the_closest_pose_within_the_limits():
         guess = np.clip(true + rng.normal(size=7) * 0.2, lo, hi)
         R, p = (np.array(v) for v in arm.frame_placement("panda_hand_tcp")(true))
         for target_R in (R, None):
-            res = rscasadi.inverse_kinematics(arm, "panda_hand_tcp", target_R, p.ravel(), guess)
+            res = rscasadi.inverse_kinematics(arm, "panda_hand_tcp", position=p.ravel(), R=target_R, theta_guess=guess)
             assert res["success"], res["status"]
             pin.framesForwardKinematics(ref.model, ref.data, ref.q(res["theta"]))
             placed = ref.data.oMf[fid]
@@ -236,10 +236,10 @@ def test_inverse_kinematics_reaches_the_closest_pose_within_the_limits():
 
 def test_inverse_kinematics_reports_an_unreachable_pose():
     arm = rscasadi.load(ROOT / "problems" / "panda_sea.toml")
-    res = rscasadi.inverse_kinematics(arm, "panda_hand_tcp", None, [2.0, 0.0, 0.5])       # 2 m away: too far
+    res = rscasadi.inverse_kinematics(arm, "panda_hand_tcp", position=[2.0, 0.0, 0.5])       # 2 m away: too far
     assert not res["success"] and res["position_error"] > 0.5 and "nfeasible" in res["status"]
     R_flip = np.diag([1.0, -1.0, -1.0])                  # reachable position, the tool upside down at the base
-    res = rscasadi.inverse_kinematics(arm, "panda_link1", R_flip, [0.0, 0.0, 0.333])
+    res = rscasadi.inverse_kinematics(arm, "panda_link1", position=[0.0, 0.0, 0.333], R=R_flip)
     assert not res["success"]
 
 
@@ -247,18 +247,18 @@ def test_parametric_twins_and_the_reduced_model_take_frames_too(arm3):
     """Each kinematic Function's parametric twin equals it at the nominal p (the centre of mass
     moves with the masses); the reduced model takes a wrench as the complete one does."""
     th, dth, p = np.array([0.2, -0.5, 0.9]), np.array([0.3, 0.1, -0.4]), arm3.parameters()[1]
-    for const, param, args in ((arm3.frame_placement("elbow_pitch"), arm3.frame_placement("elbow_pitch", True), [th]),
+    for const, param, args in ((arm3.frame_placement("elbow_pitch"), arm3.frame_placement("elbow_pitch", parametric=True), [th]),
                                (arm3.frame_jacobian("elbow_pitch", "world"),
-                                arm3.frame_jacobian("elbow_pitch", "world", True), [th]),
-                               (arm3.frame_acceleration("elbow_pitch"), arm3.frame_acceleration("elbow_pitch", "local_world_aligned", True),
+                                arm3.frame_jacobian("elbow_pitch", "world", parametric=True), [th]),
+                               (arm3.frame_acceleration("elbow_pitch"), arm3.frame_acceleration("elbow_pitch", "local_world_aligned", parametric=True),
                                 [th, dth, dth]),
-                               (arm3.center_of_mass(), arm3.center_of_mass(True), [th, th])):
+                               (arm3.center_of_mass(), arm3.center_of_mass(parametric=True), [th, th])):
         for a, b in zip(const(*args) if const.n_out() > 1 else [const(*args)],
                         param(*args, p) if param.n_out() > 1 else [param(*args, p)]):
             assert np.allclose(np.array(a), np.array(b), atol=1e-14)
     heavier = p.copy()
     heavier[arm3.parameters()[0].index("elbow_pitch.link.mass")] *= 2
-    assert not np.allclose(np.array(arm3.center_of_mass(True)(th, th, heavier)), np.array(arm3.center_of_mass()(th, th)))
+    assert not np.allclose(np.array(arm3.center_of_mass(parametric=True)(th, th, heavier)), np.array(arm3.center_of_mass()(th, th)))
     x, tau, f = [th, th + 0.01, dth, dth], np.array([0.1, -0.2, 0.05]), np.array([1.0, -2.0, 3.0, 0.1, 0.2, -0.3])
     J = np.array(arm3.frame_jacobian("elbow_pitch")(th))
     red, red_f = arm3.reduced_forward_dynamics(), arm3.reduced_forward_dynamics(external=["elbow_pitch"])

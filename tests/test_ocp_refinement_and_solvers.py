@@ -102,7 +102,7 @@ def test_partially_free_parameters_equal_a_changed_model_file(arm3):
         plain = Arm(with_values(arm3.model, dict(zip(chosen, values))))
         for _ in range(3):
             x, tau = random_state(rng, 3), rng.normal(size=3)
-            a = np.vstack([np.array(v) for v in free.forward_dynamics(True)(*x, tau, values[:len(chosen)])])
+            a = np.vstack([np.array(v) for v in free.forward_dynamics(parametric=True)(*x, tau, values[:len(chosen)])])
             b = np.vstack([np.array(v) for v in plain.forward_dynamics()(*x, tau)])
             assert np.max(np.abs(a - b)) < 1e-10 * max(1.0, np.max(np.abs(b)))
 

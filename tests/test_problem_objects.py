@@ -30,6 +30,14 @@ def test_a_problem_in_python_equals_its_file():
         assert np.array_equal(a[key], b[key]) if isinstance(a[key], np.ndarray) else a[key] == b[key], key
 
 
+def test_options_left_out_mean_what_the_file_leaves_out():
+    """condense defaults to wherever it can be, in Python as in a file: not without compiled C."""
+    task = Task(PROBLEMS / "arm3.toml", "min_effort", duration=1.5, theta_start=[0.0, 0.3, -0.5],
+                theta_end=[0.8, 0.9, -1.2])
+    assert Problem(task, TranscriptionOptions(compiled=False)).check().transcription.condense is False
+    assert Problem(task, TranscriptionOptions()).check().transcription.condense is True
+
+
 @pytest.mark.parametrize("change,field", [
     ({"objective": "fastest"}, "objective"),
     ({"intervals": 1}, "transcription.intervals"),

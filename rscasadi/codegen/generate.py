@@ -61,7 +61,7 @@ def rhs(arm: Arm, parametric: bool = False) -> ca.Function:
     x, tau = ca.SX.sym("x", 4 * n), ca.SX.sym("tau", n)
     p = [ca.SX.sym("p", arm.n_p)] if parametric else []
     q = ca.vertsplit(x, n)
-    xdot = ca.vertcat(q[2], q[3], *arm.forward_dynamics(parametric)(*q, tau, *p))
+    xdot = ca.vertcat(q[2], q[3], *arm.forward_dynamics(parametric=parametric)(*q, tau, *p))
     return ca.Function("rhs", [x, tau] + p, ca.cse([xdot]), ["x", "tau"] + ["p"] * len(p), ["xdot"])
 
 
@@ -87,7 +87,7 @@ def step_functions(arm: Arm, prefix: str = "", fd_jacobian: ca.Function | None =
     p = [ca.MX.sym("p", arm.n_p)] if parametric else []
     x_next, stages = rk4(lambda z: f(z, tau, *p), x, h)
     I = ca.DM.eye(5 * n)[:4 * n, :]                                  # d x / d(x, tau)
-    small = arm.forward_dynamics(parametric).n_instructions() <= AD_JACOBIAN_LIMIT
+    small = arm.forward_dynamics(parametric=parametric).n_instructions() <= AD_JACOBIAN_LIMIT
     S, B = [], []                                                    # dk_i = [S_i; B_i]
     for xi, c in zip(stages, (0.0, 0.5, 0.5, 1.0)):
         if small:                                                    # F_i = d(ddtheta, ddphi)/d(x, tau)
@@ -131,8 +131,8 @@ def _implicit_sx(arm: Arm, parametric: bool) -> ca.Function:
     x = [ca.SX.sym(name, n) for name in ("theta", "phi", "dtheta", "dphi")]
     tau = ca.SX.sym("tau", n)
     p = [ca.SX.sym("p", arm.n_p)] if parametric else []
-    ddtheta, ddphi = arm.forward_dynamics(parametric)(*x, tau, *p)
-    Jr = arm.residual_jacobian(parametric)(*x, ddtheta, ddphi, *p)
+    ddtheta, ddphi = arm.forward_dynamics(parametric=parametric)(*x, tau, *p)
+    Jr = arm.residual_jacobian(parametric=parametric)(*x, ddtheta, ddphi, *p)
     mu = gear_ratios(arm.model, arm.free, *p)
     rhs = ca.horzcat(-Jr, ca.vertcat(ca.DM.zeros(n, n), -ca.diag(mu)))
     D, Lt, perm = ca.ldl(arm.mass_matrix(parametric=parametric)(x[0], x[1], *p))
@@ -145,10 +145,10 @@ def forward_dynamics_jacobian(arm: Arm, parametric: bool = False, name: str = "f
     forward dynamics (compact straight-line code), the implicit-function theorem past
     AD_JACOBIAN_LIMIT instructions (AD through the sweep explodes with n): straight-line SX
     while it stays below IMPLICIT_SX_LIMIT instructions, an MX graph of SX pieces above."""
-    fd = arm.forward_dynamics(parametric)
+    fd = arm.forward_dynamics(parametric=parametric)
     if fd.n_instructions() > AD_JACOBIAN_LIMIT:
         sx = _implicit_sx(arm, parametric)
-        return _renamed(sx if sx.n_instructions() <= IMPLICIT_SX_LIMIT else arm.forward_dynamics_jacobian(parametric),
+        return _renamed(sx if sx.n_instructions() <= IMPLICIT_SX_LIMIT else arm.forward_dynamics_jacobian(parametric=parametric),
                         name)
     return _renamed(fd, name, lambda *ins: [_ad_jacobian(fd, ins, parametric)], ["jacobian"])
 
@@ -159,16 +159,16 @@ def frame_functions(arm: Arm, frames=(), external=(), parametric: bool = False) 
     with `external`, the dynamics taking a wrench at each of those frames."""
     fns = {}
     for frame in frames:
-        fs = [arm.frame_placement(frame, parametric),
-              *[arm.frame_jacobian(frame, ref, parametric) for ref in REFERENCES],
-              arm.frame_velocity(frame, "local_world_aligned", parametric),
-              arm.frame_jacobian_dot_times_v(frame, parametric)]
+        fs = [arm.frame_placement(frame, parametric=parametric),
+              *[arm.frame_jacobian(frame, ref, parametric=parametric) for ref in REFERENCES],
+              arm.frame_velocity(frame, "local_world_aligned", parametric=parametric),
+              arm.frame_jacobian_dot_times_v(frame, parametric=parametric)]
         fns.update({f.name(): f for f in fs})
     if frames:
-        fns["center_of_mass"] = arm.center_of_mass(parametric)
+        fns["center_of_mass"] = arm.center_of_mass(parametric=parametric)
     if external:
-        fns["forward_dynamics_external"] = arm.forward_dynamics(parametric, external)
-        fns["inverse_dynamics_external"] = arm.inverse_dynamics(parametric, external)
+        fns["forward_dynamics_external"] = arm.forward_dynamics(parametric=parametric, external=external)
+        fns["inverse_dynamics_external"] = arm.inverse_dynamics(parametric=parametric, external=external)
     return fns
 
 
@@ -205,7 +205,7 @@ def functions(arm: Arm, prefix: str = "", parametric: bool = False, frames=(), e
             fns[name] = _renamed(getattr(arm, name)(parametric), p + name)
         except ValueError as exc:                  # unbalanced rotors: the reduced model does not apply
             omitted[name] = str(exc)
-    inv = arm.inverse_dynamics(parametric)
+    inv = arm.inverse_dynamics(parametric=parametric)
     fns["forward_dynamics_jacobian"] = forward_dynamics_jacobian(arm, parametric, p + "forward_dynamics_jacobian")
     fns["inverse_dynamics_jacobian"] = _renamed(inv, p + "inverse_dynamics_jacobian",
                                                 lambda *ins: [_ad_jacobian(inv, ins, parametric)], ["jacobian"])

@@ -65,13 +65,13 @@ def point_functions(arm, name: str, parametric: bool):
     mu = gear_ratios(arm.model, arm.free if parametric else None, *p)
     # the forward dynamics from the same factors: the residual R(a) = M a + R(0) (docs/user-guide/model.md
     # section 3) vanishes at a = -M^-1 R(0); 20 % faster than a separate articulated-body sweep
-    tau_id, T_id = arm.inverse_dynamics(parametric)(*q, zero, zero, *p)
+    tau_id, T_id = arm.inverse_dynamics(parametric=parametric)(*q, zero, zero, *p)
     phys = arm._physics_of(p[0]) if parametric else arm.physics
     a = -ca.ldl_solve(ca.vertcat(T_id - arm.sea_torque(*q, phys=phys), mu * (tau - tau_id)), d, LT, perm)
     names = ["p"] * len(p)
     fd = ca.Function(name + "_fd", [x, tau] + p, [a, d, LT, LT.T, ca.SX(mu)], ["x", "tau"] + names,
                      ["a", "d", "LT", "L", "mu"], {"cse": True})
-    Jr = arm.residual_jacobian(parametric)(*q, acc[:n], acc[n:], *p)
+    Jr = arm.residual_jacobian(parametric=parametric)(*q, acc[:n], acc[n:], *p)
     jr = ca.Function(name + "_jr", [x, acc] + p, [Jr.T], ["x", "a"] + names, ["JrT"], {"cse": True})
     return fd, jr, [int(i) for i in perm]
 

@@ -140,22 +140,22 @@ class Arm:
         return frames, names
 
     # -- public Functions -------------------------------------------------------------------
-    def inverse_dynamics(self, parametric: bool = False, external=()) -> ca.Function:
+    def inverse_dynamics(self, *, parametric: bool = False, external=()) -> ca.Function:
         """theta, phi, dtheta, dphi, ddtheta, ddphi -> tau (eq. 22), T (eq. 26).  `external`: frame
         names; one more input f_<frame> each, the wrench [force; moment] (6 x 1, world axes) that
         the environment applies at the frame's origin (the links feel J^T f, J local_world_aligned)."""
         return self._inverse(False, parametric, tuple(external))
 
-    def forward_dynamics(self, parametric: bool = False, external=()) -> ca.Function:
+    def forward_dynamics(self, *, parametric: bool = False, external=()) -> ca.Function:
         """theta, phi, dtheta, dphi, tau -> ddtheta, ddphi: the complete model, one O(n) sweep.
         `external`: as for `inverse_dynamics`, a wrench input per named frame."""
         return self._forward(False, parametric, tuple(external))
 
-    def reduced_inverse_dynamics(self, parametric: bool = False, external=()) -> ca.Function:
+    def reduced_inverse_dynamics(self, *, parametric: bool = False, external=()) -> ca.Function:
         """The DLR/Spong reduced model: M_tt ddtheta + C dtheta + g = T; B ddphi + T + T_B2 = -mu tau."""
         return self._inverse(True, parametric, tuple(external))
 
-    def reduced_forward_dynamics(self, parametric: bool = False, external=()) -> ca.Function:
+    def reduced_forward_dynamics(self, *, parametric: bool = False, external=()) -> ca.Function:
         """The DLR/Spong reduced model solved for ddtheta, ddphi (wrench inputs as `forward_dynamics`)."""
         return self._forward(True, parametric, tuple(external))
 
@@ -172,25 +172,25 @@ class Arm:
         full = f"{name}_{identifier(frame)}" + (f"_{reference}" if reference else "")
         return self._function(full, ins, outs, lambda phys, *a: build(fr, *a), parametric, key=(full, frame))
 
-    def frame_placement(self, frame: str, parametric: bool = False) -> ca.Function:
+    def frame_placement(self, frame: str, *, parametric: bool = False) -> ca.Function:
         """theta -> rotation R (3 x 3), translation p (3 x 1): the frame in the world (base) frame."""
         return self._kinematic("frame_placement", frame, ["theta"], ["rotation", "translation"],
                                lambda fr, theta: list(kinematics.frame_pose(self.model, fr, theta)), parametric)
 
-    def frame_jacobian(self, frame: str, reference: str = "local_world_aligned", parametric: bool = False) -> ca.Function:
+    def frame_jacobian(self, frame: str, reference: str = "local_world_aligned", *, parametric: bool = False) -> ca.Function:
         """theta -> J (6 x n, rows linear then angular) in `reference`: local_world_aligned,
         local or world, as Pinocchio's ReferenceFrame (docs/user-guide/frames.md)."""
         return self._kinematic("frame_jacobian", frame, ["theta"], ["J"],
                                lambda fr, theta: [kinematics.frame_jacobian(self.model, fr, theta, reference)],
                                parametric, reference)
 
-    def frame_velocity(self, frame: str, reference: str = "local_world_aligned", parametric: bool = False) -> ca.Function:
+    def frame_velocity(self, frame: str, reference: str = "local_world_aligned", *, parametric: bool = False) -> ca.Function:
         """theta, dtheta -> v (6 x 1, [linear; angular]) in `reference`."""
         return self._kinematic("frame_velocity", frame, ["theta", "dtheta"], ["v"],
                                lambda fr, theta, dtheta: [kinematics.frame_jacobian(self.model, fr, theta, reference)
                                                           @ dtheta], parametric, reference)
 
-    def frame_acceleration(self, frame: str, reference: str = "local_world_aligned",
+    def frame_acceleration(self, frame: str, reference: str = "local_world_aligned", *,
                            parametric: bool = False) -> ca.Function:
         """theta, dtheta, ddtheta -> a (6 x 1): the classical acceleration in `reference`
         (Pinocchio's getFrameClassicalAcceleration)."""
@@ -198,27 +198,27 @@ class Arm:
                                lambda fr, *x: [kinematics.frame_classical_acceleration(self.model, fr, *x, reference)],
                                parametric, reference)
 
-    def frame_jacobian_dot_times_v(self, frame: str, parametric: bool = False) -> ca.Function:
+    def frame_jacobian_dot_times_v(self, frame: str, *, parametric: bool = False) -> ca.Function:
         """theta, dtheta -> dJ/dt dtheta (6 x 1) of the local_world_aligned Jacobian."""
         return self._kinematic("frame_jacobian_dot_times_v", frame, ["theta", "dtheta"], ["dJv"],
                                lambda fr, theta, dtheta: [kinematics.jacobian_dot_times_v(self.model, fr, theta,
                                                                                           dtheta)], parametric)
 
-    def center_of_mass(self, parametric: bool = False) -> ca.Function:
+    def center_of_mass(self, *, parametric: bool = False) -> ca.Function:
         """theta, phi -> c (3 x 1): the centre of mass of every moving body, links and rotors (the
         fixed base excluded, as Pinocchio's).  phi matters only for an unbalanced rotor."""
         def build(phys, theta, phi):
             return [kinematics.center_of_mass(self._segments(False, phys), theta, phi)]
         return self._function("center_of_mass", ["theta", "phi"], ["c"], build, parametric)
 
-    def center_of_mass_jacobian(self, parametric: bool = False) -> ca.Function:
+    def center_of_mass_jacobian(self, *, parametric: bool = False) -> ca.Function:
         """theta, phi -> Jc (3 x 2n) = dc/d(theta, phi) (the phi block is zero for balanced rotors)."""
         def build(phys, theta, phi):
             c = kinematics.center_of_mass(self._segments(False, phys), theta, phi)
             return [ca.jacobian(c, ca.vertcat(theta, phi))]
         return self._function("center_of_mass_jacobian", ["theta", "phi"], ["Jc"], build, parametric)
 
-    def joint_forward_dynamics(self, parametric: bool = False) -> ca.Function:
+    def joint_forward_dynamics(self, *, parametric: bool = False) -> ca.Function:
         """Paper eq. (23), flexible-joint forward dynamics:
         theta, phi, dtheta, dphi, tau, ddtheta -> ddphi.  ddtheta gives the parent links'
         spatial accelerations alpha_{k+1} (only the joints inboard of each rotor matter);
@@ -229,7 +229,7 @@ class Arm:
             return [rec.joint_forward_dynamics(segs, kin, ddtheta, self._phi_force(phys, x, tau), phys.gravity)]
         return self._function("joint_forward_dynamics", STATE + ["tau", "ddtheta"], ["ddphi"], build, parametric)
 
-    def arm_forward_dynamics(self, parametric: bool = False) -> ca.Function:
+    def arm_forward_dynamics(self, *, parametric: bool = False) -> ca.Function:
         """Paper eqs. (29)-(32), whole-arm forward dynamics:
         theta, phi, dtheta, dphi, ddphi, ddtheta_guess -> ddtheta.  T is the SEA torque of the
         spring law at the state; ddphi are the rotor accelerations (from eq. 23) and
@@ -243,7 +243,7 @@ class Arm:
         return self._function("arm_forward_dynamics", STATE + ["ddphi", "ddtheta_guess"], ["ddtheta"], build,
                               parametric)
 
-    def energy(self, parametric: bool = False) -> ca.Function:
+    def energy(self, *, parametric: bool = False) -> ca.Function:
         """theta, phi, dtheta, dphi -> E: kinetic + gravitational + SEA spring energy."""
         def build(phys, theta, phi, dtheta, dphi):
             segs, kin = self._kin(False, phys, (theta, phi, dtheta, dphi))
@@ -252,7 +252,7 @@ class Arm:
             return [rec.energy(segs, kin, phys.gravity) + spring]
         return self._function("energy", STATE, ["E"], build, parametric)
 
-    def residual_jacobian(self, parametric: bool = False) -> ca.Function:
+    def residual_jacobian(self, *, parametric: bool = False) -> ca.Function:
         """theta, phi, dtheta, dphi, ddtheta, ddphi -> dr/d(theta, phi, dtheta, dphi) (2n x 4n), where
         r = M ddq + c - Q without its tau term (the rows of docs/user-guide/model.md section 3)."""
         def build(phys, theta, phi, dtheta, dphi, ddtheta, ddphi):
@@ -264,7 +264,7 @@ class Arm:
             return ca.cse([ca.jacobian(r, ca.vertcat(*x))])
         return self._function("residual_jacobian", STATE + ["ddtheta", "ddphi"], ["jacobian"], build, parametric)
 
-    def forward_dynamics_jacobian(self, parametric: bool = False) -> ca.Function:
+    def forward_dynamics_jacobian(self, *, parametric: bool = False) -> ca.Function:
         """theta, phi, dtheta, dphi, tau -> jacobian = d(ddtheta, ddphi)/d(theta, phi, dtheta, dphi, tau)
         (2n x 5n) by the implicit-function theorem on M ddq + c = Q at ddq = forward dynamics:
         M J = [-dr/d(q, dq) | dQ/dtau], one LDL^T solve.  An MX graph calling compact SX
@@ -288,8 +288,8 @@ class Arm:
         M^-1 ([-dr/dx | dQ/dtau] - s dr/dx D).  The sparse residual Jacobian multiplies D; no dense
         forward-dynamics Jacobian is formed."""
         n = self.n
-        ddtheta, ddphi = self.forward_dynamics(bool(p))(*x, tau, *p)
-        Jr = self.residual_jacobian(bool(p))(*x, ddtheta, ddphi, *p)
+        ddtheta, ddphi = self.forward_dynamics(parametric=bool(p))(*x, tau, *p)
+        Jr = self.residual_jacobian(parametric=bool(p))(*x, ddtheta, ddphi, *p)
         mu = gear_ratios(self.model, self.free, *p)
         dQ_dtau = ca.vertcat(ca.MX.zeros(n, n), -ca.diag(mu))
         rhs = ca.horzcat(-Jr, dQ_dtau)
@@ -299,7 +299,7 @@ class Arm:
             rhs -= s * ca.mtimes(D.T, Jr.T).T
         return ca.solve(self.mass_matrix(parametric=bool(p))(x[0], x[1], *p), rhs, "ldl")
 
-    def mass_matrix(self, reduced: bool = False, parametric: bool = False) -> ca.Function:
+    def mass_matrix(self, *, reduced: bool = False, parametric: bool = False) -> ca.Function:
         """theta, phi -> M (2n x 2n, q = (theta, phi)), the Jacobian of the generalized inertial
         forces of the recursion with respect to (ddtheta, ddphi)."""
         def build(phys, theta, phi):

@@ -22,15 +22,17 @@ def _vee(S):
     return ca.vertcat(S[2, 1], S[0, 2], S[1, 0])
 
 
-def inverse_kinematics(arm, frame: str, R=None, p=None, theta_guess=None, position_tol: float = 1e-6,
+def inverse_kinematics(arm, frame: str, *, position, R=None, theta_guess=None, position_tol: float = 1e-6,
                        angle_tol: float = 1e-6, max_iter: int = 200) -> dict:
     """The configuration closest to `theta_guess` (default: the middle of the limits, else zero)
-    that puts `frame` at rotation `R` (3x3, or None: position only) and origin `p` (3), within
-    the joint limits.  Returns {theta, success, status, position_error, angle_error,
-    iterations}; success only if the pose is reached within `position_tol` (m) and `angle_tol`
-    (rad) and the limits hold."""
-    if p is None:
-        raise ValueError("inverse_kinematics: the target position p is required")
+    that puts `frame`'s origin at `position` (3) and its rotation at `R` (3x3, or None: position
+    only), within the joint limits.  Returns {theta, success, status, position_error,
+    angle_error, iterations}; success only if the pose is reached within `position_tol` (m) and
+    `angle_tol` (rad) and the limits hold."""
+    p = position
+    if np.size(p) != 3 or (R is not None and np.shape(R) != (3, 3)):
+        raise ValueError(f"inverse_kinematics: position must be 3 numbers and R 3 x 3 "
+                         f"(got {np.shape(p)} and {np.shape(R) if R is not None else None})")
     n = arm.n
     lo = np.array([jt.limits.get("theta", (-np.inf, np.inf))[0] for jt in arm.model.joints], float)
     hi = np.array([jt.limits.get("theta", (-np.inf, np.inf))[1] for jt in arm.model.joints], float)

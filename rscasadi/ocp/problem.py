@@ -180,7 +180,8 @@ class TranscriptionOptions:
     """Direct collocation: `method` radau | legendre | hermite-simpson with `degree` points on
     each of `intervals` intervals; `dynamics` explicit (forward dynamics) | implicit
     (inverse-dynamics residual); `compiled`: the NLP's functions as C; `condense`: each
-    interval's collocation solved inside the NLP's functions (needs compiled); `parametric`
+    interval's collocation solved inside the NLP's functions (needs compiled; default: wherever
+    it can be, i.e. when compiled); `parametric`
     none | family: the model's nonzero parameters (model.parameters.family) enter the compiled
     NLP as parameters, so every arm with the same zeros (an identified one, another payload's)
     reuses it.  `limit_margin`: the fraction of each psi and dphi limit, and of each link-angle
@@ -191,9 +192,13 @@ class TranscriptionOptions:
     intervals: int = 100
     dynamics: str = "explicit"
     compiled: bool = True
-    condense: bool = True
+    condense: bool | None = None
     parametric: str = "none"
     limit_margin: float = 0.0
+
+    def __post_init__(self):
+        if self.condense is None:
+            self.condense = bool(self.compiled)
 
 
 @dataclass
@@ -424,7 +429,6 @@ def load_problem(path) -> Problem:
             fail(f"design.{name}", f"expected [lower, upper] with lower < upper, got {bounds!r}")
         design[name] = (float(bounds[0]), float(bounds[1]))
     tr = dict(table("transcription"))
-    tr.setdefault("condense", tr.get("compiled", True))          # condensed wherever it can be
     solver = dict(table("solver"))
     if solver.pop("barrier", "monotone") not in BARRIERS:
         fail("solver.barrier", f"must be \"monotone\" (fatrop's rule; the adaptive rule was removed, "

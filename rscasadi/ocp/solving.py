@@ -230,7 +230,7 @@ def goal_configuration(arm: Arm, goal, theta_guess, where) -> np.ndarray:
     """A configuration at the goal within the joint limits (inverse kinematics from the start),
     for the initial guess; the solver then chooses its own.  Unreachable: an error naming it."""
     from rscasadi.dynamics.inverse_kinematics import inverse_kinematics
-    res = inverse_kinematics(arm, goal.frame, goal.R, goal.position, theta_guess)
+    res = inverse_kinematics(arm, goal.frame, position=goal.position, R=goal.R, theta_guess=theta_guess)
     where = where if where is not None else "<Problem>"
     if not res["success"]:
         raise ModelFileError(f"{where}: field 'goal': frame {goal.frame!r} cannot reach it within the joint limits "
