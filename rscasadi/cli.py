@@ -13,6 +13,7 @@ from rscasadi import __version__, interrupt
 from rscasadi.files import CheckError, OutputError, write_json
 from rscasadi.model.modelfile import ModelFileError
 from rscasadi.studies.reproduce import PROBLEMS, TRAJECTORY
+from rscasadi.errors import InvalidArgument
 
 
 class Parser(argparse.ArgumentParser):
@@ -182,7 +183,7 @@ def _cmd_observer(args):
     from rscasadi.files import check_writable
     from rscasadi.interaction import generate_observer
     if args.gain * args.sample_time >= 1.0:
-        raise ValueError(f"--gain {args.gain:g} 1/s at --sample-time {args.sample_time:g} s: K times the sample "
+        raise InvalidArgument(f"--gain {args.gain:g} 1/s at --sample-time {args.sample_time:g} s: K times the sample "
                          "time must be below 1 (the discrete observer is unstable otherwise)")
     check_writable(args.out)
     generate_observer(args.model, args.out, args.gain, args.sample_time, threshold=args.threshold, opt=args.opt,
@@ -201,18 +202,18 @@ def _cmd_impedance(args):
     from rscasadi.dynamics.arm import load
     from rscasadi.interaction.study import study
     if args.joint_space or args.theta is None:
-        raise ValueError("--study: needs --frame and --theta (the configuration the arm is held at)")
+        raise InvalidArgument("--study: needs --frame and --theta (the configuration the arm is held at)")
     arm = load(args.model)
     if len(args.theta) != arm.n:
-        raise ValueError(f"--theta: {len(args.theta)} angles for the {arm.n} joints of {args.model}")
+        raise InvalidArgument(f"--theta: {len(args.theta)} angles for the {arm.n} joints of {args.model}")
     if args.frame not in arm.frames():
-        raise ValueError(f"--frame: {args.model} has no frame {args.frame!r} (frames: {', '.join(arm.frames())})")
+        raise InvalidArgument(f"--frame: {args.model} has no frame {args.frame!r} (frames: {', '.join(arm.frames())})")
     trajectory = None
     if args.trajectory is not None:
         from rscasadi.sim.trajectory import load_trajectory
         trajectory = load_trajectory(args.trajectory)
         if trajectory.n != arm.n:
-            raise ValueError(f"--trajectory: {args.trajectory} moves {trajectory.n} joints, {args.model} has {arm.n}")
+            raise InvalidArgument(f"--trajectory: {args.trajectory} moves {trajectory.n} joints, {args.model} has {arm.n}")
     study(arm, args.frame, args.theta, args.out, gain=args.gain, threshold=args.threshold, trajectory=trajectory,
           short=args.short, opt=args.opt, log=log)
     return 0

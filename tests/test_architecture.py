@@ -76,9 +76,9 @@ def test_imports_only_downwards():
 
 def test_the_references_stay_independent():
     """The numpy core and the Pinocchio route check the library; the library never uses them,
-    and they use nothing of it but the model they read."""
+    and they use nothing of it but the model they read (and its error classes)."""
     assert not [a for a, deps in GRAPH.items() for b in deps if room(b) == REFERENCE and room(a) != REFERENCE]
-    assert all(room(b) in ("model", "spatial", REFERENCE) for a, deps in GRAPH.items() if room(a) == REFERENCE
+    assert all(room(b) in ("model", "spatial", "errors", REFERENCE) for a, deps in GRAPH.items() if room(a) == REFERENCE
                for b in deps)
 
 
@@ -105,5 +105,16 @@ def test_every_error_rscasadi_defines_is_an_rscasadi_error():
     for module, name in found:
         cls = getattr(importlib.import_module(module), name)
         assert issubclass(cls, rscasadi.Error), f"{module}.{name}"
-        assert cls is rscasadi.Error or issubclass(cls, (ValueError, RuntimeError)), f"{module}.{name}"
+        assert cls is rscasadi.Error or issubclass(cls, (ValueError, RuntimeError, TypeError, KeyError)), \
+            f"{module}.{name}"
         assert inspect.getdoc(cls), f"{module}.{name} says what it means"
+
+
+def test_the_library_raises_only_its_own_errors():
+    """No bare builtin exception: each raise is an rscasadi.Error (which keeps its builtin base)."""
+    bare = [f"{path.relative_to(PACKAGE.parent)}:{node.lineno}" for path in PACKAGE.rglob("*.py")
+            for node in ast.walk(ast.parse(path.read_text()))
+            if isinstance(node, ast.Raise) and isinstance(node.exc, ast.Call)
+            and getattr(node.exc.func, "id", "") in ("ValueError", "RuntimeError", "TypeError", "KeyError",
+                                                       "Exception", "AssertionError")]
+    assert not bare, "raise rscasadi.errors' classes instead: " + ", ".join(bare)

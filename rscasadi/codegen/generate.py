@@ -27,6 +27,7 @@ from rscasadi.files import OutputError, fresh_directory, write_json
 from rscasadi.codegen.step_kernel import kernel_source
 from rscasadi.native.build import OPT_LEVELS, BuildError, cached_library, compiler, native_flags
 from rscasadi.native.loader import CompiledController, ControllerError
+from rscasadi.errors import InvalidArgument
 
 IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,62}\Z")
 LIBRARY = "librscasadi_arm.so"
@@ -394,19 +395,19 @@ class Compiled:
         arm is not of the library's family (a number where the family has a zero)."""
         info = self.manifest.get("parameters")
         if not info:
-            raise ValueError(f"{self.directory}: not a parametric library (rscasadi codegen --parametric)")
+            raise InvalidArgument(f"{self.directory}: not a parametric library (rscasadi codegen --parametric)")
         names, values = arm.parameters()
         value = dict(zip(names, values.tolist()))
         missing = [k for k in info["names"] + info.get("zero", []) if k not in value]
         if missing:
-            raise ValueError(f"{arm.model.path}: has no parameter {missing[0]!r} of the library in {self.directory}")
+            raise InvalidArgument(f"{arm.model.path}: has no parameter {missing[0]!r} of the library in {self.directory}")
         for k in info.get("zero", []):
             if value[k] != 0:
-                raise ValueError(f"{arm.model.path}: parameter {k!r} is {value[k]:g}, but the library in "
+                raise InvalidArgument(f"{arm.model.path}: parameter {k!r} is {value[k]:g}, but the library in "
                                  f"{self.directory} folds it to 0 (its family); generate one with --parametric all")
         for k, like in info.get("tied", {}).items():
             if value[k] != value[like]:
-                raise ValueError(f"{arm.model.path}: parameter {k!r} is {value[k]:g}, not {like!r} "
+                raise InvalidArgument(f"{arm.model.path}: parameter {k!r} is {value[k]:g}, not {like!r} "
                                  f"({value[like]:g}): the library in {self.directory} keeps that rotor balanced "
                                  "(its family); generate one with --parametric all")
         return np.array([value[k] for k in info["names"]])

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 
 import casadi as ca
+from rscasadi.errors import InvalidArgument, WrongType
 
 LANES = 4
 
@@ -70,7 +71,7 @@ def lanes_c(f: ca.Function, name: str, shared=()) -> str:
     nonzero k of input i at point l (one copy, `arg[i][k]`, for i in `shared`), res alike.
     Needs PRELUDE once before it in the same file."""
     if not f.is_a("SXFunction"):
-        raise TypeError(f"{f.name()}: lanes_c needs an SX Function")
+        raise WrongType(f"{f.name()}: lanes_c needs an SX Function")
     body = []
     for k in range(f.n_instructions()):
         op, i, o = f.instruction_id(k), f.instruction_input(k), f.instruction_output(k)
@@ -82,7 +83,7 @@ def lanes_c(f: ca.Function, name: str, shared=()) -> str:
         elif op == ca.OP_CONST:
             c = f.instruction_constant(k)
             if not math.isfinite(c):
-                raise ValueError(f"{f.name()}: constant {c} at instruction {k} has no C literal")
+                raise InvalidArgument(f"{f.name()}: constant {c} at instruction {k} has no C literal")
             body.append(f"RSK_VBC(w{o[0]}, {c!r})")
         elif op in _BINARY:
             body.append(f"w{o[0]} = {_BINARY[op]}(w{i[0]}, w{i[1]});")

@@ -9,6 +9,7 @@ from rscasadi.model.checks import identifier
 from rscasadi.model.modelfile import ArmModel, read
 from rscasadi.model.parameters import (Physics, family as parameter_family, gear_ratios, names as parameter_names,
                                        nominal as parameter_nominal)
+from rscasadi.errors import InvalidArgument
 
 STATE = ["theta", "phi", "dtheta", "dphi"]
 
@@ -94,7 +95,7 @@ class Arm:
             unbalanced = [f"joint {i + 1} ({jt.name!r}) {part}" for i, jt in enumerate(self.model.joints)
                           for part in ("slow_rotor", "fast_rotor") if not getattr(jt, part).balanced]
             if unbalanced:
-                raise ValueError(f"{self.model.path}: the DLR/Spong reduced model assumes balanced rotors "
+                raise InvalidArgument(f"{self.model.path}: the DLR/Spong reduced model assumes balanced rotors "
                                  f"(com on the axis, ixx = iyy, no products of inertia); unbalanced: "
                                  + ", ".join(unbalanced))
         return rec.segments(self.model, phys, reduced)
@@ -136,7 +137,7 @@ class Arm:
         frames = [self.model.frame(name) for name in external]
         names = [f"f_{identifier(name)}" for name in external]
         if len(set(names)) != len(names):
-            raise ValueError(f"external: the frames {list(external)} are not distinct as C identifiers")
+            raise InvalidArgument(f"external: the frames {list(external)} are not distinct as C identifiers")
         return frames, names
 
     # -- public Functions -------------------------------------------------------------------
@@ -168,7 +169,7 @@ class Arm:
         """A kinematic Function of one frame, named name_<frame>[_<reference>] (C identifiers)."""
         fr = self.model.frame(frame)
         if reference is not None and reference not in kinematics.REFERENCES:
-            raise ValueError(f"reference {reference!r}: choose one of {', '.join(kinematics.REFERENCES)}")
+            raise InvalidArgument(f"reference {reference!r}: choose one of {', '.join(kinematics.REFERENCES)}")
         full = f"{name}_{identifier(frame)}" + (f"_{reference}" if reference else "")
         return self._function(full, ins, outs, lambda phys, *a: build(fr, *a), parametric, key=(full, frame))
 

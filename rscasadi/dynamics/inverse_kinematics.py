@@ -16,6 +16,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 from rscasadi.interrupt import raise_if_interrupted
+from rscasadi.errors import InvalidArgument
 
 
 def _vee(S):
@@ -31,7 +32,7 @@ def inverse_kinematics(arm, frame: str, *, position, R=None, theta_guess=None, p
     `angle_tol` (rad) and the limits hold."""
     p = position
     if np.size(p) != 3 or (R is not None and np.shape(R) != (3, 3)):
-        raise ValueError(f"inverse_kinematics: position must be 3 numbers and R 3 x 3 "
+        raise InvalidArgument(f"inverse_kinematics: position must be 3 numbers and R 3 x 3 "
                          f"(got {np.shape(p)} and {np.shape(R) if R is not None else None})")
     n = arm.n
     lo = np.array([jt.limits.get("theta", (-np.inf, np.inf))[0] for jt in arm.model.joints], float)

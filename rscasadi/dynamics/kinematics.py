@@ -22,6 +22,7 @@ import casadi as ca
 
 from rscasadi.dynamics import recursions as rec
 from rscasadi.spatial import base_pose, joint_rotation, skew
+from rscasadi.errors import InvalidArgument
 
 REFERENCES = ("local_world_aligned", "local", "world")
 
@@ -64,7 +65,7 @@ def _expressed(reference, R, p, lin, ang):
         return ca.vertcat(R.T @ lin, R.T @ ang)
     if reference == "world":
         return ca.vertcat(lin + skew(p) @ ang, ang)
-    raise ValueError(f"reference {reference!r}: choose one of {', '.join(REFERENCES)}")
+    raise InvalidArgument(f"reference {reference!r}: choose one of {', '.join(REFERENCES)}")
 
 
 def frame_classical_acceleration(model, frame, theta, dtheta, ddtheta, reference: str = "local_world_aligned"):

@@ -39,6 +39,7 @@ from rscasadi.model.parameters import n_linear
 from rscasadi.identification.identify import Unknowns, prior_scale, structural_base
 from rscasadi.identification.regressor import regressor, spring_regressor
 from rscasadi.interrupt import happened, raise_if_interrupted
+from rscasadi.errors import InvalidArgument
 
 TORQUE_NOISE = 0.005
 MAX_CONDITION = 1e5  # a design above this is refused (a hand-picked bump on every joint: ~1e9)
@@ -309,7 +310,7 @@ def design(arm: Arm, period: float = 10.0, harmonics: int = 5, margin: float = 0
     n, K = arm.n, harmonics
     M = samples or max(60, 12 * K)
     if hessian not in HESSIANS:
-        raise ValueError(f"hessian: must be one of {', '.join(HESSIANS)}, got {hessian!r}")
+        raise InvalidArgument(f"hessian: must be one of {', '.join(HESSIANS)}, got {hessian!r}")
     solver, bounds, r = _design_problem(arm, period, K, margin, M, max_iter, log, hessian)
     t = np.arange(int(round(period * rate)) + 1) / rate
     log(f"excitation: {n} joints, {K} harmonics, period {period} s, {M} samples, {r} base parameters; "

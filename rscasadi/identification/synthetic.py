@@ -22,6 +22,7 @@ from rscasadi.dynamics.arm import Arm
 from rscasadi.model.modelfile import Body, inertia_problem
 from rscasadi.identification.logs import Log
 from rscasadi.sim.sensors import quanta
+from rscasadi.errors import Failed, InvalidArgument
 
 
 
@@ -42,7 +43,7 @@ def _perturbed_body(body: Body, rng, balanced: bool) -> Body:
             I = body.inertia * np.outer(*(2 * [np.sqrt([_factor(rng) for _ in range(3)])]))
         if inertia_problem(I) is None:
             return Body(m, com, I)
-    raise RuntimeError("could not perturb a body into a physical one")
+    raise Failed("could not perturb a body into a physical one")
 
 
 def perturbed_arm(arm: Arm, rng, k3_fraction: float = 0.2, coulomb: float = 0.5) -> Arm:
@@ -130,11 +131,11 @@ def simulate_log(model, trajectory, out, rate: float = 1000.0, noise: float = 0.
             raise OSError(21, "is a directory: give a file name", str(target))
         check_writable(target.resolve().parent)
     if not (rate > 0 and np.isfinite(rate)) or not (noise >= 0 and np.isfinite(noise)):
-        raise ValueError(f"simulate: --rate {rate!r} must be > 0 and --noise {noise!r} >= 0")
+        raise InvalidArgument(f"simulate: --rate {rate!r} must be > 0 and --noise {noise!r} >= 0")
     nominal = load(model)
     traj = load_trajectory(trajectory)
     if traj.n != nominal.n:
-        raise ValueError(f"{trajectory}: {traj.n} joints, the model {model} has {nominal.n}")
+        raise InvalidArgument(f"{trajectory}: {traj.n} joints, the model {model} has {nominal.n}")
     rng = np.random.default_rng(0 if perturb is None else perturb)
     true = nominal if perturb is None else perturbed_arm(nominal, rng)
     log(f"simulating {true.model.name} along {Path(trajectory).name}: {traj.duration:g} s at {rate:g} Hz ...")

@@ -23,6 +23,7 @@ from rscasadi.interaction.impedance import impedance_boxes
 from rscasadi.native.build import cached_library, compiler
 from rscasadi.native.controller import DAMPING_RATIO_BOUND, STIFFNESS_BOUND, boxes, c_numbers, c_words, guard_source
 from rscasadi.native.loader import CompiledController
+from rscasadi.errors import InvalidArgument
 
 TEMPLATES = Path(__file__).with_name("templates")
 
@@ -71,11 +72,11 @@ def generate_observer(model, out, gain, sample_time: float = 1e-3, threshold: fl
     n = arm.n
     K = np.broadcast_to(np.asarray(gain, float), (2 * n)).copy()
     if not np.all(np.isfinite(K)) or not np.all(K > 0) or not (sample_time > 0) or K.max() * sample_time >= 1.0:
-        raise ValueError(f"observer: gain {gain!r} 1/s and sample time {sample_time!r} s need K > 0 and K dt < 1")
+        raise InvalidArgument(f"observer: gain {gain!r} 1/s and sample time {sample_time!r} s need K > 0 and K dt < 1")
     header = {"model": _model_name(arm), "n": n, "nq": 2 * n, "nx": 4 * n, "dt": repr(float(sample_time)),
               "gain": ", ".join(f"{k:g}" for k in np.unique(K))}
     if not threshold > 0:
-        raise ValueError(f"observer: --threshold {threshold!r} N m must be > 0")
+        raise InvalidArgument(f"observer: --threshold {threshold!r} N m must be > 0")
     header["threshold"] = f"{threshold:g}" if np.isfinite(threshold) else "none (INFINITY)"
     x_lo, x_hi = measurement_bounds(arm.model)
     box = {"x_lo": x_lo, "x_hi": x_hi, "tau_lo": -torque_bounds(arm.model), "tau_hi": torque_bounds(arm.model)}
@@ -100,9 +101,9 @@ def generate_impedance(model, out, frame: str | None, design: str = "motor", opt
     from rscasadi.model.checks import identifier
     arm = model if isinstance(model, Arm) else load(model)
     if frame is not None and frame not in arm.frames():
-        raise ValueError(f"--frame: {arm.model.path} has no frame {frame!r} (frames: {', '.join(arm.frames())})")
+        raise InvalidArgument(f"--frame: {arm.model.path} has no frame {frame!r} (frames: {', '.join(arm.frames())})")
     if design not in ("motor", "link"):
-        raise ValueError(f"--design {design!r}: choose motor or link")
+        raise InvalidArgument(f"--design {design!r}: choose motor or link")
     n = arm.n
     nref, nk = (12, 6) if frame is not None else (n, n)
     limits = limit_arrays(arm.model)["tau"]

@@ -34,6 +34,7 @@ from rscasadi.model.limits import limit_arrays, measurement_bounds
 from rscasadi.native.controller import (BAD_MEASUREMENT, BAD_REFERENCE, DAMPING_RATIO_BOUND, NOT_FINITE,
                                         NOT_INITIALISED, STIFFNESS_BOUND, TOO_STIFF, clamp, task_reference_bounds,
                                         within)
+from rscasadi.errors import InvalidArgument
 
 
 def _vee(S):
@@ -76,7 +77,7 @@ def impedance_law(arm: Arm, frame: str | None, design: str = "motor", torque_fee
     torque_feedback rho and motor_damping D_m override those; null_damping: D_n = c diag(M_tt)
     (1/s) where joints outnumber task rows; reduced: designed on the DLR/Spong reduced model."""
     if design not in ("motor", "link"):
-        raise ValueError(f"impedance design {design!r}: choose 'motor' (passive) or 'link'")
+        raise InvalidArgument(f"impedance design {design!r}: choose 'motor' (passive) or 'link'")
     n = arm.n
     spring = _cartesian(arm, frame) if frame is not None else _joint(arm)
     m = n if frame is None else (6 if n >= 6 else 3)                          # task rows

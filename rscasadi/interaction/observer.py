@@ -25,6 +25,7 @@ import numpy as np
 from rscasadi.dynamics.arm import Arm
 from rscasadi.model.limits import measurement_bounds, torque_bounds
 from rscasadi.native.controller import BAD_MEASUREMENT, COLLISION, NOT_FINITE, NOT_INITIALISED, within
+from rscasadi.errors import InvalidArgument
 
 BAD_TORQUE = 7               # the observer's name for the guard's BAD_REFERENCE: tau_applied refused
 
@@ -61,7 +62,7 @@ class MomentumObserver:
         self.n, self.dt, self.threshold, self.collision = arm.n, float(dt), float(threshold), False
         self.K = np.broadcast_to(np.asarray(gain, float), (2 * arm.n)).copy()
         if not np.all(self.K > 0) or not dt > 0 or self.K.max() * dt >= 1.0:
-            raise ValueError(f"observer: gain {gain!r} 1/s and dt {dt!r} s need K > 0 and K dt < 1")
+            raise InvalidArgument(f"observer: gain {gain!r} 1/s and dt {dt!r} s need K > 0 and K dt < 1")
         self.terms = observer_terms(arm)
         self.x_box, self.tau_max = measurement_bounds(arm.model), torque_bounds(arm.model)
         self.r, self.ready, self.code = np.zeros(2 * arm.n), False, NOT_INITIALISED

@@ -20,6 +20,7 @@ from rscasadi.interaction.observer import MomentumObserver
 from rscasadi.native.controller import CODE_NAMES
 from rscasadi.sim.contact import Contact, Push, World, plant_with_contacts
 from rscasadi.sim.sensors import quanta
+from rscasadi.errors import InvalidArgument
 
 DT = 1e-3
 
@@ -58,7 +59,7 @@ def impedance_loop(arm: Arm, frame: str, theta0, world: World, seconds: float, r
     place, jac = arm.frame_placement(frame), arm.frame_jacobian(world.frames[0], "local_world_aligned")
     encoders, x = Encoders(arm), rest_state(arm, theta0)
     if ctrl.init(encoders(x)) != 0:
-        raise ValueError(f"impedance: the start state is outside the controller's box ({CODE_NAMES[ctrl.code]})")
+        raise InvalidArgument(f"impedance: the start state is outside the controller's box ({CODE_NAMES[ctrl.code]})")
     obs = MomentumObserver(arm, observer_gain, DT) if observer_gain else None
     if obs:
         obs.init(x)
@@ -71,7 +72,7 @@ def impedance_loop(arm: Arm, frame: str, theta0, world: World, seconds: float, r
             rows["true"].append(np.array(jac(x[:n])).T @ f)
         tau = ctrl.step(meas, reference(k * DT), stiffness, damping_ratio)
         if ctrl.code != 0:
-            raise ValueError(f"impedance: {CODE_NAMES[ctrl.code]} at t = {k * DT:.3f} s (stiffness "
+            raise InvalidArgument(f"impedance: {CODE_NAMES[ctrl.code]} at t = {k * DT:.3f} s (stiffness "
                              f"{list(np.ravel(stiffness))}: TOO_STIFF is beyond what the springs allow the passive design)")
         x, W = (np.array(v) for v in plant(x, tau, k * DT))
         x, f = x.ravel(), W[:, 0]
@@ -212,7 +213,7 @@ def collision_feedforward(arm: Arm, frame: str, trajectory, gain: float = 50.0, 
                                              + kd * (ff["dphi"][:, i + 1] - meas[3 * n:])) / mu, -limit, limit)
     rows = np.array(rows)
     if contact is None:
-        raise ValueError(f"collision: the {frame!r} never reached the wall")
+        raise InvalidArgument(f"collision: the {frame!r} never reached the wall")
     flag, false_alarm = _first_flags(rows[:, 0], rows[:, -1] > 0, contact)
     rows = rows[:, :-1]
     window = (rows[:, 0] > contact + 0.1) & (rows[:, 0] < contact + 0.3)

@@ -9,6 +9,7 @@ import numpy as np
 
 from rscasadi.model.types import (BASE, BODY_KEYS, GEAR_LOSS_KEYS, LIMIT_KEYS, SEA_KEYS, Body, ModelFileError,
                                   inertia_problem)
+from rscasadi.errors import InvalidArgument
 
 class _Ctx:
     """Where we are in the file, for error messages."""
@@ -159,6 +160,6 @@ def identifier(name: str, what: str = "frame") -> str:
     import re
     ident = re.sub(r"[^A-Za-z0-9]+", "_", str(name)).strip("_")
     if not ident or not ident[0].isalpha() or len(ident) > 48:
-        raise ValueError(f"{what} name {name!r} cannot be made a C identifier (letters, digits and single _, "
+        raise InvalidArgument(f"{what} name {name!r} cannot be made a C identifier (letters, digits and single _, "
                          "starting with a letter, at most 48 characters)")
     return ident

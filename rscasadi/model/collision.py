@@ -31,6 +31,7 @@ import numpy as np
 from rscasadi.model.checks import _Ctx, _number, _table, _vector
 from rscasadi.model.meshes import bounding_capsule, mesh_file, vertices
 from rscasadi.model.types import Capsule, Collision
+from rscasadi.errors import InvalidArgument
 
 COLLISION_KEYS = {"margin", "tip", "links", "capsules"}
 CAPSULE_KEYS = {"frame", "a", "b", "radius"}
@@ -71,7 +72,7 @@ def shape_capsules(urdf_path, shape) -> list:
     filename, scale = data
     path, why = mesh_file(urdf_path, filename)
     if path is None:
-        raise ValueError(why)
+        raise InvalidArgument(why)
     points = (vertices(path) * scale) @ T[:3, :3].T + T[:3, 3]
     return [bounding_capsule(points)]
 

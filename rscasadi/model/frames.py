@@ -15,6 +15,7 @@ import numpy as np
 
 from rscasadi.model.checks import _body, _number, _table, _vector, orientation
 from rscasadi.model.types import BASE, BODY_KEYS, Frame, Payload, rotation_document, rpy_matrix
+from rscasadi.errors import InvalidArgument
 
 FRAME_KEYS = {"parent", "xyz", "rpy", "R"}
 
@@ -68,7 +69,7 @@ def frames_document(model) -> dict:
         if f.name in own:
             mine = own[f.name]
             if f.body != mine.body or not (np.allclose(f.R, mine.R, atol=1e-12) and np.allclose(f.p, mine.p, atol=1e-12)):
-                raise ValueError(f"{model.path}: frame {f.name!r} would take the place of the link-list form's own "
+                raise InvalidArgument(f"{model.path}: frame {f.name!r} would take the place of the link-list form's own "
                                  "frame of that name")
             continue
         parent = BASE if f.body == 0 else model.joints[f.body - 1].name
@@ -112,14 +113,14 @@ def holding(model, frame=None, mass=None, com=None, inertia=None, radius=None):
     from rscasadi.model.types import Body, inertia_problem
     old = model.payload
     if old is None and None in (frame, mass, com, inertia):
-        raise ValueError(f"payload: {model.path} holds none, so give frame, mass, com and inertia")
+        raise InvalidArgument(f"payload: {model.path} holds none, so give frame, mass, com and inertia")
     frame = old.frame if frame is None else frame
     known = {f.name: f for f in model.frames}
     if frame not in known or known[frame].body == 0:
-        raise ValueError(f"payload.frame: no frame {frame!r} on a moving link of {model.path}")
+        raise InvalidArgument(f"payload.frame: no frame {frame!r} on a moving link of {model.path}")
     mass = old.body.mass if mass is None else float(mass)
     if not np.isfinite(mass) or mass <= 0:
-        raise ValueError(f"payload.mass: must be > 0, got {mass!r}")
+        raise InvalidArgument(f"payload.mass: must be > 0, got {mass!r}")
     com = old.body.com if com is None else np.asarray(com, float)
     if inertia is None:
         I = old.body.inertia
@@ -128,8 +129,8 @@ def holding(model, frame=None, mass=None, com=None, inertia=None, radius=None):
         I = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
     problem = inertia_problem(I)
     if com.shape != (3,) or not np.all(np.isfinite(com)) or problem:
-        raise ValueError(f"payload: {'com is not 3 finite numbers' if not problem else 'inertia ' + problem}")
+        raise InvalidArgument(f"payload: {'com is not 3 finite numbers' if not problem else 'inertia ' + problem}")
     radius = old.radius if radius is None and old is not None else radius
     if radius is not None and not (isinstance(radius, (int, float)) and np.isfinite(radius) and radius > 0):
-        raise ValueError(f"payload.radius: must be a number > 0, got {radius!r}")
+        raise InvalidArgument(f"payload.radius: must be a number > 0, got {radius!r}")
     return dataclasses.replace(model, payload=Payload(frame, Body(mass, com, I), None if radius is None else float(radius)))

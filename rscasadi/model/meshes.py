@@ -15,6 +15,7 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
+from rscasadi.errors import InvalidArgument
 
 MESHES = (".stl", ".obj", ".dae")
 
@@ -70,7 +71,7 @@ def _vertices(path: str, mtime_ns: int) -> np.ndarray:
     loaded = trimesh.load(path, force="mesh", process=False)
     v = np.asarray(loaded.vertices, float)
     if v.ndim != 2 or v.shape[0] == 0 or v.shape[1] != 3 or not np.all(np.isfinite(v)):
-        raise ValueError("no finite vertices")
+        raise InvalidArgument("no finite vertices")
     return v
 
 
@@ -81,7 +82,7 @@ def vertices(path: Path) -> np.ndarray:
     except ValueError:
         raise
     except Exception as exc:                                    # trimesh's readers raise many kinds
-        raise ValueError(f"cannot be read ({type(exc).__name__}: {exc})") from None
+        raise InvalidArgument(f"cannot be read ({type(exc).__name__}: {exc})") from None
 
 
 def bounding_capsule(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:

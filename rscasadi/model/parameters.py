@@ -30,6 +30,7 @@ import numpy as np
 
 from rscasadi.spatial import Xup, spatial_inertia
 from rscasadi.model.modelfile import BODIES, ArmModel, Body
+from rscasadi.errors import InvalidArgument
 
 INERTIAL = ("mass", "mx", "my", "mz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 ACTUATOR = ("sea.k1", "sea.k3", "sea.d", "gear_loss.b", "gear_loss.c")
@@ -262,7 +263,7 @@ def check_names(model: ArmModel, wanted, where: str) -> list:
     for name in wanted:
         if name not in known:
             close = [k for k in known if k.split(".")[-1] == str(name).split(".")[-1]][:4]
-            raise ValueError(f"{where}: '{name}' is not a parameter of {model.path}"
+            raise InvalidArgument(f"{where}: '{name}' is not a parameter of {model.path}"
                              + (f" (e.g. {', '.join(close)})" if close else ""))
     return list(wanted)
 

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rscasadi.errors import Error
+from rscasadi.errors import Error, NotFound
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
 TOP_KEYS = {"name", "gravity", "joints", "frames", "payload", "collision"}
@@ -165,7 +165,7 @@ class ArmModel:
         for f in self.frames:
             if f.name == name:
                 return f
-        raise KeyError(f"{self.path}: no frame {name!r} (frames: {', '.join(f.name for f in self.frames)})")
+        raise NotFound(f"{self.path}: no frame {name!r} (frames: {', '.join(f.name for f in self.frames)})")
 
     @property
     def n(self) -> int:

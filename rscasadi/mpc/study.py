@@ -13,6 +13,7 @@ from rscasadi.model.limits import max_violation
 from rscasadi.mpc.formulation import limit_arrays
 from rscasadi.mpc.generate import generate_mpc
 from rscasadi.mpc.problem import MPCProblem, mpc_problem
+from rscasadi.errors import Failed, InvalidArgument
 
 
 def heavier_tip(arm: Arm, factor: float = 1.2) -> Arm:
@@ -52,7 +53,7 @@ def reach_pose(problem, mpc_dir, theta_target, seconds: float = 1.0, plant: Arm 
     for _ in range(int(round(seconds / p.sample_time))):
         tau, t, flag = mpc.step_to(x, target)
         if flag != 0:
-            raise RuntimeError(f"mpc_step_to returned {CODES.get(flag, flag)}")
+            raise Failed(f"mpc_step_to returned {CODES.get(flag, flag)}")
         taus.append(tau)
         times.append(t)
         x = np.array(advance(x, tau)).ravel()
@@ -209,7 +210,7 @@ def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bo
     from rscasadi.sim.sensors import quanta
     p = mpc_problem(problem)
     if not p.task_space or (p.tool_path is None and p.solution is None):
-        raise ValueError(f"{p.path}: task_closed_loop needs a frame, and a [path] or a solution")
+        raise InvalidArgument(f"{p.path}: task_closed_loop needs a frame, and a [path] or a solution")
     model = mpc_model(p)
     plant = Arm(model if plant_mass is None else holding(model, mass=plant_mass))
     reference = FrameReference(p, plant)
@@ -223,7 +224,7 @@ def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bo
     mpc.init(x)                                   # ControllerError if C refuses the state
     if told:
         if mpc.set_payload_mass(plant.model.payload.body.mass) != 0:
-            raise ValueError(f"{p.path}: the controller's model holds no payload to be told of")
+            raise InvalidArgument(f"{p.path}: the controller's model holds no payload to be told of")
     K = int(round((settle + reference.duration + 0.2) / dt))
     offsets = p.interval * np.arange(1, p.horizon + 1)
     errors, off_path, times, violation, gap, gap_at = [], [], [], 0.0, np.inf, None
@@ -239,7 +240,7 @@ def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bo
         ref = reference.columns(np.clip(t_ref + offsets, 0.0, reference.duration))
         tau, seconds, flag = mpc.step(np.concatenate([meas, speeds]), ref)
         if flag != 0:
-            raise RuntimeError(f"mpc_step returned {CODES.get(flag, flag)} at t = {k * dt:.3f} s")
+            raise Failed(f"mpc_step returned {CODES.get(flag, flag)} at t = {k * dt:.3f} s")
         times.append(seconds)
         x = np.array(advance(x, np.clip(tau, -limits["tau"], limits["tau"]))).ravel()
         where = np.array(place(x[:n])[1]).ravel()
@@ -283,7 +284,7 @@ def task_study(problem, mpc_dir, plant_mass: float | None = None, log=print) -> 
     p = mpc_problem(problem)
     model = mpc_model(p)
     if model.payload is None:
-        raise ValueError(f"{p.path}: the task-space study changes the payload: give the problem a payload")
+        raise InvalidArgument(f"{p.path}: the task-space study changes the payload: give the problem a payload")
     if plant_mass is None and p.solution is not None:
         held = json.loads(Path(p.solution).read_text()).get("payload") or {}
         plant_mass = held.get("mass")

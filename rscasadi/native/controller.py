@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from rscasadi.errors import InvalidArgument
 
 GUARD = Path(__file__).with_name("templates") / "rscasadi_guard.h"
 POSITION_BOUND = 10.0        # m: a frame's reference position, per axis
@@ -23,7 +24,7 @@ def c_numbers(values) -> str:
     out = []
     for v in np.ravel(np.asarray(values, float)):
         if np.isnan(v):
-            raise ValueError("a NaN cannot be a controller's constant")
+            raise InvalidArgument("a NaN cannot be a controller's constant")
         out.append(repr(float(v)) if np.isfinite(v) else ("INFINITY" if v > 0 else "-INFINITY"))
     return ", ".join(out) or "0.0"
 

@@ -69,6 +69,7 @@ import numpy as np
 from rscasadi.model.checks import field_checker, read_toml
 from rscasadi.model.types import ModelFileError
 from rscasadi.ocp.toolpath import ToolPath
+from rscasadi.errors import WrongType
 
 OBJECTIVES = ("min_time", "min_effort", "tracking")
 METHODS = ("radau", "legendre", "hermite-simpson")
@@ -255,7 +256,7 @@ class Problem:
             elif key == "path":
                 continue
             else:
-                raise TypeError(f"Problem has no field {key!r} (fields: {', '.join(sorted(FIELDS))})")
+                raise WrongType(f"Problem has no field {key!r} (fields: {', '.join(sorted(FIELDS))})")
         return Problem(**parts, path=changes.get("path", self.path))
 
     def check(self) -> "Problem":

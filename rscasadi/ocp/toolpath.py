@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
+from rscasadi.errors import InvalidArgument
 
 
 @dataclass
@@ -57,7 +58,7 @@ class ToolPath:
         d = np.asarray(p, float).ravel() - self.center
         d = d - n * (n @ d)
         if np.linalg.norm(d) < 1e-9:
-            raise ValueError("the frame's start is on the circle's axis: no nearest point")
+            raise InvalidArgument("the frame's start is on the circle's axis: no nearest point")
         return ToolPath(**{**self.to_dict(), "start": self.center + self.radius * d / np.linalg.norm(d)})
 
     @property

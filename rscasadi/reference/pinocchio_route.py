@@ -15,6 +15,7 @@ import numpy as np
 import pinocchio as pin
 
 from rscasadi.model.urdf import axis_rotation
+from rscasadi.errors import InvalidArgument
 
 
 class PinocchioRoute:
@@ -52,7 +53,7 @@ class PinocchioRoute:
         reduced = urdf_model(model)
         names = [reduced.names[i] for i in range(1, reduced.njoints)]
         if names != [jt.name for jt in model.joints]:
-            raise ValueError(f"Pinocchio's chain {names} differs from the model's joints")
+            raise InvalidArgument(f"Pinocchio's chain {names} differs from the model's joints")
         stages = []
         for i in range(1, reduced.njoints):
             axis = _axis(reduced.joints[i])
@@ -119,4 +120,4 @@ def _axis(jmodel) -> np.ndarray:
     specific = jmodel.extract() if hasattr(jmodel, "extract") else jmodel
     if hasattr(specific, "axis"):
         return np.asarray(specific.axis, float)
-    raise ValueError(f"not a revolute joint: {short}")
+    raise InvalidArgument(f"not a revolute joint: {short}")

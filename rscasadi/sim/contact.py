@@ -21,6 +21,7 @@ import casadi as ca
 import numpy as np
 
 from rscasadi.dynamics.arm import Arm
+from rscasadi.errors import InvalidArgument
 
 
 @dataclass
@@ -43,15 +44,15 @@ class Contact:
             if getattr(self, key) is not None:
                 setattr(self, key, np.asarray(getattr(self, key), float).ravel())
         if (self.point is None) == (self.center is None):
-            raise ValueError("contact: give a plane (point, normal) or a box (center, size)")
+            raise InvalidArgument("contact: give a plane (point, normal) or a box (center, size)")
         if self.point is not None:
             if self.normal is None or not np.any(self.normal):
-                raise ValueError("contact: a plane needs a normal, not all zero")
+                raise InvalidArgument("contact: a plane needs a normal, not all zero")
             self.normal = self.normal / np.linalg.norm(self.normal)
         elif self.size is None or np.any(self.size <= 0):
-            raise ValueError("contact: a box needs a size of three positive numbers")
+            raise InvalidArgument("contact: a box needs a size of three positive numbers")
         if not (self.k > 0 and self.c >= 0 and self.mu >= 0):
-            raise ValueError(f"contact: k > 0, c >= 0, mu >= 0, got k={self.k!r}, c={self.c!r}, mu={self.mu!r}")
+            raise InvalidArgument(f"contact: k > 0, c >= 0, mu >= 0, got k={self.k!r}, c={self.c!r}, mu={self.mu!r}")
 
 
 @dataclass

@@ -11,13 +11,14 @@ import numpy as np
 
 from rscasadi.dynamics.arm import Arm
 from rscasadi.dynamics.statics import spring_deflection  # noqa: F401  (part of this module's API)
+from rscasadi.errors import InvalidArgument
 
 
 def _uniform_step(t):
     t = np.asarray(t, float)
     h = np.diff(t)
     if len(t) < 2 or np.max(np.abs(h - h[0])) > 1e-9 * max(1.0, abs(t[-1])):
-        raise ValueError("simulation times must be a uniform grid of at least two points")
+        raise InvalidArgument("simulation times must be a uniform grid of at least two points")
     return float(h[0])
 
 
@@ -37,7 +38,7 @@ def simulate(arm: Arm, x0, t, tau, method: str = "cvodes", tol: float = 1e-10, s
     n, dt = arm.n, _uniform_step(t)
     tau = np.asarray(tau, float).reshape(n, len(t))
     if interpolation not in ("linear", "constant"):
-        raise ValueError(f"unknown interpolation {interpolation!r} (linear or constant)")
+        raise InvalidArgument(f"unknown interpolation {interpolation!r} (linear or constant)")
     slope = 1.0 if interpolation == "linear" else 0.0
     x, p = ca.MX.sym("x", 4 * n), ca.MX.sym("p", 2 * n)
     f = _xdot(arm, reduced)
@@ -58,7 +59,7 @@ def simulate(arm: Arm, x0, t, tau, method: str = "cvodes", tol: float = 1e-10, s
             k4 = f(x_end + h * k3, torque(s0 + h))
             x_end = x_end + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
     else:
-        raise ValueError(f"unknown method {method!r} (cvodes or rk4)")
+        raise InvalidArgument(f"unknown method {method!r} (cvodes or rk4)")
     interval = ca.Function("interval", [x, p], [x_end])
     P = np.vstack([tau[:, :-1], tau[:, 1:]])
     X = np.hstack([np.asarray(x0, float).reshape(-1, 1), np.array(interval.mapaccum(len(t) - 1)(x0, P))])
@@ -161,7 +162,7 @@ def cascade_simulate(arm: Arm, x0, t, tau, h: float, start_iterations: int = 6) 
     n, dt = arm.n, _uniform_step(t)
     m = int(round(dt / h))
     if m < 1 or abs(m * h - dt) > 1e-9 * dt:
-        raise ValueError(f"the sample interval {dt} must be a whole number of steps h = {h}")
+        raise InvalidArgument(f"the sample interval {dt} must be a whole number of steps h = {h}")
     casc = cascade_accelerations(arm)
     tau = np.asarray(tau, float).reshape(n, len(t))
     t_fine = np.arange(0, (len(t) - 1) * m + 1) * h + t[0]

@@ -22,6 +22,7 @@ from rscasadi.dynamics.arm import Arm, load  # noqa: E402
 from rscasadi.files import fresh_directory, write_json  # noqa: E402
 from rscasadi.sim.simulation import cascade_simulate, feedforward, simulate, simulate_held  # noqa: E402
 from rscasadi.sim.trajectory import Trajectory, load_trajectory  # noqa: E402
+from rscasadi.errors import Failed, InvalidArgument
 
 METHODS = {"rotor_separated": False, "dlr": True}       # name -> reduced model for the feedforward
 LABELS = {"rotor_separated": "rotor-separated (this paper)", "dlr": "DLR / Spong reduced",
@@ -170,13 +171,13 @@ def ocp_method(problem_file, arm: Arm, t, log):
     from rscasadi.ocp import load_problem, solve
     sol = solve(load_problem(problem_file), print_level=0, log=log)
     if not sol["success"]:
-        raise RuntimeError(f"the tracking OCP {problem_file} failed: {sol['status']}")
+        raise Failed(f"the tracking OCP {problem_file} failed: {sol['status']}")
     t_ocp, tau = np.asarray(sol["t"]), np.asarray(sol["tau"])
     substeps = int(round((t_ocp[1] - t_ocp[0]) / (t[1] - t[0])))
     x0 = np.concatenate([np.asarray(sol[k])[:, 0] for k in ("theta", "phi", "dtheta", "dphi")])
     full = simulate_held(arm, x0, t_ocp, tau, substeps)
     if len(full["t"]) < len(t) or not np.allclose(full["t"][:len(t)], t, rtol=0, atol=1e-9):
-        raise ValueError(f"the tracking OCP's grid ({t_ocp[1] - t_ocp[0]} s steps up to {t_ocp[-1]} s) "
+        raise InvalidArgument(f"the tracking OCP's grid ({t_ocp[1] - t_ocp[0]} s steps up to {t_ocp[-1]} s) "
                          f"does not contain the paper's sample times")
     sim = {k: (v[..., :len(t)] if isinstance(v, np.ndarray) and v.shape[-1] == len(full["t"]) else v)
            for k, v in full.items()}

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import casadi as ca
 import numpy as np
+from rscasadi.errors import Failed
 
 ENV = "RSCASADI_BLASFEO"
 WHEEL = "wheel"                             # RSCASADI_BLASFEO=wheel: the wheel's BLASFEO as shipped
@@ -48,7 +49,7 @@ def wheel_library() -> Path:
 
 
 def _refuse(path, why: str):
-    raise RuntimeError(f"{ENV}={path}: {why}; unset {ENV} to use the BLASFEO of the CasADi wheel")
+    raise Failed(f"{ENV}={path}: {why}; unset {ENV} to use the BLASFEO of the CasADi wheel")
 
 
 def _imports(binary: str, path) -> set:
@@ -112,7 +113,7 @@ def load(fatrop: str, driver: str, tuned):
     path = os.environ.get(ENV, "")
     if _loaded:
         if _loaded["path"] != path:
-            raise RuntimeError(f"{ENV} changed to {path!r} after {_loaded['path'] or 'the default'!r} was loaded: "
+            raise Failed(f"{ENV} changed to {path!r} after {_loaded['path'] or 'the default'!r} was loaded: "
                                "one BLASFEO per process")
         return
     if path and path != WHEEL:
@@ -137,7 +138,7 @@ def _lazily(path):
     dlopen.restype, dlopen.argtypes = ctypes.c_void_p, [ctypes.c_char_p, ctypes.c_int]
     handle = dlopen(str(path).encode(), os.RTLD_LAZY | os.RTLD_LOCAL)
     if not handle:
-        raise RuntimeError(f"cannot load the CasADi wheel's BLASFEO {path}")
+        raise Failed(f"cannot load the CasADi wheel's BLASFEO {path}")
     return ctypes.CDLL(str(path), handle=handle)
 
 
@@ -154,7 +155,7 @@ def _same_kernel(ours, theirs, name: str, path) -> None:
             scale = abs(alpha) * (np.abs(A[:4 * kmax]).reshape(-1, 4).T @ np.abs(B[:4 * kmax]).reshape(-1, 4)).ravel("F") \
                 + abs(beta) * np.abs(C)
             if not np.all(np.abs(D[0] - D[1]) <= 1e-14 * (1 + scale)):
-                raise RuntimeError(f"BLASFEO's {name} compiled for this processor ({path}) differs from the CasADi "
+                raise Failed(f"BLASFEO's {name} compiled for this processor ({path}) differs from the CasADi "
                                    f"wheel's (kmax {kmax}, alpha {alpha}, beta {beta}: largest difference "
                                    f"{np.nanmax(np.abs(D[0] - D[1])):.3g}); set {ENV}={WHEEL} to run on the wheel's kernels")
 
@@ -195,7 +196,7 @@ def in_use(address: int) -> dict:
     dladdr(ctypes.c_void_p(address), ctypes.byref(info))
     path = os.path.realpath(info.dli_fname.decode()) if info.dli_fname else "?"
     if _loaded.get("lib") and path != os.path.realpath(_loaded["path"]):
-        raise RuntimeError(f"{ENV}={_loaded['path']} was loaded, but fatrop's driver calls the BLASFEO in {path} "
+        raise Failed(f"{ENV}={_loaded['path']} was loaded, but fatrop's driver calls the BLASFEO in {path} "
                            f"(was fatrop loaded into this process before?)")
     return {"library": path, "features": features(ctypes.CDLL(path)) if path != "?" else "?",
             "tuned_kernels": dict(_loaded["tuned"]) if _loaded.get("tuned") else None}

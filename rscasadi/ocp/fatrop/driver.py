@@ -26,6 +26,7 @@ from rscasadi.native.build import cached_library, compiler, native_flags
 from rscasadi.native.parallel import openmp_flags
 from rscasadi.ocp.fatrop import blasfeo
 from rscasadi.ocp.assembly import RAW_NAMES
+from rscasadi.errors import Failed, InvalidArgument
 
 _SOURCE = Path(__file__).with_name("driver.c")
 _TUNED = Path(__file__).with_name("blasfeo_tuned.c")
@@ -69,7 +70,7 @@ def driver_library(log=print) -> str:
     inc, lib_dir = casadi_dir() / "include", casadi_dir()
     for need in (inc / "fatrop" / "ocp" / "OCPCInterface.h", inc / "blasfeo.h"):
         if not need.exists():
-            raise RuntimeError(f"fatrop's C interface is missing from this CasADi ({ca.__version__}): {need}")
+            raise Failed(f"fatrop's C interface is missing from this CasADi ({ca.__version__}): {need}")
     # its per-stage scatter and packing on the NLP's threads (OpenMP, when the compiler has it)
     flags = ["-O2", *openmp_flags(tuple(compiler())), f"-I{inc}"]
     link = [f"-L{lib_dir}", "-lfatrop", "-lblasfeo", f"-Wl,-rpath,{lib_dir}"]
@@ -108,7 +109,7 @@ class _Layout:
         roff = np.concatenate([[0], np.cumsum(gaps + ng)[:-1]])
         self.nv, self.ng = int(np.sum(nx + nu)), int(np.sum(gaps + ng))
         if jac[0] != (self.ng, self.nv) or hess[0] != (self.nv, self.nv):
-            raise ValueError(f"NLP of {jac[0][0]} rows and {jac[0][1]} variables does not match the stage "
+            raise InvalidArgument(f"NLP of {jac[0][0]} rows and {jac[0][1]} variables does not match the stage "
                              f"structure ({self.ng} rows, {self.nv} variables)")
         self.v_stage = np.repeat(np.arange(K), nx + nu)
         pos = np.arange(self.nv) - xoff[self.v_stage]
@@ -176,7 +177,7 @@ class _Layout:
         stray = ~(own | nxt)
         if np.any(stray):
             i = int(np.flatnonzero(stray)[0])
-            raise ValueError(f"the NLP's Jacobian is not stage-wise: row {r[i]} (stage {k[i]}) depends on variable {c[i]}")
+            raise InvalidArgument(f"the NLP's Jacobian is not stage-wise: row {r[i]} (stage {k[i]}) depends on variable {c[i]}")
         return jt, np.ascontiguousarray(js)
 
     def _hessian_places(self, hr, hc, rsq):
@@ -184,7 +185,7 @@ class _Layout:
         hk = self.v_stage[hr]
         if np.any(self.v_stage[hc] != hk):
             i = int(np.flatnonzero(self.v_stage[hc] != hk)[0])
-            raise ValueError(f"the NLP's Hessian couples stages: variables {hr[i]} and {hc[i]}")
+            raise InvalidArgument(f"the NLP's Hessian couples stages: variables {hr[i]} and {hc[i]}")
         return rsq[hk] + self.v_pos[hr] + self.v_pos[hc] * self.ld[hk]
 
 
@@ -226,7 +227,7 @@ class DirectFatrop:
         if self.raw:
             for kind, sizes, where in zip(("Jacobian", "Hessian"), self.parts, places):
                 if sizes != [len(r) for r, _ in where]:
-                    raise ValueError(f"the {kind} parts of {library} ({sizes} nonzeros) do not match the pieces' places")
+                    raise InvalidArgument(f"the {kind} parts of {library} ({sizes} nonzeros) do not match the pieces' places")
             shapes = ((self.n_g, self.n_x), (self.n_x, self.n_x))
             self._triplets = tuple((shape, np.concatenate([r for r, _ in where]), np.concatenate([c for _, c in where]))
                                    for shape, where in zip(shapes, places))
@@ -281,7 +282,7 @@ class DirectFatrop:
         values = np.array([0.0 if isinstance(self.options[k], str) else float(self.options[k]) for k in names] or [0.0])
         ret = self.driver.rsf_options(ctypes.c_void_p(handle), len(names), c_names, values.ctypes.data_as(_Dp), c_strings)
         if ret <= -1000:
-            raise ValueError(f"fatrop refused option {names[-1000 - ret]!r}={self.options[names[-1000 - ret]]!r}")
+            raise InvalidArgument(f"fatrop refused option {names[-1000 - ret]!r}={self.options[names[-1000 - ret]]!r}")
         return handle
 
     def prepare(self, lbx, ubx, lbg, ubg):
@@ -311,7 +312,7 @@ class DirectFatrop:
             if ret == -1:                                # an exception inside fatrop: a new solver next time
                 self.driver.rsf_close(ctypes.c_void_p(self._sessions.pop(id(L))[0]))
         if stats[17]:
-            raise ValueError("the NLP's gap-closing rows must read x_{k+1} - F_k(x_k, u_k): a coefficient of "
+            raise InvalidArgument("the NLP's gap-closing rows must read x_{k+1} - F_k(x_k, u_k): a coefficient of "
                              "x_{k+1} is not 1")
         fat = {k: (int(v) if k.endswith(("count", "flag")) else float(v)) for k, v in zip(_STATS, stats)}
         self._stats = {"success": ret == 0, "return_status": fat["return_flag"],
