@@ -73,8 +73,8 @@ def main():
            "|---|---|---|---|---|---|"]
     for n, arm in arms.items():
         names, values = arm.parameters()
-        md.append(f"| {n} | {arm.forward_dynamics().n_instructions()} | {arm.forward_dynamics(True).n_instructions()} | "
-                  f"{Arm.family(arm.model).forward_dynamics(True).n_instructions()} | {len(names)} | "
+        md.append(f"| {n} | {arm.forward_dynamics().n_instructions()} | {arm.forward_dynamics(parametric=True).n_instructions()} | "
+                  f"{Arm.family(arm.model).forward_dynamics(parametric=True).n_instructions()} | {len(names)} | "
                   f"{int(np.sum(np.asarray(values) == 0))} |")
     fig, ax = plt.subplots(figsize=(7, 3.2))
     labels = [f"n={n} {name}" for n in arms for name in libs[n, "constant"][1]]

@@ -42,7 +42,8 @@ def check_writable(out) -> Path:
 def _replaced(src: Path, dst: Path, prefix: str = "") -> tuple[list[str], list[str]]:
     """Entries of src that would replace an entry of dst (recursively inside directories), and
     those whose kind differs (a file where dst has a directory, or the reverse)."""
-    replaced, clash = [], []
+    replaced: list[str] = []
+    clash: list[str] = []
     for entry in sorted(src.iterdir()):
         target, name = dst / entry.name, f"{prefix}{entry.name}"
         if entry.is_dir() and target.is_dir() and not target.is_symlink():

@@ -89,7 +89,8 @@ def step_functions(arm: Arm, prefix: str = "", fd_jacobian: ca.Function | None =
     x_next, stages = rk4(lambda z: f(z, tau, *p), x, h)
     I = ca.DM.eye(5 * n)[:4 * n, :]                                  # d x / d(x, tau)
     small = arm.forward_dynamics(parametric=parametric).n_instructions() <= AD_JACOBIAN_LIMIT
-    S, B = [], []                                                    # dk_i = [S_i; B_i]
+    S: list = []                                                     # dk_i = [S_i; B_i]
+    B: list = []
     for xi, c in zip(stages, (0.0, 0.5, 0.5, 1.0)):
         if small:                                                    # F_i = d(ddtheta, ddphi)/d(x, tau)
             dX = I + c * h * ca.vertcat(S[-1], B[-1]) if S else ca.MX(I)
@@ -200,10 +201,10 @@ def functions(arm: Arm, prefix: str = "", parametric: bool = False, frames=(), e
     for name, f in frame_functions(arm, frames, external, parametric).items():
         fns[name] = _renamed(f, p + name)
     for name in ("forward_dynamics", "inverse_dynamics", "energy"):
-        fns[name] = _renamed(getattr(arm, name)(parametric), p + name)
+        fns[name] = _renamed(getattr(arm, name)(parametric=parametric), p + name)
     for name in ("reduced_forward_dynamics", "reduced_inverse_dynamics"):
         try:
-            fns[name] = _renamed(getattr(arm, name)(parametric), p + name)
+            fns[name] = _renamed(getattr(arm, name)(parametric=parametric), p + name)
         except ValueError as exc:                  # unbalanced rotors: the reduced model does not apply
             omitted[name] = str(exc)
     inv = arm.inverse_dynamics(parametric=parametric)
@@ -354,7 +355,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
                               "point (forward dynamics and M's factors, then dr/dx, which it evaluates at "
                               "the four points at once)" for name in kernels},
             "omitted": omitted,
-            "parametric": {True: "all"}.get(parametric, parametric),
+            "parametric": "all" if parametric is True else parametric,
             "frames": {name: identifier(name) for name in frames},
             "external": {"frames": external, "wrench": "[force; moment] at the frame's origin, world axes"}
                         if external else None,
@@ -447,7 +448,7 @@ class CompiledFeedforward(CompiledController):
     def _sample(self, theta_d, dtheta_d, ddtheta_d):
         return [self.ptr(self.array(k, v)) for k, v in zip(("theta_d", "dtheta_d", "ddtheta_d"), (theta_d, dtheta_d, ddtheta_d))]
 
-    def init(self, theta_d, dtheta_d, ddtheta_d) -> np.ndarray:
+    def init(self, theta_d, dtheta_d, ddtheta_d) -> np.ndarray:  # type: ignore[override]  # from a reference sample
         tau = np.zeros(self.sizes["tau"])
         self.started(self._init(self.c, *self._sample(theta_d, dtheta_d, ddtheta_d), self.ptr(tau)))
         return tau

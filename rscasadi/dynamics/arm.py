@@ -30,7 +30,7 @@ class Arm:
         self.n = model.n
         self.free = None if free is None else list(free)
         self.tie_balanced = tie_balanced          # Physics.partial: balanced rotors stay balanced
-        self._functions = {}
+        self._functions: dict = {}
         self.physics = Physics.constant(model)
 
     @staticmethod
@@ -196,7 +196,7 @@ class Arm:
         """theta, dtheta, ddtheta -> a (6 x 1): the classical acceleration in `reference`
         (Pinocchio's getFrameClassicalAcceleration)."""
         return self._kinematic("frame_acceleration", frame, ["theta", "dtheta", "ddtheta"], ["a"],
-                               lambda fr, *x: [kinematics.frame_classical_acceleration(self.model, fr, *x, reference)],
+                               lambda fr, th, dth, ddth: [kinematics.frame_classical_acceleration(self.model, fr, th, dth, ddth, reference)],
                                parametric, reference)
 
     def frame_jacobian_dot_times_v(self, frame: str, *, parametric: bool = False) -> ca.Function:

@@ -39,7 +39,7 @@ def feedforward_functions(arm, reduced: bool = False, parametric: bool = False) 
     `step` (the spring law integrated by the trapezoidal rule); `init` gives the first sample's
     torque and state from theta, dtheta, ddtheta at rest."""
     n = arm.n
-    inv = (arm.reduced_inverse_dynamics if reduced else arm.inverse_dynamics)(parametric)
+    inv = (arm.reduced_inverse_dynamics if reduced else arm.inverse_dynamics)(parametric=parametric)
     p, c = _spring(arm, parametric)
     extra = [p] if parametric else []
     k1, k3, d = c["k1"], c["k3"], c["d"]

@@ -95,7 +95,8 @@ def inverse_kinematics_along(arm, frame: str, points, theta_start, position_tol:
                         "ipopt.tol": 1e-12, "ipopt.constr_viol_tol": 1e-10})
     place = arm.frame_placement(frame)
     th = np.clip(np.asarray(theta_start, float).ravel(), lo, hi)
-    out, worst = [], 0.0
+    out: list[np.ndarray] = []
+    worst = 0.0
     for i, p in enumerate(np.asarray(points, float).reshape(-1, 3)):
         res = solver(x0=th, p=np.r_[p, th], lbx=lo, ubx=hi, lbg=0.0, ubg=0.0)
         raise_if_interrupted(solver.stats())

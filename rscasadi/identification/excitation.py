@@ -237,7 +237,8 @@ class _Progress(ca.Callback):
     def reset(self, label: str):
         import time
         self.label, self.k, self.t0, self.last = label, 0, time.perf_counter(), time.perf_counter()
-        self.history, self.stalled = [], False
+        self.history: list = []
+        self.stalled = False
 
     def get_n_in(self):
         return ca.nlpsol_n_out()
@@ -315,7 +316,8 @@ def design(arm: Arm, period: float = 10.0, harmonics: int = 5, margin: float = 0
     t = np.arange(int(round(period * rate)) + 1) / rate
     log(f"excitation: {n} joints, {K} harmonics, period {period} s, {M} samples, {r} base parameters; "
         f"{starts} starts")
-    tried, best = [], None
+    tried: list[dict] = []
+    best = None
     for seed in range(1, starts + 1):
         solver.progress.reset(f"start {seed}/{starts}: ")
         res = solver(x0=_start(arm, K, seed), **bounds)

@@ -556,7 +556,7 @@ def plot(out: Path, rows_: Rows, th: np.ndarray, title: str):
     plt.close(fig)
 
 
-def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, reduced=False, log=print) -> dict:
+def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, reduced=False, log=print) -> tuple[dict, Identification]:
     """`rscasadi identify`: fit the model to the logs, check it on a held-out log if given, and
     write the identified model file, its report and figures into `out`; returns (report, ident)."""
     check_writable(out)
@@ -581,7 +581,8 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
     log(f"cut-off {ident.cutoff_why}")
     log(f"{ident.ls.base.rank} base parameters, condition number {ident.ls.condition:.3g}; "
         f"physically consistent fit {ident.fit_status}")
-    validation, val_rows = None, None
+    validation: dict | None = None
+    val_rows = None
     if val_log is not None:
         sig = prepare(val_log, ident.cutoff_hz)
         val_rows = rows(arm, sig, ident.unknowns, reduced)

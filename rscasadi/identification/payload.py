@@ -32,7 +32,7 @@ NAMES = [f"payload.{q}" for q in INERTIAL]
 PRIOR = 1e-3          # weight of the model file's guess, relative to the data, where the data is silent
 
 
-def _rows(arm: Arm, sig, known: list) -> tuple[np.ndarray, np.ndarray, list]:
+def _rows(arm: Arm, sig, known: list) -> tuple[list, list, list]:
     """A p_payload = y: the link rows with the spring's torque, and the motor rows where it turns."""
     n, count = arm.n, sig.t.size
     Yf = regressor(arm, known=known).map(count)
@@ -44,9 +44,13 @@ def _rows(arm: Arm, sig, known: list) -> tuple[np.ndarray, np.ndarray, list]:
     T_spring = c["k1"] * psi + c["k3"] * psi ** 3 + c["d"] * dpsi
     A, y, labels = [], [], []
     for j in range(n):
-        A.append(Y[n + j]), y.append(T_spring[j] - y0[n + j]), labels.append(f"T_{j + 1}")
+        A.append(Y[n + j])
+        y.append(T_spring[j] - y0[n + j])
+        labels.append(f"T_{j + 1}")
         moving = np.abs(sig.dphi[j]) > REVERSAL * c["eps"][j, 0]
-        A.append(Y[j][moving]), y.append(sig.tau[j][moving] - y0[j][moving]), labels.append(f"tau_{j + 1}")
+        A.append(Y[j][moving])
+        y.append(sig.tau[j][moving] - y0[j][moving])
+        labels.append(f"tau_{j + 1}")
     return A, y, labels
 
 
@@ -70,19 +74,19 @@ def identify_payload(arm: Arm, logs: list[Log], fc: float | None = None) -> dict
     base = base_of(np.vstack([a / s for a, s in zip(A_b, size)]), NAMES, rtol=1e-6)
     for _ in range(3):                                  # each block weighted by 1 / its residual RMS
         Ab = np.vstack([a[:, base.independent] / s for a, s in zip(A_b, sigma)])
-        y = np.concatenate([v / s for v, s in zip(y_b, sigma)])
-        beta, *_ = np.linalg.lstsq(Ab, y, rcond=None)
+        y_w = np.concatenate([v / s for v, s in zip(y_b, sigma)])
+        beta, *_ = np.linalg.lstsq(Ab, y_w, rcond=None)
         sigma = np.array([max(np.sqrt(np.mean((a[:, base.independent] @ beta - v) ** 2)), 1e-4 * sz)
                           for a, v, sz in zip(A_b, y_b, size)])
     Ab = np.vstack([a[:, base.independent] / s for a, s in zip(A_b, sigma)])
-    y = np.concatenate([v / s for v, s in zip(y_b, sigma)])
-    beta, *_ = np.linalg.lstsq(Ab, y, rcond=None)
-    s2 = float(np.sum((Ab @ beta - y) ** 2) / max(Ab.shape[0] - Ab.shape[1], 1))
+    y_w = np.concatenate([v / s for v, s in zip(y_b, sigma)])
+    beta, *_ = np.linalg.lstsq(Ab, y_w, rcond=None)
+    s2 = float(np.sum((Ab @ beta - y_w) ** 2) / max(Ab.shape[0] - Ab.shape[1], 1))
     cov = s2 * np.linalg.inv(Ab.T @ Ab)
     guess = nominal[held]
     physical, status = _physical(base, beta, Ab.T @ Ab / s2, guess)
     est = np.full(10, np.nan)
-    std = [None] * 10
+    std: list[float | None] = [None] * 10
     for k in range(10):
         d = base.functional(np.eye(10)[k])
         if d is not None:

@@ -169,7 +169,8 @@ class ImpedanceController:
         self.hold = holding_torque(arm)
         self.limit = limit_arrays(arm.model)["tau"]
         self.box = impedance_boxes(arm.model, frame)
-        self.x_good, self.code = None, NOT_INITIALISED
+        self.x_good: np.ndarray | None = None
+        self.code = NOT_INITIALISED
 
     def init(self, x) -> int:
         """0, or BAD_MEASUREMENT for a state outside its box (then uninitialised)."""

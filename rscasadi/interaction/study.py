@@ -11,6 +11,8 @@ and the generated C's time per step.  `study` runs them all for one arm (`rscasa
 impedance MODEL --frame F --study`, benchmarks/bench_interaction.py)."""
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from rscasadi.dynamics.arm import Arm
@@ -63,7 +65,7 @@ def impedance_loop(arm: Arm, frame: str, theta0, world: World, seconds: float, r
     obs = MomentumObserver(arm, observer_gain, DT) if observer_gain else None
     if obs:
         obs.init(x)
-    rows = {k: [] for k in ("t", "p", "f", "psi", "tau", "r", "true")}
+    rows: dict[str, list] = {k: [] for k in ("t", "p", "f", "psi", "tau", "r", "true")}
     tau = None
     for k in range(int(round(seconds / DT))):
         meas = encoders(x)
@@ -119,7 +121,7 @@ def wall(arm: Arm, frame: str, theta0, stiffness: float, wall_stiffness: float, 
     last 0.2 s (chatter)."""
     ref0 = pose_of(arm, frame, theta0)
     c = 2 * wall_damping * np.sqrt(wall_stiffness * frame_inertia(arm, frame, theta0, [0.0, 0.0, 1.0]))
-    surface = Contact(frame, k=wall_stiffness, c=c, mu=0.2, point=ref0[:3] - [0, 0, gap], normal=[0, 0, 1])
+    surface = Contact(frame, k=wall_stiffness, c=c, mu=0.2, point=ref0[:3] - [0, 0, gap], normal=np.array([0.0, 0.0, 1.0]))
 
     def reference(t):
         s = min(t / ramp, 1.0)
@@ -155,7 +157,7 @@ def collision(arm: Arm, frame: str, theta0, stiffness: float = 300.0, gap: float
     sample before): its largest link torque before the contact, the flag's delay (a link torque
     above `threshold` N m), its torques averaged from 0.1 s after the contact against J^T f."""
     ref0 = pose_of(arm, frame, theta0)
-    table = Contact(frame, k=1e5, c=2 * 0.4 * np.sqrt(1e5), mu=0.2, point=ref0[:3] - [0, 0, gap], normal=[0, 0, 1])
+    table = Contact(frame, k=1e5, c=2 * 0.4 * np.sqrt(1e5), mu=0.2, point=ref0[:3] - [0, 0, gap], normal=np.array([0.0, 0.0, 1.0]))
 
     def reference(t):
         s = min(t / 1.0, 1.0)
@@ -211,15 +213,15 @@ def collision_feedforward(arm: Arm, frame: str, trajectory, gain: float = 50.0, 
         rows.append(np.r_[(i + 1) * DT, r, np.array(jac(x[:n]))[:3].T @ f[:3], obs.collision])
         tau = np.clip(ff["tau"][:, i + 1] - (kp * (ff["phi"][:, i + 1] - meas[n:2 * n])
                                              + kd * (ff["dphi"][:, i + 1] - meas[3 * n:])) / mu, -limit, limit)
-    rows = np.array(rows)
+    table = np.array(rows)
     if contact is None:
         raise InvalidArgument(f"collision: the {frame!r} never reached the wall")
-    flag, false_alarm = _first_flags(rows[:, 0], rows[:, -1] > 0, contact)
-    rows = rows[:, :-1]
-    window = (rows[:, 0] > contact + 0.1) & (rows[:, 0] < contact + 0.3)
-    mean_r, mean_true = rows[window, 1:n + 1].mean(0), rows[window, n + 1:].mean(0)
+    flag, false_alarm = _first_flags(table[:, 0], table[:, -1] > 0, contact)
+    data = table[:, :-1]
+    window = (data[:, 0] > contact + 0.1) & (data[:, 0] < contact + 0.3)
+    mean_r, mean_true = data[window, 1:n + 1].mean(0), data[window, n + 1:].mean(0)
     return {"contact_s": contact, "flag_s": flag, "delay_ms": 1e3 * (flag - contact), "false_alarm_s": false_alarm,
-            "free_max_Nm": float(np.abs(rows[rows[:, 0] < contact, 1:n + 1]).max()), "threshold_Nm": threshold,
+            "free_max_Nm": float(np.abs(data[data[:, 0] < contact, 1:n + 1]).max()), "threshold_Nm": threshold,
             "error_percent": 100 * np.linalg.norm(mean_r - mean_true) / np.linalg.norm(mean_true),
             "torque_Nm": float(np.linalg.norm(mean_true))}
 
@@ -276,9 +278,9 @@ def study(arm: Arm, frame: str, theta0, out, gain: float = 50.0, threshold: floa
     from rscasadi.files import fresh_directory, write_json, write_text
     stiffnesses, walls = ((300.0, 2000.0), (1e5,)) if short else ((200.0, 1000.0, 2000.0), (1e4, 1e5, 1e6))
     seconds = 1.5 if short else 2.5
-    result = {"model": str(arm.model.path), "frame": frame, "theta0": list(map(float, theta0)),
+    result: dict[str, Any] = {"model": str(arm.model.path), "frame": frame, "theta0": list(map(float, theta0)),
               "rotational_stiffness": rotational, "push": [], "wall": [], "reduced": {}}
-    traces = {}
+    traces: dict[str, dict] = {}
     with fresh_directory(Path(out)) as tmp:
         for K in stiffnesses:
             design = "motor" if _passive_allows(arm, frame, theta0, K, rotational) else "link"
@@ -299,9 +301,9 @@ def study(arm: Arm, frame: str, theta0, out, gain: float = 50.0, threshold: floa
                 arm, frame, trajectory, gain=gain, threshold=threshold, seconds=1.0 if short else None)
         result["observer_gain"] = gain
         log("(d) the same controller designed on the reduced (DLR/Spong) model")
-        for name, kw in (("complete", {}), ("reduced", {"reduced": True})):
-            p = push(arm, frame, theta0, 1000.0, seconds=seconds, rotational=rotational, **kw)
-            w = wall(arm, frame, theta0, 1000.0, walls[0], seconds=seconds, rotational=rotational, **kw)
+        for name, options in (("complete", {}), ("reduced", {"reduced": True})):
+            p = push(arm, frame, theta0, 1000.0, seconds=seconds, rotational=rotational, **options)
+            w = wall(arm, frame, theta0, 1000.0, walls[0], seconds=seconds, rotational=rotational, **options)
             result["reduced"][name] = {"push_error_percent": p["error_percent"], "push_overshoot_percent":
                                        p["overshoot_percent"], "wall_error_percent": w["error_percent"]}
         result["reduced"]["classical_series_stiffness_percent"] = \

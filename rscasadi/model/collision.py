@@ -93,12 +93,13 @@ def collision(ctx, raw, joints, frames: tuple, default_tip: str | None, urdf: di
     if "links" in t or not urdf:
         links = dict(_table(ctx, "collision.links", t.get("links", {}), set(t.get("links", {}))))
     else:                                        # every moving link the URDF gives geometry
-        first = {}
+        first: dict = {}
         for f in frames:
             if f.body != 0 and f.name in urdf and urdf[f.name]:
                 first.setdefault(f.body, f.name)
         links = {name: "urdf" for name in first.values()}
-    capsules, bodies = [], {}
+    capsules: list = []
+    bodies: dict = {}
     for name, value in links.items():
         fld = f"collision.links.{name}"
         if name not in known:

@@ -14,6 +14,7 @@ import stat
 from functools import lru_cache
 from pathlib import Path
 
+from typing import Any
 import numpy as np
 from rscasadi.errors import InvalidArgument
 
@@ -68,7 +69,7 @@ def mesh_file(urdf: Path, name: str) -> tuple[Path | None, str]:
 @lru_cache(maxsize=256)
 def _vertices(path: str, mtime_ns: int) -> np.ndarray:
     import trimesh
-    loaded = trimesh.load(path, force="mesh", process=False)
+    loaded: Any = trimesh.load(path, force="mesh", process=False)     # a Trimesh (force="mesh")
     v = np.asarray(loaded.vertices, float)
     if v.ndim != 2 or v.shape[0] == 0 or v.shape[1] != 3 or not np.all(np.isfinite(v)):
         raise InvalidArgument("no finite vertices")

@@ -44,7 +44,7 @@ def parse(data: dict, path: str = "<memory>") -> ArmModel:
     raw_joints = data["joints"]
     if not isinstance(raw_joints, list) or not raw_joints:
         ctx.fail("joints", "expected at least one [[joints]] table")
-    joints = []
+    joints: list = []
     for idx, raw in enumerate(raw_joints):
         joints.append(_joint(path, idx, raw, {jt.name for jt in joints} | {BASE}))
     model = ArmModel(data["name"], gravity, tuple(joints), path)

@@ -74,7 +74,7 @@ def names(model: ArmModel) -> list[str]:
 
 def nominal(model: ArmModel) -> np.ndarray:
     """The model's values of the parameter vector p."""
-    out = []
+    out: list = []
     for jt in model.joints:
         out += [body_parameters(getattr(jt, body)) for body in BODIES]
         out.append([getattr(jt, a) for a in ACTUATOR_ATTR])
@@ -238,11 +238,11 @@ def tied_balanced(model: ArmModel, free: list) -> dict:
     """{Iyy name: Ixx name} of the rotors balanced in the model (Ixx = Iyy about the joint axis,
     centre on it, no products) whose Iyy, mx, my and products are not in `free`: tied, they stay
     balanced for every value of the free parameters."""
-    out, free = {}, set(free)
+    out, freed = {}, set(free)
     for jt in model.joints:
         for part in ("slow_rotor", "fast_rotor"):
             key = f"{jt.name}.{part}."
-            if getattr(jt, part).balanced and not free & {key + a for a in ("Iyy", "mx", "my", "Ixy", "Ixz", "Iyz")}:
+            if getattr(jt, part).balanced and not freed & {key + a for a in ("Iyy", "mx", "my", "Ixy", "Ixz", "Iyz")}:
                 out[key + "Iyy"] = key + "Ixx"
     return out
 

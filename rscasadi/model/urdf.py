@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -159,7 +160,7 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
     raw_joints = data["joints"]
     if not isinstance(raw_joints, list) or not raw_joints:
         ctx.fail("joints", "expected at least one [[joints]] table")
-    actuators = {}
+    actuators: dict = {}
     for idx, raw in enumerate(raw_joints):
         jctx = joint_context(path, idx, raw)
         t = _table(jctx, "", raw, ACTUATOR_KEYS, ("name", "gear_ratio", "sea", "slow_rotor", "fast_rotor"))
@@ -227,6 +228,8 @@ def _collision_shapes(urdf_path, link) -> list:
     (radius, length)), ("sphere", T, radius), ("box", T, size), ("mesh", T, (file name, scale));
     read as capsules only where [collision] asks for them (rscasadi.model.collision)."""
     out = []
+    shape: tuple
+    sizes: Any
     for c in link.collisions or ():
         T = np.asarray(c.origin if c.origin is not None else np.eye(4), float)
         g = c.geometry
@@ -269,7 +272,7 @@ def _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuator
     the next moving joint.  Moving joints off that path (a whole robot's head, other arm,
     fingers) are held at their [locked] position, else at `lock_others`: those hanging from the
     fixed base cannot move the chain, those hanging from its links add their mass there."""
-    children = {}
+    children: dict = {}
     for jt in robot.robot.joints:
         if jt.parent not in links_by_name or jt.child not in links_by_name:
             missing = jt.parent if jt.parent not in links_by_name else jt.child
@@ -305,7 +308,7 @@ def _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuator
                            "have no [[joints]] entry and are not locked: give each an actuator, hold it under "
                            "[locked], or end the chain at a link with tip = \"LINK\" (every moving joint off the "
                            "path from the root to the tip is then held at lock_others)")
-    bodies = [{"M": np.zeros((6, 6)), "links": [], "T_joint": None, "T_links": []}]
+    bodies: list[dict[str, Any]] = [{"M": np.zeros((6, 6)), "links": [], "T_joint": None, "T_links": []}]
     chain, held_at = [], {}                                   # held_at: every held moving joint's position
     tip_body = None
     stack = [(roots[0], 0, np.eye(4))]                        # (link, chain body, transform body frame -> link)

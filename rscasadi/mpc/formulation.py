@@ -303,7 +303,7 @@ def box_qp(H, g, lo, hi, iterations: int, rows=None, rho: float = 1e4):
     d = ca.fmin(ca.fmax(ca.MX.zeros(m), lo), hi)
     state = [d] + [ca.MX.ones(m) for _ in range(4)]
     data = [H, g, lo, hi]
-    pattern = ()
+    pattern: tuple = ()
     if rows is not None:
         C, cl, cu = rows
         size = ca.fmax(ca.sqrt(ca.sum2(C * C)), 1e-12)                    # each row to a unit norm

@@ -92,7 +92,7 @@ def closed_loop(problem, mpc_dir, duration: float | None = None, tip_factor: flo
     kp, kd = motor_pd_gains(nominal.model)
     limits = limit_arrays(plant)
     mpc = CompiledMPC(mpc_dir)
-    results = {}
+    results: dict[str, dict] = {}
     for name in ("feedforward", "feedforward + PD", "MPC (C)"):
         x = ff["x0"].copy()
         meas_prev = np.concatenate([np.round(x[:n] / q_link) * q_link, np.round(x[n:2 * n] / q_motor) * q_motor])
@@ -293,7 +293,8 @@ def task_study(problem, mpc_dir, plant_mass: float | None = None, log=print) -> 
            "obstacles": [o.to_dict() for o in p.obstacles]}
     from rscasadi.model.frames import holding, payload_document
     modelled = model.payload.body.mass
-    cases = [("as_modelled", None, False, f"as modelled (payload {modelled:.2f} kg)")]
+    cases: list[tuple[str, float | None, bool, str]] = [
+        ("as_modelled", None, False, f"as modelled (payload {modelled:.2f} kg)")]
     if abs(plant_mass - modelled) > 1e-9 * max(1.0, modelled):
         cases += [("untold_payload", plant_mass, False, f"payload {plant_mass:.2f} kg, not told"),
                   ("told_payload", plant_mass, True, f"payload {plant_mass:.2f} kg, told")]
@@ -338,7 +339,8 @@ def study(problem, build, identified_model=None, true_arm: Arm | None = None, lo
     if given, the identified model's controllers (MPC generated into `build`) against the true arm
     that produced the identification logs.  `figure`: where to draw them (plot_closed_loop)."""
     build = Path(build)
-    res, traces = {}, {}
+    res: dict = {}
+    traces: dict = {}
     log("closed loop: the model's controllers on a plant with a 20 % heavier tip, quantised encoders")
     generate_mpc(problem, build / "mpc", log=log)
     res["heavier_tip"] = closed_loop(problem, build / "mpc", log=log, traces=traces.setdefault("heavier_tip", {}))

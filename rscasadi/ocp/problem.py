@@ -332,13 +332,13 @@ class Problem:
         for name, bounds in t.design.items():
             if len(bounds) != 2 or not bounds[0] < bounds[1]:
                 fail(f"design.{name}", f"expected [lower, upper] with lower < upper, got {bounds!r}")
-        for fld, value, allowed in (("transcription.method", tr.method, METHODS),
+        for fld, chosen, allowed in (("transcription.method", tr.method, METHODS),
                                     ("transcription.dynamics", tr.dynamics, DYNAMICS),
                                     ("transcription.parametric", tr.parametric, PARAMETRIC),
                                     ("solver.name", s.name, SOLVERS), ("solver.hessian", s.hessian, HESSIANS),
                                     ("solver.interface", s.interface, INTERFACES)):
-            if value not in allowed:
-                fail(fld, f"must be one of {', '.join(allowed)}, got {value!r}")
+            if chosen not in allowed:
+                fail(fld, f"must be one of {', '.join(allowed)}, got {chosen!r}")
         for fld, value, lo, hi in (("transcription.degree", tr.degree, 1, MAX_DEGREE),
                                    ("transcription.intervals", tr.intervals, 2, MAX_INTERVALS),
                                    ("refinement.rounds", v.rounds, 0, MAX_ROUNDS), ("solver.threads", s.threads, 0, 1024)):

@@ -34,8 +34,8 @@ from rscasadi.ocp.transcription import Transcription
 from rscasadi.interrupt import raise_if_interrupted
 
 
-WARM = {"ipopt": {"mu_strategy": "monotone", "mu_init": 1e-6, "bound_push": 1e-8, "bound_frac": 1e-8},
-        "fatrop": {"mu_init": 1e-6}}
+WARM: dict[str, dict] = {"ipopt": {"mu_strategy": "monotone", "mu_init": 1e-6, "bound_push": 1e-8, "bound_frac": 1e-8},
+                         "fatrop": {"mu_init": 1e-6}}
 
 
 def _reference(problem: Problem, t):

@@ -237,7 +237,7 @@ def _plot(out: Path, keys: list, rows: list):
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(7, 4.5))
     x_key, other = keys[0], keys[1:]
-    groups = {}
+    groups: dict = {}
     for r in rows:
         groups.setdefault(tuple(r[k] for k in other), []).append(r)
     for label, rs in groups.items():

@@ -295,7 +295,8 @@ class Transcription:
         n, nx, nul, na = self.n, self.nx, self.nu_lifted, 2 * self.n * self.m
         nu = n + self.ns                                                      # tau, [ds]
         keep = np.r_[np.arange(nx + nu), nx + nul + np.arange(nx)]
-        return condense(*derivatives, keep, nx + nu + np.arange(na), nx + np.arange(na), log=log)
+        d1, f1, d2, split = derivatives
+        return condense(d1, f1, d2, split, keep, nx + nu + np.arange(na), nx + np.arange(na), log=log)
 
     def nlp(self, log=print):
         """The NLP dict and its constant bounds on g; variables and constraints in stage order.

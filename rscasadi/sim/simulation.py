@@ -180,7 +180,8 @@ def cascade_simulate(arm: Arm, x0, t, tau, h: float, start_iterations: int = 6) 
     x, a = np.asarray(x0, float), accel(np.asarray(x0, float), t_fine[0], np.zeros(n), start_iterations)
     X, F, A = [x], [f(x, a)], [a[:n]]
     for k in range(min(3, len(t_fine) - 1)):                        # starting procedure: RK4
-        s, stages, guess = t_fine[k], [], a[:n]
+        stages: list = []
+        s, guess = t_fine[k], a[:n]
         for c, base in ((0.0, None), (0.5, 0), (0.5, 1), (1.0, 2)):
             xs = x if base is None else x + c * h * stages[base]
             a_s = accel(xs, s + c * h, guess, start_iterations)
@@ -188,7 +189,9 @@ def cascade_simulate(arm: Arm, x0, t, tau, h: float, start_iterations: int = 6) 
             stages.append(f(xs, a_s))
         x = x + h / 6 * (stages[0] + 2 * stages[1] + 2 * stages[2] + stages[3])
         a = accel(x, s + h, guess, start_iterations)
-        X.append(x), F.append(f(x, a)), A.append(a[:n])
+        X.append(x)
+        F.append(f(x, a))
+        A.append(a[:n])
     for k in range(3, len(t_fine) - 1):                             # ABM4, PECE
         s = t_fine[k + 1]
         x_p = x + h * sum(c * F[-1 - i] for i, c in enumerate(AB4))
@@ -196,8 +199,9 @@ def cascade_simulate(arm: Arm, x0, t, tau, h: float, start_iterations: int = 6) 
         a_p = accel(x_p, s, guess)
         x = x + h * (AM4[0] * f(x_p, a_p) + sum(c * F[-1 - i] for i, c in enumerate(AM4[1:])))
         a = accel(x, s, a_p[:n])
-        X.append(x), F.append(f(x, a)), A.append(a[:n])
+        X.append(x)
+        F.append(f(x, a))
+        A.append(a[:n])
         if len(F) > 4:
             del F[0], A[0]
-    X = np.array(X).T[:, ::m]
-    return trajectory_record(arm, t, X)
+    return trajectory_record(arm, t, np.array(X).T[:, ::m])

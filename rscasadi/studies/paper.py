@@ -136,7 +136,7 @@ def sweep(out: Path, arm: Arm, traj: Trajectory, log):
             (1 / p, arm, dataclasses.replace(traj, period=p, duration=p)) for p in (4.0, 2.0, 1.0, 0.5)],
         "axis tilt (rad)": [(a, _variant(arm, f"tilt {a}", tilt=a), traj) for a in (0.0, 0.2, 0.4, 0.8)],
     }
-    result = {}
+    result: dict = {}
     for what, points in cases.items():
         result[what] = []
         for value, variant, tr in points:

@@ -91,7 +91,8 @@ def run(out, log=print) -> list:
     Returns and prints a summary: (part, "ok" | "FAILED" | "skipped", what it produced or why),
     and writes it with each part's wall time, the date, machine and commit to `out/summary.json`."""
     out = check_writable(out)
-    summary, seconds = [], {}
+    summary: list[tuple[str, str, str]] = []
+    seconds: dict[str, float] = {}
 
     def part(name, work, needs=()):
         missing = [n for n in needs if not any(s[0] == n and s[1] == "ok" for s in summary)]

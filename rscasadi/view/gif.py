@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from typing import Any
 import numpy as np
 
 LINK, ROTOR, OBSTACLE, PAYLOAD, BROKEN, PATH, FLOOR = "#b0b8c8", "#3060c0", "#c07030", "#d0a020", "#e02020", \
@@ -45,7 +46,7 @@ def _box_faces(T, size):
 def _mesh_faces(path: str, T):
     """A mesh file's triangles placed by T (its scale folded in), at most MAX_MESH_FACES of them."""
     import trimesh
-    mesh = trimesh.load(path, force="mesh", process=False)
+    mesh: Any = trimesh.load(path, force="mesh", process=False)       # a Trimesh (force="mesh")
     tri = np.asarray(mesh.vertices, float)[np.asarray(mesh.faces)]
     if len(tri) > MAX_MESH_FACES:
         tri = tri[np.argsort(-mesh.area_faces)[:MAX_MESH_FACES]]             # the largest faces shape it
@@ -90,7 +91,7 @@ def write_gif(scene, out: Path, fps: int = 15):
     from rscasadi.view.html import VIEW_DIRECTION, floor_lines
     from rscasadi.view.scene import bounds
     fig = plt.figure(figsize=(8, 6), dpi=100)
-    ax = fig.add_axes([0, 0, 1, 1], projection="3d")
+    ax = fig.add_axes((0, 0, 1, 1), projection="3d")
     lo, hi = bounds(scene)
     lo, hi = np.minimum(lo, [np.inf, np.inf, 0.0]) - 0.05, hi + 0.05
     centre, half = (lo + hi) / 2, np.max(hi - lo) / 2

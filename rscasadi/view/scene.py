@@ -60,7 +60,7 @@ def _links(arm: Arm) -> dict:
     """Per body its capsules: the model's collision capsules, else a rod from the joint to the
     next joint (the last link: to its farthest frame), 2.5 cm thick."""
     model = arm.model
-    shapes = {b: [] for b in range(1, model.n + 1)}
+    shapes: dict[int, list] = {b: [] for b in range(1, model.n + 1)}
     if model.collision is not None:
         for c in model.collision.capsules:
             shapes[c.body].append((np.asarray(c.a, float), np.asarray(c.b, float), c.radius))
@@ -89,7 +89,8 @@ def _visuals(arm: Arm) -> tuple[dict, list]:
                                load_collision_meshes=False, build_collision_scene_graph=False)
     links = {lk.name: lk for lk in robot.robot.links}
     frames = {f.name: f for f in arm.model.frames}
-    out, skipped = {}, []
+    out: dict = {}
+    skipped: list = []
     for name, frame in frames.items():
         if frame.body == 0 or name not in links:
             continue
@@ -104,7 +105,7 @@ def _visuals(arm: Arm) -> tuple[dict, list]:
                     skipped.append((g.mesh.filename, why, frame.body))
                     continue
                 scale = np.ones(3) if g.mesh.scale is None else np.broadcast_to(np.asarray(g.mesh.scale, float), 3)
-                shape = ("mesh", str(path), T @ np.diag([*scale, 1.0]))
+                shape: tuple = ("mesh", str(path), T @ np.diag([*scale, 1.0]))
             elif g.box is not None:
                 shape = ("box", np.asarray(g.box.size, float).tolist(), T)
             elif g.cylinder is not None:

@@ -20,6 +20,7 @@ from collections import OrderedDict
 from pathlib import Path
 
 import casadi as ca
+from typing import Any
 import numpy as np
 
 from rscasadi.native.build import cached_library, compiler, native_flags
@@ -49,7 +50,7 @@ def _close_sessions(driver, sessions: OrderedDict):
 
 
 class _Problem(ctypes.Structure):
-    _fields_ = ([(k, ctypes.c_int) for k in ("K", "nv", "ng")]
+    _fields_ = ([(k, ctypes.c_int) for k in ("K", "nv", "ng")]  # type: ignore[assignment]  # typeshed: a union
                 + [(k, _I) for k in ("nx", "nu", "xoff", "roff", "a_eq", "a_eq_idx", "a_in", "a_in_idx",
                                      "x_eq", "x_eq_idx", "x_in", "x_in_idx")]
                 + [(k, ctypes.c_int) for k in ("nnz_j", "nnz_h", "n_jbuf", "n_hbuf", "n_jparts", "n_hparts")]
@@ -125,8 +126,8 @@ class _Layout:
         sizes = np.stack([self.ld * gaps, self.ld * n_eq, self.ld * n_in], axis=1).reshape(-1)
         self.offs = np.concatenate([[0], np.cumsum(sizes)[:-1]]).reshape(K, 3)     # BAbt, Ggt, Ggt_ineq
         rsq = np.concatenate([[0], np.cumsum(self.ld * (nx + nu))[:-1]])
-        jt, self.js = self._jacobian_places(*jac[1:], lists, nu)
-        ht = self._hessian_places(*hess[1:], rsq)
+        jt, self.js = self._jacobian_places(jac[1], jac[2], lists, nu)
+        ht = self._hessian_places(hess[1], hess[2], rsq)
         assert len(np.unique(jt[jt >= 0])) == np.count_nonzero(jt >= 0), "two Jacobian nonzeros share a block entry"
         # pieces overlap in the Hessian (e.g. the start piece and stage 0 at x_0): each place's first
         # nonzero is written, the others are added after it
@@ -235,7 +236,7 @@ class DirectFatrop:
             self._triplets = tuple((sp.shape, np.array(sp.row()), np.repeat(np.arange(sp.size2()), np.diff(sp.colind())))
                                    for sp in (jac.sparsity_out(1), hess.sparsity_out(1)))
         self._offsets = [_ints(np.concatenate([[0], np.cumsum(sizes)])) for sizes in self.parts]
-        self._stats = {}
+        self._stats: dict[str, Any] = {}
         # one fatrop solver per layout, built on first use (prepare, or the first solve) and reused
         # (closed with self)
         self._sessions: OrderedDict = OrderedDict()
@@ -248,7 +249,8 @@ class DirectFatrop:
         key = (self.library, self.raw, np.packbits(np.concatenate([eq_g, in_g, eq_x, in_x])).tobytes())
         if key not in _LAYOUTS:                      # kept for the process: repeated solves, refinements, sweeps
             s = self.structure
-            _LAYOUTS[key] = _Layout(s["nx"], s["nu"], s["ng"], *self._triplets, eq_g, in_g, eq_x, in_x)
+            jac, hess = self._triplets
+            _LAYOUTS[key] = _Layout(s["nx"], s["nu"], s["ng"], jac, hess, eq_g, in_g, eq_x, in_x)
         return _LAYOUTS[key]
 
     def _problem(self, L: _Layout) -> _Problem:
