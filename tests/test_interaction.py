@@ -11,7 +11,7 @@ import rscasadi
 from rscasadi.codegen import rk4
 from rscasadi.dynamics.statics import rest_state
 from rscasadi.interaction import MomentumObserver, observer_terms, tool_wrench
-from rscasadi.interaction.study import Encoders
+from rscasadi.sim.loop import Encoders
 
 from conftest import ROOT
 
@@ -33,7 +33,7 @@ def pushed(arm, frame, wrench, theta0, quantised=False, gain=300.0, seconds=0.8)
     x = rest_state(arm, theta0)
     zero = np.zeros(n)
     tau = np.array(arm.inverse_dynamics()(x[:n], x[n:2 * n], zero, zero, zero, zero)[0]).ravel()
-    encoders = Encoders(arm)
+    encoders = Encoders(arm, DT)
     obs, out = MomentumObserver(arm, gain, DT), {"t": [], "r": [], "true": [], "theta": []}
     obs.init(x)
     for k in range(int(round(seconds / DT))):
@@ -398,13 +398,13 @@ def test_the_joint_space_impedance_holds_each_joint_at_its_stiffness():
     """The joint-space variant: a 15 N push at the tool moves the joints by K_q^-1 J^T f within
     5 % (K_q 300, 200, 100 N m/rad, softer than the springs)."""
     from rscasadi.interaction import ImpedanceController
-    from rscasadi.interaction.study import Encoders
+    from rscasadi.sim.loop import Encoders
     from rscasadi.sim.contact import Push, World, plant_with_contacts
     arm = rscasadi.load(ROOT / "problems" / "arm3_tool.toml")
     Kq, F = np.array([300.0, 200.0, 100.0]), np.array([0.0, -10.0, -15.0, 0, 0, 0])
     ctrl = ImpedanceController(arm, None)
     plant = plant_with_contacts(arm, World(pushes=(Push("tool", F, 0.2, 9.0),)), DT, 8)
-    x, enc = rest_state(arm, ARM3_THETA), Encoders(arm)
+    x, enc = rest_state(arm, ARM3_THETA), Encoders(arm, DT)
     assert ctrl.init(enc(x)) == 0
     for k in range(1500):
         x = np.array(plant(x, ctrl.step(enc(x), ARM3_THETA, Kq, [0.7] * 3), k * DT)[0]).ravel()

@@ -39,13 +39,14 @@ def test_the_violation_figure_by_hand(tmp_path):
 
 
 def test_the_ocp_and_the_mpc_studies_share_the_figure():
-    """The OCP's replay and the MPC's closed loops call the one definition."""
+    """The OCP's replay and the closed loop's figure (every MPC study's) call the one definition."""
     import importlib
     import inspect
-    study, solution = (importlib.import_module(f"rscasadi.{m}") for m in ("mpc.study", "ocp.solution"))
+    study, solution, loop = (importlib.import_module(f"rscasadi.{m}") for m in ("mpc.study", "ocp.solution", "sim.loop"))
     assert "violation(arm.model" in inspect.getsource(solution.verify)
+    assert "violation(arm.model" in inspect.getsource(loop.limit_violation)
     for fn in (study.reach_pose, study.closed_loop, study.task_closed_loop):
-        assert "max_violation(" in inspect.getsource(fn)
+        assert "limit_violation(" in inspect.getsource(fn)
 
 
 @pytest.fixture(scope="module")

@@ -20,27 +20,11 @@ from rscasadi.dynamics.statics import rest_state
 from rscasadi.interaction.impedance import ImpedanceController
 from rscasadi.interaction.observer import MomentumObserver
 from rscasadi.native.controller import CODE_NAMES
-from rscasadi.sim.contact import Contact, Push, World, plant_with_contacts
-from rscasadi.sim.sensors import quanta
+from rscasadi.sim.contact import Contact, Push, World
+from rscasadi.sim.loop import FeedforwardPD, contact_plant, run_loop
 from rscasadi.errors import InvalidArgument
 
 DT = 1e-3
-
-
-class Encoders:
-    """The absolute link and motor encoders, quantised, their speeds by backward differences
-    (the true speeds at the first sample)."""
-
-    def __init__(self, arm: Arm):
-        self.n, self.prev = arm.n, None
-        self.q_link, self.q_motor = quanta(arm.model.column("gear_ratio"))
-
-    def __call__(self, x) -> np.ndarray:
-        n = self.n
-        q = np.r_[np.round(x[:n] / self.q_link) * self.q_link, np.round(x[n:2 * n] / self.q_motor) * self.q_motor]
-        speeds = (q - self.prev) / DT if self.prev is not None else x[2 * n:]
-        self.prev = q
-        return np.r_[q, speeds]
 
 
 def pose_of(arm: Arm, frame: str, theta) -> np.ndarray:
@@ -49,41 +33,51 @@ def pose_of(arm: Arm, frame: str, theta) -> np.ndarray:
     return np.r_[p.ravel(), R.ravel("F")]
 
 
+class _Impedance:
+    """The impedance controller as the loop's controller, tracking reference(t) (12)."""
+
+    def __init__(self, ctrl: ImpedanceController, reference, stiffness, damping_ratio):
+        self.ctrl, self.reference, self.stiffness, self.damping_ratio = ctrl, reference, stiffness, damping_ratio
+
+    def init(self, meas) -> None:
+        if self.ctrl.init(meas) != 0:
+            raise InvalidArgument(f"impedance: the start state is outside the controller's box "
+                                  f"({CODE_NAMES[self.ctrl.code]})")
+
+    def step(self, k: int, meas) -> np.ndarray:
+        tau = self.ctrl.step(meas, self.reference(k * DT), self.stiffness, self.damping_ratio)
+        if self.ctrl.code != 0:
+            raise InvalidArgument(f"impedance: {CODE_NAMES[self.ctrl.code]} at t = {k * DT:.3f} s (stiffness "
+                                  f"{list(np.ravel(self.stiffness))}: TOO_STIFF is beyond what the springs allow "
+                                  f"the passive design)")
+        return tau
+
+
 def impedance_loop(arm: Arm, frame: str, theta0, world: World, seconds: float, reference, stiffness,
                    damping_ratio, observer_gain: float | None = None, substeps: int = 8, **design) -> dict:
     """The arm at rest at theta0 under the Cartesian impedance controller (`design` keywords as
-    `impedance_law`), the reference reference(t) (12), in `world`: per sample t, the frame's
-    position p, the wrench at world.frames[0] (6), the deflections psi, the torques, the
-    observer's link torques r and the true J^T f (when observer_gain is given)."""
-    n = arm.n
-    ctrl = ImpedanceController(arm, frame, **design)
-    plant = plant_with_contacts(arm, world, DT, substeps)
+    `impedance_law`), the reference reference(t) (12), in `world` (rscasadi.sim.loop): per sample
+    t, the frame's position p, the wrench at world.frames[0] (6), the deflections psi, the
+    torques, the observer's link torques r and the true J^T f (when observer_gain is given)."""
+    n, samples = arm.n, int(round(seconds / DT))
     place, jac = arm.frame_placement(frame), arm.frame_jacobian(world.frames[0], "local_world_aligned")
-    encoders, x = Encoders(arm), rest_state(arm, theta0)
-    if ctrl.init(encoders(x)) != 0:
-        raise InvalidArgument(f"impedance: the start state is outside the controller's box ({CODE_NAMES[ctrl.code]})")
+    x0 = rest_state(arm, theta0)
     obs = MomentumObserver(arm, observer_gain, DT) if observer_gain else None
     if obs:
-        obs.init(x)
-    rows: dict[str, list] = {k: [] for k in ("t", "p", "f", "psi", "tau", "r", "true")}
-    tau = None
-    for k in range(int(round(seconds / DT))):
-        meas = encoders(x)
-        if obs and tau is not None:                 # the torque held over the sample before
-            rows["r"].append(obs.step(meas, tau)[:n])
-            rows["true"].append(np.array(jac(x[:n])).T @ f)
-        tau = ctrl.step(meas, reference(k * DT), stiffness, damping_ratio)
-        if ctrl.code != 0:
-            raise InvalidArgument(f"impedance: {CODE_NAMES[ctrl.code]} at t = {k * DT:.3f} s (stiffness "
-                             f"{list(np.ravel(stiffness))}: TOO_STIFF is beyond what the springs allow the passive design)")
-        x, W = (np.array(v) for v in plant(x, tau, k * DT))
-        x, f = x.ravel(), W[:, 0]
-        rows["t"].append((k + 1) * DT)
-        rows["p"].append(np.array(place(x[:n])[1]).ravel())
-        rows["f"].append(f)
-        rows["psi"].append(x[n:2 * n] - x[:n])
-        rows["tau"].append(tau)
-    return {k: np.array(v) for k, v in rows.items() if v}
+        obs.init(x0)
+    seen: dict[str, list] = {"r": [], "true": []}
+
+    def watch(k, t, x, meas, tau, wrench):
+        if obs and 0 < k < samples:                 # the torque held over the sample before
+            seen["r"].append(obs.step(meas, tau)[:n])
+            seen["true"].append(np.array(jac(x[:n])).T @ wrench[:, 0])
+    run = run_loop(arm, contact_plant(arm, world, DT, substeps),
+                   _Impedance(ImpedanceController(arm, frame, **design), reference, stiffness, damping_ratio),
+                   x0, samples, DT, watch=watch)
+    x = run.x[:, 1:]
+    rows = {"t": run.t[1:], "p": np.array(place.map(samples)(x[:n])[1]).T, "f": np.array([w[:, 0] for w in run.wrenches]),
+            "psi": (x[n:2 * n] - x[:n]).T, "tau": run.tau.T}
+    return rows | {k: np.array(v) for k, v in seen.items() if v}
 
 
 def push(arm: Arm, frame: str, theta0, stiffness: float, force=(0.0, 0.0, -15.0), seconds: float = 2.5,
@@ -197,23 +191,23 @@ def collision_feedforward(arm: Arm, frame: str, trajectory, gain: float = 50.0, 
     v_hit = (np.array(place(ff["theta_d"][:, k + 1])[1]) - np.array(place(ff["theta_d"][:, k - 1])[1])).ravel()
     plane = Contact(frame, k=wall_stiffness, c=2 * 0.4 * np.sqrt(wall_stiffness * 1.0), mu=0.2, point=p_hit,
                     normal=-v_hit / np.linalg.norm(v_hit))
-    plant = plant_with_contacts(arm, World(contacts=(plane,)), DT, 8)
-    mu, (kp, kd) = arm.model.column("gear_ratio"), motor_pd_gains(arm.model, motor_hz)
-    limit = np.array([jt.limits.get("tau", np.inf) for jt in arm.model.joints])
-    encoders, x, tau = Encoders(arm), ff["x0"].copy(), ff["tau"][:, 0]
+    gains = (*motor_pd_gains(arm.model, motor_hz), arm.model.column("gear_ratio"))
     obs = MomentumObserver(arm, gain, DT, threshold)
-    obs.init(encoders(x))
-    rows, contact, flag = [], None, None
-    for i in range(len(t) - 1):
-        x, W = (np.array(v) for v in plant(x, tau, i * DT))     # the torque held over this sample
-        x, f = x.ravel(), W[:, 0]
-        meas = encoders(x)
-        r = obs.step(meas, tau)[:n]
-        contact = contact if contact is not None else ((i + 1) * DT if np.any(f) else None)
-        rows.append(np.r_[(i + 1) * DT, r, np.array(jac(x[:n]))[:3].T @ f[:3], obs.collision])
-        tau = np.clip(ff["tau"][:, i + 1] - (kp * (ff["phi"][:, i + 1] - meas[n:2 * n])
-                                             + kd * (ff["dphi"][:, i + 1] - meas[3 * n:])) / mu, -limit, limit)
-    table = np.array(rows)
+    rows: list = []
+    hit: list = []
+
+    def watch(k, t, x, meas, tau, wrench):
+        if k == 0:
+            obs.init(meas)
+            return
+        f = wrench[:, 0]
+        r = obs.step(meas, tau)[:n]                 # the torque held over the sample before
+        if not hit and np.any(f):
+            hit.append(t)
+        rows.append(np.r_[t, r, np.array(jac(x[:n]))[:3].T @ f[:3], obs.collision])
+    run_loop(arm, contact_plant(arm, World(contacts=(plane,)), DT, 8), FeedforwardPD(ff, gains), ff["x0"],
+             len(t) - 1, DT, watch=watch)
+    table, contact = np.array(rows), (hit[0] if hit else None)
     if contact is None:
         raise InvalidArgument(f"collision: the {frame!r} never reached the wall")
     flag, false_alarm = _first_flags(table[:, 0], table[:, -1] > 0, contact)

@@ -4,13 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import casadi as ca
 import numpy as np
 
 from rscasadi.dynamics.arm import Arm, load
 from rscasadi.mpc.compiled import CODES, CompiledMPC
-from rscasadi.model.limits import max_violation
-from rscasadi.mpc.formulation import limit_arrays
+from rscasadi.sim.loop import Controller, Encoders, FeedforwardPD, limit_violation, rk4_plant, run_loop, step_times, tracking
 from rscasadi.mpc.generate import generate_mpc
 from rscasadi.mpc.problem import MPCProblem, mpc_problem
 from rscasadi.errors import Failed, InvalidArgument
@@ -26,41 +24,41 @@ def heavier_tip(arm: Arm, factor: float = 1.2) -> Arm:
     return Arm(dataclasses.replace(arm.model, joints=joints, name=arm.model.name + f"-tip-x{factor:g}"))
 
 
-def plant_step(plant: Arm, dt: float) -> ca.Function:
-    """(x, tau) -> x after dt: the simulated arm, four RK4 steps of its complete model."""
-    from rscasadi.codegen import rk4
-    n, fd = plant.n, plant.forward_dynamics()
-    xs, us = ca.SX.sym("x", 4 * n), ca.SX.sym("u", n)
-    z = xs
-    for _ in range(4):
-        z = rk4(lambda v: ca.vertcat(v[2 * n:], *fd(*ca.vertsplit(v, n), us)), z, dt / 4)[0]
-    return ca.Function("advance", [xs, us], [z])
+class _MPC:
+    """The generated C MPC as the loop's controller: `reference(k)` gives the columns of the
+    horizon at sample k; `target`, if given, drives it with mpc_step_to instead."""
+
+    def __init__(self, mpc: CompiledMPC, reference=None, target=None):
+        self.mpc, self.reference, self.target, self.seconds = mpc, reference, target, None
+
+    def init(self, meas) -> None:
+        self.mpc.init(meas)                       # ControllerError if C refuses the state
+
+    def step(self, k: int, meas) -> np.ndarray:
+        if self.target is not None:
+            tau, self.seconds, flag = self.mpc.step_to(meas, self.target)
+        else:
+            tau, self.seconds, flag = self.mpc.step(meas, self.reference(k))
+        if flag != 0:
+            raise Failed(f"mpc_step{'_to' if self.target is not None else ''} returned {CODES.get(flag, flag)} "
+                         f"at sample {k}")
+        return tau
 
 
 def reach_pose(problem, mpc_dir, theta_target, seconds: float = 1.0, plant: Arm | None = None, start=None) -> dict:
     """From rest at theta = 0 (or `start`) to a target pose with the C MPC's mpc_step_to, on the problem's arm
     (or `plant`), exact measurements: final angle error and speed, largest limit violation
     (fraction of the limit beyond it), the torques and the time per step."""
+    from rscasadi.dynamics.statics import rest_state
     p = mpc_problem(problem)
     arm = load(p.model) if plant is None else plant
-    from rscasadi.dynamics.statics import rest_state
-    n, advance = arm.n, plant_step(arm, p.sample_time)
-    target = np.asarray(theta_target, float)
-    mpc = CompiledMPC(mpc_dir)
-    x = rest_state(arm, np.zeros(n) if start is None else np.asarray(start, float))
-    mpc.init(x)
-    violation, taus, times = 0.0, [], []
-    for _ in range(int(round(seconds / p.sample_time))):
-        tau, t, flag = mpc.step_to(x, target)
-        if flag != 0:
-            raise Failed(f"mpc_step_to returned {CODES.get(flag, flag)}")
-        taus.append(tau)
-        times.append(t)
-        x = np.array(advance(x, tau)).ravel()
-        violation = max(violation, max_violation(arm.model, x[:n], x[n:2 * n], x[3 * n:]))
+    n, dt, target = arm.n, p.sample_time, np.asarray(theta_target, float)
+    x0 = rest_state(arm, np.zeros(n) if start is None else np.asarray(start, float))
+    run = run_loop(arm, rk4_plant(arm, dt), _MPC(CompiledMPC(mpc_dir), target=target), x0,
+                   int(round(seconds / dt)), dt, sensors=Encoders(arm, dt, exact=True))
+    x = run.x[:, -1]
     return {"final_angle_error": float(np.max(np.abs(x[:n] - target))), "final_speed": float(np.max(np.abs(x[2 * n:]))),
-            "max_limit_violation": max(violation, 0.0), "tau": np.array(taus),
-            "step_median_s": float(np.median(times)), "step_worst_s": float(np.max(times))}
+            "max_limit_violation": limit_violation(arm, run), "tau": run.tau.T, **step_times(run)}
 
 
 def closed_loop(problem, mpc_dir, duration: float | None = None, tip_factor: float = 1.2,
@@ -74,7 +72,6 @@ def closed_loop(problem, mpc_dir, duration: float | None = None, tip_factor: flo
     controller the tracking error (max, RMS), the largest limit violation and, for the MPC, its
     time per step (measured in C); `traces`, if given, receives per controller the time, the error
     over time and (MPC) the step times, for `plot_closed_loop`."""
-    from rscasadi.sim.sensors import quanta              # the same encoders as the identification logs
     from rscasadi.sim.simulation import feedforward, motor_pd_gains
     from rscasadi.sim.trajectory import load_trajectory
     p = mpc_problem(problem)
@@ -82,58 +79,34 @@ def closed_loop(problem, mpc_dir, duration: float | None = None, tip_factor: flo
     plant = heavier_tip(nominal, tip_factor) if plant is None else plant
     traj = load_trajectory(p.trajectory)
     n, dt = nominal.n, p.sample_time
-    T = traj.duration if duration is None else duration
-    K = int(round(T / dt))
+    K = int(round((traj.duration if duration is None else duration) / dt))
     t = np.arange(K + 1) * dt
     ff = feedforward(nominal, traj, t)
-    advance = plant_step(plant, dt)
-    mu = nominal.model.column("gear_ratio")
-    q_link, q_motor = quanta(mu)
-    kp, kd = motor_pd_gains(nominal.model)
-    limits = limit_arrays(plant)
-    mpc = CompiledMPC(mpc_dir)
+    advance = rk4_plant(plant, dt)
+    offsets = p.interval * np.arange(1, p.horizon + 1)
+
+    def horizon(k):
+        q, dq = traj(np.minimum(t[k] + offsets, traj.duration))[:2]
+        return np.vstack([q, dq])
+    pd = (*motor_pd_gains(nominal.model), nominal.model.column("gear_ratio"))
+    controllers: dict[str, Controller] = {"feedforward": FeedforwardPD(ff), "feedforward + PD": FeedforwardPD(ff, pd),
+                                          "MPC (C)": _MPC(CompiledMPC(mpc_dir), horizon)}
     results: dict[str, dict] = {}
-    for name in ("feedforward", "feedforward + PD", "MPC (C)"):
-        x = ff["x0"].copy()
-        meas_prev = np.concatenate([np.round(x[:n] / q_link) * q_link, np.round(x[n:2 * n] / q_motor) * q_motor])
-        errors, violation, times, thetas = [], 0.0, [], [x[:n].copy()]
-        if name == "MPC (C)":
-            mpc.init(x)
-        for k in range(K):
-            meas = np.concatenate([np.round(x[:n] / q_link) * q_link, np.round(x[n:2 * n] / q_motor) * q_motor])
-            speeds = (meas - meas_prev) / dt if k else x[2 * n:]
-            meas_prev = meas
-            if not quantised:
-                meas, speeds = x[:2 * n], x[2 * n:]
-            if name == "MPC (C)":
-                tk = t[k] + p.interval * np.arange(1, p.horizon + 1)
-                q, dq = traj(np.minimum(tk, traj.duration))[:2]
-                tau, seconds, flag = mpc.step(np.concatenate([meas, speeds]), np.vstack([q, dq]))
-                times.append(seconds)
-            else:
-                tau = ff["tau"][:, k].copy()
-                if name == "feedforward + PD":
-                    tau -= (kp * (ff["phi"][:, k] - meas[n:]) + kd * (ff["dphi"][:, k] - speeds[n:])) / mu
-            tau = np.clip(tau, -limits["tau"], limits["tau"])
-            x = np.array(advance(x, tau)).ravel()
-            thetas.append(x[:n].copy())
-            errors.append(np.max(np.abs(x[:n] - ff["theta_d"][:, k + 1])))
-            violation = max(violation, max_violation(plant.model, x[:n], x[n:2 * n], x[3 * n:]))
-        e = np.array(errors)
+    for name, controller in controllers.items():
+        run = run_loop(plant, advance, controller, ff["x0"], K, dt, sensors=Encoders(plant, dt, exact=not quantised))
+        e = np.max(np.abs(run.x[:n, 1:] - ff["theta_d"][:, 1:K + 1]), axis=0)
         if traces is not None:
-            traces[name] = {"t": t[1:K + 1], "error": e, "step_s": np.array(times)}
-        results[name] = {"max_error": float(e.max()), "max_error_at_s": float(t[1 + int(np.argmax(e))]),
-                         "rms_error": float(np.sqrt(np.mean(e ** 2))),
-                         "max_limit_violation": max(violation, 0.0)}
-        if times:
-            results[name].update(step_median_s=float(np.median(times)), step_worst_s=float(np.max(times)))
+            traces[name] = {"t": t[1:K + 1], "error": e, "step_s": run.seconds}
+        results[name] = {**tracking(t[1:], e), "max_limit_violation": limit_violation(plant, run), **step_times(run)}
         if name == "MPC (C)":                           # its motion, every 10 ms, for rscasadi view
             every = max(1, int(round(0.01 / dt)))
             results[name].update(model=str(p.model if model is None else model), t=t[::every].tolist(),
-                                 theta=np.array(thetas).T[:, ::every].tolist())
-        log(f"{name:18s} max error {e.max():.2e} rad, RMS {results[name]['rms_error']:.2e} rad, "
-            f"limit violation {max(violation, 0.0):.1e}"
-            + (f", step median {np.median(times) * 1e6:.0f} us, worst {np.max(times) * 1e6:.0f} us" if times else ""))
+                                 theta=run.x[:n, ::every].tolist())
+        r = results[name]
+        log(f"{name:18s} max error {r['max_error']:.2e} rad, RMS {r['rms_error']:.2e} rad, "
+            f"limit violation {r['max_limit_violation']:.1e}"
+            + (f", step median {r['step_median_s'] * 1e6:.0f} us, worst {r['step_worst_s'] * 1e6:.0f} us"
+               if run.seconds.size else ""))
     return results
 
 
@@ -207,7 +180,6 @@ def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bo
     from rscasadi.dynamics.statics import rest_state
     from rscasadi.model.frames import holding
     from rscasadi.mpc.problem import mpc_model
-    from rscasadi.sim.sensors import quanta
     p = mpc_problem(problem)
     if not p.task_space or (p.tool_path is None and p.solution is None):
         raise InvalidArgument(f"{p.path}: task_closed_loop needs a frame, and a [path] or a solution")
@@ -215,44 +187,31 @@ def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bo
     plant = Arm(model if plant_mass is None else holding(model, mass=plant_mass))
     reference = FrameReference(p, plant)
     dt, n = p.sample_time, plant.n
-    advance, limits = plant_step(plant, dt), limit_arrays(plant)
     place = plant.frame_placement(p.frame)
     clearance = exact_clearance(plant.model, p.obstacles) if p.obstacles else None
-    q_link, q_motor = quanta(plant.model.column("gear_ratio"))
     mpc = CompiledMPC(mpc_dir)
-    x = rest_state(plant, reference.theta_start)
-    mpc.init(x)                                   # ControllerError if C refuses the state
-    if told:
-        if mpc.set_payload_mass(plant.model.payload.body.mass) != 0:
-            raise InvalidArgument(f"{p.path}: the controller's model holds no payload to be told of")
     K = int(round((settle + reference.duration + 0.2) / dt))
     offsets = p.interval * np.arange(1, p.horizon + 1)
-    errors, off_path, times, violation, gap, gap_at = [], [], [], 0.0, np.inf, None
-    meas_prev = None
-    thetas, every = [x[:n].copy()], max(1, int(round(0.01 / dt)))
-    for k in range(K):
-        t_ref = k * dt - settle                       # the reference's clock (< 0: holding its start)
-        meas = np.concatenate([np.round(x[:n] / q_link) * q_link, np.round(x[n:2 * n] / q_motor) * q_motor])
-        speeds = (meas - meas_prev) / dt if meas_prev is not None else x[2 * n:]
-        meas_prev = meas
-        if not quantised:
-            meas, speeds = x[:2 * n], x[2 * n:]
-        ref = reference.columns(np.clip(t_ref + offsets, 0.0, reference.duration))
-        tau, seconds, flag = mpc.step(np.concatenate([meas, speeds]), ref)
-        if flag != 0:
-            raise Failed(f"mpc_step returned {CODES.get(flag, flag)} at t = {k * dt:.3f} s")
-        times.append(seconds)
-        x = np.array(advance(x, np.clip(tau, -limits["tau"], limits["tau"]))).ravel()
+    clock = lambda k: k * dt - settle                      # the reference's clock (< 0: holding its start)
+    errors, off_path, gaps = [], [], []
+
+    def watch(k, t, x, meas, tau, wrench):
+        if k == 0:
+            if told and mpc.set_payload_mass(plant.model.payload.body.mass) != 0:
+                raise InvalidArgument(f"{p.path}: the controller's model holds no payload to be told of")
+            return
         where = np.array(place(x[:n])[1]).ravel()
-        errors.append(np.linalg.norm(where - reference.position(np.clip([t_ref + dt], 0.0, reference.duration))[0]))
+        errors.append(np.linalg.norm(where - reference.position(np.clip([clock(k)], 0.0, reference.duration))[0]))
         off_path.append(reference.distance(where))
-        violation = max(violation, max_violation(plant.model, x[:n], x[n:2 * n], x[3 * n:]))
-        if clearance is not None and float(clearance(x[:n])) < gap:
-            gap, gap_at = float(clearance(x[:n])), (k + 1) * dt - settle
-        if (k + 1) % every == 0:
-            thetas.append(x[:n].copy())
-        if (k + 1) % 500 == 0:
-            log(f"  {(k + 1) * dt:.2f} of {K * dt:.2f} s")
+        gaps.append(float(clearance(x[:n])) if clearance is not None else np.inf)
+
+    controller = _MPC(mpc, lambda k: reference.columns(np.clip(clock(k) + offsets, 0.0, reference.duration)))
+    run = run_loop(plant, rk4_plant(plant, dt), controller, rest_state(plant, reference.theta_start), K, dt,
+                   sensors=Encoders(plant, dt, exact=not quantised), watch=watch, log=log)
+    every = max(1, int(round(0.01 / dt)))
+    times, violation, thetas = run.seconds, limit_violation(plant, run), run.x[:n, ::every].T
+    gap = min(gaps) if clearance is not None else np.inf
+    gap_at = clock(1 + int(np.argmin(gaps))) if clearance is not None else None
     e = np.array(errors)
     res = {"plant_mass": float(plant.model.payload.body.mass) if plant.model.payload else 0.0,
            "told": told, "max_error": float(e.max()), "rms_error": float(np.sqrt(np.mean(e ** 2))),
