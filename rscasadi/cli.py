@@ -47,6 +47,14 @@ def fraction(text: str) -> float:
     return value
 
 
+def c_identifier(text: str) -> str:
+    """A C identifier: letters, digits and underscores, not starting with a digit."""
+    import re
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", text):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a C identifier")
+    return text
+
+
 def names_list(text: str) -> list:
     """A comma-separated list of names, none empty."""
     names = [t.strip() for t in text.split(",")]
@@ -111,7 +119,7 @@ def _cmd_mpc(args):
     from rscasadi.files import check_writable
     check_writable(args.out)
     generate_mpc(args.problem, args.out, opt=args.opt, log=lambda msg: print(msg, flush=True), model=args.model,
-                 native=args.native)
+                 native=args.native, prefix=args.prefix or "")
     if args.study is not None and mpc_problem(args.problem).task_space:
         from rscasadi.mpc import plot_task_study, task_study
         res = task_study(args.problem, args.out, plant_mass=args.plant_payload, log=lambda msg: print(msg, flush=True))
@@ -249,7 +257,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("codegen", help="generate and compile C for a model's functions")
     p.add_argument("model")
     p.add_argument("--out", required=True, help="directory for the sources, header, library and manifest.json")
-    p.add_argument("--prefix", default=None, help="C identifier put before every function name (P_name)")
+    p.add_argument("--prefix", default=None, type=c_identifier, help="C identifier put before every function name (P_name)")
     p.add_argument("--opt", default="-O3", type=opt_flag, help="optimisation flag (default -O3)")
     p.add_argument("--parametric", nargs="?", const="all", default=False, choices=("all", "family"),
                    help="every function takes the parameter vector p last (names in manifest.json): one library "
@@ -286,6 +294,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("problem", help="MPC problem file (TOML)")
     p.add_argument("--out", default="build/mpc")
     p.add_argument("--model", default=None, help="a model file that replaces the problem's (e.g. an identified one)")
+    p.add_argument("--prefix", default=None, type=c_identifier,
+                   help="C identifier before every symbol and file (P_mpc_init, P_mpc.h): controllers link together")
     p.add_argument("--opt", default="-O2", type=opt_flag, help="optimisation flag for the library (default -O2)")
     p.add_argument("--native", action="store_true",
                    help="compile for this machine's processor (-march=native, fused multiply-adds); the sources "

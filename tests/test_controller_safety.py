@@ -51,7 +51,8 @@ PROBLEMS = {name: ROOT / "problems" / f"{name}.toml" for name in ("mpc_arm3", "m
 
 @pytest.fixture(scope="module")
 def mpc_dirs(tmp_path_factory):
-    """The shipped MPC problems' controllers, and mpc_arm3's with hard link-angle limits."""
+    """The shipped MPC problems' controllers, and mpc_arm3's with hard link-angle limits (its C
+    symbols prefixed `hard_`: hard_mpc_init, ...)."""
     from rscasadi.mpc import generate_mpc
     hard = tmp_path_factory.mktemp("hard") / "mpc_arm3_hard.toml"
     text = PROBLEMS["mpc_arm3"].read_text().replace('model = "', f'model = "{ROOT / "problems"}/')
@@ -61,7 +62,7 @@ def mpc_dirs(tmp_path_factory):
     out = {}
     for name, problem in PROBLEMS.items():
         out[name] = tmp_path_factory.mktemp(name) / "mpc"
-        generate_mpc(problem, out[name], opt="-O1", log=lambda m: None)
+        generate_mpc(problem, out[name], opt="-O1", log=lambda m: None, prefix="hard" if "hard" in name else "")
     return out
 
 
@@ -277,6 +278,48 @@ def test_four_controllers_in_one_binary_under_valgrind(mpc_dirs, interaction_dir
         pytest.skip("valgrind is not installed: the checks passed without it")
     check = subprocess.run(["valgrind", "--error-exitcode=9", str(exe)], capture_output=True, text=True)
     assert check.returncode == 0, check.stderr[-3000:]
+
+
+TWO_MPCS = r"""
+#include <stdio.h>
+#include "rscasadi_mpc.h"
+#include "hard_mpc.h"
+static mpc_t soft;
+static hard_mpc_t hard;
+int main(void) {
+  double x[MPC_NX] = {0}, ref[MPC_NREF], tau[MPC_NU], tau_hard[HARD_MPC_NU];
+  for (int k = 0; k < MPC_HORIZON; ++k)
+    for (int i = 0; i < 2 * MPC_NU; ++i) ref[2 * MPC_NU * k + i] = i < MPC_NU ? 0.1 : 0.0;
+  if (mpc_init(&soft, x) || hard_mpc_init(&hard, x)) return 2;
+  if (mpc_step(&soft, x, ref, tau) || hard_mpc_step(&hard, x, ref, tau_hard)) return 3;
+  for (int i = 0; i < MPC_NU; ++i) printf("%.17g %.17g\n", tau[i], tau_hard[i]);
+  return 0;
+}
+"""
+
+
+def test_two_mpcs_with_their_prefixes_link_into_one_program(mpc_dirs, tmp_path):
+    """The same problem's MPC with soft and with hard angle limits, the second generated with
+    prefix "hard" (hard_mpc_t, hard_mpc_step, HARD_MPC_NU, hard_mpc.h, libhard_mpc.so): one C
+    program links both (-Wall -Wextra -Werror) and each returns, to the last bit, what its
+    library returns through Python."""
+    from rscasadi.mpc import CompiledMPC
+    soft, hard = mpc_dirs["mpc_arm3"], mpc_dirs["mpc_arm3_hard"]
+    assert (hard / "hard_mpc.h").exists() and CompiledMPC(hard).manifest["symbol"] == "hard_mpc"
+    (tmp_path / "two.c").write_text(TWO_MPCS)
+    exe = tmp_path / "two"
+    subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-O1", f"-I{soft}", f"-I{hard}", str(tmp_path / "two.c"),
+                    f"-L{soft}", f"-L{hard}", "-lrscasadi_mpc", "-lhard_mpc", f"-Wl,-rpath,{soft}", f"-Wl,-rpath,{hard}",
+                    "-lm", "-o", str(exe)], check=True)
+    run = subprocess.run([str(exe)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    in_c = np.array([[float(v) for v in line.split()] for line in run.stdout.split("\n") if line]).T
+    x, ref = np.zeros(12), np.vstack([np.full((3, 10), 0.1), np.zeros((3, 10))])
+    for column, directory in zip(in_c, (soft, hard)):
+        mpc = CompiledMPC(directory)
+        mpc.init(x)
+        tau, _, flag = mpc.step(x, ref)
+        assert flag == 0 and np.array_equal(tau, column)
 
 
 def test_the_guarded_feedforward_fuzzed(built):

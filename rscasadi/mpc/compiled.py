@@ -22,7 +22,11 @@ class CompiledMPC(CompiledController):
 
     def __init__(self, directory):
         super().__init__(directory, "mpc")
-        self.lib.mpc_set_payload_mass.argtypes = [ctypes.c_void_p, ctypes.c_double]
+        self.fn = {k: getattr(self.lib, f"{self.stem}_{k}") for k in ("init", "init_parameters", "step", "step_to",
+                                                                       "step_seconds", "set_payload_mass",
+                                                                       "set_parameters", "set_posture")}
+        self.fn["set_payload_mass"].argtypes = [ctypes.c_void_p, ctypes.c_double]
+        self.fn["step_seconds"].restype = ctypes.c_double
         self.n = self.sizes["tau"]
 
     def init(self, x, parameters=None) -> int:
@@ -31,9 +35,9 @@ class CompiledMPC(CompiledController):
         uninitialised)."""
         x = self.ptr(self.array("x", x))
         if parameters is None:
-            return self.started(self.lib.mpc_init(self.c, x))
+            return self.started(self.fn["init"](self.c, x))
         p = self.array("parameters", parameters, len(self.manifest["parameters"]["names"]))
-        return self.started(self.lib.mpc_init_parameters(self.c, x, self.ptr(p)))
+        return self.started(self.fn["init_parameters"](self.c, x, self.ptr(p)))
 
     def step(self, x, reference):
         """reference: rows x N, a column per interval end (theta_ref over dtheta_ref; in task
@@ -42,25 +46,25 @@ class CompiledMPC(CompiledController):
         ref = np.asarray(reference)
         if ref.shape != (rows, N):
             raise ControllerError(f"mpc: reference must be {rows} x {N} (manifest.json), got shape {ref.shape}")
-        return self._call(self.lib.mpc_step, x, self.array("reference", ref.T))
+        return self._call(self.fn["step"], x, self.array("reference", ref.T))
 
     def step_to(self, x, target):
-        return self._call(self.lib.mpc_step_to, x, self.array("target", target))
+        return self._call(self.fn["step_to"], x, self.array("target", target))
 
     def set_payload_mass(self, mass: float) -> int:
         if not isinstance(mass, (int, float, np.integer, np.floating)) or isinstance(mass, bool):
             raise ControllerError(f"mpc: the payload's mass must be a number, got {mass!r}")
-        return self.lib.mpc_set_payload_mass(self.c, float(mass))
+        return self.fn["set_payload_mass"](self.c, float(mass))
 
     def set_parameters(self, p) -> int:
         """The arm's parameters (manifest.json "parameters": names in order), from the next step on."""
-        return self.lib.mpc_set_parameters(self.c, self.ptr(self.array("parameters", p, len(self.manifest["parameters"]["names"]))))
+        return self.fn["set_parameters"](self.c, self.ptr(self.array("parameters", p, len(self.manifest["parameters"]["names"]))))
 
     def set_posture(self, theta) -> int:
-        return self.lib.mpc_set_posture(self.c, self.ptr(self.array("theta", theta, self.n)))
+        return self.fn["set_posture"](self.c, self.ptr(self.array("theta", theta, self.n)))
 
     def _call(self, fn, x, data):
         tau = np.zeros(self.n)
         x = self.array("x", x)
         flag = fn(self.c, self.ptr(x), self.ptr(data), self.ptr(tau))
-        return tau, self.lib.mpc_step_seconds(self.c), flag
+        return tau, self.fn["step_seconds"](self.c), flag

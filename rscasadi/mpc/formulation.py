@@ -326,7 +326,7 @@ def shifted(Z, alpha: float):
     return (1 - alpha) * Z + alpha * Zn
 
 
-def rti_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None = None) -> ca.Function:
+def rti_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None = None, name: str = "mpc_rti") -> ca.Function:
     """mpc_rti(x, reference, X, U, params) -> (tau, X_next, U_next): `sqp_iterations`
     Gauss-Newton SQP iterations of the multiple-shooting NLP (1: the real-time iteration; more:
     each with a line search on the rollout's cost), then the plan shifted by one sample.
@@ -365,16 +365,16 @@ def rti_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None = No
         X, U, phi0 = X_new, U + alpha * dU, phi_new
     X = ca.horzcat(xm, X[:, 1:])
     alpha = p.sample_time / p.interval
-    return ca.Function("mpc_rti", [xm, ref, X0, U0, params], [U[:, 0], shifted(X, alpha), shifted(U, alpha)],
+    return ca.Function(name, [xm, ref, X0, U0, params], [U[:, 0], shifted(X, alpha), shifted(U, alpha)],
                        ["x", "reference", "X", "U", "params"], ["tau", "X_next", "U_next"])
 
 
-def hold_function(arm: Arm, p: MPCProblem) -> ca.Function:
+def hold_function(arm: Arm, p: MPCProblem, name: str = "mpc_hold") -> ca.Function:
     """mpc_hold(x, params) -> (X, U): the initial plan, the arm held where it is over the horizon."""
     n = arm.n
     x, params = ca.SX.sym("x", 4 * n), ca.SX.sym("params", n_params(arm))
     z = ca.SX.zeros(n)
     pm = [params[n:]] if arm.free else []
     tau = arm.inverse_dynamics(parametric=bool(arm.free))(x[:n], x[n:2 * n], z, z, z, z, *pm)[0]
-    return ca.Function("mpc_hold", [x, params], [ca.repmat(x, 1, p.horizon + 1), ca.repmat(tau, 1, p.horizon)],
+    return ca.Function(name, [x, params], [ca.repmat(x, 1, p.horizon + 1), ca.repmat(tau, 1, p.horizon)],
                        ["x", "params"], ["X", "U"])

@@ -13,6 +13,7 @@ from string import Template
 import casadi as ca
 import numpy as np
 
+from rscasadi.errors import InvalidArgument
 from rscasadi.files import fresh_directory, write_json
 from rscasadi.mpc.formulation import controller_arm, hold_function, n_params, reference_rows, rti_function
 from rscasadi.mpc.problem import mpc_model, mpc_problem
@@ -23,12 +24,25 @@ from rscasadi.native.controller import boxes, c_words, guard_source, task_refere
 TEMPLATES = Path(__file__).with_name("templates")
 
 
-KERNEL = "mpc_step_jacobian"     # the kernel's C symbol: not the arm library's step_jacobian, so both link
+KERNEL = "step_jacobian"         # the kernel's C symbol after the controller's: mpc_step_jacobian, so both link
 
 
-def step_kernel(arm, flags: list, cc: list, log=print):
+def symbols(prefix: str = "") -> dict:
+    """The names of a generated MPC: `mpc` before every C function, type and CasADi Function
+    (`mpc_init`, `mpc_t`; with a prefix P, `P_mpc_init`, `P_mpc_t`), `MPC` before its macros,
+    and its file names, so that any number of controllers with different prefixes link into
+    one binary."""
+    if prefix and not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", prefix):
+        raise InvalidArgument(f"prefix {prefix!r}: the C symbols' prefix must be a C identifier")
+    mpc = f"{prefix}_mpc" if prefix else "mpc"
+    stem = f"{prefix}_mpc" if prefix else "rscasadi_mpc"
+    return {"mpc": mpc, "MPC": mpc.upper(), "header": f"{stem}.h", "source": f"{stem}.c", "library": f"lib{stem}.so",
+            "rti": f"{mpc}_rti", "hold": f"{mpc}_hold", "kernel": f"{mpc}_{KERNEL}"}
+
+
+def step_kernel(arm, flags: list, cc: list, log=print, name: str = f"mpc_{KERNEL}"):
     """For an arm past straight-line SX (generate.step_functions' implicit-function branch): the
-    step Jacobian's structured C kernel (rscasadi.codegen.step_kernel) as KERNEL, its C source,
+    step Jacobian's structured C kernel (rscasadi.codegen.step_kernel) as `name`, its C source,
     and a Function that calls it (compiled once per source by the one build step, loaded by
     casadi.external) for the controller's graph; (None, None) for smaller arms.  On the Panda it
     takes the controller's step from 0.68 to 0.43 ms (2026-11-24, 2-core AMD EPYC)."""
@@ -38,16 +52,16 @@ def step_kernel(arm, flags: list, cc: list, log=print):
     parametric = bool(arm.free)
     if step_functions(arm, parametric=parametric)[1].is_a("SXFunction"):
         return None, None
-    k = kernel_source(arm, KERNEL, parametric)
-    gen = ca.CodeGenerator(f"{KERNEL}.c", {"with_header": False})
+    k = kernel_source(arm, name, parametric)
+    gen = ca.CodeGenerator(f"{name}.c", {"with_header": False})
     for g in k.functions:
         gen.add(g)
     with tempfile.TemporaryDirectory() as d:
         gen.generate(d + "/")
-        text = (Path(d) / f"{KERNEL}.c").read_text() + k.body
-    lib = cached_library({f"{KERNEL}.c": text}, flags, name="mpc_kernel", what="the step Jacobian's kernel",
+        text = (Path(d) / f"{name}.c").read_text() + k.body
+    lib = cached_library({f"{name}.c": text}, flags, name="mpc_kernel", what="the step Jacobian's kernel",
                          log=log, cc=cc, log_hit=True)
-    return text, ca.external(KERNEL, str(lib))
+    return text, ca.external(name, str(lib))
 
 
 def guard_bounds(model, p, rows: int) -> dict:
@@ -64,11 +78,13 @@ def guard_bounds(model, p, rows: int) -> dict:
     return {"tau_max": limit_arrays(model)["tau"], "x_lo": x_lo, "x_hi": x_hi, "ref_lo": ref_lo, "ref_hi": ref_hi}
 
 
-def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: bool = False) -> dict:
+def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: bool = False,
+                 prefix: str = "") -> dict:
     """Write the C of `problem` (an `MPCProblem` or the path of its file), its header, library and
     manifest into `out` (whole or not at all); `model` (a model file) replaces the problem's,
     e.g. an identified model; native: compile for this machine's processor (the sources stay
-    portable C99)."""
+    portable C99); `prefix`: a C identifier before every symbol and file name (`symbols`)."""
+    sym = symbols(prefix)
     p = mpc_problem(problem)
     if model is not None:
         p = dataclasses.replace(p, model=Path(model).resolve())
@@ -77,11 +93,11 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
     if p.interval / p.substeps > 2e-3:
         log(f"note: {p.interval / p.substeps * 1e3:.1f} ms RK4 steps: the SEA damping (d/k1 ~ 1 ms) may make them unstable")
     cc, flags = compiler(), [opt, "-std=c99"] + (native_flags() if native else [])
-    kernel, step_jacobian = step_kernel(arm, flags, cc, log)
-    rti, hold = rti_function(arm, p, step_jacobian), hold_function(arm, p)
+    kernel, step_jacobian = step_kernel(arm, flags, cc, log, sym["kernel"])
+    rti, hold = rti_function(arm, p, step_jacobian, sym["rti"]), hold_function(arm, p, sym["hold"])
     out = Path(out)
     with fresh_directory(out) as tmp:
-        gen = ca.CodeGenerator("mpc_rti.c", {"with_header": True})
+        gen = ca.CodeGenerator(f"{sym['rti']}.c", {"with_header": True})
         gen.add(rti)
         gen.add(hold)
         gen.generate(str(tmp) + "/")
@@ -97,37 +113,38 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
             reference, target, n_target = "theta_ref then dtheta_ref (2n)", f"{n} link angles", n
         guard = guard_bounds(model, p, rows)
         header = Template((TEMPLATES / "rscasadi_mpc.h").read_text()).substitute(
-            model=model_name, n=n, nx=4 * n, N=p.horizon, nref=rows * p.horizon, rows=rows, ts=p.sample_time,
+            mpc=sym["mpc"], MPC=sym["MPC"], model=model_name, n=n, nx=4 * n, N=p.horizon, nref=rows * p.horizon, rows=rows, ts=p.sample_time,
             h=p.interval, iters=iters, reference=reference, target=target, ntarget=n_target,
             nparams=n_params(arm), np=n_params(arm) - n, task=int(p.task_space),
             sz_w=max(rti.sz_w(), hold.sz_w()) + 1, sz_iw=max(rti.sz_iw(), hold.sz_iw()) + 1,
             **boxes(guard, words=True), tau_limits=c_words(guard["tau_max"]))
-        (tmp / "rscasadi_mpc.h").write_text(header)
+        (tmp / sym["header"]).write_text(header)
         names, values = arm.parameters()
         free = arm.free or []
         nominal = [float(dict(zip(names, values))[k]) for k in free]
         mass_index = free.index("payload.mass") if "payload.mass" in free else -1
-        (tmp / "rscasadi_mpc.c").write_text(Template((TEMPLATES / "rscasadi_mpc.c").read_text()).substitute(
-            nominal=", ".join(repr(v) for v in nominal) or "0.0", mass_index=mass_index,
+        (tmp / sym["source"]).write_text(Template((TEMPLATES / "rscasadi_mpc.c").read_text()).substitute(
+            mpc=sym["mpc"], MPC=sym["MPC"], header=sym["header"], nominal=", ".join(repr(v) for v in nominal) or "0.0", mass_index=mass_index,
             **boxes(guard)))
         for name, text in guard_source().items():
             (tmp / name).write_text(text)
+        rti_files = (f"{sym['rti']}.c", f"{sym['rti']}.h")
         sources = {name: (tmp / name).read_text()
-                   for name in ("mpc_rti.c", "mpc_rti.h", "rscasadi_mpc.c", "rscasadi_mpc.h", *guard_source())}
+                   for name in (*rti_files, sym["source"], sym["header"], *guard_source())}
         if kernel is not None:
-            (tmp / f"{KERNEL}.c").write_text(kernel)
-            sources[f"{KERNEL}.c"] = kernel
+            (tmp / f"{sym['kernel']}.c").write_text(kernel)
+            sources[f"{sym['kernel']}.c"] = kernel
         lib = cached_library(sources,
                              flags, name="mpc", what=f"the MPC ({' '.join(flags)})", log=log, cc=cc, log_hit=True)
-        shutil.copy2(lib, tmp / "librscasadi_mpc.so")
-        manifest = {"model": str(p.model), "problem": None if p.path is None else str(p.path), "header": "rscasadi_mpc.h",
-                    "library": "librscasadi_mpc.so",
-                    "sources": ["mpc_rti.c", "rscasadi_mpc.c"] + ([f"{KERNEL}.c"] if kernel is not None else []),
-                    "api": {"mpc_sizeof": [], "mpc_init": ["c", "x_measured"], "mpc_init_parameters": ["c", "x_measured", "p"],
-                            "mpc_step": ["c", "x_measured", "reference", "tau_out"],
-                            "mpc_step_to": ["c", "x_measured", "target", "tau_out"], "mpc_step_seconds": ["c"],
-                            "mpc_set_payload_mass": ["c", "mass"], "mpc_set_posture": ["c", "theta"],
-                            "mpc_set_parameters": ["c", "p"]},
+        shutil.copy2(lib, tmp / sym["library"])
+        api = {"sizeof": [], "init": ["c", "x_measured"], "init_parameters": ["c", "x_measured", "p"],
+               "step": ["c", "x_measured", "reference", "tau_out"], "step_to": ["c", "x_measured", "target", "tau_out"],
+               "step_seconds": ["c"], "set_payload_mass": ["c", "mass"], "set_posture": ["c", "theta"],
+               "set_parameters": ["c", "p"]}
+        manifest = {"model": str(p.model), "problem": None if p.path is None else str(p.path), "header": sym["header"],
+                    "library": sym["library"], "symbol": sym["mpc"],
+                    "sources": [rti_files[0], sym["source"]] + ([f"{sym['kernel']}.c"] if kernel is not None else []),
+                    "api": {f"{sym['mpc']}_{k}": v for k, v in api.items()},
                     "parameters": {"names": free, "nominal": nominal, "parametric": p.parametric},
                     "sizes": {"x": 4 * n, "tau": n, "reference": [rows, p.horizon], "target": n_target},
                     "task_space": {"frame": p.frame, "orientation": p.orientation} if p.task_space else None,
@@ -138,5 +155,5 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
                     "sample_time": p.sample_time, "sqp_iterations": p.sqp_iterations, "qp_iterations": p.qp_iterations, "weights": p.weights,
                     "compiler": cc + flags}
         write_json(tmp / "manifest.json", manifest, indent=2)
-    log(f"wrote {out / 'librscasadi_mpc.so'}, rscasadi_mpc.h and manifest.json")
+    log(f"wrote {out / sym['library']}, {sym['header']} and manifest.json")
     return manifest

@@ -26,7 +26,8 @@ class ControllerError(Error, ValueError):
 
 class CompiledController:
     """The generated controller in `directory` (its manifest.json names the library): `stem`'s
-    `<stem>_sizeof`, `<stem>_init`, `<stem>_step_seconds`; `self.sizes` from the manifest.
+    (or the manifest's "symbol", the generator's prefix) `<stem>_sizeof`, `<stem>_init`,
+    `<stem>_step_seconds`; `self.sizes` from the manifest.
     init(x) -> 0, or ControllerError naming the code C refused it with (the controller stays
     uninitialised); seconds(): the last step's duration in C.  CODES: the return codes' names."""
 
@@ -38,6 +39,7 @@ class CompiledController:
             self.manifest = json.loads((directory / "manifest.json").read_text())
             self.lib = ctypes.CDLL(str(directory / self.manifest["library"]))
             self.sizes = self.manifest["sizes"] if sizes is None else sizes
+            stem = self.manifest.get("symbol", stem)                   # the generator's prefix, if any
             sizeof, self._init = getattr(self.lib, f"{stem}_sizeof"), getattr(self.lib, f"{stem}_init")
         except (OSError, ValueError, KeyError, AttributeError) as exc:
             raise ControllerError(f"{directory}: not a generated controller ({exc})") from None
