@@ -195,7 +195,7 @@ def _cmd_observer(args):
                          "time must be below 1 (the discrete observer is unstable otherwise)")
     check_writable(args.out)
     generate_observer(args.model, args.out, args.gain, args.sample_time, threshold=args.threshold, opt=args.opt,
-                      log=lambda msg: print(msg, flush=True))
+                      log=lambda msg: print(msg, flush=True), prefix=args.prefix or "")
 
 
 def _cmd_impedance(args):
@@ -205,7 +205,7 @@ def _cmd_impedance(args):
     check_writable(args.out)
     if not args.study:
         generate_impedance(args.model, args.out, None if args.joint_space else args.frame, design=args.design,
-                           opt=args.opt, log=log)
+                           opt=args.opt, log=log, prefix=args.prefix or "")
         return 0
     from rscasadi.dynamics.arm import load
     from rscasadi.interaction.study import study
@@ -371,6 +371,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="observer_step returns OBSERVER_COLLISION (1) while a link's |r| exceeds this (N m)")
     q.add_argument("--out", required=True, help="directory for the sources, header, library and manifest.json")
     q.add_argument("--opt", default="-O2", type=opt_flag, help="optimisation flag (default -O2)")
+    q.add_argument("--prefix", default=None, type=c_identifier,
+                   help="C identifier before every symbol and file (P_observer_init, P_observer.h)")
     q.set_defaults(func=_cmd_observer)
     q = kinds.add_parser("impedance", help="the impedance controller through the SEAs (complete model), or its study")
     q.add_argument("model")
@@ -382,6 +384,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--out", required=True, help="directory for the sources, header, library and manifest.json "
                    "(with --study: for study.md, study.json and study.png)")
     q.add_argument("--opt", default="-O2", type=opt_flag, help="optimisation flag (default -O2)")
+    q.add_argument("--prefix", default=None, type=c_identifier,
+                   help="C identifier before every symbol and file (P_impedance_init, P_impedance.h)")
     q.add_argument("--study", action="store_true", help="run the closed-loop study instead: push, wall, collision, "
                    "reduced-model design, C time per step (about a minute on 7 joints)")
     q.add_argument("--theta", type=float_list, default=None, help="with --study: the configuration, rad, comma-separated")

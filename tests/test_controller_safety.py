@@ -71,7 +71,7 @@ def interaction_dirs(tmp_path_factory, arm):
     from rscasadi.interaction import generate_impedance, generate_observer
     d = tmp_path_factory.mktemp("interaction")
     generate_impedance(arm, d / "impedance_joint", None, opt="-O1", log=lambda m: None)
-    generate_impedance(arm, d / "impedance_cartesian", "tool", opt="-O1", log=lambda m: None)
+    generate_impedance(arm, d / "impedance_cartesian", "tool", opt="-O1", log=lambda m: None, prefix="tool")
     generate_observer(arm, d / "observer", 50.0, threshold=1.0, opt="-O1", log=lambda m: None)
     return d
 
@@ -280,46 +280,60 @@ def test_four_controllers_in_one_binary_under_valgrind(mpc_dirs, interaction_dir
     assert check.returncode == 0, check.stderr[-3000:]
 
 
-TWO_MPCS = r"""
+PREFIXED = r"""
 #include <stdio.h>
 #include "rscasadi_mpc.h"
 #include "hard_mpc.h"
+#include "tool_impedance.h"
 static mpc_t soft;
 static hard_mpc_t hard;
+static tool_impedance_t imp;
 int main(void) {
-  double x[MPC_NX] = {0}, ref[MPC_NREF], tau[MPC_NU], tau_hard[HARD_MPC_NU];
+  double x[MPC_NX] = {0}, ref[MPC_NREF], tau[MPC_NU], tau_hard[HARD_MPC_NU], tau_imp[TOOL_IMPEDANCE_NU];
+  const double x_tool[TOOL_IMPEDANCE_NX] = {X_TOOL}, pose[TOOL_IMPEDANCE_NREF] = {POSE};
+  const double k[TOOL_IMPEDANCE_NK] = {300, 300, 300, 50, 50, 50}, z[TOOL_IMPEDANCE_NK] = {0.7, 0.7, 0.7, 0.7, 0.7, 0.7};
   for (int k = 0; k < MPC_HORIZON; ++k)
     for (int i = 0; i < 2 * MPC_NU; ++i) ref[2 * MPC_NU * k + i] = i < MPC_NU ? 0.1 : 0.0;
-  if (mpc_init(&soft, x) || hard_mpc_init(&hard, x)) return 2;
+  if (mpc_init(&soft, x) || hard_mpc_init(&hard, x) || tool_impedance_init(&imp, x_tool)) return 2;
   if (mpc_step(&soft, x, ref, tau) || hard_mpc_step(&hard, x, ref, tau_hard)) return 3;
-  for (int i = 0; i < MPC_NU; ++i) printf("%.17g %.17g\n", tau[i], tau_hard[i]);
+  if (tool_impedance_step(&imp, x_tool, pose, k, z, tau_imp)) return 4;
+  for (int i = 0; i < MPC_NU; ++i) printf("%.17g %.17g %.17g\n", tau[i], tau_hard[i], tau_imp[i]);
   return 0;
 }
 """
 
 
-def test_two_mpcs_with_their_prefixes_link_into_one_program(mpc_dirs, tmp_path):
+def test_controllers_with_prefixes_link_into_one_program(mpc_dirs, interaction_dirs, arm, tmp_path):
     """The same problem's MPC with soft and with hard angle limits, the second generated with
-    prefix "hard" (hard_mpc_t, hard_mpc_step, HARD_MPC_NU, hard_mpc.h, libhard_mpc.so): one C
-    program links both (-Wall -Wextra -Werror) and each returns, to the last bit, what its
-    library returns through Python."""
+    prefix "hard" (hard_mpc_t, hard_mpc_step, HARD_MPC_NU, hard_mpc.h, libhard_mpc.so), and a
+    Cartesian impedance controller with prefix "tool": one C program links the three (-Wall
+    -Wextra -Werror) and each returns, to the last bit, what its library returns through Python."""
+    from rscasadi.interaction.generate import CompiledImpedance
+    from rscasadi.interaction.study import pose_of
     from rscasadi.mpc import CompiledMPC
-    soft, hard = mpc_dirs["mpc_arm3"], mpc_dirs["mpc_arm3_hard"]
-    assert (hard / "hard_mpc.h").exists() and CompiledMPC(hard).manifest["symbol"] == "hard_mpc"
-    (tmp_path / "two.c").write_text(TWO_MPCS)
-    exe = tmp_path / "two"
-    subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-O1", f"-I{soft}", f"-I{hard}", str(tmp_path / "two.c"),
-                    f"-L{soft}", f"-L{hard}", "-lrscasadi_mpc", "-lhard_mpc", f"-Wl,-rpath,{soft}", f"-Wl,-rpath,{hard}",
-                    "-lm", "-o", str(exe)], check=True)
+    dirs = {mpc_dirs["mpc_arm3"]: "rscasadi_mpc", mpc_dirs["mpc_arm3_hard"]: "hard_mpc",
+            interaction_dirs / "impedance_cartesian": "tool_impedance"}
+    assert CompiledMPC(mpc_dirs["mpc_arm3_hard"]).manifest["symbol"] == "hard_mpc"
+    x_tool, pose = rest_state(arm, THETA0), pose_of(arm, "tool", THETA0 + [0.0, 0.05, 0.0])
+    numbers = lambda v: ", ".join(repr(float(a)) for a in v)
+    (tmp_path / "linked.c").write_text(PREFIXED.replace("X_TOOL", numbers(x_tool)).replace("POSE", numbers(pose)))
+    exe = tmp_path / "linked"
+    subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-O1", *[f"-I{d}" for d in dirs],
+                    str(tmp_path / "linked.c"), *[f"-L{d}" for d in dirs], *[f"-l{lib}" for lib in dirs.values()],
+                    *[f"-Wl,-rpath,{d}" for d in dirs], "-lm", "-o", str(exe)], check=True)
     run = subprocess.run([str(exe)], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     in_c = np.array([[float(v) for v in line.split()] for line in run.stdout.split("\n") if line]).T
     x, ref = np.zeros(12), np.vstack([np.full((3, 10), 0.1), np.zeros((3, 10))])
-    for column, directory in zip(in_c, (soft, hard)):
+    for column, directory in zip(in_c[:2], (mpc_dirs["mpc_arm3"], mpc_dirs["mpc_arm3_hard"])):
         mpc = CompiledMPC(directory)
         mpc.init(x)
         tau, _, flag = mpc.step(x, ref)
         assert flag == 0 and np.array_equal(tau, column)
+    imp = CompiledImpedance(interaction_dirs / "impedance_cartesian")
+    imp.init(x_tool)
+    tau, code = imp.step(x_tool, pose, [300.0] * 3 + [50.0] * 3, [0.7] * 6)
+    assert code == 0 and np.array_equal(tau, in_c[2]) and np.any(tau != 0)
 
 
 def test_the_guarded_feedforward_fuzzed(built):

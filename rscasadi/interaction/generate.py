@@ -1,61 +1,26 @@
 """The interaction controllers as C: the momentum observer (`rscasadi controller observer MODEL
 --gain K --out DIR`) and the impedance controller (`rscasadi controller impedance MODEL --frame F
-| --joint-space --out DIR`).  Their CasADi Functions generated to C, the code around them from the
-template files in `templates/` (the state in a caller's struct), compiled once per source by the
-one build step, and described by a manifest."""
+| --joint-space --out DIR`), through the one controller pipeline (rscasadi.native.generate):
+their CasADi Functions generated to C, the code around them from the template files in
+`templates/` (the state in a caller's struct), and a manifest."""
 from __future__ import annotations
 
 import re
-import shutil
-import tempfile
 from pathlib import Path
-from string import Template
 
-import casadi as ca
 import numpy as np
 
 from rscasadi.dynamics.arm import Arm, load
-from rscasadi.files import fresh_directory, write_json
 from rscasadi.interaction.observer import observer_terms
 from rscasadi.dynamics.statics import holding_torque
 from rscasadi.model.limits import limit_arrays, measurement_bounds, torque_bounds
 from rscasadi.interaction.impedance import impedance_boxes
-from rscasadi.native.build import cached_library, compiler
-from rscasadi.native.controller import DAMPING_RATIO_BOUND, STIFFNESS_BOUND, boxes, c_numbers, c_words, guard_source
+from rscasadi.native.controller import DAMPING_RATIO_BOUND, STIFFNESS_BOUND, boxes, c_numbers, c_words
+from rscasadi.native.generate import function_name, write_controller
 from rscasadi.native.loader import CompiledController
 from rscasadi.errors import InvalidArgument
 
 TEMPLATES = Path(__file__).with_name("templates")
-
-
-def _generate(functions: list, stem: str, header: dict, body: dict, out, opt: str, log, manifest: dict) -> dict:
-    """The C of `functions` (one file, with a header, named after the first) and of the templates
-    rscasadi_<stem>.h and .c (substituted with `header` and `body`, the work sizes added), with
-    the guard (native.controller), compiled once per source by the one build step, written into
-    `out` whole with `manifest`."""
-    name = functions[0].name()
-    gen = ca.CodeGenerator(f"{name}.c", {"with_header": True})
-    for f in functions:
-        gen.add(f)
-    with tempfile.TemporaryDirectory() as d:
-        gen.generate(d + "/")
-        sources = {file: (Path(d) / file).read_text() for file in (f"{name}.c", f"{name}.h")}
-    header = {**header, "sz_w": max(f.sz_w() for f in functions) + 1, "sz_iw": max(f.sz_iw() for f in functions) + 1}
-    sources[f"rscasadi_{stem}.h"] = Template((TEMPLATES / f"rscasadi_{stem}.h").read_text()).substitute(header)
-    sources[f"rscasadi_{stem}.c"] = Template((TEMPLATES / f"rscasadi_{stem}.c").read_text()).substitute(body)
-    sources.update(guard_source())
-    out = Path(out)
-    with fresh_directory(out) as tmp:
-        for file, text in sources.items():
-            (tmp / file).write_text(text)
-        cc = compiler()
-        lib = cached_library(sources, [opt, "-std=c99"], name=stem, what=f"the {stem} ({opt})", log=log, cc=cc)
-        shutil.copy2(lib, tmp / f"librscasadi_{stem}.so")
-        manifest = {**manifest, "header": f"rscasadi_{stem}.h", "library": f"librscasadi_{stem}.so",
-                    "sources": sorted(k for k in sources if k.endswith(".c")), "compiler": cc + [opt]}
-        write_json(tmp / "manifest.json", manifest, indent=2)
-    log(f"wrote {out / f'librscasadi_{stem}.so'}, rscasadi_{stem}.h and manifest.json")
-    return manifest
 
 
 def _model_name(arm: Arm) -> str:
@@ -64,10 +29,11 @@ def _model_name(arm: Arm) -> str:
 
 
 def generate_observer(model, out, gain, sample_time: float = 1e-3, threshold: float = np.inf, opt: str = "-O2",
-                      log=print) -> dict:
+                      log=print, prefix: str = "") -> dict:
     """Write the observer's C, header, library and manifest for `model` (a model file or an Arm)
     into `out` (whole or not at all): gain K (1/s, one number or 2n) at `sample_time` (s), the
-    collision flag above `threshold` (N m, any link)."""
+    collision flag above `threshold` (N m, any link); `prefix`: before every C symbol and file
+    (rscasadi.native.generate.symbols)."""
     arm = model if isinstance(model, Arm) else load(model)
     n = arm.n
     K = np.broadcast_to(np.asarray(gain, float), (2 * n)).copy()
@@ -84,19 +50,21 @@ def generate_observer(model, out, gain, sample_time: float = 1e-3, threshold: fl
     body = {"dt": repr(float(sample_time)), "gains": ", ".join(repr(float(k)) for k in K),
             "threshold": repr(float(threshold)) if np.isfinite(threshold) else "INFINITY", **boxes(box)}
     manifest = {"model": str(arm.model.path),
-                "api": {"observer_sizeof": [], "observer_init": ["obs", "x_measured"],
-                        "observer_step": ["obs", "x_measured", "tau_applied", "r_out"],
-                        "observer_step_seconds": ["obs"]},
+                "api": {"sizeof": [], "init": ["obs", "x_measured"], "step": ["obs", "x_measured", "tau_applied", "r_out"],
+                        "step_seconds": ["obs"]},
                 "sizes": {"x": 4 * n, "tau": n, "r": 2 * n}, "gain": K.tolist(), "sample_time": sample_time,
                 "threshold": threshold if np.isfinite(threshold) else None,
                 "guard": {k: v.tolist() for k, v in box.items()}}
-    return _generate([observer_terms(arm)], "observer", header, body, out, opt, log, manifest)
+    return write_controller("observer", prefix, [observer_terms(arm, function_name("observer", prefix, "terms"))],
+                            TEMPLATES, header, body, out, [opt, "-std=c99"], manifest, log)
 
 
-def generate_impedance(model, out, frame: str | None, design: str = "motor", opt: str = "-O2", log=print) -> dict:
+def generate_impedance(model, out, frame: str | None, design: str = "motor", opt: str = "-O2", log=print,
+                       prefix: str = "") -> dict:
     """Write the impedance controller's C, header, library and manifest for `model` into `out`
     (whole or not at all): Cartesian at `frame`, or in joint space when frame is None; `design`
-    "motor" (passive) or "link" (as `impedance_law`)."""
+    "motor" (passive) or "link" (as `impedance_law`); `prefix`: before every C symbol and file
+    (rscasadi.native.generate.symbols)."""
     from rscasadi.interaction.impedance import impedance_law
     from rscasadi.model.checks import identifier
     arm = model if isinstance(model, Arm) else load(model)
@@ -125,13 +93,15 @@ def generate_impedance(model, out, frame: str | None, design: str = "motor", opt
     body = {"limits": c_numbers(limits), "passive": int(design == "motor"), **boxes(box)}
     reference = "pose_desired" if cartesian else "q_desired"
     manifest = {"model": str(arm.model.path), "frame": frame, "design": design,
-                "api": {"impedance_sizeof": [], "impedance_init": ["c", "x_measured"],
-                        "impedance_step": ["c", "x_measured", reference, "stiffness", "damping_ratio", "tau_out"],
-                        "impedance_step_seconds": ["c"]},
+                "api": {"sizeof": [], "init": ["c", "x_measured"],
+                        "step": ["c", "x_measured", reference, "stiffness", "damping_ratio", "tau_out"],
+                        "step_seconds": ["c"]},
                 "sizes": {"x": 4 * n, reference: nref, "stiffness": nk, "damping_ratio": nk, "tau": n},
                 "guard": {k: v.tolist() for k, v in box.items()}}
-    return _generate([impedance_law(arm, frame, design=design), holding_torque(arm, "impedance_hold")], "impedance",
-                     header, body, out, opt, log, manifest)
+    name = lambda what: function_name("impedance", prefix, what)
+    return write_controller("impedance", prefix, [impedance_law(arm, frame, design=design, name=name("law")),
+                                                  holding_torque(arm, name("hold"))],
+                            TEMPLATES, header, body, out, [opt, "-std=c99"], manifest, log)
 
 
 class CompiledObserver(CompiledController):
@@ -148,7 +118,7 @@ class CompiledObserver(CompiledController):
     def step(self, x, tau):
         x, tau = self.array("x", x), self.array("tau", tau)
         r = np.zeros(self.sizes["r"])
-        return r, self.lib.observer_step(self.c, self.ptr(x), self.ptr(tau), self.ptr(r))
+        return r, getattr(self.lib, f"{self.stem}_step")(self.c, self.ptr(x), self.ptr(tau), self.ptr(r))
 
 
 class CompiledImpedance(CompiledController):
@@ -167,4 +137,4 @@ class CompiledImpedance(CompiledController):
         args = [self.array(name, v) for name, v in
                 zip(("x", self.reference, "stiffness", "damping_ratio"), (x, reference, stiffness, damping_ratio))]
         tau = np.zeros(self.sizes["tau"])
-        return tau, self.lib.impedance_step(self.c, *[self.ptr(a) for a in args], self.ptr(tau))
+        return tau, getattr(self.lib, f"{self.stem}_step")(self.c, *[self.ptr(a) for a in args], self.ptr(tau))

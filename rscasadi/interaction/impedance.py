@@ -63,7 +63,7 @@ def _joint(arm: Arm):
 
 def impedance_law(arm: Arm, frame: str | None, design: str = "motor", torque_feedback=None, motor_damping=None,
                   null_damping: float = 2.0, newton_steps: int = 2, reduced: bool = False,
-                  motor_bandwidth_hz: float = 10.0) -> ca.Function:
+                  motor_bandwidth_hz: float = 10.0, name: str = "impedance") -> ca.Function:
     """(theta, phi, dtheta, dphi, reference, stiffness, damping_ratio) -> (tau, u, q_bar, margin):
     the motor torques (not yet limited), the spring torques asked, the static link angles the
     potential is evaluated at, and the realisability margin (> 0: the commanded stiffness is
@@ -105,7 +105,7 @@ def impedance_law(arm: Arm, frame: str | None, design: str = "motor", torque_fee
     tau = tau_hold + (arm.sea_torque(q_bar, ph, zero, zero) - u_m) / mu        # = -(Q_s + u_m) / mu
     margin = _margin(J, K[:m], k1)
     names = ["pose_desired" if frame is not None else "q_desired", "stiffness", "damping_ratio"]
-    return ca.Function("impedance", [th, ph, dth, dph, ref, K, zeta], [tau, u, q_bar, margin],
+    return ca.Function(name, [th, ph, dth, dph, ref, K, zeta], [tau, u, q_bar, margin],
                        ["theta", "phi", "dtheta", "dphi"] + names, ["tau", "u", "q_bar", "margin"], {"cse": True})
 
 

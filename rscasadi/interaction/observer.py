@@ -30,7 +30,7 @@ from rscasadi.errors import InvalidArgument
 BAD_TORQUE = 7               # the observer's name for the guard's BAD_REFERENCE: tau_applied refused
 
 
-def observer_terms(arm: Arm) -> ca.Function:
+def observer_terms(arm: Arm, name: str = "observer_terms") -> ca.Function:
     """(theta, phi, dtheta, dphi, tau) -> (p, beta): the generalised momentum p = M dq (2n) and
     beta = dM dq - G(q, dq, 0, tau) (2n), the known part of dp/dt."""
     n = arm.n
@@ -44,7 +44,7 @@ def observer_terms(arm: Arm) -> ca.Function:
     v = ca.SX.sym("v", 2 * n)
     Mdot_dq = ca.substitute(ca.jtimes(ca.mtimes(M, v), q, dq), v, dq)
     G0 = ca.substitute(G, dd, ca.DM.zeros(2 * n))
-    return ca.Function("observer_terms", [th, ph, dth, dph, tau], [ca.mtimes(M, dq), Mdot_dq - G0],
+    return ca.Function(name, [th, ph, dth, dph, tau], [ca.mtimes(M, dq), Mdot_dq - G0],
                        ["theta", "phi", "dtheta", "dphi", "tau"], ["p", "beta"], {"cse": True})
 
 

@@ -128,7 +128,7 @@ def run_loop(arm: Arm, plant: Callable, controller: Controller, x0, samples: int
 # ------------------------------------------------------------------ controllers of any arm
 
 class FeedforwardPD:
-    """Feedforward torques ff["tau"][:, k] (rscasadi.sim.simulation.feedforward), with `gains`
+    """Feedforward torques `ff["tau"][:, k]` (rscasadi.sim.simulation.feedforward), with `gains`
     = (kp, kd, gear_ratio) a motor-position PD around its rotor motion, divided by the gear ratio
     at the motor; gains=None: the feedforward alone."""
 

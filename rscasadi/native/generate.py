@@ -1,0 +1,87 @@
+"""The one pipeline of a generated controller (the MPC, the impedance controller, the observer):
+CasADi Functions generated to C, the controller's template files filled in, the input guard,
+compiled once per source by the one build step, written whole with a manifest that the ctypes
+loader (native.loader) reads.
+
+Every symbol, macro and file carries the controller's name, `kind` (mpc, impedance, observer)
+or `P_kind` with a prefix P, so any number of generated controllers link into one program:
+
+    P_mpc_init, P_mpc_t, P_MPC_NU        in P_mpc.h, P_mpc.c, libP_mpc.so
+    mpc_init, mpc_t, MPC_NU              in rscasadi_mpc.h, rscasadi_mpc.c, librscasadi_mpc.so
+
+The templates write `${sym}_init`, `${SYM}_NU`, `#include "${header}"`; CasADi's Functions are
+named `${sym}_<what>` by the caller (`function_name`), so nothing is renamed after generation.
+"""
+from __future__ import annotations
+
+import re
+import shutil
+import tempfile
+from pathlib import Path
+from string import Template
+
+import casadi as ca
+
+from rscasadi.errors import InvalidArgument
+from rscasadi.files import fresh_directory, write_json
+from rscasadi.native.build import cached_library, compiler
+from rscasadi.native.controller import guard_source
+
+
+def symbols(kind: str, prefix: str = "") -> dict:
+    """The names of a `kind` controller with `prefix` (see the module's docstring): sym, SYM,
+    header, source, library."""
+    if prefix and not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", prefix):
+        raise InvalidArgument(f"prefix {prefix!r}: the C symbols' prefix must be a C identifier")
+    sym = f"{prefix}_{kind}" if prefix else kind
+    stem = sym if prefix else f"rscasadi_{kind}"
+    return {"sym": sym, "SYM": sym.upper(), "header": f"{stem}.h", "source": f"{stem}.c", "library": f"lib{stem}.so"}
+
+
+def function_name(kind: str, prefix: str, what: str) -> str:
+    """The C name of one of the controller's CasADi Functions: `<sym>_<what>`."""
+    return f"{symbols(kind, prefix)['sym']}_{what}"
+
+
+def casadi_sources(functions: list[ca.Function]) -> dict[str, str]:
+    """CasADi's C of `functions`, one file with its header, named after the first."""
+    name = functions[0].name()
+    gen = ca.CodeGenerator(f"{name}.c", {"with_header": True})
+    for f in functions:
+        gen.add(f)
+    with tempfile.TemporaryDirectory() as d:
+        gen.generate(d + "/")
+        return {file: (Path(d) / file).read_text() for file in (f"{name}.c", f"{name}.h")}
+
+
+def write_controller(kind: str, prefix: str, functions: list[ca.Function], templates: Path, header: dict, body: dict,
+                     out, flags: list, manifest: dict, log=print, extra_sources: dict | None = None,
+                     cc: list | None = None) -> dict:
+    """Generate `functions`, fill templates/rscasadi_<kind>.h and .c with `header` and `body`
+    (plus sym, SYM, header, casadi_header and the work sizes sz_w, sz_iw), add the guard and
+    `extra_sources`, compile with `flags` once per source, and write everything with the manifest
+    (its header, library, symbol, sources and compiler filled in) into `out`, whole or not at all."""
+    names = symbols(kind, prefix)
+    sources = casadi_sources(functions)
+    common = {"sym": names["sym"], "SYM": names["SYM"], "header": names["header"],
+              "casadi_header": f"{functions[0].name()}.h"}
+    sizes = {"sz_w": max(f.sz_w() for f in functions) + 1, "sz_iw": max(f.sz_iw() for f in functions) + 1}
+    sources[names["header"]] = Template((templates / f"rscasadi_{kind}.h").read_text()).substitute(
+        {**common, **sizes, **header})
+    sources[names["source"]] = Template((templates / f"rscasadi_{kind}.c").read_text()).substitute({**common, **body})
+    sources.update(guard_source())
+    sources.update(extra_sources or {})
+    cc = compiler() if cc is None else cc
+    out = Path(out)
+    with fresh_directory(out) as tmp:
+        for file, text in sources.items():
+            (tmp / file).write_text(text)
+        lib = cached_library(sources, flags, name=kind, what=f"the {kind} ({' '.join(flags)})", log=log, cc=cc,
+                             log_hit=True)
+        shutil.copy2(lib, tmp / names["library"])
+        manifest = {**manifest, "header": names["header"], "library": names["library"], "symbol": names["sym"],
+                    "sources": sorted(k for k in sources if k.endswith(".c")), "compiler": cc + flags,
+                    "api": {f"{names['sym']}_{k}": v for k, v in manifest["api"].items()}}
+        write_json(tmp / "manifest.json", manifest, indent=2)
+    log(f"wrote {out / names['library']}, {names['header']} and manifest.json")
+    return manifest
