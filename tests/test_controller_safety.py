@@ -336,6 +336,20 @@ def test_controllers_with_prefixes_link_into_one_program(mpc_dirs, interaction_d
     assert code == 0 and np.array_equal(tau, in_c[2]) and np.any(tau != 0)
 
 
+def test_the_template_c_compiles_without_a_warning(mpc_dirs, interaction_dirs, built, tmp_path):
+    """What rscasadi writes from its templates (not CasADi's generated files): every controller's
+    source and header, the arm library's guarded feedforward, under -Wall -Wextra -Werror -pedantic."""
+    import json
+    dirs = [*mpc_dirs.values(), *(d for d in interaction_dirs.iterdir() if d.is_dir())]
+    sources = [d / json.loads((d / "manifest.json").read_text())["header"].replace(".h", ".c") for d in dirs]
+    sources.append(built[0] / "rscasadi_feedforward.c")
+    assert len(sources) == 7 and all(f.exists() for f in sources), sources
+    for f in sources:
+        run = subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-c", str(f), f"-I{f.parent}",
+                              "-o", str(tmp_path / "x.o")], capture_output=True, text=True)
+        assert run.returncode == 0, f"{f.name}: {run.stderr[-2000:]}"
+
+
 def test_the_guarded_feedforward_fuzzed(built):
     """The arm library's ff_init / ff_step (the paper's feedforward with the failure policy) on a
     desired motion with 40 % bad samples: a bad one returns FF_BAD_REFERENCE (7) and the holding
