@@ -89,6 +89,37 @@ def test_a_solution_round_trips_and_replays_alike(pitch_arm, tmp_path):
     assert (tmp_path / "solution.png").stat().st_size > 10_000
 
 
+def test_a_solution_is_a_read_only_record_that_says_what_it_claims(pitch_arm):
+    """solve() returns a read-only Solution: solved (the solver), verified (the replay), success
+    (both); sample() reads the replay on the complete model, which a coarse mesh follows only
+    approximately and a refined one closely (an independent simulation, not the collocation)."""
+    import copy
+    import pickle
+    from rscasadi.errors import InvalidArgument, WrongType
+    from rscasadi.ocp import solve
+    p = load_problem(problem(pitch_arm, "sol.toml", transcription={"intervals": 12})).replace(solver="ipopt")
+    sol = solve(p, print_level=0, log=lambda m: None)
+    assert sol.solved and sol.verified and sol.success and sol["verification"]["passed"]
+    for change in (lambda s: s.__setitem__("success", False), lambda s: s.update(success=False),
+                   lambda s: s.pop("success"), lambda s: s.setdefault("new", 1)):
+        with pytest.raises(WrongType, match="read-only"):
+            change(sol)
+    assert sol.replace(status="edited")["status"] == "edited" and sol["status"] != "edited"
+    assert pickle.loads(pickle.dumps(sol)) == sol and copy.deepcopy(sol) == sol
+    unverified = solve_once(p, print_level=0, log=lambda m: None)
+    assert unverified.solved and not unverified.verified and unverified.success == unverified.solved
+    t = sol.t
+    replayed = sol.sample("theta", t)
+    assert replayed.shape == sol.theta.shape and np.max(np.abs(replayed - sol.theta)) < 1e-2
+    assert np.max(np.abs(replayed[:, -1] - sol.theta[:, -1])) <= sol["verification"]["final_angle_error"] + 1e-12
+    assert np.array_equal(sol.sample("tau", t[:-1] + 1e-9), sol.tau[:, :-1])     # held over each interval
+    assert np.allclose(sol.sample("psi", t), sol.sample("phi", t) - replayed)
+    with pytest.raises(InvalidArgument, match="quantity 'speed'"):
+        sol.sample("speed", t)
+    with pytest.raises(InvalidArgument, match="times must lie"):
+        sol.sample("theta", [t[-1] + 1.0])
+
+
 def test_an_mpc_problem_in_python_equals_its_file():
     read = load_mpc_problem(PROBLEMS / "mpc_arm3.toml")
     built = MPCProblem(read.model, read.trajectory, sample_time=read.sample_time, horizon=read.horizon,

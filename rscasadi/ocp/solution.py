@@ -1,8 +1,11 @@
 """A solved optimal-control problem: the record `solution.json` holds, and what to do with it.
 
-`Solution` is that record (a dict: `sol["theta"]`, as written to JSON) with its main fields as
-numpy attributes (`sol.t`, `sol.theta`, `sol.tau`, ...) and `verify()` (the replay on the
-complete model), `plot(directory)`, `to_json(path)`; `Solution.from_json(path)` reads one back.
+`Solution` is that record, read-only (a dict: `sol["theta"]`, as written to JSON; `replace(...)`
+gives a changed copy) with its main fields as numpy attributes (`sol.t`, `sol.theta`,
+`sol.tau`, ...), what it claims (`solved`: the solver converged; `verified`: the torques replayed
+on the complete model did what the collocation promised; `success`: both where a replay was
+done, else `solved`), `sample(quantity, times)` over that replay, `verify()`, `plot(directory)`,
+`to_json(path)`; `Solution.from_json(path)` reads one back.
 """
 from __future__ import annotations
 
@@ -13,6 +16,7 @@ import numpy as np
 
 from rscasadi.dynamics.arm import Arm
 from rscasadi.dynamics.collision import exact_clearance
+from rscasadi.errors import InvalidArgument, WrongType
 from rscasadi.files import write_json
 from rscasadi.model.collision import with_collision
 from rscasadi.model.frames import holding
@@ -25,8 +29,23 @@ from rscasadi.model.limits import violation
 STATE = ("theta", "phi", "dtheta", "dphi")
 
 
+SAMPLED = STATE + ("psi", "tau")
+
+
 class Solution(dict):
-    """The record of a solve (the keys of solution.json, docs/user-guide/problems.md)."""
+    """The record of a solve (the keys of solution.json, docs/user-guide/problems.md), read-only."""
+
+    def _read_only(self, *args, **kwargs):
+        raise WrongType("a Solution is read-only: sol.replace(key=value) returns a changed copy")
+
+    __setitem__ = __delitem__ = update = pop = popitem = setdefault = clear = __ior__ = _read_only  # type: ignore
+
+    def __reduce__(self):                     # pickled and copied as a whole, not item by item
+        return type(self), (dict(self),)
+
+    def replace(self, **changes) -> "Solution":
+        """A copy with `changes` to its fields."""
+        return type(self)({**self, **changes})
 
     def _array(self, key):
         return np.asarray(self[key], float)
@@ -37,7 +56,10 @@ class Solution(dict):
     dtheta = property(lambda self: self._array("dtheta"), doc="link speeds (rad/s)")
     dphi = property(lambda self: self._array("dphi"), doc="motor speeds at the slow side (rad/s)")
     tau = property(lambda self: self._array("tau"), doc="motor torques, held on each interval (n x N+1, N m)")
-    success = property(lambda self: bool(self["success"]), doc="solved and, after a solve(), verified")
+    success = property(lambda self: bool(self["success"]), doc="solved and, where a replay was done, verified")
+    solved = property(lambda self: bool(self.get("solver_success", self["success"])), doc="the solver converged")
+    verified = property(lambda self: bool((self.get("verification") or {}).get("passed", False)),
+                        doc="the torques replayed on the complete model kept every promise (solve() replays)")
     status = property(lambda self: self["status"], doc="the solver's return status")
     objective = property(lambda self: float(self["objective"]), doc="the objective's value")
     design = property(lambda self: dict(self.get("design", {})), doc="the designed parameters' values")
@@ -54,6 +76,29 @@ class Solution(dict):
     def verify(self, substeps: int = 20, tol: float = 1e-10) -> dict:
         """The torques replayed on the complete model (see `verify`)."""
         return verify(self, substeps, tol)
+
+    def sample(self, quantity: str, times, substeps: int = 20) -> np.ndarray:
+        """`quantity` (theta, phi, dtheta, dphi, psi = phi - theta, or tau) at `times` (s) of the
+        torques replayed on the complete model (CVODES, `substeps` per interval, interpolated
+        linearly between its samples; tau as held over each interval): n x len(times)."""
+        if quantity not in SAMPLED:
+            raise InvalidArgument(f"sample: quantity {quantity!r} is not one of {', '.join(SAMPLED)}")
+        times = np.atleast_1d(np.asarray(times, float))
+        t = self.t
+        if times.size and (times.min() < t[0] or times.max() > t[-1]):
+            raise InvalidArgument(f"sample: times must lie in the motion's [{t[0]:g}, {t[-1]:g}] s")
+        if quantity == "tau":
+            k = np.clip(np.searchsorted(t, times, side="right") - 1, 0, len(t) - 2)
+            return self.tau[:, k]
+        sim = self._replay(substeps)
+        return np.vstack([np.interp(times, sim["t"], row) for row in sim[quantity]])
+
+    def _replay(self, substeps: int) -> dict:
+        cache = self.__dict__.setdefault("_replays", {})
+        if substeps not in cache:
+            x0 = np.concatenate([np.asarray(self[k], float)[:, 0] for k in STATE])
+            cache[substeps] = simulate_held(self.arm(), x0, self.t, self.tau, substeps, 1e-10)
+        return cache[substeps]
 
     def to_json(self, path):
         """Write the record as JSON (whole or not at all; no NaN)."""

@@ -181,11 +181,12 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
     if not tr.tracking:                            # at rest at theta_end, or where the solver ended (a goal)
         theta_end = problem.task.theta_end if goal is None else Xs[:n, -1]
         target = rest_state(Arm(with_values(base, {**problem.task.parameters, **design})), theta_end).tolist()
+    solved = _success(stats)
     return Solution({"model": str(problem.task.model), "solver": problem.solver.name,
             "interface": ("direct" if direct(problem) else "casadi") if problem.solver.name == "fatrop" else None,
             "blasfeo": stats.get("blasfeo"),          # fatrop's linear algebra library (direct interface)
             "threads": threads, "status": _status(stats),
-            "success": _success(stats), "solve_time_s": solve_time, "setup_time_s": setup,
+            "success": solved, "solver_success": solved, "solve_time_s": solve_time, "setup_time_s": setup,
             "iterations": int(stats["iter_count"]), "objective": float(objective(res["x"], P)),
             "intervals": len(w), "mesh": (np.asarray(w) / np.sum(w)).tolist(), "t": t.tolist(),
             **{k: Xs[i * n:(i + 1) * n].tolist() for i, k in enumerate(("theta", "phi", "dtheta", "dphi"))},
@@ -303,7 +304,7 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
         # a refinement round starts next to the answer: a small barrier keeps the solver there
         # (seen: a co-design round wandered from T = 0.2472 s to another local minimum, 0.2506 s)
         extra = {**(WARM.get(problem.solver.name, {}) if r else {}), **(options or {})}
-        sol = solve_once(problem, w, warm, log, print_level, extra)
+        sol = dict(solve_once(problem, w, warm, log, print_level, extra))
         if not sol["success"] and problem.solver.name == "fatrop":
             # fatrop fails on some problems where IPOPT does not (maximum iterations, a failed
             # line search): the same start with IPOPT
@@ -311,7 +312,7 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
             problem = problem.replace(solver="ipopt")
             fallback = {"solver": "fatrop", "round": r, "status": sol["status"], "iterations": sol["iterations"]}
             options = None                                     # fatrop's own options mean nothing to IPOPT
-            sol = solve_once(problem, w, warm, log, print_level, WARM["ipopt"] if r else None)
+            sol = dict(solve_once(problem, w, warm, log, print_level, WARM["ipopt"] if r else None))
         if fallback:
             sol["fallback_from"] = fallback                    # kept through the later rounds (IPOPT's)
         report = verify(sol)
@@ -333,7 +334,7 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
     report.pop("interval_clearance", None)
     report.pop("interval_path_error", None)
     sol["verification"], sol["rounds"] = report, rounds
-    sol["solver_success"], sol["success"] = sol["success"], bool(sol["success"] and not failed)
+    sol["success"] = bool(sol["solver_success"] and not failed)
     if nominal is not None:
         sol["nominal"] = {"objective": nominal["objective"], "duration": nominal["t"][-1],
                           "success": nominal["success"], "design": _design_start(problem, solution_arm(nominal))}
@@ -341,7 +342,7 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
         if not sol["improved"]:
             log(f"note: the co-design ended in a local minimum worse than the nominal arm ({sol['objective']:.6g} "
                 f"> {nominal['objective']:.6g}); try the other solver or other design bounds")
-    return sol
+    return Solution(sol)
 
 
 def run(problem, out, warm_file=None, log=print, print_level: int = 5, solver: str | None = None) -> Solution:
@@ -378,7 +379,7 @@ def run(problem, out, warm_file=None, log=print, print_level: int = 5, solver: s
                 f"# {designed.name}: {Path(sol['model']).name} with the optimal design of {Path(problem.path).name}\n"
                 + "# (" + ", ".join(f"{k} = {v:.10g}" for k, v in sol["design"].items()) + ")\n"
                 + to_toml(document(dataclasses.replace(designed, name=designed.name + "-designed"))))
-            sol["designed_model"] = "designed_model.toml"
+            sol = sol.replace(designed_model="designed_model.toml")
         sol.to_json(tmp / "solution.json")
         sol.plot(tmp)
     if not sol["solver_success"]:
