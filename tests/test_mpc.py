@@ -21,6 +21,15 @@ from conftest import ROOT
 PROBLEM = ROOT / "problems" / "mpc_arm3.toml"
 
 
+def split_step(arm, p):
+    """The generated step's CasADi reference: (x, reference, X, U, params) -> (tau, X_next, U_next)
+    through mpc_prepare's and mpc_feedback's Functions (the real-time iteration, split)."""
+    from rscasadi.mpc.formulation import feedback_function, prepare_function
+    prepare = prepare_function(arm, p)
+    feedback = feedback_function(arm, p, prepare)
+    return lambda x, ref, X, U, params: feedback(x, X, U, *prepare(ref, X, U, params))
+
+
 @pytest.fixture(scope="module")
 def mpc_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("mpc") / "arm3"
@@ -29,9 +38,12 @@ def mpc_dir(tmp_path_factory):
 
 
 def test_generated_c_equals_the_casadi_function(mpc_dir):
+    """mpc_step is mpc_prepare then mpc_feedback: the C equals those two CasADi Functions chained."""
+    from rscasadi.mpc.formulation import feedback_function, prepare_function
     p = load_mpc_problem(PROBLEM)
     arm = load(p.model)
-    rti, hold = rti_function(arm, p), hold_function(arm, p)
+    prepare, hold = prepare_function(arm, p), hold_function(arm, p)
+    feedback = feedback_function(arm, p, prepare)
     c = CompiledMPC(mpc_dir)
     rng = np.random.default_rng(3)
     x = rest_state(arm, [0.1, 0.4, -0.6])
@@ -41,10 +53,59 @@ def test_generated_c_equals_the_casadi_function(mpc_dir):
     for _ in range(5):                                   # the C keeps its state and torque plans between steps
         ref = np.vstack([x[:3, None] + rng.normal(0, 0.05, (3, p.horizon)), rng.normal(0, 0.2, (3, p.horizon))])
         tau_c, _, flag = c.step(x, ref)
-        tau_py, X, U = (np.array(v) for v in rti(x, ref, X, U, params))
+        tau_py, X, U = (np.array(v) for v in feedback(x, X, U, *prepare(ref, X, U, params)))
         assert flag == 0 and np.max(np.abs(tau_c - tau_py.ravel())) < 1e-12
         x = x + rng.normal(0, 1e-3, x.shape)
     assert np.all(np.abs(tau_c) <= np.array([jt.limits["tau"] for jt in arm.model.joints]) + 1e-12)
+
+
+def test_the_split_iteration_is_the_real_time_iteration_where_the_prediction_holds():
+    """Prepared before the measurement (the linearisation at the plan, the measured deviation dx_0
+    affine), the step equals the monolithic real-time iteration (linearised at the measured
+    rollout) when the measurement is the plan's own start, and differs by O(|dx_0|) otherwise
+    (the Gauss-Newton Hessian's point moves): the task-space problem, whose residual is nonlinear."""
+    from rscasadi.mpc.formulation import controller_arm, feedback_function, prepare_function
+    from rscasadi.mpc.problem import mpc_model
+    p = load_mpc_problem(ROOT / "problems" / "mpc_arm3_tool.toml")
+    arm = controller_arm(mpc_model(p), p.parametric)
+    rti, hold = rti_function(arm, p), hold_function(arm, p)
+    prepare = prepare_function(arm, p)
+    feedback = feedback_function(arm, p, prepare)
+    theta = np.array([0.0, 0.3, -0.5])
+    x, params = rest_state(arm, theta), np.r_[theta, 0.05]
+    X, U = (np.array(v) for v in hold(x, params))
+    tool = np.array(arm.frame_placement("tool")(theta)[1]).ravel()
+    ref = np.vstack([np.tile(tool[:, None] + 0.02, (1, p.horizon)), np.zeros((3, p.horizon))])
+    d = np.random.default_rng(5).normal(size=x.shape)
+    gaps = []
+    for scale in (0.0, 1e-3, 1e-4):
+        split = [np.array(v) for v in feedback(x + scale * d, X, U, *prepare(ref, X, U, params))]
+        whole = [np.array(v) for v in rti(x + scale * d, ref, X, U, params)]
+        gaps.append(max(np.max(np.abs(a - b)) for a, b in zip(split, whole)))
+    assert gaps[0] < 1e-12 and 0 < gaps[2] < gaps[1] / 5
+
+
+def test_prepare_then_feedback_is_a_step_and_a_feedback_needs_a_prepare(mpc_dir, arm3):
+    """The two phases through C give the step's torque bit for bit; a feedback without a prepare
+    since the last returns MPC_NOT_PREPARED (9) with the holding torque, one after a refused
+    reference returns MPC_BAD_REFERENCE (7); the next prepared sample is acted on as usual."""
+    p = load_mpc_problem(PROBLEM)
+    x = rest_state(arm3, [0.1, 0.4, -0.6])
+    ref = np.vstack([np.tile(x[:3, None] + 0.05, (1, p.horizon)), np.zeros((3, p.horizon))])
+    one, two = CompiledMPC(mpc_dir), CompiledMPC(mpc_dir)
+    one.init(x)
+    two.init(x)
+    for _ in range(3):
+        tau_step, _, flag = one.step(x, ref)
+        assert two.prepare(ref) == 0
+        tau_split, seconds, code = two.feedback(x)
+        assert flag == code == 0 and np.array_equal(tau_step, tau_split) and seconds > 0
+    tau, _, code = two.feedback(x)
+    assert code == 9 and np.all(np.isfinite(tau))
+    bad = ref.copy()
+    bad[0, 3] = np.nan
+    assert two.prepare(bad) == 7 and two.feedback(x)[2] == 7
+    assert two.prepare(ref) == 0 and two.feedback(x)[2] == 0
 
 
 def test_a_nan_measurement_keeps_the_plan_and_says_so(mpc_dir, arm3):
@@ -308,7 +369,7 @@ def test_task_space_c_equals_casadi_with_the_payload_mass_it_is_given(tool_mpc_d
     from rscasadi.mpc.study import FrameReference
     p = load_mpc_problem(TOOL)
     arm = controller_arm(mpc_model(p))
-    rti, hold = rti_function(arm, p), hold_function(arm, p)
+    rti, hold = split_step(arm, p), hold_function(arm, p)
     x = rest_state(arm, p.theta_start)
     reference = FrameReference(p, arm)
     offsets = p.interval * np.arange(1, p.horizon + 1)
@@ -471,7 +532,7 @@ def test_the_panda_controller_with_its_step_kernel_equals_the_casadi_function(pa
     p = load_mpc_problem(PANDA)
     arm = load(p.model)
     assert "mpc_step_jacobian.c" in json.loads((panda_mpc_dir / "manifest.json").read_text())["sources"]
-    rti, hold = rti_function(arm, p), hold_function(arm, p)
+    rti, hold = split_step(arm, p), hold_function(arm, p)
     c, rng = CompiledMPC(panda_mpc_dir), np.random.default_rng(5)
     x = rest_state(arm, [0.0, -0.3, 0.0, -2.0, 0.0, 1.7, 0.8])
     c.init(x)

@@ -14,7 +14,8 @@ CODES = {0: "ok", 2: "MPC_NOT_FINITE", 3: "MPC_FAILED", 4: "MPC_NO_PAYLOAD", 5: 
 
 class CompiledMPC(CompiledController):
     """One generated C controller through ctypes, its `mpc_t` in memory this object owns:
-    init(x) -> code, step(x, reference) -> (tau, seconds measured in C, code), step_to(x, target),
+    init(x) -> code, step(x, reference) -> (tau, seconds measured in C, code), or in two phases
+    prepare(reference) -> code then feedback(x) -> (tau, seconds, code), step_to(x, target),
     set_payload_mass(m), set_parameters(p), set_posture(theta) -> code.  The codes and what tau
     is then: the header's failure policy (CODES names them).  Several may share one library."""
 
@@ -24,9 +25,10 @@ class CompiledMPC(CompiledController):
         super().__init__(directory, "mpc")
         self.fn = {k: getattr(self.lib, f"{self.stem}_{k}") for k in ("init", "init_parameters", "step", "step_to",
                                                                        "step_seconds", "set_payload_mass",
-                                                                       "set_parameters", "set_posture")}
+                                                                       "set_parameters", "set_posture", "prepare",
+                                                                       "feedback", "feedback_seconds")}
         self.fn["set_payload_mass"].argtypes = [ctypes.c_void_p, ctypes.c_double]
-        self.fn["step_seconds"].restype = ctypes.c_double
+        self.fn["step_seconds"].restype = self.fn["feedback_seconds"].restype = ctypes.c_double
         self.n = self.sizes["tau"]
 
     def init(self, x, parameters=None) -> int:
@@ -47,6 +49,21 @@ class CompiledMPC(CompiledController):
         if ref.shape != (rows, N):
             raise ControllerError(f"mpc: reference must be {rows} x {N} (manifest.json), got shape {ref.shape}")
         return self._call(self.fn["step"], x, self.array("reference", ref.T))
+
+    def prepare(self, reference) -> int:
+        """mpc_prepare: everything of the next step that needs no measurement (the reference as
+        in `step`); 0 or a code (the next feedback's)."""
+        rows, N = self.sizes["reference"]
+        ref = np.asarray(reference)
+        if ref.shape != (rows, N):
+            raise ControllerError(f"mpc: reference must be {rows} x {N} (manifest.json), got shape {ref.shape}")
+        return self.fn["prepare"](self.c, self.ptr(self.array("reference", ref.T)))
+
+    def feedback(self, x):
+        """mpc_feedback: the prepared step from the measured state: (tau, seconds in C, code)."""
+        tau = np.zeros(self.n)
+        flag = self.fn["feedback"](self.c, self.ptr(self.array("x", x)), self.ptr(tau))
+        return tau, self.fn["feedback_seconds"](self.c), flag
 
     def step_to(self, x, target):
         return self._call(self.fn["step_to"], x, self.array("target", target))

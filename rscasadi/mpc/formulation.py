@@ -186,6 +186,53 @@ class _Linearisation:
         return C, np.tile(lo[joints], N) - at, np.tile(hi[joints], N) - at
 
 
+class _Prepared:
+    """The real-time iteration's QP prepared before the measurement (Diehl's split RTI): the
+    linearisation of `_Linearisation` at the plan with the measured deviation dx_0 = x_measured -
+    X_0 kept as a parameter, so that dx_k = e_k + Phi_k dx_0 + G_k dU (e_k from the gaps alone,
+    Phi_k = A_{k-1} ... A_0) and, each residual linearised at X_{k+1} + e_k, the QP's gradient is
+    g0 + M dx_0 and its rows' bounds move by -Cx dx_0: what the measurement changes is affine and
+    the feedback phase is that product and the QP alone."""
+
+    def __init__(self, F, residual, p: MPCProblem, ref, X, U, posture, mass):
+        n, N = U.shape[0], p.horizon
+        nx, nU = X.shape[0], n * N
+        self.H, self.g0 = p.weights["tau"] * ca.MX.eye(nU), p.weights["tau"] * ca.vec(U)
+        self.M = ca.MX(nU, nx)
+        e, Phi, G = ca.MX(nx, 1), ca.MX.eye(nx), ca.MX(nx, 0)
+        self.e, self.Phi, self.G = [e], [Phi], [G]
+        for k in range(N):
+            xp, A, B = F(X[:, k], U[:, k], mass)
+            e, Phi, G = ca.mtimes(A, e) + xp - X[:, k + 1], ca.mtimes(A, Phi), ca.horzcat(ca.mtimes(A, G), B)
+            self.e.append(e)
+            self.Phi.append(Phi)
+            self.G.append(G)
+            r, Jx = residual(X[:, k + 1] + e, ref[:, k], posture)
+            J, rest = ca.mtimes(Jx, G), nU - n * (k + 1)
+            self.H += ca.diagcat(ca.mtimes(J.T, J), ca.MX(rest, rest))
+            self.g0 += ca.vertcat(ca.mtimes(J.T, r), ca.MX(rest, 1))
+            self.M += ca.vertcat(ca.mtimes(J.T, ca.mtimes(Jx, Phi)), ca.MX(rest, nx))
+
+    def maps(self):
+        """(Eb, Phi, Gf): dX (stacked, nx (N + 1)) = Eb + Phi dx_0 + Gf dU."""
+        nU = self.H.shape[0]
+        return (ca.vertcat(*self.e), ca.vertcat(*self.Phi),
+                ca.vertcat(*[ca.horzcat(G, ca.MX(G.shape[0], nU - G.shape[1])) for G in self.G]))
+
+    def angle_rows(self, X, limits: dict):
+        """As `_Linearisation.angle_rows`, prepared: (C, cl0, cu0, Cx), the bounds at dx_0 being
+        cl0 - Cx dx_0, cu0 - Cx dx_0; None without a range."""
+        lo, hi = hard_range(limits)
+        joints = [j for j in range(len(lo)) if np.isfinite(limits["theta_lo"][j]) or np.isfinite(limits["theta_hi"][j])]
+        if not joints:
+            return None
+        nU, N = self.H.shape[0], len(self.e) - 1
+        C = ca.vertcat(*[ca.horzcat(G[joints, :], ca.MX(len(joints), nU - G.shape[1])) for G in self.G[1:]])
+        at = ca.vertcat(*[X[joints, k] + self.e[k][joints] for k in range(1, N + 1)])
+        Cx = ca.vertcat(*[self.Phi[k][joints, :] for k in range(1, N + 1)])
+        return C, np.tile(lo[joints], N) - at, np.tile(hi[joints], N) - at, Cx
+
+
 HARD_OPEN = 1e3      # rad: the missing end of a one-sided range, for the hard link-angle rows
 HARD_PRICE = 1e4     # the exact penalty per unit excess of a (unit-norm) row in box_qp's scaled QP
 HARD_MERIT = 1e10    # the line search's price per rad beyond a hard range (sqp_iterations > 1)
@@ -367,6 +414,47 @@ def rti_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None = No
     alpha = p.sample_time / p.interval
     return ca.Function(name, [xm, ref, X0, U0, params], [U[:, 0], shifted(X, alpha), shifted(U, alpha)],
                        ["x", "reference", "X", "U", "params"], ["tau", "X_next", "U_next"])
+
+
+PREPARED = ("H", "g0", "M", "Eb", "Phi", "Gf", "C", "cl0", "cu0", "Cx")
+
+
+def prepare_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None = None,
+                     name: str = "mpc_prepare") -> ca.Function:
+    """mpc_prepare(reference, X, U, params) -> the real-time iteration's QP before the
+    measurement (`_Prepared`): H, g0, M, the maps Eb, Phi, Gf of the plan's change and, with hard
+    angle limits, the rows C, cl0, cu0, Cx (empty without).  Only for sqp_iterations = 1."""
+    n, N, nx = arm.n, p.horizon, 4 * arm.n
+    F, _ = interval_functions(arm, p.interval, p.substeps, step_jacobian)
+    limits = limit_arrays(arm)
+    ref = ca.MX.sym("reference", reference_rows(n, p), N)
+    params = ca.MX.sym("params", n_params(arm))
+    X, U = ca.MX.sym("X", nx, N + 1), ca.MX.sym("U", n, N)
+    prep = _Prepared(F, stage_residual(arm, p, limits), p, ref, X, U, params[:n], params[n:])
+    rows = prep.angle_rows(X, limits) if p.angle_limits == "hard" else None
+    rows = rows if rows is not None else (ca.MX(0, n * N), ca.MX(0, 1), ca.MX(0, 1), ca.MX(0, nx))
+    return ca.Function(name, [ref, X, U, params], [prep.H, prep.g0, prep.M, *prep.maps(), *rows],
+                       ["reference", "X", "U", "params"], list(PREPARED))
+
+
+def feedback_function(arm: Arm, p: MPCProblem, prepare: ca.Function, name: str = "mpc_feedback") -> ca.Function:
+    """mpc_feedback(x, X, U, prepared...) -> (tau, X_next, U_next): the QP of `prepare`'s outputs
+    at the measured state (g = g0 + M dx_0, the rows' bounds moved), solved by `box_qp`, the plan
+    stepped (Eb + Phi dx_0 + Gf dU) and shifted by one sample."""
+    n, N, nx = arm.n, p.horizon, 4 * arm.n
+    xm, X0, U0 = ca.MX.sym("x", nx), ca.MX.sym("X", nx, N + 1), ca.MX.sym("U", n, N)
+    got = {k: ca.MX.sym(k, prepare.sparsity_out(k)) for k in PREPARED}
+    dx0 = xm - X0[:, 0]
+    tau_max = np.tile(limit_arrays(arm)["tau"], N)
+    shift = ca.mtimes(got["Cx"], dx0)
+    rows = (got["C"], got["cl0"] - shift, got["cu0"] - shift) if got["C"].shape[0] else None
+    dU = box_qp(got["H"], got["g0"] + ca.mtimes(got["M"], dx0), -tau_max - ca.vec(U0), tau_max - ca.vec(U0),
+                p.qp_iterations, rows, HARD_PRICE)
+    dX = ca.reshape(got["Eb"] + ca.mtimes(got["Phi"], dx0) + ca.mtimes(got["Gf"], dU), nx, N + 1)
+    X, U = ca.horzcat(xm, (X0 + dX)[:, 1:]), U0 + ca.reshape(dU, n, N)
+    alpha = p.sample_time / p.interval
+    return ca.Function(name, [xm, X0, U0, *got.values()], [U[:, 0], shifted(X, alpha), shifted(U, alpha)],
+                       ["x", "X", "U", *got], ["tau", "X_next", "U_next"])
 
 
 def hold_function(arm: Arm, p: MPCProblem, name: str = "mpc_hold") -> ca.Function:

@@ -11,7 +11,8 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from rscasadi.mpc.formulation import controller_arm, hold_function, n_params, reference_rows, rti_function
+from rscasadi.mpc.formulation import (PREPARED, controller_arm, feedback_function, hold_function, n_params,
+                                      prepare_function, reference_rows, rti_function)
 from rscasadi.mpc.problem import mpc_model, mpc_problem
 from rscasadi.model.limits import limit_arrays, measurement_bounds
 from rscasadi.native.build import cached_library, compiler, native_flags
@@ -79,7 +80,15 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
     cc, flags = compiler(), [opt, "-std=c99"] + (native_flags() if native else [])
     name = lambda what: function_name("mpc", prefix, what)
     kernel, step_jacobian = step_kernel(arm, flags, cc, log, name(KERNEL))
-    rti, hold = rti_function(arm, p, step_jacobian, name("rti")), hold_function(arm, p, name("hold"))
+    split = p.sqp_iterations == 1                  # the real-time iteration: prepare, then feedback
+    if split:
+        prepare = prepare_function(arm, p, step_jacobian, name("rti_prepare"))
+        functions = [prepare, feedback_function(arm, p, prepare, name("rti_feedback"))]
+        prepared = [(k, prepare.nnz_out(k), list(prepare.size_out(k))) for k in PREPARED]
+    else:
+        functions, prepared = [rti_function(arm, p, step_jacobian, name("rti"))], []
+    functions.append(hold_function(arm, p, name("hold")))
+    offsets = np.cumsum([0] + [nnz for _, nnz, _ in prepared]).tolist()
     n, rows = arm.n, reference_rows(arm.n, p)
     # the model's file name goes into a C comment: only characters that cannot end one
     model_name = re.sub(r"[^A-Za-z0-9._-]", "_", Path(arm.model.path).name)
@@ -93,17 +102,20 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
     guard = guard_bounds(model, p, rows)
     header = dict(model=model_name, n=n, nx=4 * n, N=p.horizon, nref=rows * p.horizon, rows=rows, ts=p.sample_time,
                   h=p.interval, iters=iters, reference=reference, target=target, ntarget=n_target,
-                  nparams=n_params(arm), np=n_params(arm) - n, task=int(p.task_space),
-                  **boxes(guard, words=True), tau_limits=c_words(guard["tau_max"]))
+                  nparams=n_params(arm), np=n_params(arm) - n, task=int(p.task_space), split=int(split),
+                  nprep=max(offsets[-1], 1), **boxes(guard, words=True), tau_limits=c_words(guard["tau_max"]))
     parameter_names, values = arm.parameters()
     free = arm.free or []
     nominal = [float(dict(zip(parameter_names, values))[k]) for k in free]
     body = dict(nominal=", ".join(repr(v) for v in nominal) or "0.0",
-                mass_index=free.index("payload.mass") if "payload.mass" in free else -1, **boxes(guard))
+                mass_index=free.index("payload.mass") if "payload.mass" in free else -1, **boxes(guard),
+                nprepared=len(prepared), prep_offsets=", ".join(str(o) for o in offsets))
     manifest = {"model": str(p.model), "problem": None if p.path is None else str(p.path),
                 "api": {"sizeof": [], "init": ["c", "x_measured"], "init_parameters": ["c", "x_measured", "p"],
                         "step": ["c", "x_measured", "reference", "tau_out"],
                         "step_to": ["c", "x_measured", "target", "tau_out"], "step_seconds": ["c"],
+                        "prepare": ["c", "reference"], "feedback": ["c", "x_measured", "tau_out"],
+                        "feedback_seconds": ["c"],
                         "set_payload_mass": ["c", "mass"], "set_posture": ["c", "theta"], "set_parameters": ["c", "p"]},
                 "parameters": {"names": free, "nominal": nominal, "parametric": p.parametric},
                 "sizes": {"x": 4 * n, "tau": n, "reference": [rows, p.horizon], "target": n_target},
@@ -113,6 +125,9 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
                 "horizon": p.horizon, "interval": p.interval, "substeps": p.substeps,
                 "guard": {k: v.tolist() for k, v in guard.items()},
                 "sample_time": p.sample_time, "sqp_iterations": p.sqp_iterations, "qp_iterations": p.qp_iterations,
-                "weights": p.weights}
-    return write_controller("mpc", prefix, [rti, hold], TEMPLATES, header, body, out, flags, manifest, log,
-                            extra_sources=None if kernel is None else {f"{name(KERNEL)}.c": kernel}, cc=cc)
+                "weights": p.weights,
+                "split": split, "prepared": {k: {"offset": o, "nnz": nnz, "shape": shape}
+                                             for (k, nnz, shape), o in zip(prepared, offsets)}}
+    return write_controller("mpc", prefix, functions, TEMPLATES, header, body, out, flags, manifest, log,
+                            extra_sources=None if kernel is None else {f"{name(KERNEL)}.c": kernel}, cc=cc,
+                            casadi_file=name("rti"))

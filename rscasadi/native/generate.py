@@ -43,9 +43,9 @@ def function_name(kind: str, prefix: str, what: str) -> str:
     return f"{symbols(kind, prefix)['sym']}_{what}"
 
 
-def casadi_sources(functions: list[ca.Function]) -> dict[str, str]:
-    """CasADi's C of `functions`, one file with its header, named after the first."""
-    name = functions[0].name()
+def casadi_sources(functions: list[ca.Function], name: str | None = None) -> dict[str, str]:
+    """CasADi's C of `functions`, one file with its header, `name`.c (default: the first's name)."""
+    name = functions[0].name() if name is None else name
     gen = ca.CodeGenerator(f"{name}.c", {"with_header": True})
     for f in functions:
         gen.add(f)
@@ -54,21 +54,33 @@ def casadi_sources(functions: list[ca.Function]) -> dict[str, str]:
         return {file: (Path(d) / file).read_text() for file in (f"{name}.c", f"{name}.h")}
 
 
+def _largest(macros: list[str]) -> str:
+    """A C expression of the largest of `macros` (nested conditionals)."""
+    out = macros[0]
+    for m in macros[1:]:
+        out = f"({m} > {out} ? {m} : {out})"
+    return out
+
+
 def write_controller(kind: str, prefix: str, functions: list[ca.Function], templates: Path, header: dict, body: dict,
                      out, flags: list, manifest: dict, log=print, extra_sources: dict | None = None,
-                     cc: list | None = None) -> dict:
+                     cc: list | None = None, casadi_file: str | None = None) -> dict:
     """Generate `functions`, fill templates/rscasadi_<kind>.h and .c with `header` and `body`
-    (plus sym, SYM, header, casadi_header and the work sizes sz_w, sz_iw), add the guard and
+    (plus sym, SYM, header, casadi_header, the work sizes sz_w, sz_iw and sz_w_check, sz_iw_check:
+    C expressions of the largest of CasADi's own figures), add the guard and
     `extra_sources`, compile with `flags` once per source, and write everything with the manifest
     (its header, library, symbol, sources and compiler filled in) into `out`, whole or not at all."""
     names = symbols(kind, prefix)
-    sources = casadi_sources(functions)
-    common = {"sym": names["sym"], "SYM": names["SYM"], "header": names["header"],
-              "casadi_header": f"{functions[0].name()}.h"}
-    sizes = {"sz_w": max(f.sz_w() for f in functions) + 1, "sz_iw": max(f.sz_iw() for f in functions) + 1}
+    casadi_file = functions[0].name() if casadi_file is None else casadi_file
+    sources = casadi_sources(functions, casadi_file)
+    common = {"sym": names["sym"], "SYM": names["SYM"], "header": names["header"], "casadi_header": f"{casadi_file}.h"}
+    sizes = {"sz_w": max(f.sz_w() for f in functions) + 1, "sz_iw": max(f.sz_iw() for f in functions) + 1,
+             "sz_w_check": _largest([f"{f.name()}_SZ_W" for f in functions]),
+             "sz_iw_check": _largest([f"{f.name()}_SZ_IW" for f in functions])}
     sources[names["header"]] = Template((templates / f"rscasadi_{kind}.h").read_text()).substitute(
         {**common, **sizes, **header})
-    sources[names["source"]] = Template((templates / f"rscasadi_{kind}.c").read_text()).substitute({**common, **body})
+    sources[names["source"]] = Template((templates / f"rscasadi_{kind}.c").read_text()).substitute(
+        {**common, **sizes, **body})
     sources.update(guard_source())
     sources.update(extra_sources or {})
     cc = compiler() if cc is None else cc

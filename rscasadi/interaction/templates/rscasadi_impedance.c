@@ -12,8 +12,8 @@ static const double K_LO[${SYM}_NK] = {${k_lo}}, K_HI[${SYM}_NK] = {${k_hi}};
 static const double Z_LO[${SYM}_NK] = {${z_lo}}, Z_HI[${SYM}_NK] = {${z_hi}};
 #define PASSIVE ${passive}                 /* 1: the motor-position (passive) design checks its margin */
 typedef char casadi_int_is_long_long[sizeof(casadi_int) == sizeof(long long) ? 1 : -1];
-typedef char work_fits[sizeof(((${sym}_t *)0)->w) >= sizeof(casadi_real) * (${sym}_law_SZ_W > ${sym}_hold_SZ_W ? ${sym}_law_SZ_W : ${sym}_hold_SZ_W) ? 1 : -1];
-typedef char iwork_fits[sizeof(((${sym}_t *)0)->iw) >= sizeof(casadi_int) * (${sym}_law_SZ_IW > ${sym}_hold_SZ_IW ? ${sym}_law_SZ_IW : ${sym}_hold_SZ_IW) ? 1 : -1];
+typedef char work_fits[sizeof(((${sym}_t *)0)->w) >= sizeof(casadi_real) * (${sz_w_check}) ? 1 : -1];
+typedef char iwork_fits[sizeof(((${sym}_t *)0)->iw) >= sizeof(casadi_int) * (${sz_iw_check}) ? 1 : -1];
 
 size_t ${sym}_sizeof(void) { return sizeof(${sym}_t); }
 

@@ -11,7 +11,7 @@ static const double THRESHOLD = ${threshold};           /* N m on any link: ${SY
 static const double X_LO[${SYM}_NX] = {${x_lo}}, X_HI[${SYM}_NX] = {${x_hi}};   /* a plausible measurement */
 static const double TAU_LO[${SYM}_NU] = {${tau_lo}}, TAU_HI[${SYM}_NU] = {${tau_hi}};  /* a plausible torque */
 typedef char casadi_int_is_long_long[sizeof(casadi_int) == sizeof(long long) ? 1 : -1];
-typedef char work_fits[sizeof(((${sym}_t *)0)->w) >= sizeof(casadi_real) * ${sym}_terms_SZ_W ? 1 : -1];
+typedef char work_fits[sizeof(((${sym}_t *)0)->w) >= sizeof(casadi_real) * (${sz_w_check}) ? 1 : -1];
 
 size_t ${sym}_sizeof(void) { return sizeof(${sym}_t); }
 

@@ -14,12 +14,16 @@ static const double TAU_MAX[${SYM}_NU] = {${tau_max}};          /* INFINITY: no 
 static const double X_LO[${SYM}_NX] = {${x_lo}}, X_HI[${SYM}_NX] = {${x_hi}};      /* a plausible measurement */
 static const double REF_LO[NROWS] = {${ref_lo}}, REF_HI[NROWS] = {${ref_hi}};  /* a reference column */
 typedef char casadi_int_is_long_long[sizeof(casadi_int) == sizeof(long long) ? 1 : -1];
-typedef char work_fits[sizeof(((${sym}_t *)0)->w) >= sizeof(casadi_real) * (${sym}_rti_SZ_W > ${sym}_hold_SZ_W ? ${sym}_rti_SZ_W : ${sym}_hold_SZ_W) ? 1 : -1];
-typedef char iwork_fits[sizeof(((${sym}_t *)0)->iw) >= sizeof(casadi_int) * (${sym}_rti_SZ_IW > ${sym}_hold_SZ_IW ? ${sym}_rti_SZ_IW : ${sym}_hold_SZ_IW) ? 1 : -1];
+typedef char work_fits[sizeof(((${sym}_t *)0)->w) >= sizeof(casadi_real) * (${sz_w_check}) ? 1 : -1];
+typedef char iwork_fits[sizeof(((${sym}_t *)0)->iw) >= sizeof(casadi_int) * (${sz_iw_check}) ? 1 : -1];
+#define NPREPARED ${nprepared}
+static const int PREP_OFF[NPREPARED + 1] = {${prep_offsets}};   /* each prepared output in c->prep */
 
 size_t ${sym}_sizeof(void) { return sizeof(${sym}_t); }
 
 double ${sym}_step_seconds(const ${sym}_t *c) { return c ? c->last_step_seconds : 0.0; }
+
+double ${sym}_feedback_seconds(const ${sym}_t *c) { return c ? c->last_feedback_seconds : 0.0; }
 
 int ${sym}_set_payload_mass(${sym}_t *c, double mass) {
   if (MASS_INDEX < 0) return ${SYM}_NO_PAYLOAD;
@@ -70,7 +74,8 @@ int ${sym}_init(${sym}_t *c, const double *x_measured) { return ${sym}_init_para
 int ${sym}_init_parameters(${sym}_t *c, const double *x_measured, const double *p) {
   if (!c) return ${SYM}_BAD_ARGUMENT;
   c->ready = 0;
-  c->last_step_seconds = 0.0;
+  c->prepared = 0;
+  c->last_step_seconds = c->last_feedback_seconds = 0.0;
   if (!finite_all(p, ${SYM}_NP)) return ${SYM}_BAD_ARGUMENT;
   if (!rscasadi_within(x_measured, X_LO, X_HI, ${SYM}_NX)) return ${SYM}_BAD_MEASUREMENT;
   for (int i = 0; i < ${SYM}_NU; ++i) c->params[i] = x_measured[i];
@@ -89,17 +94,47 @@ static int reference_ok(const double *reference) {
   return 1;
 }
 
-static int step(${sym}_t *c, const double *x_measured, const double *reference, double *tau_out) {
+int ${sym}_prepare(${sym}_t *c, const double *reference) {
+  if (!c || c->ready != RSCASADI_READY) return ${SYM}_NOT_INITIALISED;
+  int code = reference_ok(reference) ? 0 : ${SYM}_BAD_REFERENCE;
+#if ${SYM}_SPLIT
+  if (!code) {
+    const casadi_real *arg[${sym}_rti_prepare_SZ_ARG + 1] = {reference, c->X, c->U, c->params};
+    casadi_real *res[${sym}_rti_prepare_SZ_RES + 1];
+    for (int i = 0; i < NPREPARED; ++i) res[i] = c->prep + PREP_OFF[i];
+    if (${sym}_rti_prepare(arg, res, (casadi_int *)c->iw, c->w, 0) != 0) code = ${SYM}_FAILED;
+    else if (!finite_all(c->prep, PREP_OFF[NPREPARED])) code = ${SYM}_NOT_FINITE;
+  }
+#else
+  if (!code)
+    for (int i = 0; i < ${SYM}_NREF; ++i) c->reference[i] = reference[i];
+#endif
+  c->prepared = code ? code : RSCASADI_READY;
+  return code;
+}
+
+static int feedback(${sym}_t *c, const double *x_measured, double *tau_out) {
   if (!c || c->ready != RSCASADI_READY) {
     rscasadi_zero(tau_out, ${SYM}_NU);
     return ${SYM}_NOT_INITIALISED;
   }
   if (!rscasadi_within(x_measured, X_LO, X_HI, ${SYM}_NX)) return refuse(c, tau_out, ${SYM}_BAD_MEASUREMENT);
   for (int i = 0; i < ${SYM}_NX; ++i) c->x_good[i] = x_measured[i];
-  if (!reference_ok(reference)) return refuse(c, tau_out, ${SYM}_BAD_REFERENCE);
-  const casadi_real *arg[${sym}_rti_SZ_ARG + 1] = {x_measured, reference, c->X, c->U, c->params};
-  casadi_real *res[${sym}_rti_SZ_RES + 1] = {tau_out, c->X_next, c->U_next};
-  int code = ${sym}_rti(arg, res, (casadi_int *)c->iw, c->w, 0) != 0 ? ${SYM}_FAILED : 0;
+  int code = c->prepared == RSCASADI_READY ? 0 : (c->prepared ? c->prepared : ${SYM}_NOT_PREPARED);
+  c->prepared = 0;                        /* a preparation serves one feedback */
+  if (code == ${SYM}_BAD_REFERENCE || code == ${SYM}_NOT_PREPARED) return refuse(c, tau_out, code);
+  if (!code) {
+#if ${SYM}_SPLIT
+    const casadi_real *arg[${sym}_rti_feedback_SZ_ARG + 1] = {x_measured, c->X, c->U};
+    for (int i = 0; i < NPREPARED; ++i) arg[3 + i] = c->prep + PREP_OFF[i];
+    casadi_real *res[${sym}_rti_feedback_SZ_RES + 1] = {tau_out, c->X_next, c->U_next};
+    code = ${sym}_rti_feedback(arg, res, (casadi_int *)c->iw, c->w, 0) != 0 ? ${SYM}_FAILED : 0;
+#else
+    const casadi_real *arg[${sym}_rti_SZ_ARG + 1] = {x_measured, c->reference, c->X, c->U, c->params};
+    casadi_real *res[${sym}_rti_SZ_RES + 1] = {tau_out, c->X_next, c->U_next};
+    code = ${sym}_rti(arg, res, (casadi_int *)c->iw, c->w, 0) != 0 ? ${SYM}_FAILED : 0;
+#endif
+  }
   if (!code && !(finite_all(c->X_next, NXP) && finite_all(c->U_next, NUP) && finite_all(tau_out, ${SYM}_NU)))
     code = ${SYM}_NOT_FINITE;
   if (code) {                             /* the plan restarts from the arm held here */
@@ -113,10 +148,19 @@ static int step(${sym}_t *c, const double *x_measured, const double *reference, 
   return 0;
 }
 
+int ${sym}_feedback(${sym}_t *c, const double *x_measured, double *tau_out) {
+  if (!tau_out) return ${SYM}_BAD_ARGUMENT;
+  const double t0 = rscasadi_now();
+  const int flag = feedback(c, x_measured, tau_out);
+  if (c) c->last_feedback_seconds = rscasadi_now() - t0;
+  return flag;
+}
+
 int ${sym}_step(${sym}_t *c, const double *x_measured, const double *reference, double *tau_out) {
   if (!tau_out) return ${SYM}_BAD_ARGUMENT;
   const double t0 = rscasadi_now();
-  const int flag = step(c, x_measured, reference, tau_out);
+  ${sym}_prepare(c, reference);           /* its code, if any, is the feedback's */
+  const int flag = ${sym}_feedback(c, x_measured, tau_out);
   if (c) c->last_step_seconds = rscasadi_now() - t0;
   return flag;
 }

@@ -21,7 +21,17 @@
  * The next good sample is acted on as usual, without a re-init.  ${SYM}_BAD_ARGUMENT: a NULL array,
  * or a setter's value refused (nothing is changed).
  *
- * ${sym}_step_seconds: the duration of the last ${sym}_step or ${sym}_step_to (CLOCK_MONOTONIC).
+ * Split real-time iteration: ${sym}_step is ${sym}_prepare then ${sym}_feedback.  ${sym}_prepare(c,
+ * reference) does all that needs no measurement (the linearisation at the shifted plan and the
+ * condensed QP, with the measured state's effect kept affine); call it after a step, while
+ * waiting for the next sample.  ${sym}_feedback(c, x_measured, tau_out) then solves that QP from
+ * the measurement: the measurement-to-torque latency.  A feedback without a prepare since the
+ * last one returns ${SYM}_NOT_PREPARED (and the holding torque); one after a refused prepare
+ * returns the prepare's code.  With more than one SQP iteration the prepare only keeps the
+ * reference and the feedback does the whole step.
+ *
+ * ${sym}_step_seconds: the duration of the last ${sym}_step or ${sym}_step_to (CLOCK_MONOTONIC);
+ * ${sym}_feedback_seconds: of the last ${sym}_feedback (within a step too).
  * ${sym}_set_payload_mass: the payload's mass (kg) from the next step on (${SYM}_NO_PAYLOAD if the model
  * holds none); ${sym}_set_parameters: the arm's ${SYM}_NP parameters from the next step on (names in
  * manifest.json: a parametric = "family" controller takes every parameter not zero in its model,
@@ -46,15 +56,20 @@
 #define ${SYM}_BAD_MEASUREMENT 6
 #define ${SYM}_BAD_REFERENCE 7
 #define ${SYM}_NOT_INITIALISED 8
+#define ${SYM}_NOT_PREPARED 9
+#define ${SYM}_SPLIT ${split}              /* 1: prepare does the linearisation (real-time iteration) */
 typedef struct ${sym}_s {
   double X[${SYM}_NX * (${SYM}_HORIZON + 1)], U[${SYM}_NU * ${SYM}_HORIZON];
   double X_next[${SYM}_NX * (${SYM}_HORIZON + 1)], U_next[${SYM}_NU * ${SYM}_HORIZON];
   double target_reference[${SYM}_NREF];
   double params[${SYM}_NPARAMS + 1];         /* the posture, then the arm's parameters (${SYM}_NP) */
   double x_good[${SYM}_NX];                  /* the last measured state acted on */
+  double prep[${nprep}];                  /* the prepared QP (manifest.json: prepared) */
+  double reference[${SYM}_NREF];           /* the prepared reference (more than one SQP iteration) */
   double w[${sz_w}];
   long long iw[${sz_iw}];
-  double last_step_seconds;
+  double last_step_seconds, last_feedback_seconds;
+  int prepared;                           /* RSCASADI_READY: prepared; else 0 or the prepare's code */
   int ready;                              /* RSCASADI_READY after a successful init */
 } ${sym}_t;
 size_t ${sym}_sizeof(void);
@@ -62,6 +77,9 @@ int ${sym}_init(${sym}_t *c, const double *x_measured);
 int ${sym}_init_parameters(${sym}_t *c, const double *x_measured, const double *p);
 int ${sym}_step(${sym}_t *c, const double *x_measured, const double *reference, double *tau_out);
 int ${sym}_step_to(${sym}_t *c, const double *x_measured, const double *target, double *tau_out);
+int ${sym}_prepare(${sym}_t *c, const double *reference);
+int ${sym}_feedback(${sym}_t *c, const double *x_measured, double *tau_out);
+double ${sym}_feedback_seconds(const ${sym}_t *c);
 double ${sym}_step_seconds(const ${sym}_t *c);
 int ${sym}_set_payload_mass(${sym}_t *c, double mass);
 int ${sym}_set_parameters(${sym}_t *c, const double *p);
