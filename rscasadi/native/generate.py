@@ -28,6 +28,9 @@ from rscasadi.native.build import cached_library, compiler
 from rscasadi.native.controller import guard_source
 
 
+LABELS = {"mpc": "MPC", "impedance": "impedance controller", "observer": "observer"}   # in the progress lines
+
+
 def symbols(kind: str, prefix: str = "") -> dict:
     """The names of a `kind` controller with `prefix` (see the module's docstring): sym, SYM,
     header, source, library."""
@@ -88,8 +91,8 @@ def write_controller(kind: str, prefix: str, functions: list[ca.Function], templ
     with fresh_directory(out) as tmp:
         for file, text in sources.items():
             (tmp / file).write_text(text)
-        lib = cached_library(sources, flags, name=kind, what=f"the {kind} ({' '.join(flags)})", log=log, cc=cc,
-                             log_hit=True)
+        lib = cached_library(sources, flags, name=kind, what=f"the {LABELS.get(kind, kind)} ({' '.join(flags)})",
+                             log=log, cc=cc, log_hit=True)
         shutil.copy2(lib, tmp / names["library"])
         manifest = {**manifest, "header": names["header"], "library": names["library"], "symbol": names["sym"],
                     "sources": sorted(k for k in sources if k.endswith(".c")), "compiler": cc + flags,
