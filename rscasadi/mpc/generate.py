@@ -63,6 +63,41 @@ def guard_bounds(model, p, rows: int) -> dict:
     return {"tau_max": limit_arrays(model)["tau"], "x_lo": x_lo, "x_hi": x_hi, "ref_lo": ref_lo, "ref_hi": ref_hi}
 
 
+def problem_poses(p, n: int, count: int = 5) -> list[np.ndarray]:
+    """Where the arm will be: `count` poses along the reference trajectory or the solution's
+    motion, else theta_start, else zero."""
+    import json
+    from rscasadi.sim.trajectory import load_trajectory
+    if p.trajectory is not None:
+        traj = load_trajectory(p.trajectory)
+        return list(traj(np.linspace(0.0, traj.duration, count))[0].T)
+    if p.solution is not None and Path(p.solution).is_file():
+        theta = np.asarray(json.loads(Path(p.solution).read_text())["theta"], float)
+        return list(theta[:, np.linspace(0, theta.shape[1] - 1, count).astype(int)].T)
+    return [np.asarray(p.theta_start, float) if p.theta_start is not None else np.zeros(n)]
+
+
+def integrator_notes(arm, p, poses=None) -> list[str]:
+    """What RK4 with the problem's substeps does to the arm's spring modes at rest at its poses
+    (`problem_poses`; rscasadi.dynamics.modes): a note per joint whose mode it amplifies where the
+    arm damps it, with the fewest substeps that would not (none up to 50: shorten the interval)."""
+    from rscasadi.dynamics.modes import linear_modes, rk4_spurious, rk4_substeps
+    h, need = p.interval / p.substeps, 1
+    worst: dict = {}
+    for theta in problem_poses(p, arm.n) if poses is None else poses:
+        modes = linear_modes(arm, theta)
+        for m in rk4_spurious(modes, h):
+            if m.joint not in worst or m.hz > worst[m.joint].hz:
+                worst[m.joint] = m
+        s = rk4_substeps(modes, p.interval)
+        need = None if s is None or need is None else max(need, s)
+    fix = (f"substeps = {need} or more integrate it stably" if need is not None else
+           "no number of substeps up to 50 does: shorten the interval")
+    return [f"note: RK4 steps of {h * 1e3:.2g} ms amplify the {m.hz:.1f} Hz spring mode of {m.joint} (damping "
+            f"ratio {m.damping_ratio:.2f}) that the arm damps, so the plan's prediction grows there; {fix}"
+            for m in worst.values()]
+
+
 def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: bool = False,
                  prefix: str = "") -> dict:
     """Write the C of `problem` (an `MPCProblem` or the path of its file), its header, library and
@@ -75,8 +110,8 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
         p = dataclasses.replace(p, model=Path(model).resolve())
     model = mpc_model(p)
     arm = controller_arm(model, p.parametric)
-    if p.interval / p.substeps > 2e-3:
-        log(f"note: {p.interval / p.substeps * 1e3:.1f} ms RK4 steps: the SEA damping (d/k1 ~ 1 ms) may make them unstable")
+    for line in integrator_notes(arm, p):
+        log(line)
     cc, flags = compiler(), [opt, "-std=c99"] + (native_flags() if native else [])
     name = lambda what: function_name("mpc", prefix, what)
     kernel, step_jacobian = step_kernel(arm, flags, cc, log, name(KERNEL))
