@@ -164,6 +164,13 @@ def _cmd_view(args):
         print(f"wrote {args.gif}")
 
 
+def _cmd_export_mujoco(args):
+    from rscasadi.export import export_mujoco
+    from rscasadi.files import check_writable
+    check_writable(args.out)
+    export_mujoco(args.model, args.out, log=lambda msg: print(msg, flush=True))
+
+
 def _cmd_reproduce(args):
     from rscasadi.studies.reproduce import run
     summary = run(args.out, log=lambda msg: print(msg, flush=True))
@@ -397,6 +404,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --study: also a collision during this trajectory's feedforward motion")
     q.add_argument("--short", action="store_true", help="with --study: fewer and shorter cases")
     q.set_defaults(func=_cmd_impedance)
+    p = sub.add_parser("export", help="the model for another simulator: mujoco (MJCF, the complete model)")
+    kinds_export = p.add_subparsers(dest="format", required=True, parser_class=Parser)
+    q = kinds_export.add_parser("mujoco", help="MJCF: links and both rotors as bodies, the gear an equality, "
+                                "the spring a tendon; RK4 at 1 ms")
+    q.add_argument("model")
+    q.add_argument("--out", required=True, help="directory for model.xml")
+    q.set_defaults(func=_cmd_export_mujoco)
     p = sub.add_parser("reproduce", help="the main job: everything the project reproduces, into --out")
     p.add_argument("--out", default="results")
     p.set_defaults(func=_cmd_reproduce)

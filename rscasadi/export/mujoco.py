@@ -1,0 +1,136 @@
+"""The complete rotor-separated model as MuJoCo's MJCF, exact in MuJoCo's own terms.
+
+Per joint j, inside the body of link j - 1 (the world for j = 1), at the joint frame J_j:
+  - the link j (a hinge about z: theta_j) with its subtree;
+  - the slow rotor S_j (a hinge about z: phi_j) and the fast rotor F_j (a hinge about z), both
+    on the parent as in the paper; the gear is a joint equality, fast = -mu_j slow (the fast
+    rotor turns the other way at mu_j times the rate, as in rscasadi.dynamics.recursions);
+  - the series spring and its damper: a fixed tendon of length phi_j - theta_j with stiffness k1
+    and damping d (the link feels +k1 (phi - theta), the slow rotor the opposite);
+  - the gear loss b dphi: the slow rotor's joint damping;
+  - the motor: an actuator on the fast rotor, its torque tau_j the model's motor torque (through
+    the gear the slow side receives -mu_j tau_j, as in the model), ctrlrange the torque limit.
+Inertias are each body's own (mass, centre of mass, inertia about it, in the joint or link frame).
+MuJoCo keeps the gear only as a constraint it solves softly: the file asks for RK4 at 1 ms and
+an equality nearly hard (solimp 0.9999), under which its motion follows the complete model
+(tests/test_mujoco.py). Not expressed, and refused by name: a cubic spring term (k3), Coulomb
+gear loss (c; MuJoCo's frictionloss is another law), a payload (not yet exported).
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+
+from rscasadi.errors import InvalidArgument
+from rscasadi.files import fresh_directory, write_text
+
+TIMESTEP = 1e-3
+SOLIMP = "0.9999 0.9999 0.001 0.5 2"       # the gear's equality, nearly hard
+SOLREF = "0.002 1"
+
+
+def _name(text: str) -> str:
+    """A name from a file made safe for MJCF (letters, digits, _ . -)."""
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", str(text))
+
+
+def _quat(R) -> str:
+    """A rotation matrix as MuJoCo's quaternion (w x y z)."""
+    R = np.asarray(R, float)
+    w = np.sqrt(max(0.0, 1.0 + np.trace(R))) / 2
+    if w > 1e-6:
+        q = [w, (R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w), (R[1, 0] - R[0, 1]) / (4 * w)]
+    else:                                                     # a half turn: from the largest diagonal
+        i = int(np.argmax(np.diag(R)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = np.sqrt(max(0.0, 1.0 + R[i, i] - R[j, j] - R[k, k])) * 2
+        q = [0.0] * 4
+        q[0], q[1 + i] = (R[k, j] - R[j, k]) / s, s / 4
+        q[1 + j], q[1 + k] = (R[j, i] + R[i, j]) / s, (R[k, i] + R[i, k]) / s
+    return " ".join(repr(float(v)) for v in q)
+
+
+def _numbers(v) -> str:
+    return " ".join(repr(float(x)) for x in np.ravel(v))
+
+
+def _inertial(body, indent: str) -> str:
+    """A body's <inertial>: its mass, centre of mass and inertia about it (fullinertia)."""
+    I = np.asarray(body.inertia, float)
+    mass = max(float(body.mass), 1e-9)
+    full = [I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]
+    if float(body.mass) <= 0 or max(abs(v) for v in full) == 0:
+        full = [1e-12, 1e-12, 1e-12, 0.0, 0.0, 0.0]               # a massless point (a tool frame)
+    return f'{indent}<inertial pos="{_numbers(body.com)}" mass="{mass!r}" fullinertia="{_numbers(full)}"/>\n'
+
+
+def check_exportable(model) -> None:
+    """Refuse, naming the joint, what MJCF cannot hold exactly."""
+    problems = [f"{jt.name}: k3 = {jt.k3:g} (a cubic spring; a tendon's is linear)" for jt in model.joints if jt.k3]
+    problems += [f"{jt.name}: gear_loss c = {jt.c:g} (Coulomb loss; MuJoCo's frictionloss is another law)"
+                 for jt in model.joints if jt.c]
+    if model.payload is not None:
+        problems.append("a payload (not exported yet: export the model without it)")
+    if problems:
+        raise InvalidArgument(f"{model.path}: cannot be exported to MuJoCo exactly: " + "; ".join(problems))
+
+
+def mujoco_xml(model) -> str:
+    """The MJCF text of `model` (an ArmModel): see the module's docstring."""
+    check_exportable(model)
+    names = [_name(jt.name) for jt in model.joints]
+    g = np.asarray(model.gravity, float)
+    lines = [f'<mujoco model={quoteattr(_name(model.name))}>',
+             f'  <option timestep="{TIMESTEP!r}" integrator="RK4" gravity="{_numbers(g)}"/>',
+             '  <compiler angle="radian" autolimits="true"/>',
+             '  <worldbody>']
+
+    def joint_bodies(j: int, indent: str) -> list:
+        jt, name = model.joints[j], names[j]
+        pos, quat = _numbers(jt.origin_xyz), _quat(jt.R)
+        theta = jt.limits.get("theta")
+        out = [f'{indent}<body name="{name}_link" pos="{pos}" quat="{quat}">',
+               _inertial(jt.link, indent + "  ").rstrip("\n"),
+               f'{indent}  <joint name="{name}" type="hinge" axis="0 0 1"'
+               + (f' range="{theta[0]!r} {theta[1]!r}"' if theta is not None and np.all(np.isfinite(theta)) else "")
+               + "/>"]
+        if j + 1 < len(model.joints):
+            out += joint_bodies(j + 1, indent + "  ")
+        out.append(f"{indent}</body>")
+        for part, suffix, damping in (("slow_rotor", "slow", jt.b), ("fast_rotor", "fast", 0.0)):
+            out += [f'{indent}<body name="{name}_{suffix}" pos="{pos}" quat="{quat}">',
+                    _inertial(getattr(jt, part), indent + "  ").rstrip("\n"),
+                    f'{indent}  <joint name="{name}_{suffix}" type="hinge" axis="0 0 1" damping="{float(damping)!r}"/>',
+                    f"{indent}</body>"]
+        return out
+
+    lines += joint_bodies(0, "    ")
+    lines += ["  </worldbody>", "  <equality>"]
+    lines += [f'    <joint name="{n}_gear" joint1="{n}_fast" joint2="{n}_slow" polycoef="0 {-float(jt.gear_ratio)!r} 0 0 0" '
+              f'solimp="{SOLIMP}" solref="{SOLREF}"/>' for n, jt in zip(names, model.joints)]
+    lines += ["  </equality>", "  <tendon>"]
+    lines += [f'    <fixed name="{n}_spring" stiffness="{float(jt.k1)!r}" damping="{float(jt.d)!r}" springlength="0">\n'
+              f'      <joint joint="{n}_slow" coef="1"/>\n      <joint joint="{n}" coef="-1"/>\n    </fixed>'
+              for n, jt in zip(names, model.joints)]
+    lines += ["  </tendon>", "  <actuator>"]
+    for n, jt in zip(names, model.joints):
+        tau = jt.limits.get("tau")
+        limit = f' ctrlrange="{-float(tau)!r} {float(tau)!r}"' if tau is not None and np.isfinite(tau) else ""
+        lines.append(f'    <motor name="{n}_motor" joint="{n}_fast" gear="1"{limit}/>')
+    lines += ["  </actuator>", "</mujoco>"]
+    return "\n".join(lines) + "\n"
+
+
+def export_mujoco(model_file, out, log=print) -> Path:
+    """`rscasadi export mujoco MODEL --out DIR`: DIR/model.xml (whole or not at all)."""
+    from rscasadi.dynamics.arm import load
+    arm = load(model_file)
+    text = mujoco_xml(arm.model)
+    with fresh_directory(Path(out)) as tmp:
+        write_text(tmp / "model.xml", text)
+    log(f"wrote {Path(out) / 'model.xml'}: {arm.n} joints, each a link, a slow and a fast rotor, the gear an equality, "
+        f"the spring a tendon (RK4 at {TIMESTEP * 1e3:g} ms)")
+    return Path(out) / "model.xml"
