@@ -124,6 +124,38 @@ def mujoco_xml(model) -> str:
     return "\n".join(lines) + "\n"
 
 
+def gear_map(arm, m) -> np.ndarray:
+    """T: the model's (theta, phi) velocities to MuJoCo's (link, slow, fast per joint, in MuJoCo's
+    order) for the file `mujoco_xml` wrote: MuJoCo's q = T (theta, phi), the fast rotor -mu phi."""
+    n, mu = arm.n, arm.model.column("gear_ratio")
+    T = np.zeros((m.nv, 2 * n))
+    for j, jt in enumerate(arm.model.joints):
+        name = _name(jt.name)
+        T[m.joint(name).dofadr[0], j] = 1.0
+        T[m.joint(name + "_slow").dofadr[0], n + j] = 1.0
+        T[m.joint(name + "_fast").dofadr[0], n + j] = -float(mu[j])
+    return T
+
+
+def mujoco_plant(arm, dt: float):
+    """(x, tau, t) -> (x after dt, no wrench): the arm exported (`mujoco_xml`) and simulated by
+    MuJoCo at its own timestep, for rscasadi.sim.loop.run_loop (x = theta, phi, dtheta, dphi)."""
+    import mujoco
+    m = mujoco.MjModel.from_xml_string(mujoco_xml(arm.model))
+    d = mujoco.MjData(m)
+    T = gear_map(arm, m)
+    back, steps, n = np.linalg.pinv(T), int(round(dt / m.opt.timestep)), arm.n
+    if steps < 1 or abs(steps * m.opt.timestep - dt) > 1e-12:
+        raise InvalidArgument(f"mujoco_plant: dt = {dt!r} s must be a whole number of MuJoCo's {m.opt.timestep!r} s steps")
+
+    def plant(x, tau, t):
+        d.qpos[:], d.qvel[:], d.ctrl[:] = T @ x[:2 * n], T @ x[2 * n:], tau
+        for _ in range(steps):
+            mujoco.mj_step(m, d)
+        return np.r_[back @ d.qpos, back @ d.qvel], None
+    return plant
+
+
 def export_mujoco(model_file, out, log=print) -> Path:
     """`rscasadi export mujoco MODEL --out DIR`: DIR/model.xml (whole or not at all)."""
     from rscasadi.dynamics.arm import load

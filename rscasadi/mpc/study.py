@@ -63,7 +63,7 @@ def reach_pose(problem, mpc_dir, theta_target, seconds: float = 1.0, plant: Arm 
 
 def closed_loop(problem, mpc_dir, duration: float | None = None, tip_factor: float = 1.2,
                 log=print, model=None, plant: Arm | None = None, quantised: bool = True,
-                traces: dict | None = None) -> dict:
+                traces: dict | None = None, simulator=rk4_plant) -> dict:
     """Controllers from one model (the problem's, or the model file `model`, e.g. an identified
     one; the C MPC in `mpc_dir` must be generated from it) on a plant that differs (`plant`, by
     default the model with a heavier tip), at 1 kHz, encoders quantised (speeds by backward
@@ -71,7 +71,8 @@ def closed_loop(problem, mpc_dir, duration: float | None = None, tip_factor: flo
     motor-side PD, the C MPC.  `problem`: an `MPCProblem` or the path of its file.  Returns per
     controller the tracking error (max, RMS), the largest limit violation and, for the MPC, its
     time per step (measured in C); `traces`, if given, receives per controller the time, the error
-    over time and (MPC) the step times, for `plot_closed_loop`."""
+    over time and (MPC) the step times, for `plot_closed_loop`.  `simulator(plant, dt)` makes the
+    plant's step (rscasadi.sim.loop.rk4_plant; rscasadi.export.mujoco.mujoco_plant: MuJoCo's)."""
     from rscasadi.sim.simulation import feedforward, motor_pd_gains
     from rscasadi.sim.trajectory import load_trajectory
     p = mpc_problem(problem)
@@ -82,7 +83,7 @@ def closed_loop(problem, mpc_dir, duration: float | None = None, tip_factor: flo
     K = int(round((traj.duration if duration is None else duration) / dt))
     t = np.arange(K + 1) * dt
     ff = feedforward(nominal, traj, t)
-    advance = rk4_plant(plant, dt)
+    advance = simulator(plant, dt)
     offsets = p.interval * np.arange(1, p.horizon + 1)
 
     def horizon(k):
