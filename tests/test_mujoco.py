@@ -20,18 +20,29 @@ ARMS = {"arm3": (ROOT / "problems" / "arm3.toml", [0.1, 0.4, -0.6]),
 def loaded(name):
     """The arm, its MuJoCo model and data, and T: (theta, phi) to MuJoCo's coordinates through the gear."""
     from rscasadi.export.mujoco import gear_map
-    arm = rscasadi.load(ARMS[name][0])
+    arm = rscasadi.load(ARMS[name][0]) if name in ARMS else name
     m = mujoco.MjModel.from_xml_string(mujoco_xml(arm.model))
     return arm, m, mujoco.MjData(m), gear_map(arm, m)
 
 
-@pytest.mark.parametrize("name", ARMS)
-def test_mujoco_s_mass_matrix_and_forces_are_the_model_s(name):
+def random_arm(tmp_path, n):
+    """A random arm of conftest (axes at any angle, unbalanced rotors, random gravity) with a
+    linear spring and no Coulomb loss, as MJCF holds them."""
+    from conftest import random_arm_doc, write_arm
+    doc = random_arm_doc(np.random.default_rng(100 + n), n)
+    for jt in doc["joints"]:
+        jt["sea"]["k3"], jt["gear_loss"]["c"] = 0.0, 0.0
+    return rscasadi.load(write_arm(tmp_path, doc))
+
+
+@pytest.mark.parametrize("name", [*ARMS, 2, 5, 7])
+def test_mujoco_s_mass_matrix_and_forces_are_the_model_s(name, tmp_path):
     """At random states and torques within the limits: T' M T equals the model's mass matrix and
-    T' (passive + actuator - bias) its generalised forces (M ddq of its forward dynamics), to 1e-12."""
-    arm, m, d, T = loaded(name)
+    T' (passive + actuator - bias) its generalised forces (M ddq of its forward dynamics), to 1e-12;
+    the reference arm, the Panda from its URDF and random arms with unbalanced rotors."""
+    arm, m, d, T = loaded(name if name in ARMS else random_arm(tmp_path, name))
     n, rng = arm.n, np.random.default_rng(7)
-    limit = np.array([jt.limits["tau"] for jt in arm.model.joints])
+    limit = np.array([jt.limits.get("tau", 1.0) for jt in arm.model.joints])
     fd, mass = arm.forward_dynamics(), arm.mass_matrix()
     for _ in range(5):
         th = rng.uniform(-1, 1, n)
