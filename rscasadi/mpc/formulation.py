@@ -145,92 +145,65 @@ def stage_residual(arm: Arm, p: MPCProblem, limits: dict) -> ca.Function:
 
 class _Linearisation:
     """The Gauss-Newton QP of the multiple-shooting NLP at (X, U), condensed (Bock & Plitt):
-    dx_0 = x_measured - X_0 (initial-value embedding); dx_{k+1} = A_k dx_k + B_k du_k + c_k with the
-    gap c_k = F(X_k, U_k) - X_{k+1}; so dx_k = E_k + G_k dU_{<k}, and the QP is in dU alone.  G_k
-    holds only the columns of du_0..du_{k-1} (the later ones cannot act on x_k): the products
-    that form H and g run over n k columns, not n N."""
+    dx_{k+1} = A_k dx_k + B_k du_k + c_k with the gap c_k = F(X_k, U_k) - X_{k+1}; so
+    dx_k = E_k + G_k dU_{<k}, and the QP is in dU alone.  G_k holds only the columns of
+    du_0..du_{k-1} (the later ones cannot act on x_k): the products that form H and g run over
+    n k columns, not n N.
+    With the measured state xm, dx_0 = xm - X_0 (initial-value embedding) and each residual is
+    linearised at X_{k+1} + E_k.  With xm None (the split real-time iteration's preparation,
+    Diehl), dx_0 stays a parameter: E_k = e_k + Phi_k dx_0 (e_k from the gaps alone,
+    Phi_k = A_{k-1} ... A_0), each residual linearised at X_{k+1} + e_k, and the gradient is
+    g + M dx_0: what the measurement changes is affine, and the feedback is that product and the
+    QP alone."""
 
     def __init__(self, F, residual, p: MPCProblem, xm, ref, X, U, posture, mass):
         n, N = U.shape[0], p.horizon
         nx, nU = X.shape[0], n * N
         self.H, self.g = p.weights["tau"] * ca.MX.eye(nU), p.weights["tau"] * ca.vec(U)
-        E, G = xm - X[:, 0], ca.MX(nx, 0)
-        self.E, self.G = [E], [G]
+        E, G = (ca.MX(nx, 1) if xm is None else xm - X[:, 0]), ca.MX(nx, 0)
+        Phi, self.M = (ca.MX.eye(nx), ca.MX(nU, nx)) if xm is None else (None, None)
+        self.E, self.G, self.Phi = [E], [G], [Phi]
         for k in range(N):
             xp, A, B = F(X[:, k], U[:, k], mass)
             E = ca.mtimes(A, E) + xp - X[:, k + 1]
             G = ca.horzcat(ca.mtimes(A, G), B)                      # nx x n (k + 1), dense
+            Phi = None if Phi is None else ca.mtimes(A, Phi)
             self.E.append(E)
             self.G.append(G)
+            self.Phi.append(Phi)
             r, Jx = residual(X[:, k + 1] + E, ref[:, k], posture)
             J, rest = ca.mtimes(Jx, G), nU - n * (k + 1)
             self.H += ca.diagcat(ca.mtimes(J.T, J), ca.MX(rest, rest))
             self.g += ca.vertcat(ca.mtimes(J.T, r), ca.MX(rest, 1))
+            if Phi is not None:
+                self.M += ca.vertcat(ca.mtimes(J.T, ca.mtimes(Jx, Phi)), ca.MX(rest, nx))
 
     def step(self, dU):
         """dX = (E_k + G_k dU_{<k})_k."""
         return ca.horzcat(*[E + ca.mtimes(G, dU[:G.shape[1]]) for E, G in zip(self.E, self.G)])
 
-    def angle_rows(self, X, limits: dict):
-        """The plan's link angles at the interval ends k = 1..N as rows of the QP: (C, cl, cu) with
-        theta_k = X_k + E_k + G_k dU within [theta_lo, theta_hi] (joints with a range; an open
-        end at HARD_OPEN rad), C block lower triangular."""
-        lo, hi = hard_range(limits)
-        joints = [j for j in range(len(lo)) if np.isfinite(limits["theta_lo"][j]) or np.isfinite(limits["theta_hi"][j])]
-        if not joints:
-            return None
-        nU = self.H.shape[0]
-        C = ca.vertcat(*[ca.horzcat(G[joints, :], ca.MX(len(joints), nU - G.shape[1])) for G in self.G[1:]])
-        at = ca.vertcat(*[(X[joints, k] + E[joints]) for k, E in enumerate(self.E) if k >= 1])
-        N = len(self.E) - 1
-        return C, np.tile(lo[joints], N) - at, np.tile(hi[joints], N) - at
-
-
-class _Prepared:
-    """The real-time iteration's QP prepared before the measurement (Diehl's split RTI): the
-    linearisation of `_Linearisation` at the plan with the measured deviation dx_0 = x_measured -
-    X_0 kept as a parameter, so that dx_k = e_k + Phi_k dx_0 + G_k dU (e_k from the gaps alone,
-    Phi_k = A_{k-1} ... A_0) and, each residual linearised at X_{k+1} + e_k, the QP's gradient is
-    g0 + M dx_0 and its rows' bounds move by -Cx dx_0: what the measurement changes is affine and
-    the feedback phase is that product and the QP alone."""
-
-    def __init__(self, F, residual, p: MPCProblem, ref, X, U, posture, mass):
-        n, N = U.shape[0], p.horizon
-        nx, nU = X.shape[0], n * N
-        self.H, self.g0 = p.weights["tau"] * ca.MX.eye(nU), p.weights["tau"] * ca.vec(U)
-        self.M = ca.MX(nU, nx)
-        e, Phi, G = ca.MX(nx, 1), ca.MX.eye(nx), ca.MX(nx, 0)
-        self.e, self.Phi, self.G = [e], [Phi], [G]
-        for k in range(N):
-            xp, A, B = F(X[:, k], U[:, k], mass)
-            e, Phi, G = ca.mtimes(A, e) + xp - X[:, k + 1], ca.mtimes(A, Phi), ca.horzcat(ca.mtimes(A, G), B)
-            self.e.append(e)
-            self.Phi.append(Phi)
-            self.G.append(G)
-            r, Jx = residual(X[:, k + 1] + e, ref[:, k], posture)
-            J, rest = ca.mtimes(Jx, G), nU - n * (k + 1)
-            self.H += ca.diagcat(ca.mtimes(J.T, J), ca.MX(rest, rest))
-            self.g0 += ca.vertcat(ca.mtimes(J.T, r), ca.MX(rest, 1))
-            self.M += ca.vertcat(ca.mtimes(J.T, ca.mtimes(Jx, Phi)), ca.MX(rest, nx))
-
     def maps(self):
-        """(Eb, Phi, Gf): dX (stacked, nx (N + 1)) = Eb + Phi dx_0 + Gf dU."""
+        """Prepared (xm None): (Eb, Phi, Gf) with dX (stacked, nx (N + 1)) = Eb + Phi dx_0 + Gf dU."""
         nU = self.H.shape[0]
-        return (ca.vertcat(*self.e), ca.vertcat(*self.Phi),
+        return (ca.vertcat(*self.E), ca.vertcat(*self.Phi),
                 ca.vertcat(*[ca.horzcat(G, ca.MX(G.shape[0], nU - G.shape[1])) for G in self.G]))
 
     def angle_rows(self, X, limits: dict):
-        """As `_Linearisation.angle_rows`, prepared: (C, cl0, cu0, Cx), the bounds at dx_0 being
-        cl0 - Cx dx_0, cu0 - Cx dx_0; None without a range."""
+        """The plan's link angles at the interval ends k = 1..N as rows of the QP: (C, cl, cu) with
+        theta_k = X_k + E_k + G_k dU within [theta_lo, theta_hi] (joints with a range; an open
+        end at HARD_OPEN rad), C block lower triangular; prepared, also Cx: the bounds at dx_0 are
+        cl - Cx dx_0, cu - Cx dx_0.  None without a range."""
         lo, hi = hard_range(limits)
         joints = [j for j in range(len(lo)) if np.isfinite(limits["theta_lo"][j]) or np.isfinite(limits["theta_hi"][j])]
         if not joints:
             return None
-        nU, N = self.H.shape[0], len(self.e) - 1
+        nU, N = self.H.shape[0], len(self.E) - 1
         C = ca.vertcat(*[ca.horzcat(G[joints, :], ca.MX(len(joints), nU - G.shape[1])) for G in self.G[1:]])
-        at = ca.vertcat(*[X[joints, k] + self.e[k][joints] for k in range(1, N + 1)])
-        Cx = ca.vertcat(*[self.Phi[k][joints, :] for k in range(1, N + 1)])
-        return C, np.tile(lo[joints], N) - at, np.tile(hi[joints], N) - at, Cx
+        at = ca.vertcat(*[X[joints, k] + self.E[k][joints] for k in range(1, N + 1)])
+        rows = C, np.tile(lo[joints], N) - at, np.tile(hi[joints], N) - at
+        if self.Phi[0] is None:
+            return rows
+        return (*rows, ca.vertcat(*[self.Phi[k][joints, :] for k in range(1, N + 1)]))
 
 
 HARD_OPEN = 1e3      # rad: the missing end of a one-sided range, for the hard link-angle rows
@@ -422,7 +395,7 @@ PREPARED = ("H", "g0", "M", "Eb", "Phi", "Gf", "C", "cl0", "cu0", "Cx")
 def prepare_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None = None,
                      name: str = "mpc_prepare") -> ca.Function:
     """mpc_prepare(reference, X, U, params) -> the real-time iteration's QP before the
-    measurement (`_Prepared`): H, g0, M, the maps Eb, Phi, Gf of the plan's change and, with hard
+    measurement (`_Linearisation` without xm): H, g0, M, the maps Eb, Phi, Gf of the plan's change and, with hard
     angle limits, the rows C, cl0, cu0, Cx (empty without).  Only for sqp_iterations = 1."""
     n, N, nx = arm.n, p.horizon, 4 * arm.n
     F, _ = interval_functions(arm, p.interval, p.substeps, step_jacobian)
@@ -430,10 +403,10 @@ def prepare_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None 
     ref = ca.MX.sym("reference", reference_rows(n, p), N)
     params = ca.MX.sym("params", n_params(arm))
     X, U = ca.MX.sym("X", nx, N + 1), ca.MX.sym("U", n, N)
-    prep = _Prepared(F, stage_residual(arm, p, limits), p, ref, X, U, params[:n], params[n:])
+    prep = _Linearisation(F, stage_residual(arm, p, limits), p, None, ref, X, U, params[:n], params[n:])
     rows = prep.angle_rows(X, limits) if p.angle_limits == "hard" else None
     rows = rows if rows is not None else (ca.MX(0, n * N), ca.MX(0, 1), ca.MX(0, 1), ca.MX(0, nx))
-    return ca.Function(name, [ref, X, U, params], [prep.H, prep.g0, prep.M, *prep.maps(), *rows],
+    return ca.Function(name, [ref, X, U, params], [prep.H, prep.g, prep.M, *prep.maps(), *rows],
                        ["reference", "X", "U", "params"], list(PREPARED))
 
 
