@@ -168,7 +168,7 @@ def _cmd_export_mujoco(args):
     from rscasadi.export import export_mujoco
     from rscasadi.files import check_writable
     check_writable(args.out)
-    export_mujoco(args.model, args.out, log=lambda msg: print(msg, flush=True))
+    export_mujoco(args.model, args.out, log=lambda msg: print(msg, flush=True), armature=args.armature)
 
 
 def _cmd_reproduce(args):
@@ -410,6 +410,8 @@ def build_parser() -> argparse.ArgumentParser:
                                 "the spring a tendon; RK4 at 1 ms")
     q.add_argument("model")
     q.add_argument("--out", required=True, help="directory for model.xml")
+    q.add_argument("--armature", action="store_true",
+                   help="the rigid-joint model with the rotors as armature that MuJoCo users write, for comparison")
     q.set_defaults(func=_cmd_export_mujoco)
     p = sub.add_parser("reproduce", help="the main job: everything the project reproduces, into --out")
     p.add_argument("--out", default="results")

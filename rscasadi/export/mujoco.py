@@ -78,8 +78,12 @@ def check_exportable(model) -> None:
         raise InvalidArgument(f"{model.path}: cannot be exported to MuJoCo exactly: " + "; ".join(problems))
 
 
-def mujoco_xml(model) -> str:
-    """The MJCF text of `model` (an ArmModel): see the module's docstring."""
+def mujoco_xml(model, armature: bool = False) -> str:
+    """The MJCF text of `model` (an ArmModel): see the module's docstring.  armature: instead the
+    rigid-joint model MuJoCo users write for a geared motor, for comparison: no spring, the
+    rotors' spin inertia B_j = Izz(S_j) + mu_j^2 Izz(F_j) as the joint's armature, the rotors'
+    bodies fixed to the parent, the gear loss as joint damping, the motor on the joint (gear
+    -mu_j)."""
     check_exportable(model)
     names = [_name(jt.name) for jt in model.joints]
     g = np.asarray(model.gravity, float)
@@ -92,9 +96,10 @@ def mujoco_xml(model) -> str:
         jt, name = model.joints[j], names[j]
         pos, quat = _numbers(jt.origin_xyz), _quat(jt.R)
         theta = jt.limits.get("theta")
+        rigid = f' armature="{float(jt.rotor_inertia)!r}" damping="{float(jt.b)!r}"' if armature else ""
         out = [f'{indent}<body name="{name}_link" pos="{pos}" quat="{quat}">',
                _inertial(jt.link, indent + "  ").rstrip("\n"),
-               f'{indent}  <joint name="{name}" type="hinge" axis="0 0 1"'
+               f'{indent}  <joint name="{name}" type="hinge" axis="0 0 1"{rigid}'
                + (f' range="{theta[0]!r} {theta[1]!r}"' if theta is not None and np.all(np.isfinite(theta)) else "")
                + "/>"]
         if j + 1 < len(model.joints):
@@ -102,13 +107,22 @@ def mujoco_xml(model) -> str:
         out.append(f"{indent}</body>")
         for part, suffix, damping in (("slow_rotor", "slow", jt.b), ("fast_rotor", "fast", 0.0)):
             out += [f'{indent}<body name="{name}_{suffix}" pos="{pos}" quat="{quat}">',
-                    _inertial(getattr(jt, part), indent + "  ").rstrip("\n"),
-                    f'{indent}  <joint name="{name}_{suffix}" type="hinge" axis="0 0 1" damping="{float(damping)!r}"/>',
-                    f"{indent}</body>"]
+                    _inertial(getattr(jt, part), indent + "  ").rstrip("\n")]
+            if not armature:
+                out.append(f'{indent}  <joint name="{name}_{suffix}" type="hinge" axis="0 0 1" damping="{float(damping)!r}"/>')
+            out.append(f"{indent}</body>")
         return out
 
     lines += joint_bodies(0, "    ")
-    lines += ["  </worldbody>", "  <equality>"]
+    lines += ["  </worldbody>"]
+    if armature:
+        lines.append("  <actuator>")
+        for n, jt in zip(names, model.joints):
+            tau = jt.limits.get("tau")
+            limit = f' ctrlrange="{-float(tau)!r} {float(tau)!r}"' if tau is not None and np.isfinite(tau) else ""
+            lines.append(f'    <motor name="{n}_motor" joint="{n}" gear="{-float(jt.gear_ratio)!r}"{limit}/>')
+        return "\n".join(lines + ["  </actuator>", "</mujoco>"]) + "\n"
+    lines += ["  <equality>"]
     lines += [f'    <joint name="{n}_gear" joint1="{n}_fast" joint2="{n}_slow" polycoef="0 {-float(jt.gear_ratio)!r} 0 0 0" '
               f'solimp="{SOLIMP}" solref="{SOLREF}"/>' for n, jt in zip(names, model.joints)]
     lines += ["  </equality>", "  <tendon>"]
@@ -156,13 +170,14 @@ def mujoco_plant(arm, dt: float):
     return plant
 
 
-def export_mujoco(model_file, out, log=print) -> Path:
-    """`rscasadi export mujoco MODEL --out DIR`: DIR/model.xml (whole or not at all)."""
+def export_mujoco(model_file, out, log=print, armature: bool = False) -> Path:
+    """`rscasadi export mujoco MODEL --out DIR [--armature]`: DIR/model.xml (whole or not at all)."""
     from rscasadi.dynamics.arm import load
     arm = load(model_file)
-    text = mujoco_xml(arm.model)
+    text = mujoco_xml(arm.model, armature)
     with fresh_directory(Path(out)) as tmp:
         write_text(tmp / "model.xml", text)
-    log(f"wrote {Path(out) / 'model.xml'}: {arm.n} joints, each a link, a slow and a fast rotor, the gear an equality, "
-        f"the spring a tendon (RK4 at {TIMESTEP * 1e3:g} ms)")
+    what = ("rigid joints with the rotors as armature (for comparison)" if armature else
+            "each a link, a slow and a fast rotor, the gear an equality, the spring a tendon")
+    log(f"wrote {Path(out) / 'model.xml'}: {arm.n} joints, {what} (RK4 at {TIMESTEP * 1e3:g} ms)")
     return Path(out) / "model.xml"
