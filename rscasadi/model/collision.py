@@ -90,6 +90,8 @@ def collision(ctx, raw, joints, frames: tuple, default_tip: str | None, urdf: di
     known = {f.name: f for f in frames}
     margin = _number(ctx, "collision.margin", t.get("margin", 0.0), nonneg=True)
     tip = t.get("tip", default_tip)
+    if tip is not None and not isinstance(tip, str):
+        ctx.fail("collision.tip", f"expected the name of a frame, got {tip!r}")
     if "links" in t or not urdf:
         links = dict(_table(ctx, "collision.links", t.get("links", {}), set(t.get("links", {}))))
     else:                                        # every moving link the URDF gives geometry
