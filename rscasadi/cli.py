@@ -49,8 +49,8 @@ def fraction(text: str) -> float:
 
 def c_identifier(text: str) -> str:
     """A C identifier: letters, digits and underscores, not starting with a digit."""
-    import re
-    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", text):
+    from rscasadi.native.generate import C_IDENTIFIER
+    if not C_IDENTIFIER.match(text):
         raise argparse.ArgumentTypeError(f"{text!r} is not a C identifier")
     return text
 

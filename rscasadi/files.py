@@ -189,6 +189,13 @@ def write_json(path, obj, indent: int = 1):
     write_text(path, json.dumps(finite_json(obj), indent=indent, allow_nan=False) + "\n")
 
 
+def safe_name(text) -> str:
+    """A name from a user's file kept to letters, digits and _ . - (the rest as _): safe inside a
+    C comment, an XML attribute and a file name."""
+    import re
+    return re.sub(r"[^A-Za-z0-9._-]", "_", str(text))
+
+
 def run_stamp() -> str:
     """The run's date, machine and commit (of the checkout holding this package), for the first
     line under a results file's title."""

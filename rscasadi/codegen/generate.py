@@ -10,7 +10,6 @@ from __future__ import annotations
 import ctypes
 import json
 import os
-import re
 import shutil
 from pathlib import Path
 
@@ -23,13 +22,13 @@ from rscasadi.model.parameters import tied_balanced
 from rscasadi.dynamics.kinematics import REFERENCES
 from rscasadi.model.parameters import gear_ratios
 from rscasadi.model.checks import identifier
-from rscasadi.files import OutputError, fresh_directory, write_json
+from rscasadi.files import OutputError, fresh_directory, safe_name, write_json
+from rscasadi.native.generate import C_IDENTIFIER
 from rscasadi.codegen.step_kernel import kernel_source
 from rscasadi.native.build import OPT_LEVELS, BuildError, cached_library, compiler, native_flags
 from rscasadi.native.loader import CompiledController, ControllerError
 from rscasadi.errors import InvalidArgument
 
-IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,62}\Z")
 LIBRARY = "librscasadi_arm.so"
 HEADER = "rscasadi_arm.h"
 
@@ -234,7 +233,7 @@ def feedforward_controller(arm: Arm, fns: dict, prefix: str) -> dict:
     lo, hi = measurement_bounds(arm.model)
     tau = limit_arrays(arm.model)["tau"]
     parts = [fns[k] for k in ("feedforward_init", "feedforward_step", "inverse_dynamics")]
-    values = {"n": n, "p": p, "P": p.upper(), "model": re.sub(r"[^A-Za-z0-9._-]", "_", Path(str(arm.model.path)).name),
+    values = {"n": n, "p": p, "P": p.upper(), "model": safe_name(Path(str(arm.model.path)).name),
               "tau_limits": c_words(tau), "tau_max": c_numbers(tau), "theta_lo": c_words(lo[:n]),
               "theta_hi": c_words(hi[:n]), "speed": c_words(hi[2 * n:3 * n]), "theta_lo_c": c_numbers(lo[:n]),
               "theta_hi_c": c_numbers(hi[:n]), "speed_c": c_numbers(hi[2 * n:3 * n]), "accel": repr(ACCELERATION_BOUND),
@@ -289,7 +288,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
     frames, external: frame names whose kinematics, and at which wrenches, the library gets
     (frame_functions); a frame's name enters C only as a C identifier (model.checks.identifier)."""
     prefix = prefix or ""
-    if prefix and not IDENTIFIER.match(prefix):
+    if prefix and not C_IDENTIFIER.match(prefix):
         raise CodegenError(f"prefix {prefix!r} is not a C identifier ([A-Za-z_][A-Za-z0-9_]*, at most 63)")
     if opt not in OPT_LEVELS:
         raise CodegenError(f"optimisation flag {opt!r} not one of {' '.join(OPT_LEVELS)}")

@@ -18,23 +18,17 @@ gear loss (c; MuJoCo's frictionloss is another law), a payload (not yet exported
 """
 from __future__ import annotations
 
-import re
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
 from rscasadi.errors import InvalidArgument
-from rscasadi.files import fresh_directory, write_text
+from rscasadi.files import fresh_directory, safe_name, write_text
 
 TIMESTEP = 1e-3
 SOLIMP = "0.9999 0.9999 0.001 0.5 2"       # the gear's equality, nearly hard
 SOLREF = "0.002 1"
-
-
-def _name(text: str) -> str:
-    """A name from a file made safe for MJCF (letters, digits, _ . -)."""
-    return re.sub(r"[^A-Za-z0-9_.-]", "_", str(text))
 
 
 def _quat(R) -> str:
@@ -85,9 +79,9 @@ def mujoco_xml(model, armature: bool = False) -> str:
     bodies fixed to the parent, the gear loss as joint damping, the motor on the joint (gear
     -mu_j)."""
     check_exportable(model)
-    names = [_name(jt.name) for jt in model.joints]
+    names = [safe_name(jt.name) for jt in model.joints]
     g = np.asarray(model.gravity, float)
-    lines = [f'<mujoco model={quoteattr(_name(model.name))}>',
+    lines = [f'<mujoco model={quoteattr(safe_name(model.name))}>',
              f'  <option timestep="{TIMESTEP!r}" integrator="RK4" gravity="{_numbers(g)}"/>',
              '  <compiler angle="radian" autolimits="true"/>',
              '  <worldbody>']
@@ -144,7 +138,7 @@ def gear_map(arm, m) -> np.ndarray:
     n, mu = arm.n, arm.model.column("gear_ratio")
     T = np.zeros((m.nv, 2 * n))
     for j, jt in enumerate(arm.model.joints):
-        name = _name(jt.name)
+        name = safe_name(jt.name)
         T[m.joint(name).dofadr[0], j] = 1.0
         T[m.joint(name + "_slow").dofadr[0], n + j] = 1.0
         T[m.joint(name + "_fast").dofadr[0], n + j] = -float(mu[j])

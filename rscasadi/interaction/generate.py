@@ -5,12 +5,12 @@ their CasADi Functions generated to C, the code around them from the template fi
 `templates/` (the state in a caller's struct), and a manifest."""
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import numpy as np
 
 from rscasadi.dynamics.arm import Arm, load
+from rscasadi.files import safe_name
 from rscasadi.interaction.observer import observer_terms
 from rscasadi.dynamics.statics import holding_torque
 from rscasadi.model.limits import limit_arrays, measurement_bounds, torque_bounds
@@ -25,7 +25,7 @@ TEMPLATES = Path(__file__).with_name("templates")
 
 def _model_name(arm: Arm) -> str:
     """The model file's name for a C comment: only characters that cannot end one."""
-    return re.sub(r"[^A-Za-z0-9._-]", "_", Path(str(arm.model.path)).name)
+    return safe_name(Path(str(arm.model.path)).name)
 
 
 def generate_observer(model, out, gain, sample_time: float = 1e-3, threshold: float = np.inf, opt: str = "-O2",

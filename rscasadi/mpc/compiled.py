@@ -44,20 +44,20 @@ class CompiledMPC(CompiledController):
     def step(self, x, reference):
         """reference: rows x N, a column per interval end (theta_ref over dtheta_ref; in task
         space p_ref, v_ref [, vec(R_ref)])."""
-        rows, N = self.sizes["reference"]
-        ref = np.asarray(reference)
-        if ref.shape != (rows, N):
-            raise ControllerError(f"mpc: reference must be {rows} x {N} (manifest.json), got shape {ref.shape}")
-        return self._call(self.fn["step"], x, self.array("reference", ref.T))
+        return self._call(self.fn["step"], x, self._reference(reference))
 
     def prepare(self, reference) -> int:
         """mpc_prepare: everything of the next step that needs no measurement (the reference as
         in `step`); 0 or a code (the next feedback's)."""
+        return self.fn["prepare"](self.c, self.ptr(self._reference(reference)))
+
+    def _reference(self, reference) -> np.ndarray:
+        """The reference (rows x N, manifest.json) as C takes it, column after column."""
         rows, N = self.sizes["reference"]
         ref = np.asarray(reference)
         if ref.shape != (rows, N):
             raise ControllerError(f"mpc: reference must be {rows} x {N} (manifest.json), got shape {ref.shape}")
-        return self.fn["prepare"](self.c, self.ptr(self.array("reference", ref.T)))
+        return self.array("reference", ref.T)
 
     def feedback(self, x):
         """mpc_feedback: the prepared step from the measured state: (tau, seconds in C, code)."""

@@ -28,13 +28,14 @@ from rscasadi.native.build import cached_library, compiler
 from rscasadi.native.controller import guard_source
 
 
+C_IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,62}\Z")      # a C symbol's prefix (63 significant)
 LABELS = {"mpc": "MPC", "impedance": "impedance controller", "observer": "observer"}   # in the progress lines
 
 
 def symbols(kind: str, prefix: str = "") -> dict:
     """The names of a `kind` controller with `prefix` (see the module's docstring): sym, SYM,
     header, source, library."""
-    if prefix and not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", prefix):
+    if prefix and not C_IDENTIFIER.match(prefix):
         raise InvalidArgument(f"prefix {prefix!r}: the C symbols' prefix must be a C identifier")
     sym = f"{prefix}_{kind}" if prefix else kind
     stem = sym if prefix else f"rscasadi_{kind}"
