@@ -11,7 +11,8 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "rscasadi"
 
 # bottom to top: a module may import its own room and the rooms below it
-LAYERS = [{"spatial", "files", "interrupt", "errors"}, {"model"}, {"dynamics"}, {"native"}, {"codegen"}, {"sim", "export"}, {"ocp"},
+LAYERS = [{"spatial", "files", "interrupt", "errors"}, {"model"}, {"dynamics"}, {"native"}, {"codegen"}, {"sim", "export"}, {"task"},
+          {"ocp"},
           {"mpc", "interaction"}, {"identification"}, {"studies", "view"}, {"cli", "__init__"}]
 REFERENCE = "reference"        # the independent references: they may import the model, nothing imports them
 

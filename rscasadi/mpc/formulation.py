@@ -42,9 +42,9 @@ import casadi as ca
 import numpy as np
 
 from rscasadi.dynamics.arm import Arm
-from rscasadi.dynamics.collision import clearances
 from rscasadi.model.limits import limit_arrays as model_limits
 from rscasadi.mpc.problem import SOFT, LINE_SEARCH, MPCProblem
+from rscasadi.task.terms import Clearance, FrameTracking, JointTracking, Posture, StateBound
 
 
 def controller_arm(model, parametric: str = "none") -> Arm:
@@ -104,43 +104,40 @@ def reference_rows(n: int, p: MPCProblem) -> int:
     return p.reference_rows if p.task_space else 2 * n
 
 
-def _tracking(arm: Arm, p: MPCProblem, x, ref, posture):
-    """The weighted tracking residuals: link angles and speeds, or the frame's position, velocity
-    (and rotation) and the posture."""
+def mpc_terms(arm: Arm, p: MPCProblem, limits: dict) -> tuple:
+    """The stage cost's terms (rscasadi.task.terms): the tracking of the reference (link angles
+    and speeds, or the frame's position, velocity [and rotation] and the posture), the psi, dphi
+    and link-angle limits soft beyond SOFT of them (angles: of the range's half-width about its
+    middle), the obstacles, then the problem's own terms, soft at their weights."""
     n, w = arm.n, p.weights
-    theta, dtheta = x[:n], x[2 * n:3 * n]
-    if not p.task_space:
-        return [np.sqrt(w["theta"]) * (theta - ref[:n]), np.sqrt(w["dtheta"]) * (dtheta - ref[n:])]
-    R, pos = arm.frame_placement(p.frame)(theta)
-    J = arm.frame_jacobian(p.frame, "local_world_aligned")(theta)
-    rows = [np.sqrt(w["position"]) * (pos - ref[:3]), np.sqrt(w["velocity"]) * (ca.mtimes(J[:3, :], dtheta) - ref[3:6])]
-    if p.orientation:
-        E = ca.mtimes(ca.reshape(ref[6:15], 3, 3).T, R)
-        rows.append(np.sqrt(w["orientation"]) * ca.vertcat(E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]) / 2)
-    return rows + [np.sqrt(w["posture"]) * (theta - posture)]
-
-
-def stage_residual(arm: Arm, p: MPCProblem, limits: dict) -> ca.Function:
-    """(x_k, reference_k, posture) -> (r, dr/dx): the weighted residual whose half squared norm is
-    the stage cost: tracking errors, the psi, dphi and link-angle excess beyond 90 % of their
-    limits, and the obstacles' intrusion into their margin."""
-    n = arm.n
-    x, ref, posture = ca.SX.sym("x", 4 * n), ca.SX.sym("reference", reference_rows(n, p)), ca.SX.sym("posture", n)
-    w = p.weights
-    parts = _tracking(arm, p, x, ref, posture)
+    if p.task_space:
+        terms = [FrameTracking(p.frame, w["position"], w["velocity"], w["orientation"] if p.orientation else None),
+                 Posture(n, w["posture"])]
+    else:
+        terms = [JointTracking(n, w["theta"], w["dtheta"])]
     ranged = np.isfinite(limits["theta_lo"]) & np.isfinite(limits["theta_hi"])
     middle = np.where(ranged, (limits["theta_lo"] + limits["theta_hi"]) / 2, 0.0)
     half = np.where(ranged, (limits["theta_hi"] - limits["theta_lo"]) / 2, np.inf)
-    for c, cmax, weight in ((x[n:2 * n] - x[:n], limits["psi"], w["limits"]), (x[3 * n:], limits["dphi"], w["limits"]),
-                            (x[:n] - middle, half, w["angle_limits"])):
-        finite = np.isfinite(cmax)
-        if finite.any() and weight > 0:
-            excess = ca.fmax(ca.fabs(c) - SOFT * np.where(finite, cmax, 1.0), 0) * ca.sign(c)
-            parts.append(np.sqrt(weight) * finite * excess)
+    for quantity, limit, weight in (("psi", limits["psi"], w["limits"]), ("dphi", limits["dphi"], w["limits"]),
+                                    ("theta", half, w["angle_limits"])):
+        if np.isfinite(limit).any() and weight > 0:
+            terms.append(StateBound(quantity, SOFT * limit, weight, middle if quantity == "theta" else None))
     if p.obstacles:
-        parts.append(np.sqrt(w["obstacles"]) * ca.fmax(-clearances(arm.model, p.obstacles, x[:n]), 0))
-    r = ca.vertcat(*parts)
-    return ca.Function("stage_residual", [x, ref, posture], [r, ca.jacobian(r, x)])
+        terms.append(Clearance(p.obstacles, w["obstacles"]))
+    return tuple(terms) + tuple(p.terms)
+
+
+def stage_residual(arm: Arm, p: MPCProblem, limits: dict) -> ca.Function:
+    """(x_k, u, reference_k, posture) -> (r, dr/dx, dr/du): the weighted residual whose half
+    squared norm is the stage cost at an interval's end x_k with the interval's torque u: each
+    of `mpc_terms`' penalty residuals (a cost's sqrt(weight) r, a constraint's sqrt(weight)
+    excess), each given the parameter it names."""
+    n = arm.n
+    x, u = ca.SX.sym("x", 4 * n), ca.SX.sym("u", n)
+    ref, posture = ca.SX.sym("reference", reference_rows(n, p)), ca.SX.sym("posture", n)
+    supplied = {"reference": ref, "posture": posture, None: ca.SX(0, 1)}
+    r = ca.vertcat(*[t.penalty_residual(arm, x, u, supplied[t.parameter]) for t in mpc_terms(arm, p, limits)])
+    return ca.Function("stage_residual", [x, u, ref, posture], [r, ca.jacobian(r, x), ca.jacobian(r, u)])
 
 
 class _Linearisation:
@@ -171,8 +168,8 @@ class _Linearisation:
             self.E.append(E)
             self.G.append(G)
             self.Phi.append(Phi)
-            r, Jx = residual(X[:, k + 1] + E, ref[:, k], posture)
-            J, rest = ca.mtimes(Jx, G), nU - n * (k + 1)
+            r, Jx, Ju = residual(X[:, k + 1] + E, U[:, k], ref[:, k], posture)
+            J, rest = ca.mtimes(Jx, G) + ca.horzcat(ca.MX(Ju.shape[0], n * k), Ju), nU - n * (k + 1)
             self.H += ca.diagcat(ca.mtimes(J.T, J), ca.MX(rest, rest))
             self.g += ca.vertcat(ca.mtimes(J.T, r), ca.MX(rest, 1))
             if Phi is not None:
@@ -225,7 +222,7 @@ def rollout(Fx, residual, p: MPCProblem, limits: dict, xm, ref, U, posture, mass
     n = U.shape[0]
     for k in range(p.horizon):
         xs.append(Fx(xs[-1], U[:, k], mass))
-        total += 0.5 * ca.sumsqr(residual(xs[-1], ref[:, k], posture)[0])
+        total += 0.5 * ca.sumsqr(residual(xs[-1], U[:, k], ref[:, k], posture)[0])
         if lo is not None:
             total += HARD_MERIT * ca.sum1(ca.fmax(xs[-1][:n] - hi, 0) + ca.fmax(lo - xs[-1][:n], 0))
     return total, ca.horzcat(*xs)

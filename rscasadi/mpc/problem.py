@@ -10,8 +10,9 @@ import numpy as np
 
 from rscasadi.model.checks import field_checker, read_toml
 from rscasadi.model.types import ModelFileError
-from rscasadi.ocp.problem import PAYLOAD_KEYS, read_obstacles, read_path
-from rscasadi.ocp.toolpath import ToolPath
+from rscasadi.task.objects import holding_payload
+from rscasadi.task.read import read_obstacles, read_path, read_payload
+from rscasadi.task.toolpath import ToolPath
 
 TOP = {"model", "trajectory", "sample_time", "horizon", "interval", "substeps", "sqp_iterations", "qp_iterations",
        "weights", "frame", "orientation", "path", "obstacles", "payload", "theta_start", "solution", "parametric", "angle_limits"}
@@ -66,12 +67,15 @@ class MPCProblem:
     solution: Path | None = None
     parametric: str = "none"
     angle_limits: str = "soft"
+    terms: tuple = ()
+
 
     def __post_init__(self):
         self.model = Path(self.model)
         self.trajectory = None if self.trajectory is None else Path(self.trajectory)
         self.weights = {**WEIGHTS, **self.weights}
         self.obstacles = tuple(self.obstacles)
+        self.terms = tuple(self.terms)
         self.solution = None if self.solution is None else Path(self.solution)
         if self.theta_start is not None:
             self.theta_start = np.asarray(self.theta_start, float).ravel()
@@ -167,10 +171,7 @@ def load_mpc_problem(path) -> MPCProblem:
     if "obstacles" in d:
         fields["obstacles"] = read_obstacles(fail, d["obstacles"])
     if "payload" in d:
-        held = d["payload"]
-        if not isinstance(held, dict) or not held or set(held) - PAYLOAD_KEYS:
-            fail("payload", f"expected a table of {', '.join(sorted(PAYLOAD_KEYS))}, got {held!r}")
-        fields["payload"] = dict(held)
+        fields["payload"] = read_payload(fail, d["payload"])
     if "solution" in d:
         if not isinstance(d["solution"], str) or not d["solution"].strip():
             fail("solution", f"expected the path of a solution.json, got {d['solution']!r}")
@@ -188,15 +189,9 @@ def load_mpc_problem(path) -> MPCProblem:
 def mpc_model(p: MPCProblem):
     """The controller's model: the problem's model file with its payload set or changed, checked
     against the problem (frame, obstacles, theta_start); errors name the problem file."""
-    from rscasadi.model.frames import holding
     from rscasadi.model.modelfile import read
-    model = read(p.model)
     where = p.path if p.path is not None else "<MPCProblem>"
-    if p.payload is not None:
-        try:
-            model = holding(model, **p.payload)
-        except (ValueError, TypeError) as exc:
-            raise ModelFileError(f"{where}: field '{str(exc).split(':')[0]}': {str(exc).split(':', 1)[-1].strip()}") from None
+    model = holding_payload(read(p.model), p.payload, where)
     unlimited = [jt.name for jt in model.joints if not np.isfinite(jt.limits.get("tau", np.inf))]
     if unlimited:
         raise ModelFileError(f"{model.path}: joint {unlimited[0]!r}: limits.tau missing: the MPC commands motor "
@@ -208,9 +203,12 @@ def mpc_model(p: MPCProblem):
     if p.orientation and model.n < 6:
         raise ModelFileError(f"{where}: field 'orientation': a position and a rotation are 6 conditions, more than "
                              f"the {model.n} joints can follow")
-    if p.obstacles and model.collision is None:
-        raise ModelFileError(f"{where}: field 'obstacles': {model.path} has no [collision] table (the capsules that "
-                             "must keep clear)")
+    for ob in p.obstacles:
+        ob.check(model, where)
+    if p.terms:
+        from rscasadi.dynamics.arm import Arm
+        from rscasadi.task.terms import check_terms
+        check_terms(Arm(model), p.terms, str(where))
     if p.theta_start is not None and len(p.theta_start) != model.n:
         raise ModelFileError(f"{where}: field 'theta_start': {len(p.theta_start)} entries for a {model.n}-joint arm")
     return model

@@ -137,7 +137,7 @@ class FrameReference:
         self.P = np.array(P).T
         self.V = np.einsum("ksj,js->sk", J[:3], dth)
         self.R = np.array(R).reshape(3, samples, 3, order="F").transpose(1, 0, 2)      # R[s] (3 x 3)
-        from rscasadi.ocp.toolpath import ToolPath
+        from rscasadi.task.toolpath import ToolPath
         self.curve = ToolPath(p.frame, self.P)                 # the frame's curve, for distances
 
     def position(self, t) -> np.ndarray:

@@ -68,7 +68,9 @@ import numpy as np
 
 from rscasadi.model.checks import field_checker, read_toml
 from rscasadi.model.types import ModelFileError
-from rscasadi.ocp.toolpath import ToolPath
+from rscasadi.task.objects import Goal, Obstacle, holding_payload  # noqa: F401  (the task's objects)
+from rscasadi.task.read import number, read_goal, read_obstacles, read_path, read_payload
+from rscasadi.task.toolpath import ToolPath
 from rscasadi.errors import WrongType
 
 OBJECTIVES = ("min_time", "min_effort", "tracking")
@@ -82,10 +84,6 @@ HESSIANS = ("exact", "limited-memory")
 TOP = {"model", "objective", "theta_start", "theta_end", "duration", "max_duration", "trajectory",
        "effort_weight", "transcription", "verification", "solver", "refinement", "design", "goal", "obstacles",
        "payload", "path", "collision"}
-PATH_KEYS = {"frame", "points", "circle", "speed", "tolerance"}
-CIRCLE_KEYS = {"center", "radius", "normal", "turns"}
-PAYLOAD_KEYS = {"frame", "mass", "com", "inertia", "radius"}
-GOAL_KEYS = {"frame", "position", "rpy", "tolerance"}
 # sizes refused before the work: a 1e8-interval NLP takes tens of GB and is killed by the kernel
 MAX_INTERVALS, MAX_DEGREE, MAX_ROUNDS = 5000, 9, 20
 SIZES_WHY = "5000 intervals of degree 3 on 7 joints already take minutes and gigabytes; refine instead"
@@ -96,52 +94,6 @@ TABLES = {"transcription": {"method", "degree", "intervals", "dynamics", "compil
           "solver": {"name", "hessian", "interface", "threads", "barrier"}}
 # problem fields a sweep may vary without rebuilding the NLP (they are its parameters or bounds)
 SWEEPABLE = ("theta_start", "theta_end", "duration", "max_duration", "effort_weight")
-
-
-@dataclass
-class Goal:
-    """Where a frame must end, at rest: its origin at `position` (m, world) and, if `R` is given,
-    its rotation R; the configuration is the solver's choice within the joint limits.  The
-    replay must reach it within `position_tol` (m) and `angle_tol` (rad)."""
-    frame: str
-    position: np.ndarray
-    R: np.ndarray | None = None
-    position_tol: float = 1e-3
-    angle_tol: float = 1e-2
-
-    def __post_init__(self):
-        self.position = np.asarray(self.position, float).ravel()
-        self.R = None if self.R is None else np.asarray(self.R, float)
-
-    @classmethod
-    def from_rpy(cls, frame: str, position, rpy=None, **tolerances) -> "Goal":
-        """The goal as the problem file writes it: the rotation by roll, pitch, yaw (rad, URDF
-        convention), or none."""
-        from rscasadi.model.types import rpy_matrix
-        return cls(frame, position, None if rpy is None else rpy_matrix(np.asarray(rpy, float)), **tolerances)
-
-
-@dataclass
-class Obstacle:
-    """A sphere (`center`, `radius`) or an axis-aligned box (`center`, `size`), in the world
-    frame (m); the arm's capsules ([collision] of the model file) must keep their margin from it."""
-    kind: str
-    center: np.ndarray
-    radius: float = 0.0
-    size: np.ndarray | None = None
-
-    def __post_init__(self):
-        self.center = np.asarray(self.center, float).ravel()
-        self.size = None if self.size is None else np.asarray(self.size, float).ravel()
-
-    def to_dict(self) -> dict:
-        """As solution.json and the studies' results write it."""
-        return {"kind": self.kind, "center": self.center.tolist(), "radius": self.radius,
-                "size": None if self.size is None else self.size.tolist()}
-
-    @staticmethod
-    def from_dict(d: dict) -> "Obstacle":
-        return Obstacle(d["kind"], d["center"], d["radius"], d.get("size"))
 
 
 @dataclass
@@ -270,7 +222,7 @@ class Problem:
             fail("objective", f"must be one of {', '.join(OBJECTIVES)}, got {t.objective!r}")
         for fld, value, positive in (("duration", t.duration, True), ("max_duration", t.max_duration, True),
                                      ("effort_weight", t.effort_weight, False)):
-            _number(fail, fld, value, positive)
+            number(fail, fld, value, positive)
         if t.objective == "tracking":
             if t.trajectory is None:
                 fail("trajectory", "missing required field (objective tracking)")
@@ -292,7 +244,7 @@ class Problem:
             if ob.center.shape != (3,) or not np.all(np.isfinite(ob.center)):
                 fail(f"{fld}.center", f"expected 3 finite numbers, got {ob.center!r}")
             if ob.kind == "sphere":
-                _number(fail, f"{fld}.radius", ob.radius, True)
+                number(fail, f"{fld}.radius", ob.radius, True)
             elif ob.size is None or ob.size.shape != (3,) or not np.all(np.isfinite(ob.size)) or np.any(ob.size <= 0):
                 fail(f"{fld}.size", f"expected 3 positive numbers, got {ob.size!r}")
         if t.path is not None:
@@ -309,16 +261,16 @@ class Problem:
                     vec = getattr(pa, key)
                     if vec.shape != (3,) or not np.all(np.isfinite(vec)) or (key == "normal" and not np.any(vec)):
                         fail(f"path.circle.{key}", f"expected 3 finite numbers{' not all 0' if key == 'normal' else ''}, got {vec!r}")
-                _number(fail, "path.circle.radius", pa.radius, True)
-                _number(fail, "path.circle.turns", pa.turns, True)
-            _number(fail, "path.tolerance", pa.tolerance, True)
+                number(fail, "path.circle.radius", pa.radius, True)
+                number(fail, "path.circle.turns", pa.turns, True)
+            number(fail, "path.tolerance", pa.tolerance, True)
             if t.objective == "min_time":
                 if pa.speed is not None:
                     fail("path.speed", "min_time chooses the timing along the path: no speed (duration is the guess)")
             else:
                 if pa.speed is None:
                     fail("path.speed", "missing required field (objective min_effort: the mean speed along the path)")
-                _number(fail, "path.speed", pa.speed, True)
+                number(fail, "path.speed", pa.speed, True)
                 if abs(t.duration - pa.duration) > 1e-9 * pa.duration:
                     fail("duration", f"the path's length and speed make it {pa.duration:.6g} s (leave duration out)")
         if t.goal is not None:
@@ -328,7 +280,7 @@ class Problem:
             if g.R is not None and (g.R.shape != (3, 3) or not np.allclose(g.R.T @ g.R, np.eye(3), atol=1e-9)):
                 fail("goal.rpy", "not a rotation")
             for key in ("position_tol", "angle_tol"):
-                _number(fail, f"goal.tolerance.{key.split('_')[0]}", getattr(g, key), True)
+                number(fail, f"goal.tolerance.{key.split('_')[0]}", getattr(g, key), True)
         for name, bounds in t.design.items():
             if len(bounds) != 2 or not bounds[0] < bounds[1]:
                 fail(f"design.{name}", f"expected [lower, upper] with lower < upper, got {bounds!r}")
@@ -350,20 +302,14 @@ class Problem:
             if not isinstance(getattr(tr, fld), bool):
                 fail(f"transcription.{fld}", f"must be true or false, got {getattr(tr, fld)!r}")
         for fld in ("final_angle_tol", "final_speed_tol", "tracking_tol", "limit_tol", "clearance_tol"):
-            _number(fail, f"verification.{fld}", getattr(v, fld), True)
-        if _number(fail, "transcription.limit_margin", tr.limit_margin, False) < 0 or tr.limit_margin >= 0.5:
+            number(fail, f"verification.{fld}", getattr(v, fld), True)
+        if number(fail, "transcription.limit_margin", tr.limit_margin, False) < 0 or tr.limit_margin >= 0.5:
             fail("transcription.limit_margin", f"must be in [0, 0.5), got {tr.limit_margin!r}")
         if s.hessian != "exact" and s.name == "fatrop":
             fail("solver.hessian", "fatrop needs the exact Hessian; use name = \"ipopt\" for limited-memory")
         if tr.condense and not tr.compiled:
             fail("transcription.condense", "the condensing kernel is C: needs compiled = true (or condense = false)")
         return self
-
-
-def _number(fail, fld, v, positive: bool):
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.floating)) or not np.isfinite(v) or (positive and v <= 0):
-        fail(fld, f"must be a{' positive' if positive else ''} number, got {v!r}")
-    return float(v)
 
 
 def load_problem(path) -> Problem:
@@ -394,7 +340,7 @@ def load_problem(path) -> Problem:
     if timed_path and tool_path.speed is None:
         fail("path.speed", "missing required field (objective min_effort: the mean speed along the path)")
     task = {"model": (path.parent / str(d["model"])).resolve(), "objective": d["objective"],
-            "duration": _number(fail, "duration", d["duration"], True) if not timed_path else tool_path.duration,
+            "duration": number(fail, "duration", d["duration"], True) if not timed_path else tool_path.duration,
             "path": tool_path}
     if "goal" in d and not isinstance(d["goal"], dict):
         fail("goal", "expected a table")
@@ -405,13 +351,13 @@ def load_problem(path) -> Problem:
             v = d[key]
             if not isinstance(v, list) or not v:
                 fail(key, f"expected a list of numbers, got {v!r}")
-            task[key] = np.array([_number(fail, f"{key}[{i}]", x, False) for i, x in enumerate(v)])
+            task[key] = np.array([number(fail, f"{key}[{i}]", x, False) for i, x in enumerate(v)])
     if "max_duration" in d:
-        task["max_duration"] = _number(fail, "max_duration", d["max_duration"], True)
+        task["max_duration"] = number(fail, "max_duration", d["max_duration"], True)
     if "effort_weight" in d:
-        task["effort_weight"] = _number(fail, "effort_weight", d["effort_weight"], False)
+        task["effort_weight"] = number(fail, "effort_weight", d["effort_weight"], False)
     if "goal" in d:
-        task["goal"] = _goal(fail, table("goal"))
+        task["goal"] = read_goal(fail, table("goal"))
     if "obstacles" in d:
         task["obstacles"] = read_obstacles(fail, d["obstacles"])
     if "collision" in d:
@@ -419,10 +365,7 @@ def load_problem(path) -> Problem:
             fail("collision", f"expected a table like the model file's [collision], got {d['collision']!r}")
         task["collision"] = dict(d["collision"])
     if "payload" in d:
-        held = d["payload"]
-        if not isinstance(held, dict) or not held or set(held) - PAYLOAD_KEYS:
-            fail("payload", f"expected a table of {', '.join(sorted(PAYLOAD_KEYS))}, got {held!r}")
-        task["payload"] = dict(held)
+        task["payload"] = read_payload(fail, d["payload"])
     design = {}
     for name, bounds in table("design").items():
         if (not isinstance(bounds, list) or len(bounds) != 2
@@ -441,100 +384,19 @@ def load_problem(path) -> Problem:
                    Verification(**verification), path=path).check()
 
 
-def _vector3(fail, fld, v, positive: bool = False) -> np.ndarray:
-    """Three numbers (positive ones if asked), or an error naming the field and the entry."""
-    if not isinstance(v, list) or len(v) != 3:
-        fail(fld, f"expected a list of 3 numbers, got {v!r}")
-    return np.array([_number(fail, f"{fld}[{i}]", x, positive) for i, x in enumerate(v)])
-
-
-def read_path(fail, t: dict) -> ToolPath:
-    """The [path] table: frame, points (a polyline) or circle = { center, radius, normal, turns },
-    speed (m/s; not for min_time), tolerance (m)."""
-    for key in t:
-        if key not in PATH_KEYS:
-            fail(f"path.{key}", f"unknown key (allowed: {', '.join(sorted(PATH_KEYS))})")
-    if "frame" not in t:
-        fail("path.frame", "missing required field")
-    if ("points" in t) == ("circle" in t):
-        fail("path", "give points (a polyline) or a circle = { center, radius, normal }, one of them")
-    if not isinstance(t["frame"], str):
-        fail("path.frame", f"expected the name of a frame, got {t['frame']!r}")
-    speed = _number(fail, "path.speed", t["speed"], True) if "speed" in t else None
-    tolerance = _number(fail, "path.tolerance", t.get("tolerance", 1e-3), True)
-    if "circle" in t:
-        c = t["circle"]
-        if not isinstance(c, dict) or set(c) - CIRCLE_KEYS or not {"center", "radius", "normal"} <= set(c):
-            fail("path.circle", f"expected {{ center, radius, normal[, turns] }}, got {c!r}")
-        normal = _vector3(fail, "path.circle.normal", c["normal"])
-        if not np.any(normal):
-            fail("path.circle.normal", "must not be [0, 0, 0]")
-        return ToolPath(t["frame"], speed=speed, tolerance=tolerance, center=_vector3(fail, "path.circle.center", c["center"]),
-                        radius=_number(fail, "path.circle.radius", c["radius"], True), normal=normal,
-                        turns=_number(fail, "path.circle.turns", c.get("turns", 1.0), True))
-    if not isinstance(t["points"], list) or len(t["points"]) < 2:
-        fail("path.points", f"expected a list of at least two points, got {t['points']!r}")
-    points = np.array([_vector3(fail, f"path.points[{i}]", v) for i, v in enumerate(t["points"])])
-    return ToolPath(t["frame"], points, speed, tolerance)
-
-
-def _goal(fail, t: dict) -> Goal:
-    """The [goal] table: frame, position, optional rpy (URDF convention) and tolerance."""
-    for key in t:
-        if key not in GOAL_KEYS:
-            fail(f"goal.{key}", f"unknown key (allowed: {', '.join(sorted(GOAL_KEYS))})")
-    for key in ("frame", "position"):
-        if key not in t:
-            fail(f"goal.{key}", "missing required field")
-    if not isinstance(t["frame"], str):
-        fail("goal.frame", f"expected the name of a frame, got {t['frame']!r}")
-    vec = {key: _vector3(fail, f"goal.{key}", t[key]) for key in ("position", "rpy") if key in t}
-    tol = t.get("tolerance", {})
-    if not isinstance(tol, dict) or set(tol) - {"position", "angle"}:
-        fail("goal.tolerance", f"expected {{ position = m, angle = rad }}, got {tol!r}")
-    return Goal.from_rpy(t["frame"], vec["position"], vec.get("rpy"),
-                         **{f"{k}_tol": _number(fail, f"goal.tolerance.{k}", v, True) for k, v in tol.items()})
-
-
-def read_obstacles(fail, raw) -> tuple:
-    """[[obstacles]]: each a sphere = { center, radius } or a box = { center, size }."""
-    if not isinstance(raw, list):
-        fail("obstacles", "expected [[obstacles]] tables")
-    out = []
-    for i, entry in enumerate(raw):
-        if not isinstance(entry, dict) or len(entry) != 1 or next(iter(entry)) not in ("sphere", "box"):
-            fail(f"obstacles[{i}]", f"expected sphere = {{ center, radius }} or box = {{ center, size }}, got {entry!r}")
-        kind, t = next(iter(entry.items()))
-        need = {"center", "radius"} if kind == "sphere" else {"center", "size"}
-        if not isinstance(t, dict) or set(t) != need:
-            fail(f"obstacles[{i}].{kind}", f"expected the keys {', '.join(sorted(need))}, got {t!r}")
-        vec = {key: _vector3(fail, f"obstacles[{i}].{kind}.{key}", t[key], positive=key == "size")
-               for key in ("center", "size") if key in t}
-        radius = _number(fail, f"obstacles[{i}].{kind}.radius", t["radius"], True) if kind == "sphere" else 0.0
-        out.append(Obstacle(kind, vec["center"], radius, vec.get("size")))
-    return tuple(out)
-
-
 def check_against_model(problem: Problem, model):
     """The problem's poses and parameter names fit the arm (errors name the problem file)."""
     from rscasadi.model.parameters import check_names
     t = problem.task
-    if t.payload is not None:
-        from rscasadi.model.frames import holding
-        try:
-            model = holding(model, **t.payload)                # its parameters (payload.*) named too
-        except (ValueError, TypeError) as exc:
-            raise ModelFileError(f"{problem.path}: field '{str(exc).split(':')[0]}': "
-                                 f"{str(exc).split(':', 1)[-1].strip()}") from None
+    where = problem.path
+    model = holding_payload(model, t.payload, where)          # its parameters (payload.*) named too
     if t.collision is not None:
         from rscasadi.model.collision import with_collision
-        model = with_collision(model, t.collision, problem.path if problem.path is not None else "<Problem>")
-    if t.obstacles and model.collision is None:
-        raise ModelFileError(f"{problem.path}: field 'obstacles': {model.path} has no [collision] table "
-                             "(the capsules of the links that must keep clear)")
-    if t.goal is not None and t.goal.frame not in [f.name for f in model.frames]:
-        raise ModelFileError(f"{problem.path}: field 'goal.frame': {model.path} has no frame {t.goal.frame!r} "
-                             f"(frames: {', '.join(f.name for f in model.frames)})")
+        model = with_collision(model, t.collision, where if where is not None else "<Problem>")
+    for ob in t.obstacles:
+        ob.check(model, where)
+    if t.goal is not None:
+        t.goal.check(model, where)
     for key in ("theta_start", "theta_end"):
         v = getattr(t, key)
         if v is not None and len(v) != model.n:
@@ -546,10 +408,6 @@ def check_against_model(problem: Problem, model):
         raise ModelFileError(str(exc)) from None
     if t.path is not None and t.path.frame not in [f.name for f in model.frames]:
         raise ModelFileError(f"{problem.path}: field 'path.frame': {model.path} has no frame {t.path.frame!r}")
-    if t.goal is not None and (3 if t.goal.R is None else 6) > model.n:
-        raise ModelFileError(f"{problem.path}: field 'goal': {'a position' if t.goal.R is None else 'a pose'} is "
-                             f"{3 if t.goal.R is None else 6} conditions, more than the {model.n} joints can meet "
-                             "in general" + ("; give the position alone (no rpy)" if model.n >= 3 else ""))
     for name, (lo, _) in t.design.items():
         if name.endswith(".gear_ratio") and lo <= 0:
             raise ModelFileError(f"{problem.path}: field 'design.{name}': a gear ratio stays positive "

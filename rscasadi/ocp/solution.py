@@ -19,7 +19,7 @@ from rscasadi.dynamics.collision import exact_clearance
 from rscasadi.errors import InvalidArgument, WrongType
 from rscasadi.files import write_json
 from rscasadi.model.collision import with_collision
-from rscasadi.model.frames import holding
+from rscasadi.task.objects import holding_payload
 from rscasadi.model.modelfile import read
 from rscasadi.model.parameters import with_values
 from rscasadi.sim.simulation import simulate_held
@@ -114,8 +114,7 @@ def solution_arm(solution: dict) -> Arm:
     """The arm the solution is for: the model file with the task's payload and its swept and
     designed parameters."""
     model = read(solution["model"])
-    if solution.get("payload"):
-        model = holding(model, **solution["payload"])
+    model = holding_payload(model, solution.get("payload") or None, solution["model"])
     if solution.get("collision") is not None:
         model = with_collision(model, solution["collision"], solution["model"])
     return Arm(with_values(model, {**solution.get("parameters", {}), **solution.get("design", {})}))
@@ -145,13 +144,13 @@ def verify(solution: dict, substeps: int = 20, tol: float = 1e-10) -> dict:
             c = (np.trace(np.asarray(g["R"]).T @ R) - 1) / 2
             report["goal_angle_error"] = float(np.arccos(np.clip(c, -1.0, 1.0)))
     if solution.get("obstacles"):                                      # clear of them, between the nodes too
-        from rscasadi.ocp.problem import Obstacle
+        from rscasadi.task.objects import Obstacle
         obstacles = [Obstacle.from_dict(o) for o in solution["obstacles"]]
         gap = np.array(exact_clearance(arm.model, obstacles).map(sim["theta"].shape[1])(sim["theta"])).ravel()
         report["min_clearance"] = float(gap.min())
         report["interval_clearance"] = gap[1:].reshape(len(t) - 1, substeps).min(axis=1).tolist()
     if solution.get("path"):                                          # on the path, between the nodes too
-        from rscasadi.ocp.problem import ToolPath
+        from rscasadi.task.toolpath import ToolPath
         path = ToolPath.from_dict(solution["path"])
         place = arm.frame_placement(path.frame).map(sim["theta"].shape[1])
         where = np.array(place(sim["theta"])[1]).T

@@ -21,7 +21,7 @@ from rscasadi.native.build import compiler
 from rscasadi.native.parallel import available_cores, openmp_flags, set_threads
 from rscasadi.dynamics.arm import Arm
 from rscasadi.model.collision import with_collision
-from rscasadi.model.frames import holding
+from rscasadi.task.objects import holding_payload
 from rscasadi.model.modelfile import ModelFileError, document, read, to_toml
 from rscasadi.model.parameters import family, value, with_values
 from rscasadi.dynamics.statics import rest_state  # noqa: F401  (exported by rscasadi.ocp)
@@ -117,8 +117,7 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
     """One solve on the mesh w (interval fractions; uniform over problem.transcription.intervals by default)."""
     base = read(problem.task.model)
     check_against_model(problem, base)
-    if problem.task.payload:                                      # the task's payload on the model's arm
-        base = holding(base, **problem.task.payload)
+    base = holding_payload(base, problem.task.payload, problem.path)   # the task's payload on the model's arm
     if problem.task.collision is not None:                        # and the task's collision geometry
         base = with_collision(base, problem.task.collision, problem.path)
     if problem.transcription.parametric == "family":              # the family's numbers as NLP parameters
@@ -198,9 +197,7 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
             "path": None if path is None else path.to_dict(),
             "path_arc": None if out["arc"] is None else out["arc"].tolist(),
             "obstacles": [o.to_dict() for o in problem.task.obstacles],
-            "goal": None if goal is None else {"frame": goal.frame, "position": goal.position.tolist(),
-                                               "R": None if goal.R is None else goal.R.tolist(),
-                                               "position_tol": goal.position_tol, "angle_tol": goal.angle_tol}})
+            "goal": None if goal is None else goal.to_dict()})
 
 
 # fatrop 1.1.8's return flags (IpSolverReturnFlag, include/fatrop/ip_algorithm/ip_algorithm.hpp in

@@ -63,13 +63,13 @@ def _watch(directory: Path):
 def shelf_comparison(out: Path, log=print) -> str:
     """The shelf task with its 2 kg part and without it: one NLP, the part's inertial
     parameters set (the model's) or zero."""
-    from rscasadi.model.frames import holding
+    from rscasadi.task.objects import holding_payload
     from rscasadi.model.modelfile import read
     from rscasadi.model.parameters import value
     from rscasadi.ocp import load_problem
     from rscasadi.ocp import run as run_ocp
     problem = load_problem(PROBLEMS / "ocp_panda_shelf.toml")
-    held = holding(read(problem.task.model), **problem.task.payload)
+    held = holding_payload(read(problem.task.model), problem.task.payload, problem.path)
     names = [k for k in Arm(held).parameters()[0] if k.startswith("payload.")]
     times = {}
     for case, values in (("panda_shelf", {k: value(held, k) for k in names}),

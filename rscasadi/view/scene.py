@@ -181,7 +181,7 @@ def scene_of(path, model=None) -> Scene:
             scene.path = (scene.poses[:, arm.n] @ tip)[:, :3]
     scene.obstacles = list(data.get("obstacles") or []) if data else []
     if data and data.get("path"):                       # the path asked for, beside the one flown
-        from rscasadi.ocp.toolpath import ToolPath
+        from rscasadi.task.toolpath import ToolPath
         with _field(path, "path"):
             scene.target = ToolPath.from_dict(data["path"]).sample()
     if arm.model.payload is not None:
@@ -239,7 +239,7 @@ def _checked_arm(path: Path, data: dict, model) -> Arm:
                 or np.shape(goal.get("position")) != (3,):
             raise ModelFileError(f"{path}: field 'goal': expected a frame of {arm.model.path} and a position (3)")
     with _field(path, "obstacles"):
-        from rscasadi.ocp.problem import Obstacle
+        from rscasadi.task.objects import Obstacle
         for o in data.get("obstacles") or []:
             Obstacle.from_dict(o)
     return arm
@@ -253,7 +253,7 @@ def _broken(arm: Arm, thetas: np.ndarray, data: dict) -> np.ndarray:
             lo, hi = jt.limits["theta"]
             broken |= (thetas[j] < lo - 1e-9) | (thetas[j] > hi + 1e-9)
     if data and data.get("obstacles") and arm.model.collision is not None:
-        from rscasadi.ocp.problem import Obstacle
+        from rscasadi.task.objects import Obstacle
         obstacles = [Obstacle.from_dict(o) for o in data["obstacles"]]
         gap = np.array(exact_clearance(arm.model, obstacles).map(thetas.shape[1])(thetas)).ravel()
         broken |= gap < -1e-4

@@ -1,0 +1,245 @@
+"""What the arm must do on a stage, as terms (Crocoddyl's cost and constraint models, rockit's
+`add_objective` / `subject_to`).
+
+A term is a CasADi expression of a stage's state x = (theta, phi, dtheta, dphi) (4n), its motor
+torques u = tau (n) and its parameters p (`n_p` numbers the problem supplies on each stage:
+the reference, the posture; none for a term a user writes, whose numbers are its own):
+
+- a **cost** gives a residual r(x, u, p): the OCP adds the integral of weight |r|^2 over the
+  motion (r at each interval's end, with the interval's torque), the MPC adds weight / 2 |r_k|^2
+  at each interval end k = 1..N of its horizon (Gauss-Newton: it needs r and its Jacobians);
+- a **constraint** gives rows c(x, u) within [lower, upper]: hard in the OCP (at every node and,
+  if `inside`, at the collocation points between; at the last node with u = 0 if `at_end`),
+  soft in the MPC (a penalty weight / 2 |excess|^2, `excess` the rows' distance outside
+  their bounds).
+
+Each term also measures itself on the replay (`replay_metric`): a constraint its largest
+violation over the replayed samples, which the verification compares with its `tolerance`.
+
+A term a user adds (docs/user-guide/problems.md, "Terms"): subclass `Term`, set `name`,
+`constraint` and, for a constraint, `bounds`; write `expression`.  `Task(terms=[...])` and
+`MPCProblem(terms=[...])` take it; nothing else changes.
+"""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from rscasadi.dynamics.collision import clearances, exact_clearance
+from rscasadi.errors import InvalidArgument
+
+
+class Term:
+    """One thing the arm must do on a stage (see the module's text).  Subclasses set the class
+    attributes and write `expression`; a constraint writes `bounds` too."""
+    name: str = "term"
+    constraint: bool = False          # a cost (residual) if False
+    weight: float = 1.0               # a cost's weight; a constraint's penalty weight in the MPC
+    inside: bool = True               # OCP: a constraint also at the collocation points
+    at_end: bool = True               # OCP: a constraint also at the last node (u = 0 there)
+    tolerance: float = 1e-3           # a constraint's largest violation on the replay
+    n_p: int = 0                      # parameters the problem supplies per stage (built-in terms)
+    parameter: str | None = None      # which: "reference" (the reference column), "posture"
+
+    def expression(self, arm, x, u, p):
+        """The residual (a cost) or the rows (a constraint) at (x, u, p): a column."""
+        raise NotImplementedError(f"{type(self).__name__}.expression")
+
+    def bounds(self, arm) -> tuple[np.ndarray, np.ndarray]:
+        """A constraint's (lower, upper) per row (-inf, inf: open)."""
+        raise NotImplementedError(f"{type(self).__name__}.bounds")
+
+    def check(self, arm) -> "Term":
+        """The term fits the arm: a column of the right size from (x, u, p) of `arm`, finite
+        bounds in order; an InvalidArgument names the term."""
+        n = arm.n
+        x, u, p = ca.SX.sym("x", 4 * n), ca.SX.sym("u", n), ca.SX.sym("p", self.n_p)
+        try:
+            r = ca.SX(self.expression(arm, x, u, p))
+        except Exception as exc:                            # noqa: BLE001  (the user's code, named)
+            raise InvalidArgument(f"term {self.name!r}: its expression failed on a {n}-joint arm: {exc}") from exc
+        if r.shape[1] != 1:
+            raise InvalidArgument(f"term {self.name!r}: expected a column, got a {r.shape[0]}x{r.shape[1]} expression")
+        if self.constraint:
+            lo, hi = (np.asarray(b, float).ravel() for b in self.bounds(arm))
+            if lo.shape != (r.shape[0],) or hi.shape != (r.shape[0],) or np.any(lo > hi) or np.any(np.isnan(lo + hi)):
+                raise InvalidArgument(f"term {self.name!r}: bounds must be {r.shape[0]} pairs with lower <= upper")
+        if not (isinstance(self.weight, (int, float)) and np.isfinite(self.weight) and self.weight >= 0):
+            raise InvalidArgument(f"term {self.name!r}: weight must be a number >= 0, got {self.weight!r}")
+        return self
+
+    # -- derived: one definition for every user of a term -----------------------------------
+    def function(self, arm) -> ca.Function:
+        """(x, u, p) -> the expression, as a Function named after the term."""
+        n = arm.n
+        x, u, p = ca.SX.sym("x", 4 * n), ca.SX.sym("u", n), ca.SX.sym("p", self.n_p)
+        return ca.Function(f"term_{_c_name(self.name)}", [x, u, p], [self.expression(arm, x, u, p)],
+                           ["x", "u", "p"], ["r"])
+
+    def excess(self, arm, x, u, p):
+        """A constraint's rows' distance outside their bounds, signed (0 inside): the MPC's
+        penalty residual and the replay's measure."""
+        c = self.expression(arm, x, u, p)
+        lo, hi = self.bounds(arm)
+        rows = [j for j in range(c.shape[0]) if np.isfinite(lo[j]) or np.isfinite(hi[j])]
+        lo, hi = np.asarray(lo, float)[rows], np.asarray(hi, float)[rows]
+        c = c[rows]
+        return (ca.fmax(c - np.where(np.isfinite(hi), hi, 0.0), 0) * np.isfinite(hi)
+                + ca.fmin(c - np.where(np.isfinite(lo), lo, 0.0), 0) * np.isfinite(lo))
+
+    def penalty_residual(self, arm, x, u, p):
+        """The MPC's residual of the term: sqrt(weight) r (a cost) or sqrt(weight) excess."""
+        part = self.excess(arm, x, u, p) if self.constraint else self.expression(arm, x, u, p)
+        return np.sqrt(self.weight) * part
+
+    def replay_metric(self, arm, X, U) -> float:
+        """On replayed samples X (4n x K) with the torques U (n x K): a constraint's largest
+        violation (its rows' largest distance outside their bounds; 0 inside), a cost's mean
+        value of weight |r|^2."""
+        n = arm.n
+        x, u = ca.SX.sym("x", 4 * n), ca.SX.sym("u", n)
+        p = ca.SX.zeros(self.n_p)
+        out = self.excess(arm, x, u, p) if self.constraint else self.weight * ca.sumsqr(self.expression(arm, x, u, p))
+        f = ca.Function("metric", [x, u], [ca.fabs(out) if self.constraint else out])
+        values = np.array(f.map(X.shape[1])(X, U))
+        return float(values.max(initial=0.0)) if self.constraint else float(values.mean())
+
+
+def _c_name(name: str) -> str:
+    out = "".join(ch if ch.isalnum() else "_" for ch in name)
+    return out if out[:1].isalpha() else "t_" + out
+
+
+def check_terms(arm, terms, where: str, parameters: bool = False) -> tuple:
+    """Each term checked on `arm`, names unique; a user's term may not ask the problem for
+    parameters (parameters=False).  Errors name `where` and the term."""
+    names = set()
+    for term in terms:
+        if not isinstance(term, Term):
+            raise InvalidArgument(f"{where}: field 'terms': expected rscasadi.task.terms.Term objects, got {term!r}")
+        if term.name in names:
+            raise InvalidArgument(f"{where}: field 'terms': two terms are named {term.name!r}")
+        names.add(term.name)
+        if term.n_p and not parameters:
+            raise InvalidArgument(f"{where}: term {term.name!r}: n_p = {term.n_p}: a term added to a problem "
+                                  "carries its numbers itself (the problems supply parameters to their own terms only)")
+        try:
+            term.check(arm)
+        except InvalidArgument as exc:
+            raise InvalidArgument(f"{where}: {exc}") from None
+    return tuple(terms)
+
+
+# -- the built-in terms ---------------------------------------------------------------------
+class Effort(Term):
+    """The motor torques: r = tau."""
+    name = "effort"
+
+    def __init__(self, weight: float = 1.0):
+        self.weight = weight
+
+    def expression(self, arm, x, u, p):
+        return u
+
+
+class JointTracking(Term):
+    """The link angles (and speeds) against the reference p = (theta_ref[, dtheta_ref]):
+    r = (sqrt(w_theta) (theta - theta_ref)[, sqrt(w_dtheta) (dtheta - dtheta_ref)])."""
+    name = "joint_tracking"
+    parameter = "reference"
+
+    def __init__(self, n: int, w_theta: float = 1.0, w_dtheta: float | None = None):
+        self.w_theta, self.w_dtheta = w_theta, w_dtheta
+        self.n_p = n * (1 if w_dtheta is None else 2)
+
+    def expression(self, arm, x, u, p):
+        n = arm.n
+        rows = [np.sqrt(self.w_theta) * (x[:n] - p[:n])]
+        if self.w_dtheta is not None:
+            rows.append(np.sqrt(self.w_dtheta) * (x[2 * n:3 * n] - p[n:2 * n]))
+        return ca.vertcat(*rows)
+
+
+def orientation_error(R_ref, R):
+    """skew(R_ref^T R) as a vector: sin of the angle times the axis, 0 at R = R_ref."""
+    E = ca.mtimes(R_ref.T, R)
+    return ca.vertcat(E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]) / 2
+
+
+class FrameTracking(Term):
+    """A frame's position and velocity against p = (p_ref, v_ref[, vec(R_ref)]) (world):
+    r = (sqrt(w_position) (p - p_ref), sqrt(w_velocity) (J dtheta - v_ref)[, sqrt(w_orientation)
+    skew(R_ref^T R)])."""
+    name = "frame_tracking"
+    parameter = "reference"
+
+    def __init__(self, frame: str, w_position: float, w_velocity: float, w_orientation: float | None = None):
+        self.frame, self.w = frame, (w_position, w_velocity, w_orientation)
+        self.n_p = 6 if w_orientation is None else 15
+
+    def expression(self, arm, x, u, p):
+        n = arm.n
+        theta, dtheta = x[:n], x[2 * n:3 * n]
+        R, pos = arm.frame_placement(self.frame)(theta)
+        J = arm.frame_jacobian(self.frame, "local_world_aligned")(theta)
+        rows = [np.sqrt(self.w[0]) * (pos - p[:3]), np.sqrt(self.w[1]) * (ca.mtimes(J[:3, :], dtheta) - p[3:6])]
+        if self.w[2] is not None:
+            rows.append(np.sqrt(self.w[2]) * orientation_error(ca.reshape(p[6:15], 3, 3), R))
+        return ca.vertcat(*rows)
+
+
+class Posture(Term):
+    """The link angles against a posture p (n): r = theta - theta_posture (a redundant arm's
+    null space)."""
+    name = "posture"
+    parameter = "posture"
+
+    def __init__(self, n: int, weight: float = 1.0):
+        self.n_p, self.weight = n, weight
+
+    def expression(self, arm, x, u, p):
+        return x[:arm.n] - p
+
+
+class StateBound(Term):
+    """A limit of the model as a constraint: `quantity` psi (phi - theta), dphi or theta (its
+    offset from `middle`) within -+`limit` per joint (rows only where it is finite)."""
+    constraint = True
+
+    def __init__(self, quantity: str, limit, weight: float = 1.0, middle=None):
+        if quantity not in ("psi", "dphi", "theta"):
+            raise InvalidArgument(f"StateBound: quantity must be psi, dphi or theta, got {quantity!r}")
+        self.name, self.quantity, self.weight = f"{quantity}_limit", quantity, weight
+        self.limit = np.asarray(limit, float)
+        self.middle = np.zeros_like(self.limit) if middle is None else np.asarray(middle, float)
+
+    def expression(self, arm, x, u, p):
+        n = arm.n
+        c = {"psi": x[n:2 * n] - x[:n], "dphi": x[3 * n:], "theta": x[:n] - self.middle}[self.quantity]
+        return c[[j for j in range(n) if np.isfinite(self.limit[j])]]
+
+    def bounds(self, arm):
+        finite = self.limit[np.isfinite(self.limit)]
+        return -finite, finite
+
+
+class Clearance(Term):
+    """The arm's capsules clear of the obstacles: the smooth conservative clearances
+    (rscasadi.dynamics.collision.clearances) >= 0; on the replay, the exact clearance."""
+    name = "clearance"
+    constraint = True
+
+    def __init__(self, obstacles, weight: float = 1.0, tolerance: float = 1e-4):
+        self.obstacles, self.weight, self.tolerance = tuple(obstacles), weight, tolerance
+
+    def expression(self, arm, x, u, p):
+        return clearances(arm.model, self.obstacles, x[:arm.n])
+
+    def bounds(self, arm):
+        rows = self.expression(arm, ca.SX.sym("x", 4 * arm.n), None, None).shape[0]
+        return np.zeros(rows), np.full(rows, np.inf)
+
+    def replay_metric(self, arm, X, U) -> float:
+        """The largest intrusion into the margin, by the exact clearance (m; 0 when clear)."""
+        gap = np.array(exact_clearance(arm.model, self.obstacles).map(X.shape[1])(X[:arm.n])).ravel()
+        return float(max(-gap.min(), 0.0))
