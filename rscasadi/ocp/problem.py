@@ -102,7 +102,8 @@ class Task:
     tracking; `duration` (s): fixed, or min_time's first guess; the rest poses `theta_start`,
     `theta_end` (not for tracking) or the `trajectory` file to track; `goal`: a `Goal` for a
     frame instead of theta_end; `design`: parameter name -> (lower, upper), chosen by the
-    optimiser; `parameters`: name -> value, set (sweeps)."""
+    optimiser; `parameters`: name -> value, set (sweeps); `terms`: more costs and constraints
+    (`rscasadi.task.terms.Term` objects, Python only: docs/user-guide/problems.md, "Terms")."""
     model: Path
     objective: str
     duration: float
@@ -118,6 +119,7 @@ class Task:
     payload: dict | None = None                     # frame, mass, com, inertia: the model's payload set or changed
     path: ToolPath | None = None
     collision: dict | None = None                   # the model's [collision] replaced for this task
+    terms: tuple = ()                               # more costs and constraints (rscasadi.task.terms.Term)
 
     def __post_init__(self):
         self.model = Path(self.model)
@@ -126,6 +128,7 @@ class Task:
             if getattr(self, key) is not None:
                 setattr(self, key, np.asarray(getattr(self, key), float))
         self.design = {k: (float(lo), float(hi)) for k, (lo, hi) in self.design.items()}
+        self.terms = tuple(self.terms)
 
 
 @dataclass
@@ -397,6 +400,10 @@ def check_against_model(problem: Problem, model):
         ob.check(model, where)
     if t.goal is not None:
         t.goal.check(model, where)
+    if t.terms:
+        from rscasadi.dynamics.arm import Arm
+        from rscasadi.task.terms import check_terms
+        check_terms(Arm(model), t.terms, str(where if where is not None else "<Problem>"))
     for key in ("theta_start", "theta_end"):
         v = getattr(t, key)
         if v is not None and len(v) != model.n:

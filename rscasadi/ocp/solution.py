@@ -120,9 +120,11 @@ def solution_arm(solution: dict) -> Arm:
     return Arm(with_values(model, {**solution.get("parameters", {}), **solution.get("design", {})}))
 
 
-def verify(solution: dict, substeps: int = 20, tol: float = 1e-10) -> dict:
+def verify(solution: dict, substeps: int = 20, tol: float = 1e-10, terms=()) -> dict:
     """Replay the torques on the complete model with CVODES, on a grid `substeps` times finer than
-    the collocation grid; report the final-state error and the largest limit violation anywhere."""
+    the collocation grid; report the final-state error and the largest limit violation anywhere,
+    and each of `terms` (the task's own, rscasadi.task.terms) as `term.<name>`: its replay
+    metric on every sample (a constraint's largest violation)."""
     arm = solution_arm(solution)
     n, t, tau = arm.n, np.asarray(solution["t"]), np.asarray(solution["tau"])
     x0 = np.concatenate([np.asarray(solution[k])[:, 0] for k in ("theta", "phi", "dtheta", "dphi")])
@@ -158,6 +160,10 @@ def verify(solution: dict, substeps: int = 20, tol: float = 1e-10) -> dict:
         gap = np.linalg.norm(where - path(sim["t"]), axis=1) if path.speed is not None else path.distance(where)
         report["path_error"] = float(gap.max())
         report["interval_path_error"] = gap[1:].reshape(len(t) - 1, substeps).max(axis=1).tolist()
+    if terms:
+        held = tau[:, np.maximum(np.arange(sim["x"].shape[1]) - 1, 0) // substeps]     # what led to each sample
+        for term in terms:
+            report[f"term.{term.name}"] = term.replay_metric(arm, sim["x"], held)
     report["max_collocation_deviation"] = float(np.max(np.abs(sim["theta"][:, ::substeps] - np.asarray(solution["theta"]))))
     report["interval_violation"] = per_interval.tolist()
     return report

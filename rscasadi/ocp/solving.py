@@ -245,6 +245,7 @@ def checks(problem: Problem, report: dict) -> list:
         tols.update(goal_position_error=problem.task.goal.position_tol, goal_angle_error=problem.task.goal.angle_tol)
     if problem.task.path is not None:
         tols.update(path_error=problem.task.path.tolerance)
+    tols.update({f"term.{t.name}": t.tolerance for t in problem.task.terms if t.constraint})
     failed = [f"{k} {report[k]:.2e} > {tol:g}" for k, tol in tols.items() if k in report and report[k] > tol]
     if report.get("min_clearance", np.inf) < -problem.verification.clearance_tol:
         failed.append(f"min_clearance {report['min_clearance']:.2e} m < -{problem.verification.clearance_tol:g}")
@@ -312,7 +313,7 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
             sol = dict(solve_once(problem, w, warm, log, print_level, WARM["ipopt"] if r else None))
         if fallback:
             sol["fallback_from"] = fallback                    # kept through the later rounds (IPOPT's)
-        report = verify(sol)
+        report = verify(sol, terms=problem.task.terms)
         failed = checks(problem, report)
         rounds.append({"round": r, "intervals": sol["intervals"], "solver": sol["solver"], "status": sol["status"],
                        "iterations": sol["iterations"], "solve_time_s": sol["solve_time_s"],

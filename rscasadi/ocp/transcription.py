@@ -38,11 +38,11 @@ import casadi as ca
 import numpy as np
 
 from rscasadi.dynamics.arm import Arm
-from rscasadi.dynamics.collision import clearances
 from rscasadi.model.parameters import gear_ratios
 from rscasadi.ocp.assembly import Calls, Piece, chain_rule_derivatives, constraints_and_objective
 from rscasadi.ocp.condensing import Condensed, condense
 from rscasadi.ocp.problem import Goal, Problem
+from rscasadi.task.terms import Clearance, objective_terms
 
 
 class Transcription:
@@ -80,9 +80,12 @@ class Transcription:
         self.dynamics = "implicit" if self.condensed else problem.transcription.dynamics
         self.tracking = problem.task.objective == "tracking"
         self.goal = problem.task.goal if self.tool_path is None else Goal(self.tool_path.frame, self.tool_path.end)
-        th = ca.SX.sym("theta", n)
-        self.clear = (ca.Function("clearance", [th], [clearances(arm.model, problem.task.obstacles, th)])
-                      if problem.task.obstacles else None)
+        # what the arm must do, as terms (rscasadi.task.terms): the objective's costs (with the
+        # power of effort_weight each weight takes), the problem's own, and the constraints
+        self.costs = objective_terms(problem.task.objective, n) + [(t, 0) for t in problem.task.terms if not t.constraint]
+        self.constraints = ([Clearance(problem.task.obstacles)] if problem.task.obstacles else []) + \
+            [t for t in problem.task.terms if t.constraint]
+        self.row_bounds = [t.bounds(self.arm) for t in self.constraints]
         self.acc_scale = self._acceleration_scale()
         # a family's NLP takes the acceleration scale as parameters too (it is the arm's): p_fixed
         # = (the fixed parameters, then the scale)
@@ -143,10 +146,10 @@ class Transcription:
         else:
             rest_lo = np.r_[np.zeros(3 * n + 3), [0.0, 0.0, 0.0, 1.0] if self.goal.R is not None else []]
             rest_hi = np.r_[np.zeros(3 * n + 3), [0.0, 0.0, 0.0, 3.0] if self.goal.R is not None else []]
-        c = self.clear.size1_out(0) if self.clear is not None else 0
+        ends = [b for t, b in zip(self.constraints, self.row_bounds) if t.at_end]
         s = np.zeros(self.ns)                                              # at the path's end: s_N = L
-        return (np.r_[rest_lo, s, -psi_max, -dphi_max, np.zeros(c)],
-                np.r_[rest_hi, s, psi_max, dphi_max, np.full(c, np.inf)])
+        return (np.concatenate([rest_lo, s, -psi_max, -dphi_max, *[lo for lo, _ in ends]]),
+                np.concatenate([rest_hi, s, psi_max, dphi_max, *[hi for _, hi in ends]]))
 
     def _pf(self, design, p_fixed):
         """The free parameters' values, in the order of Arm(free=design + fixed); None if none."""
@@ -176,11 +179,11 @@ class Transcription:
         return np.maximum(acc, 1e-3)
 
     def _stage_function(self) -> ca.Function:
-        """(x_k, u_k, w_k, P) -> (x_{k+1} target, path constraints, effort): SX, mapped over N."""
+        """(x_k, u_k, w_k, P) -> (x_{k+1} target, path constraints): SX, mapped over N."""
         x, u, w = ca.SX.sym("x", self.nx), ca.SX.sym("u", self.nu_lifted), ca.SX.sym("w")
         dur, pfix = ca.SX.sym("duration"), ca.SX.sym("p_fixed", self.n_pfix)
         return ca.Function("stage", [x, u, w, dur, pfix], self._stage(x, u, w, dur, pfix),
-                           ["x", "u", "w", "duration", "p_fixed"], ["x_next", "path", "effort"])
+                           ["x", "u", "w", "duration", "p_fixed"], ["x_next", "path"])
 
     def _stage(self, x, u, w, dur, pfix):
         """The stage's expressions (its model calls recorded if self.calls is a recorder)."""
@@ -207,10 +210,11 @@ class Transcription:
         limits = [q[n:] - q[:n], self._geared_speeds(v[n:], pf)]               # psi (geared dphi) at x_k
         for j in self.interior:                                                 # theta, psi, dphi inside
             limits += [Q[j][:n], Q[j][n:] - Q[j][:n], speed * V[j][n:]]
-        if self.clear is not None:                                              # clear of the obstacles
-            limits += [self.clear(q[:n])] + [self.clear(Q[j][:n]) for j in self.interior]
+        for term in self.constraints:                          # the task's rows at x_k [and inside]
+            points = [ca.vertcat(q, v)] + ([ca.vertcat(Q[j], V[j]) for j in self.interior] if term.inside else [])
+            limits += [term.expression(self.arm, xj, tau, ca.SX(0, 1)) for xj in points]
         arc_end = arc + h * u[n:n + self.ns]                                   # s_{k+1} = s_k + h ds_k
-        return [ca.vertcat(x_end, z, arc_end), ca.vertcat(*dynamics, *limits), h * ca.sumsqr(tau)]
+        return [ca.vertcat(x_end, z, arc_end), ca.vertcat(*dynamics, *limits)]
 
     # -- the NLP ----------------------------------------------------------------------------
     def parameter_layout(self):
@@ -238,14 +242,15 @@ class Transcription:
         timed = self.tool_path is not None and not self.ns
         args = [w, dur, pfix, ew, scale] + ([ref] if self.tracking else []) + ([target] if timed else [])
 
+        h = (x[4 * n] if self.nT else dur) * w
+        supplied = {"reference": ref, None: ca.SX(0, 1)}
+
         def pieces(stage):
-            x_next, path, effort = stage(x, u, w, dur, pfix)
-            if self.p.task.objective == "min_time":
-                f = ew * effort
-            elif self.p.task.objective == "min_effort":
-                f = effort
-            else:
-                f = dur * w * ca.sumsqr(x1[:n] - ref) / ca.fmax(ew, 1e-12) + effort
+            x_next, path = stage(x, u, w, dur, pfix)
+            # each cost term at the interval's end with the interval's torques, integrated
+            f = sum(h * _power(ew, power) * term.stage_weight
+                    * ca.sumsqr(term.expression(self.arm, x1[:4 * n], u[:n], supplied[term.parameter]))
+                    for term, power in self.costs)
             # fatrop's stage k may constrain x_k and u_k only: the path holds at x_k (the first
             # stage's rows are left free: theta_start is on the path), and the end's is the goal
             # (the timing free: at the path's point of its own arc length s_k)
@@ -277,7 +282,7 @@ class Transcription:
             rest += self.goal_rows(x[:n], theta) if goal_end else []
             rest += [x[self.nx - 1] - self.tool_path.length] if self.ns else []
             rows = rest + [x[n:2 * n] - x[:n], self._geared_speeds(x[3 * n:4 * n], pf)]
-            rows += [self.clear(x[:n])] if self.clear is not None else []
+            rows += [t.expression(self.arm, x[:4 * n], ca.SX.zeros(n), ca.SX(0, 1)) for t in self.constraints if t.at_end]
             f = ca.SX(0)
         else:
             rows = [self.rest_residual(x, theta, pf)] + ([x[self.nx - 1]] if self.ns else [])     # s_0 = 0
@@ -359,9 +364,9 @@ class Transcription:
         eq = np.zeros(self.nx + (0 if self.condensed else 2 * n * self.m))
         lo = [eq, -psi, -dphi[self.geared]] + [np.r_[lo_th, -psi, -dphi]] * len(self.interior)
         hi = [eq, psi, dphi[self.geared]] + [np.r_[hi_th, psi, dphi]] * len(self.interior)
-        if self.clear is not None:                                     # clearance >= 0 at x_k and inside
-            c = self.clear.size1_out(0) * (1 + len(self.interior))
-            lo, hi = lo + [np.zeros(c)], hi + [np.full(c, np.inf)]
+        for term, (t_lo, t_hi) in zip(self.constraints, self.row_bounds):   # at x_k [and inside]
+            times = 1 + (len(self.interior) if term.inside else 0)
+            lo, hi = lo + [np.tile(t_lo, times)], hi + [np.tile(t_hi, times)]
         if self.tool_path:           # near the path at x_k: a box of half the tolerance (an equality
             b = 0.5 * self.tool_path.tolerance / np.sqrt(3)           # would over-determine a 3-joint arm)
             lo, hi = lo + [np.full(3, -b)], hi + [np.full(3, b)]
@@ -439,6 +444,11 @@ class Transcription:
         return {"Xs": X[:4 * n], "U": body[self.nx:self.nx + n], "acc": acc,
                 "T": float(z[0]) if self.nT else None, "design": z[self.nT:],
                 "arc": X[self.nx - 1] if self.ns else None}
+
+
+def _power(ew, power: int):
+    """effort_weight to the power a cost term's weight takes (1/ew kept finite at ew = 0)."""
+    return 1 if power == 0 else ew ** power if power > 0 else ca.fmax(ew, 1e-12) ** power
 
 
 def butcher(c):

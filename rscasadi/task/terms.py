@@ -22,11 +22,15 @@ A term a user adds (docs/user-guide/problems.md, "Terms"): subclass `Term`, set 
 """
 from __future__ import annotations
 
+from typing import Callable
+
 import casadi as ca
 import numpy as np
 
 from rscasadi.dynamics.collision import clearances, exact_clearance
 from rscasadi.errors import InvalidArgument
+
+PENALTY = 1e8       # a constraint's penalty weight in the MPC, unless the term gives its own
 
 
 class Term:
@@ -34,7 +38,8 @@ class Term:
     attributes and write `expression`; a constraint writes `bounds` too."""
     name: str = "term"
     constraint: bool = False          # a cost (residual) if False
-    weight: float = 1.0               # a cost's weight; a constraint's penalty weight in the MPC
+    weight: float | None = None       # a cost's weight (None: 1); a constraint's penalty weight in
+                                      # the MPC (None: PENALTY, the obstacles' default)
     inside: bool = True               # OCP: a constraint also at the collocation points
     at_end: bool = True               # OCP: a constraint also at the last node (u = 0 there)
     tolerance: float = 1e-3           # a constraint's largest violation on the replay
@@ -64,11 +69,17 @@ class Term:
             lo, hi = (np.asarray(b, float).ravel() for b in self.bounds(arm))
             if lo.shape != (r.shape[0],) or hi.shape != (r.shape[0],) or np.any(lo > hi) or np.any(np.isnan(lo + hi)):
                 raise InvalidArgument(f"term {self.name!r}: bounds must be {r.shape[0]} pairs with lower <= upper")
-        if not (isinstance(self.weight, (int, float)) and np.isfinite(self.weight) and self.weight >= 0):
+        if self.weight is not None and not (isinstance(self.weight, (int, float)) and np.isfinite(self.weight)
+                                            and self.weight >= 0):
             raise InvalidArgument(f"term {self.name!r}: weight must be a number >= 0, got {self.weight!r}")
         return self
 
     # -- derived: one definition for every user of a term -----------------------------------
+    @property
+    def stage_weight(self) -> float:
+        """The weight in use: `weight`, else 1 for a cost and PENALTY for a constraint."""
+        return self.weight if self.weight is not None else PENALTY if self.constraint else 1.0
+
     def function(self, arm) -> ca.Function:
         """(x, u, p) -> the expression, as a Function named after the term."""
         n = arm.n
@@ -90,7 +101,7 @@ class Term:
     def penalty_residual(self, arm, x, u, p):
         """The MPC's residual of the term: sqrt(weight) r (a cost) or sqrt(weight) excess."""
         part = self.excess(arm, x, u, p) if self.constraint else self.expression(arm, x, u, p)
-        return np.sqrt(self.weight) * part
+        return np.sqrt(self.stage_weight) * part
 
     def replay_metric(self, arm, X, U) -> float:
         """On replayed samples X (4n x K) with the torques U (n x K): a constraint's largest
@@ -99,7 +110,7 @@ class Term:
         n = arm.n
         x, u = ca.SX.sym("x", 4 * n), ca.SX.sym("u", n)
         p = ca.SX.zeros(self.n_p)
-        out = self.excess(arm, x, u, p) if self.constraint else self.weight * ca.sumsqr(self.expression(arm, x, u, p))
+        out = self.excess(arm, x, u, p) if self.constraint else self.stage_weight * ca.sumsqr(self.expression(arm, x, u, p))
         f = ca.Function("metric", [x, u], [ca.fabs(out) if self.constraint else out])
         values = np.array(f.map(X.shape[1])(X, U))
         return float(values.max(initial=0.0)) if self.constraint else float(values.mean())
@@ -229,7 +240,7 @@ class Clearance(Term):
     name = "clearance"
     constraint = True
 
-    def __init__(self, obstacles, weight: float = 1.0, tolerance: float = 1e-4):
+    def __init__(self, obstacles, weight: float | None = None, tolerance: float = 1e-4):
         self.obstacles, self.weight, self.tolerance = tuple(obstacles), weight, tolerance
 
     def expression(self, arm, x, u, p):
@@ -243,3 +254,18 @@ class Clearance(Term):
         """The largest intrusion into the margin, by the exact clearance (m; 0 when clear)."""
         gap = np.array(exact_clearance(arm.model, self.obstacles).map(X.shape[1])(X[:arm.n])).ravel()
         return float(max(-gap.min(), 0.0))
+
+
+# the objectives a problem file names, as cost terms, each with the power of the problem's
+# effort_weight (an NLP parameter, so a sweep over it reuses the compiled NLP) its weight takes
+OBJECTIVES: dict[str, Callable[[int], list]] = {
+    "min_time": lambda n: [(Effort(), 1)],                                # and the duration itself
+    "min_effort": lambda n: [(Effort(), 0)],
+    "tracking": lambda n: [(JointTracking(n), -1), (Effort(), 0)]}
+
+
+def objective_terms(objective: str, n: int) -> list:
+    """The cost terms of a problem file's `objective` on an n-joint arm: (term, power of
+    effort_weight in its weight) pairs.  min_time adds the duration, which the transcription
+    carries as a variable; tracking's term takes the reference angles."""
+    return OBJECTIVES[objective](n)
