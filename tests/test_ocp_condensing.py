@@ -171,3 +171,49 @@ def test_a_family_nlp_serves_another_arm_of_the_family_without_compiling(tmp_pat
         assert np.allclose(fam["tau"], plain["tau"], rtol=0, atol=1e-5 * np.abs(plain["tau"]).max())
     assert not any(m.startswith("compiling the") for m in log), log      # the second arm compiled nothing
     assert abs(plain["objective"] - solve_once(base, **QUIET)["objective"]) > 1e-4     # a different arm
+
+
+CASADI_QUIET = '#pragma GCC diagnostic push\n#pragma GCC diagnostic ignored "-Wunused-parameter"\n'
+
+
+def _strict_compile(casadi_part: str, ours: str, where):
+    """Our C (a template filled in) under -Wall -Wextra -Werror; CasADi's generated functions before
+    it keep their unused parameters."""
+    from rscasadi.native.build import compiler
+    source = where / "kernel.c"
+    source.write_text(CASADI_QUIET + casadi_part + "#pragma GCC diagnostic pop\n" + ours)
+    import subprocess
+    run = subprocess.run([*compiler(), "-c", "-O1", "-Wall", "-Wextra", "-Werror", str(source), "-o",
+                          str(where / "kernel.o")], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr[-3000:]
+
+
+@pytest.mark.parametrize("name", ["ocp_min_time", "ocp_tracking"])
+def test_the_condensing_kernel_compiles_without_warnings(name, monkeypatch, tmp_path):
+    """templates/condensing_kernel.c as filled in for a problem, with every warning an error."""
+    import rscasadi.ocp.condensing as condensing
+    built = {}
+
+    class Built(Exception):
+        pass
+
+    def capture(sources, *args, **kwargs):           # the source, not the library: compiled below
+        built.update(sources)
+        raise Built
+    monkeypatch.setattr(condensing, "cached_library", capture)
+    base = load_problem(REFERENCE.parent / f"{name}.toml").replace(intervals=3)
+    with pytest.raises(Built):
+        Transcription(base, Arm(read(base.task.model)), N=3).nlp(log=lambda m: None)
+    (source,) = built.values()
+    at = source.index("/* condensed collocation kernel")
+    _strict_compile(source[:at], source[at:], tmp_path)
+
+
+@pytest.mark.parametrize("parametric", [False, True])
+def test_the_step_kernel_compiles_without_warnings(parametric, tmp_path):
+    """templates/step_kernel.c as filled in for an arm (the reference arm: the template's C is
+    the same for every arm, the unrolled blocks follow its patterns), every warning an error."""
+    from rscasadi.codegen.step_kernel import kernel_source
+    from rscasadi.native.build import casadi_c
+    kernel = kernel_source(Arm(read(REFERENCE)), "arm_step_jacobian", parametric)
+    _strict_compile(casadi_c(kernel.functions, "kernel.c"), kernel.body, tmp_path)

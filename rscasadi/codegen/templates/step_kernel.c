@@ -1,0 +1,123 @@
+/* The structured step-Jacobian kernel (rscasadi/codegen/step_kernel.py): @NAME@ its public symbol,
+   @CONSTS@ its sizes, @BLOCKS@ the unrolled stage for the arm's sparsity patterns. */
+/* ---- rscasadi: @NAME@, the structured step Jacobian (rscasadi/codegen/step_kernel.py) ---- */
+#include <stdint.h>
+@CONSTS@
+/* gcc turns the block loops below into memset and memcpy calls, which keep t out of the registers */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC optimize ("no-tree-loop-distribute-patterns")
+#endif
+/* X[0 .. W) = t */
+#define RSK_ST(X, t, W) { casadi_real *x_ = (X); int c_; for (c_ = 0; c_ < (W); ++c_) x_[c_] = t[c_]; }
+/* t += v X[0 .. W) */
+#define RSK_AX(t, v, X, W) { const casadi_real v_ = (v), *x_ = (X); int c_; for (c_ = 0; c_ < (W); ++c_) t[c_] += v_ * x_[c_]; }
+
+/* B = M^-1 ([-dr/dx | dQ/dtau] - s dr/dx [S; B1]), S = [0 1 0] + s2 B2 (B1, B2 NULL at the first
+   stage, B2 NULL at the second), all stored by rows RSK_NP apart; jr holds the nonzeros of dr/dx' 4 apart
+   (as the lanes left them).  L z = y is solved in place (z's row r in B's row perm[r], overwritten
+   by L' x = z / d from the last row up: no scratch matrix).  Blocks of up to RSK_BK columns are
+   independent: each goes through dr/dx's product, L and L' (their sparsity unrolled below, one
+   block after the other) while it sits in the first-level cache. */
+static void rsk_stage(const casadi_real *jr, const casadi_real *d, const casadi_real *lt, const casadi_real *l,
+                      const casadi_real *mu, const casadi_real *B1, const casadi_real *B2, casadi_real s,
+                      casadi_real s2, casadi_real *B) {
+  const casadi_real ms = -s, mss = -s * s2;
+  casadi_real t[RSK_BK], inv[RSK_NV];
+  int r, c;
+  for (r = 0; r < RSK_NV; ++r) inv[r] = 1.0 / d[r];
+@BLOCKS@
+}
+
+int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  static const casadi_real c[4] = {0.0, 0.5, 0.5, 1.0};
+  const casadi_real *x = arg[0], *tau = arg[1], h = arg[2] ? arg[2][0] : 0.0;
+  const casadi_real **parg = arg + RSK_NIN, *jarg[3];
+  casadi_real **pres = res + 2, *jres[1];
+  /* stage point i: xi and a (the current one), X4 and A4 (all four, interleaved for the lanes:
+     [4 r + i]), the factors D, LT, L (all four); JR4 dr/dx' at the four points, interleaved */
+  casadi_real *xi = w + RSK_PT_W, *X4 = xi + RSK_NX, *A4 = X4 + 4 * RSK_NX, *kp = A4 + 4 * RSK_NV;
+  casadi_real *a = kp + RSK_NX, *D = a + RSK_NV, *LT = D + 4 * RSK_NV, *L = LT + 4 * RSK_NLT;
+  casadi_real *mu = L + 4 * RSK_NLT, *JR4 = mu + RSK_N;
+  /* the row-stored matrices on a cache line: their rows (RSK_NP apart) then start on whole vectors
+     (n = 12: the offset the point's work size left ran 6 % slower, interleaved A/B) */
+  casadi_real *Bs = (casadi_real *)(((uintptr_t)(JR4 + 4 * RSK_NJR) + 63) & ~(uintptr_t)63);
+  int i, r, cc;
+  (void)mem;
+  for (i = 0; i < 4; ++i) {                 /* the stage points: forward dynamics and M's factors */
+    for (r = 0; r < RSK_NX; ++r) xi[r] = (x ? x[r] : 0.0) + (i ? c[i] * h * kp[r] : 0.0);
+    parg[0] = xi; parg[1] = tau;
+    if (RSK_NPAR) parg[2] = arg[3];
+    pres[0] = a; pres[1] = D + i * RSK_NV; pres[2] = LT + i * RSK_NLT; pres[3] = L + i * RSK_NLT; pres[4] = mu;
+    if (RSK_FD(parg, pres, iw, w, 0)) return 1;
+    for (r = 0; r < RSK_NV; ++r) { kp[r] = xi[RSK_NV + r]; kp[RSK_NV + r] = a[r]; }
+    for (r = 0; r < RSK_NX; ++r) X4[4 * r + i] = xi[r];
+    for (r = 0; r < RSK_NV; ++r) A4[4 * r + i] = a[r];
+  }
+  jarg[0] = X4; jarg[1] = A4; jarg[2] = RSK_NPAR ? arg[3] : 0; jres[0] = JR4;
+  rsk_jr4(jarg, jres);                      /* dr/dx' at the four points at once */
+  for (i = 0; i < 4; ++i) {
+    casadi_real *Bi = Bs + i * RSK_NV * RSK_NP;
+    rsk_stage(JR4 + i, D + i * RSK_NV, LT + i * RSK_NLT, L + i * RSK_NLT, mu, i ? Bi - RSK_NV * RSK_NP : 0,
+              i > 1 ? Bi - 2 * RSK_NV * RSK_NP : 0, c[i] * h, i ? c[i - 1] * h : 0.0, Bi);
+  }
+  {                              /* the sums, stored by columns as CasADi stores A and B: read once
+                                    by rows, no intermediate matrix (2 % faster at n = 12) */
+    const casadi_real *B1 = Bs, *B2 = Bs + RSK_NV * RSK_NP, *B3 = Bs + 2 * RSK_NV * RSK_NP, *B4 = Bs + 3 * RSK_NV * RSK_NP;
+    const casadi_real h2 = h * h / 6, h6 = h / 6;
+    for (r = 0; r < RSK_NV; ++r) {
+      const casadi_real *b1 = B1 + r * RSK_NP, *b2 = B2 + r * RSK_NP, *b3 = B3 + r * RSK_NP, *b4 = B4 + r * RSK_NP;
+      if (res[0])
+        for (cc = 0; cc < RSK_NX; ++cc) {
+          const casadi_real b23 = b2[cc] + b3[cc];
+          res[0][cc * RSK_NX + r] = h2 * (b1[cc] + b23);
+          res[0][cc * RSK_NX + RSK_NV + r] = h6 * (b1[cc] + 2 * b23 + b4[cc]);
+        }
+      if (res[1])
+        for (cc = RSK_NX; cc < RSK_NC; ++cc) {
+          const casadi_real b23 = b2[cc] + b3[cc];
+          res[1][(cc - RSK_NX) * RSK_NX + r] = h2 * (b1[cc] + b23);
+          res[1][(cc - RSK_NX) * RSK_NX + RSK_NV + r] = h6 * (b1[cc] + 2 * b23 + b4[cc]);
+        }
+    }
+    if (res[0])
+      for (r = 0; r < RSK_NV; ++r) {        /* [1 0] + h [0 1; 0 0] */
+        res[0][r * RSK_NX + r] += 1; res[0][(RSK_NV + r) * RSK_NX + r] += h; res[0][(RSK_NV + r) * RSK_NX + RSK_NV + r] += 1;
+      }
+  }
+  return 0;
+}
+
+static const casadi_int rsk_sp_x[3] = {RSK_NX, 1, 1}, rsk_sp_tau[3] = {RSK_N, 1, 1}, rsk_sp_h[3] = {1, 1, 1};
+static const casadi_int rsk_sp_p[3] = {RSK_NPAR, 1, 1};
+static const casadi_int rsk_sp_A[3] = {RSK_NX, RSK_NX, 1}, rsk_sp_B[3] = {RSK_NX, RSK_N, 1};
+int @NAME@_checkout(void) { return 0; }
+void @NAME@_release(int mem) { (void)mem; }
+void @NAME@_incref(void) {}
+void @NAME@_decref(void) {}
+casadi_int @NAME@_n_in(void) { return RSK_NIN; }
+casadi_int @NAME@_n_out(void) { return 2; }
+casadi_real @NAME@_default_in(casadi_int i) { (void)i; return 0.0; }
+const char* @NAME@_name_in(casadi_int i) {
+  switch (i) { case 0: return "x"; case 1: return "tau"; case 2: return "h"; case 3: return RSK_NPAR ? "p" : 0; default: return 0; }
+}
+const char* @NAME@_name_out(casadi_int i) { switch (i) { case 0: return "A"; case 1: return "B"; default: return 0; } }
+const casadi_int* @NAME@_sparsity_in(casadi_int i) {
+  switch (i) { case 0: return rsk_sp_x; case 1: return rsk_sp_tau; case 2: return rsk_sp_h; case 3: return RSK_NPAR ? rsk_sp_p : 0; default: return 0; }
+}
+const casadi_int* @NAME@_sparsity_out(casadi_int i) { switch (i) { case 0: return rsk_sp_A; case 1: return rsk_sp_B; default: return 0; } }
+int @NAME@_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = RSK_NIN + RSK_PT_ARG;
+  if (sz_res) *sz_res = 2 + RSK_PT_RES;
+  if (sz_iw) *sz_iw = RSK_PT_IW;
+  if (sz_w) *sz_w = RSK_PT_W + 6 * RSK_NX + 9 * RSK_NV + 8 * RSK_NLT + RSK_N + 4 * RSK_NJR + 8
+                   + 4 * RSK_NV * RSK_NP;
+  return 0;
+}
+int @NAME@_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  @NAME@_work(sz_arg, sz_res, sz_iw, sz_w);
+  if (sz_arg) *sz_arg *= sizeof(void*);
+  if (sz_res) *sz_res *= sizeof(void*);
+  if (sz_iw) *sz_iw *= sizeof(casadi_int);
+  if (sz_w) *sz_w *= sizeof(casadi_real);
+  return 0;
+}
