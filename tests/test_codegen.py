@@ -100,14 +100,14 @@ def test_prefix_and_unbalanced_arm(tmp_path):
     c, arm = rscasadi.load_compiled(tmp_path / "p"), rscasadi.load(path)
     x = [rng.normal(size=2) for _ in range(4)]
     assert rel(np.array(c["energy"](*x)), np.array(arm.energy()(*x))) < 1e-12
-    header = (tmp_path / "p" / manifest["header"]).read_text()
-    assert "int my_arm_forward_dynamics(" in header
+    header = "".join((tmp_path / "p" / h).read_text() for h in manifest["headers"])
+    assert "int my_arm_forward_dynamics(" in header and manifest["headers"][0] == manifest["header"]
 
 
 @pytest.mark.parametrize("which", ["reference arm", "kernel"])
 def test_no_malloc_and_no_mutable_globals(built, kernel_built, which):
     out, manifest = built if which == "reference arm" else kernel_built[1:]
-    for name in manifest["sources"] + [manifest["header"]]:
+    for name in manifest["sources"] + manifest["headers"]:
         text = (out / name).read_text()
         assert not re.search(r"\b(malloc|calloc|realloc|free)\s*\(", text), name
         for line in text.splitlines():
@@ -200,7 +200,7 @@ def test_hostile_names_never_reach_c(tmp_path):
     path.write_text(to_toml(doc))
     assert rscasadi.load(path).model.name == evil
     manifest = generate(path, tmp_path / "out", opt="-O1", log=lambda m: None)
-    for name in manifest["sources"] + [manifest["header"]]:
+    for name in manifest["sources"] + manifest["headers"]:
         text = (tmp_path / "out" / name).read_text()
         assert "rm -rf" not in text and "reboot" not in text and "#include <stdio.h> //" not in text
     with pytest.raises(CodegenError, match="not a C identifier"):
@@ -427,7 +427,7 @@ def test_frame_names_reach_c_only_as_identifiers(tmp_path, capsys):
                      "tool_1": {"parent": "elbow_pitch"}, "9lives": {"parent": "base"}}
     path = write_arm(tmp_path, doc, "hostile.toml")
     manifest = generate(path, tmp_path / "ok", opt="-O1", log=lambda m: None, frames=['tool"; system("id"); /*'])
-    header = (tmp_path / "ok" / manifest["header"]).read_text()
+    header = "".join((tmp_path / "ok" / h).read_text() for h in manifest["headers"])
     assert "frame_placement_tool_system_id(" in header and "system(\"" not in header
     for frames, words in ((["tool-1", "tool_1"], "not distinct"), (["9lives"], "C identifier"), (["nope"], "no frame")):
         with pytest.raises(rscasadi.CodegenError, match=words):

@@ -30,7 +30,8 @@ from rscasadi.native.loader import CompiledController, ControllerError
 from rscasadi.errors import InvalidArgument
 
 LIBRARY = "librscasadi_arm.so"
-HEADER = "rscasadi_arm.h"
+HEADER = "rscasadi_arm.h"                  # ours (templates/), including CasADi's:
+CASADI_HEADER = "rscasadi_arm_functions.h"
 
 
 class CodegenError(BuildError, OutputError):
@@ -261,11 +262,14 @@ def arm_macros(arm: Arm, prefix: str) -> str:
             "N m; 0: none */\n\n")
 
 
-def _declare(header: Path, declarations: list):
-    """Add the kernels' declarations to CasADi's header, inside its extern "C" block."""
-    text = header.read_text()
-    end = text.rindex("#ifdef __cplusplus")
-    header.write_text(text[:end] + "".join(declarations) + text[end:])
+def arm_header(arm: Arm, prefix: str, declarations: list) -> str:
+    """The library's header (templates/rscasadi_arm.h): CasADi's declarations included, the arm's
+    macros (arm_macros) and the structured kernels' `declarations`."""
+    from string import Template
+    return Template((TEMPLATES / HEADER).read_text()).substitute(
+        model=safe_name(Path(str(arm.model.path)).name), GUARD=f"{prefix.upper()}_RSCASADI_ARM_H" if prefix
+        else "RSCASADI_ARM_H", casadi_header=CASADI_HEADER, macros=arm_macros(arm, prefix),
+        declarations="".join(declarations))
 
 
 def _io(f: ca.Function, out: bool):
@@ -307,7 +311,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
     flags = [opt, "-std=c99"] + (native_flags() if native else [])
     with fresh_directory(out) as tmp:
         fns, omitted = functions(arm, prefix, bool(parametric), frames, external)
-        header_gen = ca.CodeGenerator(HEADER.removesuffix(".h"), {"with_header": True})
+        header_gen = ca.CodeGenerator(CASADI_HEADER.removesuffix(".h"), {"with_header": True})
         sources = []
         kernels = {}                                # name -> (point Function, C body, declarations)
         for name, f in fns.items():
@@ -325,14 +329,14 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
                 with open(sources[-1], "a") as fh:
                     fh.write(kernels[name].body)
         header_gen.generate(str(tmp) + os.sep)
-        (tmp / f"{HEADER.removesuffix('.h')}.c").unlink()        # only its header is used
-        _declare(tmp / HEADER, [arm_macros(arm, prefix)] + [k.header for k in kernels.values()])
+        (tmp / f"{CASADI_HEADER.removesuffix('.h')}.c").unlink()        # only its header is used
+        (tmp / HEADER).write_text(arm_header(arm, prefix, [k.header for k in kernels.values()]))
         texts = {src.name: src.read_text() for src in sources}
         if not parametric:                          # the feedforward as a guarded controller
             controller = feedforward_controller(arm, fns, prefix)
             for name, text in controller.items():
                 (tmp / name).write_text(text)
-            texts.update(controller, **{HEADER: (tmp / HEADER).read_text()})
+            texts.update(controller, **{name: (tmp / name).read_text() for name in (HEADER, CASADI_HEADER)})
         try:
             lib = cached_library(texts, flags, name="arm", what=f"{len(sources)} sources", log=log, cc=cc,
                                  log_hit=True)
@@ -342,6 +346,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
         manifest = {
             "model": str(getattr(arm.model, "path", "")),
             "header": HEADER,
+            "headers": [HEADER, CASADI_HEADER],       # the one to include, and CasADi's, which it includes
             "sources": [s.name for s in sources] + ([FEEDFORWARD + ".c"] if not parametric else []),
             "controllers": {"feedforward": {"header": FEEDFORWARD + ".h", "type": f"{prefix + '_' if prefix else ''}ff_t",
                                             "init": f"{prefix + '_' if prefix else ''}ff_init",
