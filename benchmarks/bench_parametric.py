@@ -43,7 +43,7 @@ def main():
         for kind in KINDS:
             out = work / f"n{n}_{kind}"
             print(f"n = {n}: generating the {kind} C ...", flush=True)
-            manifest = generate(arm, out, log=lambda m: None, native=True, parametric=kind != "constant" and kind)
+            manifest = generate(arm, out, log=lambda m: None, native=True, parametric="none" if kind == "constant" else kind)
             libs[n, kind] = (out / manifest["library"], [f for f in FUNCTIONS if f in manifest["functions"]])
     runs = {key: [] for key in libs}
     for _ in range(ROUNDS):

@@ -266,7 +266,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="directory for the sources, header, library and manifest.json")
     p.add_argument("--prefix", default=None, type=c_identifier, help="C identifier put before every function name (P_name)")
     p.add_argument("--opt", default="-O3", type=opt_flag, help="optimisation flag (default -O3)")
-    p.add_argument("--parametric", nargs="?", const="all", default=False, choices=("all", "family"),
+    p.add_argument("--parametric", nargs="?", const="all", default="none", choices=("none", "all", "family"),
                    help="every function takes the parameter vector p last (names in manifest.json): one library "
                         "for every arm with these joints, no recompilation when a number changes; 'family': p "
                         "without the parameters that are zero in this model (folded, near the constant C's speed)")

@@ -175,7 +175,7 @@ def test_parametric_step_jacobian_kernel_takes_the_parameters(tmp_path):
     """The parametric kernel at parameters 10 % off the file's equals AD of the symbolic step
     at the same parameters, and differs from it at the file's."""
     arm = rscasadi.load(write_arm(tmp_path, random_arm_doc(np.random.default_rng(11), 4, balanced=True)))
-    manifest = generate(arm, tmp_path / "gen", opt="-O1", log=lambda m: None, parametric=True)
+    manifest = generate(arm, tmp_path / "gen", opt="-O1", log=lambda m: None, parametric="all")
     assert "step_jacobian" in manifest["kernels"]
     lib = rscasadi.load_compiled(tmp_path / "gen")
     n, (_, nominal) = arm.n, arm.parameters()
@@ -249,9 +249,9 @@ def test_parametric_library_serves_every_arm_with_the_same_joints(tmp_path, arm3
     with open(REFERENCE, "rb") as fh:
         doc = tomllib.load(fh)
     other = _other_arm(tmp_path, doc, np.random.default_rng(17), balanced=True)
-    m_a = generate(REFERENCE, tmp_path / "a", opt="-O1", log=lambda m: None, parametric=True)
+    m_a = generate(REFERENCE, tmp_path / "a", opt="-O1", log=lambda m: None, parametric="all")
     log = []
-    m_b = generate(other, tmp_path / "b", opt="-O1", log=log.append, parametric=True)
+    m_b = generate(other, tmp_path / "b", opt="-O1", log=log.append, parametric="all")
     assert m_a["source_hash"] == m_b["source_hash"] and any("cache hit" in m for m in log)
     assert m_a["parameters"]["names"] == arm3.parameters()[0]
     assert [i["name"] for i in m_a["functions"]["step"]["inputs"]] == ["x", "tau", "h", "p"]
@@ -321,8 +321,9 @@ def test_family_library_folds_the_zeros_and_serves_every_arm_with_them(tmp_path,
     unbalanced["joints"][2]["fast_rotor"]["inertia"][1] *= 1.1            # Iyy != Ixx
     with pytest.raises(ValueError, match="elbow_pitch.fast_rotor.Iyy"):
         lib.parameters_of(rscasadi.load(write_arm(tmp_path, unbalanced, "unbalanced.toml")))
-    with pytest.raises(CodegenError, match="parametric"):
-        generate(REFERENCE, tmp_path / "c", parametric="some")
+    for wrong in ("some", True):                           # one type: none, all or family
+        with pytest.raises(CodegenError, match="parametric .* not one of none, all, family"):
+            generate(REFERENCE, tmp_path / "c", parametric=wrong)
 
 
 def test_compiled_feedforward_equals_the_pipeline_over_the_paper_trajectory(built, arm3):

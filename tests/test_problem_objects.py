@@ -141,3 +141,15 @@ def test_a_goal_in_python_as_the_file_writes_it():
     g = Goal.from_rpy("tool", [0.5, 0.0, 0.3], [0.1, -0.2, 0.3], position_tol=2e-3)
     assert np.array_equal(g.R, rpy_matrix(np.array([0.1, -0.2, 0.3]))) and g.position_tol == 2e-3
     assert Goal.from_rpy("tool", [0.5, 0.0, 0.3]).R is None
+
+
+@pytest.mark.parametrize("value", ["all", True, "family "])
+def test_parametric_is_one_option_of_one_type(value):
+    """The problems take model.parameters.PROBLEM_PARAMETRIC ("none", "family"): the strings the
+    generated libraries take ("all" too), never a bool; the field is named."""
+    task = Task(PROBLEMS / "arm3.toml", "min_effort", duration=1.5, theta_start=[0.0, 0.3, -0.5],
+                theta_end=[0.8, 0.9, -1.2])
+    with pytest.raises(ModelFileError, match="'transcription.parametric': must be one of none, family"):
+        Problem(task, TranscriptionOptions(parametric=value)).check()
+    with pytest.raises(ModelFileError, match="'parametric': must be one of none, family"):
+        MPCProblem(PROBLEMS / "arm3.toml", trajectory=PROBLEMS / "trajectory_arm3.toml", parametric=value).check()

@@ -18,7 +18,7 @@ import numpy as np
 
 from rscasadi.dynamics.feedforward import feedforward_functions
 from rscasadi.dynamics.arm import Arm, load
-from rscasadi.model.parameters import tied_balanced
+from rscasadi.model.parameters import PARAMETRIC, tied_balanced
 from rscasadi.dynamics.kinematics import REFERENCES
 from rscasadi.model.parameters import gear_ratios
 from rscasadi.model.checks import identifier
@@ -280,14 +280,14 @@ def _io(f: ca.Function, out: bool):
 
 
 
-def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print, parametric: bool | str = False,
+def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print, parametric: str = "none",
              native: bool = False, frames=(), external=()) -> dict:
     """Write C sources, one header, one shared library and manifest.json into `out`.
-    parametric: every function takes the parameter vector p (manifest "parameters") last, so
-    one library serves every arm with the same joints, axes, gear ratios and eps (True or
-    "all"); "family": p holds only the parameters not zero in this model, the
-    zeros are folded: every arm with the same zeros, at about the constant C's speed
-    (Compiled.parameters_of checks an arm against it).
+    parametric (model.parameters.PARAMETRIC): "none", the model's numbers in the C; "all", every
+    function takes the parameter vector p (manifest "parameters") last, so one library serves
+    every arm with the same joints, axes, gear ratios and eps; "family": p holds only the
+    parameters not zero in this model, the zeros are folded: every arm with the same zeros, at
+    about the constant C's speed (Compiled.parameters_of checks an arm against it).
     native: compile for this machine's processor (native_flags()); the sources stay portable C99.
     frames, external: frame names whose kinematics, and at which wrenches, the library gets
     (frame_functions); a frame's name enters C only as a C identifier (model.checks.identifier)."""
@@ -297,8 +297,8 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
     if opt not in OPT_LEVELS:
         raise CodegenError(f"optimisation flag {opt!r} not one of {' '.join(OPT_LEVELS)}")
     arm = model if isinstance(model, Arm) else load(model)
-    if parametric not in (False, True, "all", "family"):
-        raise CodegenError(f"parametric {parametric!r} not one of all, family")
+    if isinstance(parametric, bool) or parametric not in PARAMETRIC:
+        raise CodegenError(f"parametric {parametric!r} not one of {', '.join(PARAMETRIC)}")
     if parametric == "family":
         arm = Arm.family(arm.model)
     frames, external = list(frames), list(external)
@@ -310,14 +310,15 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
         raise CodegenError(str(exc)) from None
     flags = [opt, "-std=c99"] + (native_flags() if native else [])
     with fresh_directory(out) as tmp:
-        fns, omitted = functions(arm, prefix, bool(parametric), frames, external)
+        takes_p = parametric != "none"
+        fns, omitted = functions(arm, prefix, takes_p, frames, external)
         header_gen = ca.CodeGenerator(CASADI_HEADER.removesuffix(".h"), {"with_header": True})
         sources = []
         kernels = {}                                # name -> (point Function, C body, declarations)
         for name, f in fns.items():
             gen = ca.CodeGenerator(f"{f.name()}.c", {"with_header": False})
             if name == "step_jacobian" and not f.is_a("SXFunction"):   # past straight-line SX: the C kernel
-                kernels[name] = kernel_source(arm, f.name(), bool(parametric))
+                kernels[name] = kernel_source(arm, f.name(), takes_p)
                 for g in kernels[name].functions:
                     gen.add(g)
             else:
@@ -332,7 +333,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
         (tmp / f"{CASADI_HEADER.removesuffix('.h')}.c").unlink()        # only its header is used
         (tmp / HEADER).write_text(arm_header(arm, prefix, [k.header for k in kernels.values()]))
         texts = {src.name: src.read_text() for src in sources}
-        if not parametric:                          # the feedforward as a guarded controller
+        if not takes_p:                             # the feedforward as a guarded controller
             controller = feedforward_controller(arm, fns, prefix)
             for name, text in controller.items():
                 (tmp / name).write_text(text)
@@ -347,10 +348,10 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
             "model": str(getattr(arm.model, "path", "")),
             "header": HEADER,
             "headers": [HEADER, CASADI_HEADER],       # the one to include, and CasADi's, which it includes
-            "sources": [s.name for s in sources] + ([FEEDFORWARD + ".c"] if not parametric else []),
+            "sources": [s.name for s in sources] + ([FEEDFORWARD + ".c"] if not takes_p else []),
             "controllers": {"feedforward": {"header": FEEDFORWARD + ".h", "type": f"{prefix + '_' if prefix else ''}ff_t",
                                             "init": f"{prefix + '_' if prefix else ''}ff_init",
-                                            "step": f"{prefix + '_' if prefix else ''}ff_step"}} if not parametric else {},
+                                            "step": f"{prefix + '_' if prefix else ''}ff_step"}} if not takes_p else {},
             "library": LIBRARY,
             "functions": {name: {"symbol": f.name(), "inputs": _io(f, False), "outputs": _io(f, True),
                                  "n_instructions": kernels[name].n_instructions if name in kernels else f.n_instructions()}
@@ -359,11 +360,11 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
                               "point (forward dynamics and M's factors, then dr/dx, which it evaluates at "
                               "the four points at once)" for name in kernels},
             "omitted": omitted,
-            "parametric": "all" if parametric is True else parametric,
+            "parametric": parametric,
             "frames": {name: identifier(name) for name in frames},
             "external": {"frames": external, "wrench": "[force; moment] at the frame's origin, world axes"}
                         if external else None,
-            "parameters": _parameters(arm) if parametric else None,
+            "parameters": _parameters(arm) if takes_p else None,
             "prefix": prefix,
             "compiler": cc + flags,
             "source_hash": lib.stem.rsplit("_", 1)[1],

@@ -28,6 +28,16 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+# Which of an arm's parameters a generated library, an optimal-control NLP or an MPC takes as
+# inputs (one option, one type, everywhere): "none", the model's numbers folded into the code;
+# "all", every parameter of p; "family", the parameters not zero in the model (the zeros
+# folded: every arm with the same zeros, at about the constant code's speed).  An Arm's
+# Functions take that p when asked (`parametric=True`): the Arm's `free` parameters.
+PARAMETRIC = ("none", "all", "family")
+# an optimal-control problem and an MPC take "none" or "family": "all" would make the model's
+# zeros variables of the NLP and inputs of the controller, for nothing a family cannot do
+PROBLEM_PARAMETRIC = ("none", "family")
+
 from rscasadi.spatial import Xup, spatial_inertia
 from rscasadi.model.modelfile import BODIES, ArmModel, Body
 from rscasadi.errors import InvalidArgument

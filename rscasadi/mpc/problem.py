@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from rscasadi.model.checks import field_checker, read_toml
+from rscasadi.model.parameters import PROBLEM_PARAMETRIC
 from rscasadi.model.types import ModelFileError
 from rscasadi.task.objects import holding_payload
 from rscasadi.task.read import read_obstacles, read_path, read_payload
@@ -16,7 +17,6 @@ from rscasadi.task.toolpath import ToolPath
 
 TOP = {"model", "trajectory", "sample_time", "horizon", "interval", "substeps", "sqp_iterations", "qp_iterations",
        "weights", "frame", "orientation", "path", "obstacles", "payload", "theta_start", "solution", "parametric", "angle_limits"}
-PARAMETRIC = ("none", "family")
 ANGLE_LIMITS = ("soft", "hard")
 WEIGHTS = {"theta": 1e5, "dtheta": 1.0, "tau": 1e-3, "limits": 1e5, "angle_limits": 1e8,
            "position": 1e6, "velocity": 10.0, "orientation": 1e3, "posture": 1.0, "obstacles": 1e8}
@@ -142,8 +142,8 @@ class MPCProblem:
                 fail("solution", "give one reference: a trajectory, a path or a solution")
             if not self.solution.is_file():
                 fail("solution", f"no file {self.solution}")
-        if self.parametric not in PARAMETRIC:
-            fail("parametric", f"must be one of {', '.join(PARAMETRIC)}, got {self.parametric!r}")
+        if self.parametric not in PROBLEM_PARAMETRIC:
+            fail("parametric", f"must be one of {', '.join(PROBLEM_PARAMETRIC)}, got {self.parametric!r}")
         if self.angle_limits not in ANGLE_LIMITS:
             fail("angle_limits", f"must be one of {', '.join(ANGLE_LIMITS)}, got {self.angle_limits!r}")
         if self.theta_start is not None and not np.all(np.isfinite(self.theta_start)):

@@ -67,6 +67,7 @@ from pathlib import Path
 import numpy as np
 
 from rscasadi.model.checks import field_checker, read_toml
+from rscasadi.model.parameters import PROBLEM_PARAMETRIC
 from rscasadi.model.types import ModelFileError
 from rscasadi.task.objects import Goal, Obstacle, holding_payload  # noqa: F401  (the task's objects)
 from rscasadi.task.read import number, read_goal, read_obstacles, read_path, read_payload
@@ -76,7 +77,6 @@ from rscasadi.errors import WrongType
 OBJECTIVES = ("min_time", "min_effort", "tracking")
 METHODS = ("radau", "legendre", "hermite-simpson")
 DYNAMICS = ("explicit", "implicit")
-PARAMETRIC = ("none", "family")
 SOLVERS = ("fatrop", "ipopt")
 INTERFACES = ("direct", "casadi")
 BARRIERS = ("monotone",)                     # fatrop's barrier rule (docs/design/condensing.md)
@@ -289,7 +289,7 @@ class Problem:
                 fail(f"design.{name}", f"expected [lower, upper] with lower < upper, got {bounds!r}")
         for fld, chosen, allowed in (("transcription.method", tr.method, METHODS),
                                     ("transcription.dynamics", tr.dynamics, DYNAMICS),
-                                    ("transcription.parametric", tr.parametric, PARAMETRIC),
+                                    ("transcription.parametric", tr.parametric, PROBLEM_PARAMETRIC),
                                     ("solver.name", s.name, SOLVERS), ("solver.hessian", s.hessian, HESSIANS),
                                     ("solver.interface", s.interface, INTERFACES)):
             if chosen not in allowed:
