@@ -35,12 +35,23 @@ def random_arm(tmp_path, n):
     return rscasadi.load(write_arm(tmp_path, doc))
 
 
-@pytest.mark.parametrize("name", [*ARMS, 2, 5, 7])
+def holding_a_part():
+    """The reference arm with its tool frame, capsules and a 0.5 kg part (off-centre, with a
+    collision sphere) at the tool."""
+    from rscasadi.model.frames import holding
+    arm = rscasadi.load(ROOT / "problems" / "arm3_tool.toml")
+    return rscasadi.Arm(holding(arm.model, frame="tool", mass=0.5, com=[0.02, -0.01, 0.015],
+                                inertia=[2e-3, 1e-3, 1.5e-3, 1e-4, 0.0, -2e-4], radius=0.04))
+
+
+@pytest.mark.parametrize("name", [*ARMS, 2, 5, 7, "part"])
 def test_mujoco_s_mass_matrix_and_forces_are_the_model_s(name, tmp_path):
     """At random states and torques within the limits: T' M T equals the model's mass matrix and
     T' (passive + actuator - bias) its generalised forces (M ddq of its forward dynamics), to 1e-12;
-    the reference arm, the Panda from its URDF and random arms with unbalanced rotors."""
-    arm, m, d, T = loaded(name if name in ARMS else random_arm(tmp_path, name))
+    the reference arm, the Panda from its URDF, random arms with unbalanced rotors, and the arm
+    holding a part (its capsules exported as geoms, which must not change the inertias)."""
+    arm = holding_a_part() if name == "part" else name if name in ARMS else random_arm(tmp_path, name)
+    arm, m, d, T = loaded(arm)
     n, rng = arm.n, np.random.default_rng(7)
     limit = np.array([jt.limits.get("tau", 1.0) for jt in arm.model.joints])
     fd, mass = arm.forward_dynamics(), arm.mass_matrix()
@@ -88,6 +99,45 @@ def test_what_mjcf_cannot_hold_is_refused_by_name(tmp_path):
     joints[2] = dataclasses.replace(joints[2], c=0.1)
     with pytest.raises(InvalidArgument, match=r"shoulder_pitch: k3 = 50000.*elbow_pitch: gear_loss c = 0\.1"):
         mujoco_xml(dataclasses.replace(arm.model, joints=tuple(joints)))
+
+
+def test_frames_are_sites_and_capsules_are_geoms_that_touch_the_world_not_each_other():
+    """At random angles each site is where the model puts its frame (placement, 1e-12) and each
+    capsule geom spans the model's capsule (its ends in the world); no pose makes the arm's geoms
+    touch each other, and a table a user adds under the part is touched."""
+    from rscasadi.dynamics.kinematics import body_poses
+    from rscasadi.model.collision import capsules
+    arm, m, d, T = loaded(holding_a_part())
+    n, rng = arm.n, np.random.default_rng(11)
+    assert m.nsite == len(arm.model.frames) and m.ngeom == len(capsules(arm.model))
+    for _ in range(5):
+        th = rng.uniform(-2, 2, n)
+        d.qpos[:] = T @ np.r_[th, th]
+        mujoco.mj_forward(m, d)
+        for f in arm.model.frames:
+            R, p = (np.array(v) for v in arm.frame_placement(f.name)(th))
+            site = m.site(f.name).id
+            assert np.allclose(d.site_xpos[site], p.ravel(), atol=1e-12)
+            assert np.allclose(d.site_xmat[site].reshape(3, 3), R, atol=1e-12)
+        poses = body_poses(arm.model, th)
+        for i, c in enumerate(capsules(arm.model)):
+            R, o = (np.array(v) for v in poses[c.body])
+            ends = [R @ c.a + o.ravel(), R @ c.b + o.ravel()]
+            g = m.geom(i).id
+            axis = d.geom_xmat[g].reshape(3, 3)[:, 2] * m.geom_size[g][1]
+            theirs = [d.geom_xpos[g] - axis, d.geom_xpos[g] + axis] if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_CAPSULE \
+                else [d.geom_xpos[g]] * 2
+            assert m.geom_size[g][0] == pytest.approx(c.radius)
+            assert min(max(np.linalg.norm(a - b) for a, b in zip(ends, pair)) for pair in (theirs, theirs[::-1])) < 1e-12
+        assert d.ncon == 0
+    tool = np.array(arm.frame_placement("tool")(np.zeros(n))[1]).ravel()
+    text = mujoco_xml(arm.model).replace("  <worldbody>\n", f'  <worldbody>\n    <geom type="box" size="0.1 0.1 0.01" '
+                                         f'pos="{tool[0]} {tool[1]} {tool[2] - 0.05}"/>\n', 1)
+    m2 = mujoco.MjModel.from_xml_string(text)
+    d2 = mujoco.MjData(m2)
+    d2.qpos[:] = 0.0
+    mujoco.mj_forward(m2, d2)
+    assert d2.ncon >= 1                                      # the part's sphere reaches into the table
 
 
 def test_the_command_writes_a_file_mujoco_loads(tmp_path):

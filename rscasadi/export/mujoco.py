@@ -10,11 +10,18 @@ Per joint j, inside the body of link j - 1 (the world for j = 1), at the joint f
   - the gear loss b dphi: the slow rotor's joint damping;
   - the motor: an actuator on the fast rotor, its torque tau_j the model's motor torque (through
     the gear the slow side receives -mu_j tau_j, as in the model), ctrlrange the torque limit.
-Inertias are each body's own (mass, centre of mass, inertia about it, in the joint or link frame).
+Inertias are each body's own (mass, centre of mass, inertia about it, in the joint or link frame;
+`inertiafromgeom` off, so geometry never changes them).  The model's frames are sites on their
+links (named as the frames); the payload is a body welded to its frame's link (MuJoCo folds its
+inertia into the link's, as the model does); the collision capsules ([collision] and the
+payload's sphere) are geoms on their links, of contype 2 and conaffinity 1: they touch what a
+user adds to the world (MuJoCo's default geoms, contype = conaffinity = 1) and never each other,
+as the model's capsules are only ever checked against obstacles.  Meshes are not written: the
+capsules are the geometry.
 MuJoCo keeps the gear only as a constraint it solves softly: the file asks for RK4 at 1 ms and
 an equality nearly hard (solimp 0.9999), under which its motion follows the complete model
 (tests/test_mujoco.py). Not expressed, and refused by name: a cubic spring term (k3), Coulomb
-gear loss (c; MuJoCo's frictionloss is another law), a payload (not yet exported).
+gear loss (c; MuJoCo's frictionloss is another law).
 """
 from __future__ import annotations
 
@@ -61,13 +68,32 @@ def _inertial(body, indent: str) -> str:
     return f'{indent}<inertial pos="{_numbers(body.com)}" mass="{mass!r}" fullinertia="{_numbers(full)}"/>\n'
 
 
+def _attached(model, body: int, indent: str) -> list:
+    """What rides on body `body` (0: the world) besides its joint: the frames as sites, the
+    collision capsules as geoms (a capsule of zero length as a sphere), the payload as a body."""
+    from rscasadi.model.collision import capsules
+    out = [f'{indent}<site name={quoteattr(safe_name(f.name))} pos="{_numbers(f.p)}" quat="{_quat(f.R)}" size="0.005"/>'
+           for f in model.frames if f.body == body]
+    for i, c in enumerate(capsules(model)):
+        if c.body != body:
+            continue
+        shape = (f'type="sphere" pos="{_numbers(c.a)}"' if np.allclose(c.a, c.b) else
+                 f'type="capsule" fromto="{_numbers(np.r_[c.a, c.b])}"')
+        out.append(f'{indent}<geom name={quoteattr(safe_name(f"capsule{i}_{c.link}"))} {shape} '
+                   f'size="{float(c.radius)!r}" contype="2" conaffinity="1" group="3"/>')
+    held = model.payload
+    if held is not None and model.frame(held.frame).body == body:
+        f = model.frame(held.frame)
+        out += [f'{indent}<body name="payload" pos="{_numbers(f.p)}" quat="{_quat(f.R)}">',
+                _inertial(held.body, indent + "  ").rstrip("\n"), f"{indent}</body>"]
+    return out
+
+
 def check_exportable(model) -> None:
     """Refuse, naming the joint, what MJCF cannot hold exactly."""
     problems = [f"{jt.name}: k3 = {jt.k3:g} (a cubic spring; a tendon's is linear)" for jt in model.joints if jt.k3]
     problems += [f"{jt.name}: gear_loss c = {jt.c:g} (Coulomb loss; MuJoCo's frictionloss is another law)"
                  for jt in model.joints if jt.c]
-    if model.payload is not None:
-        problems.append("a payload (not exported yet: export the model without it)")
     if problems:
         raise InvalidArgument(f"{model.path}: cannot be exported to MuJoCo exactly: " + "; ".join(problems))
 
@@ -83,8 +109,9 @@ def mujoco_xml(model, armature: bool = False) -> str:
     g = np.asarray(model.gravity, float)
     lines = [f'<mujoco model={quoteattr(safe_name(model.name))}>',
              f'  <option timestep="{TIMESTEP!r}" integrator="RK4" gravity="{_numbers(g)}"/>',
-             '  <compiler angle="radian" autolimits="true"/>',
+             '  <compiler angle="radian" autolimits="true" inertiafromgeom="false"/>',
              '  <worldbody>']
+    lines += _attached(model, 0, "    ")
 
     def joint_bodies(j: int, indent: str) -> list:
         jt, name = model.joints[j], names[j]
@@ -95,7 +122,7 @@ def mujoco_xml(model, armature: bool = False) -> str:
                _inertial(jt.link, indent + "  ").rstrip("\n"),
                f'{indent}  <joint name="{name}" type="hinge" axis="0 0 1"{rigid}'
                + (f' range="{theta[0]!r} {theta[1]!r}"' if theta is not None and np.all(np.isfinite(theta)) else "")
-               + "/>"]
+               + "/>"] + _attached(model, j + 1, indent + "  ")
         if j + 1 < len(model.joints):
             out += joint_bodies(j + 1, indent + "  ")
         out.append(f"{indent}</body>")
