@@ -168,7 +168,8 @@ def _cmd_export_mujoco(args):
     from rscasadi.export import export_mujoco
     from rscasadi.files import check_writable
     check_writable(args.out)
-    export_mujoco(args.model, args.out, log=lambda msg: print(msg, flush=True), armature=args.armature)
+    export_mujoco(args.model, args.out, log=lambda msg: print(msg, flush=True),
+                  variant="armature" if args.armature else "reduced" if args.reduced else "complete")
 
 
 def _cmd_reproduce(args):
@@ -410,8 +411,11 @@ def build_parser() -> argparse.ArgumentParser:
                                 "the spring a tendon; RK4 at 1 ms")
     q.add_argument("model")
     q.add_argument("--out", required=True, help="directory for model.xml")
-    q.add_argument("--armature", action="store_true",
-                   help="the rigid-joint model with the rotors as armature that MuJoCo users write, for comparison")
+    variant = q.add_mutually_exclusive_group()
+    variant.add_argument("--armature", action="store_true",
+                         help="the rigid-joint model with the rotors as armature that MuJoCo users write, for comparison")
+    variant.add_argument("--reduced", action="store_true",
+                         help="the DLR/Spong reduced model: rotors welded to their links, each motor a joint of its own")
     q.set_defaults(func=_cmd_export_mujoco)
     p = sub.add_parser("reproduce", help="the main job: everything the project reproduces, into --out")
     p.add_argument("--out", default="results")

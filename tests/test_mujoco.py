@@ -17,11 +17,11 @@ ARMS = {"arm3": (ROOT / "problems" / "arm3.toml", [0.1, 0.4, -0.6]),
         "panda": (ROOT / "problems" / "panda_sea.toml", [0.0, -0.3, 0.0, -2.0, 0.0, 1.7, 0.8])}
 
 
-def loaded(name):
+def loaded(name, variant="complete"):
     """The arm, its MuJoCo model and data, and T: (theta, phi) to MuJoCo's coordinates through the gear."""
     from rscasadi.export.mujoco import gear_map
     arm = rscasadi.load(ARMS[name][0]) if name in ARMS else name
-    m = mujoco.MjModel.from_xml_string(mujoco_xml(arm.model))
+    m = mujoco.MjModel.from_xml_string(mujoco_xml(arm.model, variant))
     return arm, m, mujoco.MjData(m), gear_map(arm, m)
 
 
@@ -44,17 +44,21 @@ def holding_a_part():
                                 inertia=[2e-3, 1e-3, 1.5e-3, 1e-4, 0.0, -2e-4], radius=0.04))
 
 
-@pytest.mark.parametrize("name", [*ARMS, 2, 5, 7, "part"])
-def test_mujoco_s_mass_matrix_and_forces_are_the_model_s(name, tmp_path):
+@pytest.mark.parametrize("name,variant", [(name, "complete") for name in (*ARMS, 2, 5, 7, "part")]
+                         + [("arm3", "reduced"), ("panda", "reduced"), ("part", "reduced")])
+def test_mujoco_s_mass_matrix_and_forces_are_the_model_s(name, variant, tmp_path):
     """At random states and torques within the limits: T' M T equals the model's mass matrix and
     T' (passive + actuator - bias) its generalised forces (M ddq of its forward dynamics), to 1e-12;
     the reference arm, the Panda from its URDF, random arms with unbalanced rotors, and the arm
-    holding a part (its capsules exported as geoms, which must not change the inertias)."""
+    holding a part (its capsules exported as geoms, which must not change the inertias); the
+    reduced export against the reduced model (Arm.reduced_forward_dynamics)."""
     arm = holding_a_part() if name == "part" else name if name in ARMS else random_arm(tmp_path, name)
-    arm, m, d, T = loaded(arm)
+    arm, m, d, T = loaded(arm, variant)
     n, rng = arm.n, np.random.default_rng(7)
     limit = np.array([jt.limits.get("tau", 1.0) for jt in arm.model.joints])
-    fd, mass = arm.forward_dynamics(), arm.mass_matrix()
+    reduced = variant == "reduced"
+    fd = arm.reduced_forward_dynamics() if reduced else arm.forward_dynamics()
+    mass = arm.mass_matrix(reduced=reduced)
     for _ in range(5):
         th = rng.uniform(-1, 1, n)
         ph, dth, dph, tau = th + rng.uniform(-0.05, 0.05, n), rng.normal(size=n), rng.normal(size=n), rng.uniform(-1, 1, n) * limit
@@ -99,6 +103,10 @@ def test_what_mjcf_cannot_hold_is_refused_by_name(tmp_path):
     joints[2] = dataclasses.replace(joints[2], c=0.1)
     with pytest.raises(InvalidArgument, match=r"shoulder_pitch: k3 = 50000.*elbow_pitch: gear_loss c = 0\.1"):
         mujoco_xml(dataclasses.replace(arm.model, joints=tuple(joints)))
+    with pytest.raises(InvalidArgument, match=r"reduced model assumes balanced rotors.*joint 1 \('j1'\) slow_rotor"):
+        mujoco_xml(random_arm(tmp_path, 2).model, "reduced")
+    with pytest.raises(InvalidArgument, match="variant must be one of complete, reduced, armature"):
+        mujoco_xml(arm.model, "rigid")
 
 
 def test_frames_are_sites_and_capsules_are_geoms_that_touch_the_world_not_each_other():
@@ -145,6 +153,9 @@ def test_the_command_writes_a_file_mujoco_loads(tmp_path):
     assert main(["export", "mujoco", str(ARMS["panda"][0]), "--out", str(tmp_path / "mj")]) in (0, None)
     m = mujoco.MjModel.from_xml_path(str(tmp_path / "mj" / "model.xml"))
     assert (m.nv, m.neq, m.ntendon, m.nu) == (21, 7, 7, 7) and m.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4
+    assert main(["export", "mujoco", str(ARMS["panda"][0]), "--out", str(tmp_path / "dlr"), "--reduced"]) in (0, None)
+    m = mujoco.MjModel.from_xml_path(str(tmp_path / "dlr" / "model.xml"))
+    assert (m.nv, m.neq, m.ntendon, m.nu) == (14, 0, 7, 7)
 
 
 def test_the_generated_mpc_tracks_on_mujoco_s_plant(tmp_path):
@@ -168,9 +179,10 @@ def test_the_armature_model_misses_what_the_complete_one_keeps(name, trajectory)
     """The feedforward torques of the arm's 2 s trajectory, held over each millisecond, open loop:
     MuJoCo's complete export follows the model's CVODES replay of the same torques within 2e-5
     rad, the rigid-joint armature export MuJoCo users write is off by more than 1e-3 rad and a
-    hundred times further: what rotor separation and the springs keep, in MuJoCo's own terms
-    (measured 2026-11-26: 1.7e-7 against 7.9e-3 rad on the reference arm, 3.7e-6 against 3.1e-2 on
-    the Panda)."""
+    hundred times further, and the DLR/Spong reduced export (springs, no rotor coupling) more than
+    ten times: what rotor separation and the springs keep, in MuJoCo's own terms (measured
+    2026-11-26: complete 1.7e-7, reduced 4.2e-3, armature 7.9e-3 rad on the reference arm;
+    3.7e-6, 6.1e-2, 3.1e-2 on the Panda)."""
     from rscasadi.sim.simulation import feedforward, simulate
     from rscasadi.sim.trajectory import load_trajectory
     arm, m, d, T = loaded(name)
@@ -178,16 +190,22 @@ def test_the_armature_model_misses_what_the_complete_one_keeps(name, trajectory)
     t = np.arange(int(round(traj.duration / 1e-3)) + 1) * 1e-3
     ff = feedforward(arm, traj, t)
     ours = simulate(arm, ff["x0"], t, ff["tau"], interpolation="constant")["theta"]
-    rigid = mujoco.MjModel.from_xml_string(mujoco_xml(arm.model, armature=True))
+    rigid = mujoco.MjModel.from_xml_string(mujoco_xml(arm.model, "armature"))
     r = mujoco.MjData(rigid)
     assert rigid.nv == n and rigid.neq == 0 and rigid.ntendon == 0
     d.qpos[:], d.qvel[:] = T @ ff["x0"][:2 * n], T @ ff["x0"][2 * n:]
     r.qpos[:], r.qvel[:] = ff["x0"][:n], ff["x0"][2 * n:3 * n]
-    back, complete_err, armature_err = np.linalg.pinv(T), 0.0, 0.0
+    _, dlr, dd, Td = loaded(arm, "reduced")
+    dd.qpos[:], dd.qvel[:] = Td @ ff["x0"][:2 * n], Td @ ff["x0"][2 * n:]
+    back, complete_err, armature_err, reduced_err = np.linalg.pinv(T), 0.0, 0.0, 0.0
     for k in range(len(t) - 1):
-        d.ctrl[:] = r.ctrl[:] = ff["tau"][:, k]
+        d.ctrl[:] = r.ctrl[:] = dd.ctrl[:] = ff["tau"][:, k]
         mujoco.mj_step(m, d)
         mujoco.mj_step(rigid, r)
+        mujoco.mj_step(dlr, dd)
         complete_err = max(complete_err, np.max(np.abs((back @ d.qpos)[:n] - ours[:, k + 1])))
         armature_err = max(armature_err, np.max(np.abs(r.qpos - ours[:, k + 1])))
+        reduced_err = max(reduced_err, np.max(np.abs((np.linalg.pinv(Td) @ dd.qpos)[:n] - ours[:, k + 1])))
+    print(f"{name}: complete {complete_err:.2e}, reduced {reduced_err:.2e}, armature {armature_err:.2e} rad")
     assert complete_err < 2e-5 and armature_err > max(1e-3, 100 * complete_err), (complete_err, armature_err)
+    assert reduced_err > 10 * complete_err, (complete_err, reduced_err)

@@ -98,13 +98,25 @@ def check_exportable(model) -> None:
         raise InvalidArgument(f"{model.path}: cannot be exported to MuJoCo exactly: " + "; ".join(problems))
 
 
-def mujoco_xml(model, armature: bool = False) -> str:
-    """The MJCF text of `model` (an ArmModel): see the module's docstring.  armature: instead the
-    rigid-joint model MuJoCo users write for a geared motor, for comparison: no spring, the
-    rotors' spin inertia B_j = Izz(S_j) + mu_j^2 Izz(F_j) as the joint's armature, the rotors'
-    bodies fixed to the parent, the gear loss as joint damping, the motor on the joint (gear
-    -mu_j)."""
+VARIANTS = ("complete", "reduced", "armature")
+
+
+def mujoco_xml(model, variant: str = "complete") -> str:
+    """The MJCF text of `model` (an ArmModel): see the module's docstring.  `variant`:
+    "complete", the rotor-separated model; "reduced", the DLR/Spong reduced model
+    (Arm.reduced_forward_dynamics): the rotors welded to their parent links at their zero angle,
+    each motor coordinate phi_j a hinge of its own on the world with the spin inertia
+    B_j = Izz(S_j) + mu_j^2 Izz(F_j), the spring between it and the link, the motor on it (gear
+    -mu_j); "armature", the rigid-joint model MuJoCo users write for a geared motor: no spring,
+    B_j as the joint's armature, the rotors welded, the gear loss as joint damping, the motor on
+    the joint (gear -mu_j)."""
+    if variant not in VARIANTS:
+        raise InvalidArgument(f"mujoco_xml: variant must be one of {', '.join(VARIANTS)}, got {variant!r}")
+    armature, reduced = variant == "armature", variant == "reduced"
     check_exportable(model)
+    if reduced:                        # the reduced model's own refusal (unbalanced rotors), by name
+        from rscasadi.dynamics.arm import Arm
+        Arm(model).mass_matrix(reduced=True)
     names = [safe_name(jt.name) for jt in model.joints]
     g = np.asarray(model.gravity, float)
     lines = [f'<mujoco model={quoteattr(safe_name(model.name))}>',
@@ -129,12 +141,17 @@ def mujoco_xml(model, armature: bool = False) -> str:
         for part, suffix, damping in (("slow_rotor", "slow", jt.b), ("fast_rotor", "fast", 0.0)):
             out += [f'{indent}<body name="{name}_{suffix}" pos="{pos}" quat="{quat}">',
                     _inertial(getattr(jt, part), indent + "  ").rstrip("\n")]
-            if not armature:
+            if variant == "complete":
                 out.append(f'{indent}  <joint name="{name}_{suffix}" type="hinge" axis="0 0 1" damping="{float(damping)!r}"/>')
             out.append(f"{indent}</body>")
         return out
 
     lines += joint_bodies(0, "    ")
+    if reduced:                         # each motor coordinate on its own, its spin inertia B_j
+        for n, jt in zip(names, model.joints):
+            B = float(jt.rotor_inertia)
+            lines += [f'    <body name="{n}_motor">', f'      <inertial pos="0 0 0" mass="1.0" diaginertia="{B!r} {B!r} {B!r}"/>',
+                      f'      <joint name="{n}_motor" type="hinge" axis="0 0 1" damping="{float(jt.b)!r}"/>', "    </body>"]
     lines += ["  </worldbody>"]
     if armature:
         lines.append("  <actuator>")
@@ -143,32 +160,40 @@ def mujoco_xml(model, armature: bool = False) -> str:
             limit = f' ctrlrange="{-float(tau)!r} {float(tau)!r}"' if tau is not None and np.isfinite(tau) else ""
             lines.append(f'    <motor name="{n}_motor" joint="{n}" gear="{-float(jt.gear_ratio)!r}"{limit}/>')
         return "\n".join(lines + ["  </actuator>", "</mujoco>"]) + "\n"
-    lines += ["  <equality>"]
-    lines += [f'    <joint name="{n}_gear" joint1="{n}_fast" joint2="{n}_slow" polycoef="0 {-float(jt.gear_ratio)!r} 0 0 0" '
-              f'solimp="{SOLIMP}" solref="{SOLREF}"/>' for n, jt in zip(names, model.joints)]
-    lines += ["  </equality>", "  <tendon>"]
+    motor = "motor" if reduced else "slow"              # the joint of phi_j
+    if not reduced:
+        lines += ["  <equality>"]
+        lines += [f'    <joint name="{n}_gear" joint1="{n}_fast" joint2="{n}_slow" polycoef="0 {-float(jt.gear_ratio)!r} 0 0 0" '
+                  f'solimp="{SOLIMP}" solref="{SOLREF}"/>' for n, jt in zip(names, model.joints)]
+        lines += ["  </equality>"]
+    lines += ["  <tendon>"]
     lines += [f'    <fixed name="{n}_spring" stiffness="{float(jt.k1)!r}" damping="{float(jt.d)!r}" springlength="0">\n'
-              f'      <joint joint="{n}_slow" coef="1"/>\n      <joint joint="{n}" coef="-1"/>\n    </fixed>'
+              f'      <joint joint="{n}_{motor}" coef="1"/>\n      <joint joint="{n}" coef="-1"/>\n    </fixed>'
               for n, jt in zip(names, model.joints)]
     lines += ["  </tendon>", "  <actuator>"]
     for n, jt in zip(names, model.joints):
         tau = jt.limits.get("tau")
         limit = f' ctrlrange="{-float(tau)!r} {float(tau)!r}"' if tau is not None and np.isfinite(tau) else ""
-        lines.append(f'    <motor name="{n}_motor" joint="{n}_fast" gear="1"{limit}/>')
+        on = f'"{n}_motor" gear="{-float(jt.gear_ratio)!r}"' if reduced else f'"{n}_fast" gear="1"'
+        lines.append(f'    <motor name="{n}_motor" joint={on}{limit}/>')
     lines += ["  </actuator>", "</mujoco>"]
     return "\n".join(lines) + "\n"
 
 
 def gear_map(arm, m) -> np.ndarray:
     """T: the model's (theta, phi) velocities to MuJoCo's (link, slow, fast per joint, in MuJoCo's
-    order) for the file `mujoco_xml` wrote: MuJoCo's q = T (theta, phi), the fast rotor -mu phi."""
+    order; link and motor in the reduced file) for the file `mujoco_xml` wrote: MuJoCo's
+    q = T (theta, phi), the fast rotor -mu phi."""
     n, mu = arm.n, arm.model.column("gear_ratio")
     T = np.zeros((m.nv, 2 * n))
     for j, jt in enumerate(arm.model.joints):
         name = safe_name(jt.name)
         T[m.joint(name).dofadr[0], j] = 1.0
-        T[m.joint(name + "_slow").dofadr[0], n + j] = 1.0
-        T[m.joint(name + "_fast").dofadr[0], n + j] = -float(mu[j])
+        if m.njnt > 2 * n:
+            T[m.joint(name + "_slow").dofadr[0], n + j] = 1.0
+            T[m.joint(name + "_fast").dofadr[0], n + j] = -float(mu[j])
+        elif m.njnt == 2 * n:
+            T[m.joint(name + "_motor").dofadr[0], n + j] = 1.0
     return T
 
 
@@ -191,14 +216,16 @@ def mujoco_plant(arm, dt: float):
     return plant
 
 
-def export_mujoco(model_file, out, log=print, armature: bool = False) -> Path:
-    """`rscasadi export mujoco MODEL --out DIR [--armature]`: DIR/model.xml (whole or not at all)."""
+def export_mujoco(model_file, out, log=print, variant: str = "complete") -> Path:
+    """`rscasadi export mujoco MODEL --out DIR [--reduced | --armature]`: DIR/model.xml (whole or
+    not at all) of the `variant` (mujoco_xml)."""
     from rscasadi.dynamics.arm import load
     arm = load(model_file)
-    text = mujoco_xml(arm.model, armature)
+    text = mujoco_xml(arm.model, variant)
     with fresh_directory(Path(out)) as tmp:
         write_text(tmp / "model.xml", text)
-    what = ("rigid joints with the rotors as armature (for comparison)" if armature else
-            "each a link, a slow and a fast rotor, the gear an equality, the spring a tendon")
+    what = {"armature": "rigid joints with the rotors as armature (for comparison)",
+            "reduced": "the DLR/Spong reduced model: rotors welded, each motor coordinate a joint of its own",
+            "complete": "each a link, a slow and a fast rotor, the gear an equality, the spring a tendon"}[variant]
     log(f"wrote {Path(out) / 'model.xml'}: {arm.n} joints, {what} (RK4 at {TIMESTEP * 1e3:g} ms)")
     return Path(out) / "model.xml"
