@@ -145,7 +145,7 @@ def _cmd_mpc(args):
 def _cmd_simulate(args):
     from rscasadi.identification.synthetic import simulate_log
     simulate_log(args.model, args.trajectory, args.out, rate=args.rate, noise=args.noise, perturb=args.perturb,
-                 true_model=args.true_model, log=lambda msg: print(msg, flush=True))
+                 true_model=args.true_model, simulator=args.simulator, log=lambda msg: print(msg, flush=True))
 
 
 def _cmd_view(args):
@@ -350,6 +350,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="log a different arm of the family (every parameter off by 10-40 %%, cubic springs and "
                         "Coulomb loss added), drawn with this seed")
     p.add_argument("--true-model", default=None, metavar="FILE", help="write the arm that was simulated here")
+    p.add_argument("--simulator", choices=("rscasadi", "mujoco"), default="rscasadi",
+                   help="whose physics records the log: rscasadi's complete model (RK4), or MuJoCo's of the arm "
+                        "exported (rscasadi export mujoco; a perturbed arm then keeps linear springs and no "
+                        "Coulomb loss, which MJCF cannot hold)")
     p.set_defaults(func=_cmd_simulate)
     p = sub.add_parser("identify", help="identify the complete model from logs (CSV: t,theta_j,phi_j,tau_j[,T_j])")
     p.add_argument("model", help="model file: kinematics, gear ratios and the starting guess")

@@ -373,3 +373,35 @@ def test_simulate_writes_a_log_identify_reads(tmp_path, capsys):
     assert "is a directory" in capsys.readouterr().err
     assert main(["simulate", str(ROOT / "problems" / "panda_sea.toml"), str(traj), "--out", str(tmp_path / "x.csv")]) == 2
     assert "3 joints" in capsys.readouterr().err and not (tmp_path / "x.csv").exists()
+
+
+def test_identification_on_logs_mujoco_recorded(excitation, tmp_path):
+    """A perturbed arm of the family (linear springs, no Coulomb loss: what MJCF holds) exported to
+    MuJoCo records the excitation and the paper's trajectory (`rscasadi simulate --simulator
+    mujoco`: MuJoCo's physics, not rscasadi's); `rscasadi identify` on the nominal model predicts
+    the held-out motor torques within 1 % RMS beyond what the exported arm itself predicts on the
+    same filtered log (the sensors' noise and quantisation), far better than the model file, and
+    recovers every spring's k1 within 1 % of the exported arm's (measured 2026-11-26: 0.05-0.08 %)."""
+    pytest.importorskip("mujoco")
+    logs = {}
+    for name, traj in (("identification", excitation / "trajectory.toml"),
+                       ("validation", ROOT / "problems" / "trajectory_arm3.toml")):
+        logs[name] = tmp_path / f"{name}.csv"
+        assert main(["simulate", str(REFERENCE), str(traj), "--out", str(logs[name]), "--perturb", "4",
+                     "--simulator", "mujoco", "--true-model", str(tmp_path / "true.toml")]) in (0, None)
+    true = rscasadi.load(tmp_path / "true.toml")
+    assert all(jt.k3 == 0 and jt.c == 0 for jt in true.model.joints)
+    assert main(["identify", str(REFERENCE), str(logs["identification"]), "--out", str(tmp_path / "ident"),
+                 "--validate", str(logs["validation"])]) == 0
+    report = json.loads((tmp_path / "ident" / "report.json").read_text())
+    arm3 = rscasadi.load(REFERENCE)
+    u = ident_mod.Unknowns.of(arm3.model)
+    rows = ident_mod.rows(arm3, ident_mod.prepare(read_log(logs["validation"], 3), report["cutoff_hz"]), u)
+    floor = ident_mod.predict(rows, u.from_p(true.parameters()[1][:n_linear(arm3.model)]))
+    nominal = ident_mod.predict(rows, u.from_p(arm3.parameters()[1][:n_linear(arm3.model)]))
+    for ch, got in report["validation"]["prediction"].items():
+        assert got["relative"] ** 2 <= floor[ch]["relative"] ** 2 + 0.01 ** 2, (ch, got, floor[ch])
+        assert got["relative"] < 0.2 * nominal[ch]["relative"], ch
+    found = rscasadi.load(tmp_path / "ident" / "model.toml")
+    for mine, theirs in zip(found.model.joints, true.model.joints):
+        assert abs(mine.k1 - theirs.k1) < 0.01 * theirs.k1, (mine.name, mine.k1, theirs.k1)

@@ -5,23 +5,21 @@ The true arm is the nominal one with every physical parameter perturbed by 10-40
 centres of mass, inertias, springs, dampers, gear losses), a cubic spring term and Coulomb
 loss added.  Control at 1 kHz: the nominal model's feedforward (the paper's pipeline) plus a
 motor-side PD on the measured slow-side angle.  Sensors: link encoder 2^19 counts/turn, motor
-encoder 2^17 counts/turn before the gear, motor-torque noise 0.5 % of its limit.  The plant is
-integrated with RK4 at 4 substeps per sample, inside one CasADi mapaccum.
+encoder 2^17 counts/turn before the gear, motor-torque noise 0.5 % of its limit.  The loop is
+rscasadi.sim.loop's (RK4 at 4 substeps per sample, or MuJoCo's plant of the exported arm).
 """
 from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
 
-import casadi as ca
 import numpy as np
 
-from rscasadi.codegen import rk4
+from rscasadi.sim.loop import Encoders, FeedforwardPD, rk4_plant, run_loop
 from rscasadi.sim.simulation import feedforward, motor_pd_gains
 from rscasadi.dynamics.arm import Arm
 from rscasadi.model.modelfile import Body, inertia_problem
 from rscasadi.identification.logs import Log
-from rscasadi.sim.sensors import quanta
 from rscasadi.errors import Failed, InvalidArgument
 
 
@@ -62,33 +60,13 @@ def perturbed_arm(arm: Arm, rng, k3_fraction: float = 0.2, coulomb: float = 0.5)
                                    path=arm.model.path + " (perturbed)"))
 
 
-def _closed_loop_step(true_arm: Arm, dt: float, substeps: int, gains):
-    """One 1 kHz sample: measure, control, then `substeps` RK4 steps of the true arm."""
-    n = true_arm.n
-    mu = true_arm.model.column("gear_ratio")
-    fd = true_arm.forward_dynamics()
-    x, phi_prev = ca.SX.sym("x", 4 * n), ca.SX.sym("phi_prev", n)
-    ref = ca.SX.sym("ref", 3 * n)                                    # tau_ff, phi_d, dphi_d
-    q_link, q_motor = quanta(mu)
-    theta_m = ca.floor(x[:n] / q_link + 0.5) * q_link
-    phi_m = ca.floor(x[n:2 * n] / q_motor + 0.5) * q_motor
-    dphi_m = (phi_m - phi_prev) / dt                                 # backward difference of the encoder
-    kp, kd = gains
-    # Q_phi = -mu tau: a torque that raises phi is negative on the motor side
-    tau = ref[:n] - (kp * (ref[n:2 * n] - phi_m) + kd * (ref[2 * n:] - dphi_m)) / mu
-    h = dt / substeps
-    f = lambda z: ca.vertcat(z[2 * n:], *fd(*ca.vertsplit(z, n), tau))
-    z = x
-    for _ in range(substeps):
-        z = rk4(f, z, h)[0]
-    state, state_next = ca.vertcat(x, phi_prev), ca.vertcat(z, phi_m)
-    return ca.Function("sample", [state, ref], [state_next, ca.vertcat(theta_m, phi_m, tau)])
-
-
 def record(true_arm: Arm, nominal_arm: Arm, trajectory, rate: float = 1000.0, rng=None,
-           torque_noise: float = 0.005, substeps: int = 4, ff_step: float = 0.002) -> tuple[Log, dict]:
+           torque_noise: float = 0.005, substeps: int = 4, ff_step: float = 0.002, plant=None) -> tuple[Log, dict]:
     """Drive the true arm along `trajectory` (nominal feedforward + motor-side PD) and log what its
-    sensors see.  Returns the log and the true state history {t, x, tau_applied}."""
+    sensors see: the one closed loop (rscasadi.sim.loop) on `plant` (default: `substeps` RK4 steps
+    of the true arm's complete model per sample; e.g. rscasadi.export.mujoco.mujoco_plant(true_arm,
+    dt)), quantised encoders, the applied torques (within the limits) logged with noise of
+    `torque_noise` times each limit.  Returns the log and the true state history {t, x, tau_applied}."""
     rng = np.random.default_rng(0) if rng is None else rng
     n, dt = true_arm.n, 1.0 / rate
     N = int(round(trajectory.duration * rate)) + 1
@@ -96,29 +74,28 @@ def record(true_arm: Arm, nominal_arm: Arm, trajectory, rate: float = 1000.0, rn
     t_ff = np.arange(int(np.ceil(trajectory.duration / ff_step)) + 1) * ff_step
     ff = feedforward(nominal_arm, trajectory, t_ff)
     interp = lambda Y: np.vstack([np.interp(t, t_ff, row) for row in Y])
-    ref = np.vstack([interp(ff["tau"]), interp(ff["phi"]), interp(ff["dphi"])])
-    gains = motor_pd_gains(nominal_arm.model)                        # a 4 Hz motor-position loop
-    step = _closed_loop_step(true_arm, dt, substeps, gains)
-    x0 = np.concatenate([ff["x0"], ff["x0"][n:2 * n]])               # nominal static equilibrium
-    states, meas = step.mapaccum(N)(x0, ref)
-    states = np.hstack([x0[:, None], np.array(states)[:, :-1]])
-    meas = np.array(meas)
-    limits = np.array([jt.limits.get("tau", np.max(np.abs(meas[2 * n:, :]), initial=1.0))
-                       for jt in true_arm.model.joints])
-    tau_applied = meas[2 * n:]
-    tau_logged = tau_applied + rng.normal(0, 1, tau_applied.shape) * (torque_noise * limits)[:, None]
-    log = Log("<synthetic>", t, meas[:n], meas[n:2 * n], tau_logged)
-    return log, {"t": t, "x": states[:4 * n], "tau": tau_applied}
+    reference = {"tau": interp(ff["tau"]), "phi": interp(ff["phi"]), "dphi": interp(ff["dphi"])}
+    kp, kd = motor_pd_gains(nominal_arm.model)                       # a 4 Hz motor-position loop
+    controller = FeedforwardPD(reference, (kp, kd, nominal_arm.model.column("gear_ratio")))
+    plant = rk4_plant(true_arm, dt, substeps) if plant is None else plant
+    x0 = np.asarray(ff["x0"], float)                                 # nominal static equilibrium
+    run = run_loop(true_arm, plant, controller, x0, N, dt, sensors=Encoders(true_arm, dt))
+    limits = np.array([jt.limits.get("tau", np.max(np.abs(run.tau), initial=1.0)) for jt in true_arm.model.joints])
+    tau_logged = run.tau + rng.normal(0, 1, run.tau.shape) * (torque_noise * limits)[:, None]
+    log = Log("<synthetic>", t, run.meas[:n], run.meas[n:2 * n], tau_logged)
+    return log, {"t": t, "x": run.x[:, :N], "tau": run.tau}
 
 
 def simulate_log(model, trajectory, out, rate: float = 1000.0, noise: float = 0.005, perturb: int | None = None,
-                 true_model=None, log=print) -> Path:
+                 true_model=None, simulator: str = "rscasadi", log=print) -> Path:
     """`rscasadi simulate`: the log (docs/user-guide/logs.md's format) that the arm of
     `model`, or with `perturb` (a seed) a different arm of its family (every parameter off by
     10-40 %, a cubic spring and Coulomb loss added: perturbed_arm), records along `trajectory`
     (a trajectory file: rscasadi excite's, or a start-amplitude file) under the nominal
     feedforward and a motor-side PD, with torque noise of `noise` times each torque limit; the
-    true arm's model file into `true_model` if given."""
+    true arm's model file into `true_model` if given.  `simulator` "mujoco": the true arm
+    exported to MuJoCo (rscasadi.export.mujoco) is the plant, at its 1 ms RK4 step; a perturbed
+    arm then keeps linear springs and no Coulomb loss (what MJCF holds)."""
     import time
     from rscasadi.dynamics.arm import load
     from rscasadi.files import check_writable, write_text
@@ -136,11 +113,19 @@ def simulate_log(model, trajectory, out, rate: float = 1000.0, noise: float = 0.
     traj = load_trajectory(trajectory)
     if traj.n != nominal.n:
         raise InvalidArgument(f"{trajectory}: {traj.n} joints, the model {model} has {nominal.n}")
+    if simulator not in ("rscasadi", "mujoco"):
+        raise InvalidArgument(f"simulate: --simulator must be rscasadi or mujoco, got {simulator!r}")
     rng = np.random.default_rng(0 if perturb is None else perturb)
-    true = nominal if perturb is None else perturbed_arm(nominal, rng)
-    log(f"simulating {true.model.name} along {Path(trajectory).name}: {traj.duration:g} s at {rate:g} Hz ...")
+    mujoco = simulator == "mujoco"
+    true = nominal if perturb is None else perturbed_arm(nominal, rng, *((0.0, 0.0) if mujoco else ()))
+    plant = None
+    if mujoco:
+        from rscasadi.export.mujoco import mujoco_plant
+        plant = mujoco_plant(true, 1.0 / rate)                    # refuses what MJCF cannot hold, by name
+    log(f"simulating {true.model.name} along {Path(trajectory).name}: {traj.duration:g} s at {rate:g} Hz "
+        f"({'MuJoCo, the arm exported' if mujoco else 'the complete model, RK4'}) ...")
     t0 = time.perf_counter()
-    lg, _ = record(true, nominal, traj, rate=rate, rng=rng, torque_noise=noise)
+    lg, _ = record(true, nominal, traj, rate=rate, rng=rng, torque_noise=noise, plant=plant)
     write_log(out, lg)
     if true_model:
         write_text(true_model, f"# the arm that recorded {out.name} (rscasadi simulate --perturb {perturb})\n"
