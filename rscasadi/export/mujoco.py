@@ -197,22 +197,53 @@ def gear_map(arm, m) -> np.ndarray:
     return T
 
 
-def mujoco_plant(arm, dt: float):
-    """(x, tau, t) -> (x after dt, no wrench): the arm exported (`mujoco_xml`) and simulated by
-    MuJoCo at its own timestep, for rscasadi.sim.loop.run_loop (x = theta, phi, dtheta, dphi)."""
+def with_world(xml: str, world: str) -> str:
+    """The MJCF text `xml` with `world` (MJCF elements: geoms, bodies) added to its worldbody."""
+    return xml.replace("  <worldbody>\n", "  <worldbody>\n" + world.rstrip("\n") + "\n", 1)
+
+
+def contact_wrench(m, d, frame: str):
+    """[force; moment] (world axes, moment about the site `frame`'s origin) of every contact on
+    the arm's geoms (group 3), as the world exerts it on the arm."""
     import mujoco
-    m = mujoco.MjModel.from_xml_string(mujoco_xml(arm.model))
+    origin, total, f6 = d.site_xpos[m.site(frame).id], np.zeros(6), np.zeros(6)
+    for i in range(d.ncon):
+        c = d.contact[i]
+        mine = [g for g in (c.geom1, c.geom2) if m.geom_group[g] == 3]
+        if len(mine) != 1:
+            continue
+        mujoco.mj_contactForce(m, d, i, f6)
+        force = c.frame.reshape(3, 3).T @ f6[:3]                     # on geom2, from geom1
+        force = force if mine[0] == c.geom2 else -force
+        total += np.r_[force, np.cross(c.pos - origin, force)]
+    return total
+
+
+def mujoco_plant(arm, dt: float, world: str = "", frame: str | None = None):
+    """(x, tau, t) -> (x after dt, wrench): the arm exported (`mujoco_xml`) and simulated by
+    MuJoCo at its own timestep, for rscasadi.sim.loop.run_loop (x = theta, phi, dtheta, dphi).
+    `world`: MJCF elements added to the worldbody (a table: its geoms collide with the arm's
+    capsules); `frame`: the wrench the contacts exert on the arm at that frame after each sample
+    (6 x 1, `contact_wrench`), else None."""
+    import mujoco
+    m = mujoco.MjModel.from_xml_string(with_world(mujoco_xml(arm.model), world))
     d = mujoco.MjData(m)
     T = gear_map(arm, m)
     back, steps, n = np.linalg.pinv(T), int(round(dt / m.opt.timestep)), arm.n
     if steps < 1 or abs(steps * m.opt.timestep - dt) > 1e-12:
         raise InvalidArgument(f"mujoco_plant: dt = {dt!r} s must be a whole number of MuJoCo's {m.opt.timestep!r} s steps")
+    if frame is not None:
+        m.site(safe_name(frame))                                     # a KeyError now, not mid-run
 
     def plant(x, tau, t):
         d.qpos[:], d.qvel[:], d.ctrl[:] = T @ x[:2 * n], T @ x[2 * n:], tau
         for _ in range(steps):
             mujoco.mj_step(m, d)
-        return np.r_[back @ d.qpos, back @ d.qvel], None
+        wrench = None
+        if frame is not None:
+            mujoco.mj_forward(m, d)                                  # the contacts at the new state
+            wrench = contact_wrench(m, d, safe_name(frame))[:, None]
+        return np.r_[back @ d.qpos, back @ d.qvel], wrench
     return plant
 
 

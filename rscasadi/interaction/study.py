@@ -54,11 +54,14 @@ class _Impedance:
 
 
 def impedance_loop(arm: Arm, frame: str, theta0, world: World, seconds: float, reference, stiffness,
-                   damping_ratio, observer_gain: float | None = None, substeps: int = 8, **design) -> dict:
+                   damping_ratio, observer_gain: float | None = None, substeps: int = 8, plant=None,
+                   **design) -> dict:
     """The arm at rest at theta0 under the Cartesian impedance controller (`design` keywords as
     `impedance_law`), the reference reference(t) (12), in `world` (rscasadi.sim.loop): per sample
     t, the frame's position p, the wrench at world.frames[0] (6), the deflections psi, the
-    torques, the observer's link torques r and the true J^T f (when observer_gain is given)."""
+    torques, the observer's link torques r and the true J^T f (when observer_gain is given).
+    `plant`: another plant giving that wrench (rscasadi.export.mujoco.mujoco_plant with a world
+    of its own), else rscasadi's contacts of `world`."""
     n, samples = arm.n, int(round(seconds / DT))
     place, jac = arm.frame_placement(frame), arm.frame_jacobian(world.frames[0], "local_world_aligned")
     x0 = rest_state(arm, theta0)
@@ -71,7 +74,7 @@ def impedance_loop(arm: Arm, frame: str, theta0, world: World, seconds: float, r
         if obs and 0 < k < samples:                 # the torque held over the sample before
             seen["r"].append(obs.step(meas, tau)[:n])
             seen["true"].append(np.array(jac(x[:n])).T @ wrench[:, 0])
-    run = run_loop(arm, contact_plant(arm, world, DT, substeps),
+    run = run_loop(arm, contact_plant(arm, world, DT, substeps) if plant is None else plant,
                    _Impedance(ImpedanceController(arm, frame, **design), reference, stiffness, damping_ratio),
                    x0, samples, DT, watch=watch)
     x = run.x[:, 1:]
@@ -133,6 +136,50 @@ def wall(arm: Arm, frame: str, theta0, stiffness: float, wall_stiffness: float, 
             "error_percent": 100 * (fz[last].mean() / expected - 1), "lost_contact_ms": 1e3 * DT * int(np.sum(apart)),
             "bounces": int(np.sum(np.diff(apart.astype(int)) == 1)), "bounce_um": 1e6 * max(0.0, float(gap_after.max())),
             "chatter_percent": 100 * np.ptp(fz[last]) / expected, "trace": (run["t"], fz)}
+
+
+def table_in_mujoco(arm: Arm, frame: str, theta0, stiffness: float, depth: float = 0.005, gap: float = 0.002,
+                    seconds: float = 2.0, ramp: float = 0.5, half: float = 0.02, rotational: float = 50.0,
+                    zeta: float = 0.7, observer_gain: float = 50.0, **design) -> dict:
+    """(b) on MuJoCo's plant of the exported arm: a table (a box of half-width `half` m, MuJoCo's
+    default contact) `gap` below the lowest point of the arm's capsules above it, the target moved
+    in `ramp` s to `depth` below that touch: over the last 0.2 s the contact force MuJoCo reports
+    against the stiffness the controller realises, K (p_z - p_ref,z) with p the frame where MuJoCo
+    holds it, the force's peak-to-peak (chatter), and the momentum observer's link torques against
+    MuJoCo's J^T f (their mean difference, per joint the largest)."""
+    from rscasadi.dynamics.kinematics import body_poses
+    from rscasadi.export.mujoco import mujoco_plant
+    from rscasadi.model.collision import capsules
+    ref0 = pose_of(arm, frame, theta0)
+    poses, low = body_poses(arm.model, np.asarray(theta0, float)), np.inf
+    for c in capsules(arm.model):                   # the capsules' lowest point over the table
+        R, o = (np.array(v) for v in poses[c.body])
+        for s_ in np.linspace(0.0, 1.0, 101):
+            q = R @ ((1 - s_) * c.a + s_ * c.b) + o.ravel()
+            if np.all(np.abs(q[:2] - ref0[:2]) <= half):
+                low = min(low, q[2] - c.radius)
+    if not np.isfinite(low):
+        raise InvalidArgument(f"table_in_mujoco: no capsule of {arm.model.path} is above {frame!r}: nothing to touch")
+    top = low - gap
+    table = (f'    <geom name="table" type="box" size="{half!r} {half!r} 0.01" '
+             f'pos="{float(ref0[0])!r} {float(ref0[1])!r} {float(top) - 0.01!r}"/>')
+
+    def reference(t):
+        s_ = min(t / ramp, 1.0)
+        return ref0 - np.r_[0, 0, (3 * s_ ** 2 - 2 * s_ ** 3) * (gap + depth), np.zeros(9)]
+    run = impedance_loop(arm, frame, theta0, World(frames=[frame]), seconds, reference,
+                         [stiffness] * 3 + [rotational] * 3, [zeta] * 6, observer_gain=observer_gain,
+                         plant=mujoco_plant(arm, DT, world=table, frame=frame), **design)
+    last = run["t"] > run["t"][-1] - 0.2
+    fz = run["f"][:, 2]
+    realised = stiffness * (run["p"][last, 2] - reference(seconds)[2])
+    settled = np.arange(len(run["r"])) >= len(run["r"]) - 200           # the observer's last 0.2 s
+    torque_error = np.abs((run["r"][settled] - run["true"][settled]).mean(axis=0))
+    return {"K": stiffness, "force": float(fz[last].mean()), "expected": float(realised.mean()),
+            "error_percent": float(100 * (fz[last].mean() / realised.mean() - 1)),
+            "chatter_percent": float(100 * np.ptp(fz[last]) / abs(fz[last].mean())),
+            "observer_error": float(torque_error.max()), "observer_torque": float(np.abs(run["true"][-1]).max()),
+            "trace": (run["t"], fz)}
 
 
 def _first_flags(t, flagged, contact: float) -> tuple[float, float]:
