@@ -181,6 +181,16 @@ def test_task_space_example_holds_the_push():
     assert np.allclose(out["T_free"] - out["T"], J.T @ f) and out["ik"]["success"]
 
 
+def test_the_mujoco_tutorial_s_example_does_what_the_page_says(tmp_path):
+    """docs/tutorials/mujoco.md: the complete export within 1e-5 rad of rscasadi's replay, the
+    armature and reduced models 1000 times further, the controller on MuJoCo's Panda within 1e-3."""
+    pytest.importorskip("mujoco")
+    err, result = example("mujoco_twin").main(["--out", str(tmp_path), "--seconds", "0.5"])
+    assert err["complete"] < 1e-5 and min(err["armature"], err["reduced"]) > 1000 * err["complete"], err
+    assert result["max_error"] < 1e-3 and (tmp_path / "complete" / "model.xml").exists()
+
+
+
 def test_the_readme_api_lines_run(tmp_path, monkeypatch):
     """The README's ten API lines, as a user pastes them (from the repository's directory)."""
     readme = (ROOT / "README.md").read_text()

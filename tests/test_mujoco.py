@@ -183,32 +183,13 @@ def test_the_armature_model_misses_what_the_complete_one_keeps(name, trajectory)
     ten times: what rotor separation and the springs keep, in MuJoCo's own terms (measured
     2026-11-26: complete 1.7e-7, reduced 4.2e-3, armature 7.9e-3 rad on the reference arm;
     3.7e-6, 6.1e-2, 3.1e-2 on the Panda)."""
-    from rscasadi.sim.simulation import feedforward, simulate
+    from rscasadi.export.mujoco import compare_variants
     from rscasadi.sim.trajectory import load_trajectory
-    arm, m, d, T = loaded(name)
-    n, traj = arm.n, load_trajectory(ROOT / "problems" / trajectory)
-    t = np.arange(int(round(traj.duration / 1e-3)) + 1) * 1e-3
-    ff = feedforward(arm, traj, t)
-    ours = simulate(arm, ff["x0"], t, ff["tau"], interpolation="constant")["theta"]
-    rigid = mujoco.MjModel.from_xml_string(mujoco_xml(arm.model, "armature"))
-    r = mujoco.MjData(rigid)
-    assert rigid.nv == n and rigid.neq == 0 and rigid.ntendon == 0
-    d.qpos[:], d.qvel[:] = T @ ff["x0"][:2 * n], T @ ff["x0"][2 * n:]
-    r.qpos[:], r.qvel[:] = ff["x0"][:n], ff["x0"][2 * n:3 * n]
-    _, dlr, dd, Td = loaded(arm, "reduced")
-    dd.qpos[:], dd.qvel[:] = Td @ ff["x0"][:2 * n], Td @ ff["x0"][2 * n:]
-    back, complete_err, armature_err, reduced_err = np.linalg.pinv(T), 0.0, 0.0, 0.0
-    for k in range(len(t) - 1):
-        d.ctrl[:] = r.ctrl[:] = dd.ctrl[:] = ff["tau"][:, k]
-        mujoco.mj_step(m, d)
-        mujoco.mj_step(rigid, r)
-        mujoco.mj_step(dlr, dd)
-        complete_err = max(complete_err, np.max(np.abs((back @ d.qpos)[:n] - ours[:, k + 1])))
-        armature_err = max(armature_err, np.max(np.abs(r.qpos - ours[:, k + 1])))
-        reduced_err = max(reduced_err, np.max(np.abs((np.linalg.pinv(Td) @ dd.qpos)[:n] - ours[:, k + 1])))
-    print(f"{name}: complete {complete_err:.2e}, reduced {reduced_err:.2e}, armature {armature_err:.2e} rad")
-    assert complete_err < 2e-5 and armature_err > max(1e-3, 100 * complete_err), (complete_err, armature_err)
-    assert reduced_err > 10 * complete_err, (complete_err, reduced_err)
+    arm = rscasadi.load(ARMS[name][0])
+    err = compare_variants(arm, load_trajectory(ROOT / "problems" / trajectory))
+    print(name, err)
+    assert err["complete"] < 2e-5 and err["armature"] > max(1e-3, 100 * err["complete"]), err
+    assert err["reduced"] > 10 * err["complete"], err
 
 
 def test_impedance_presses_a_mujoco_table_at_the_stiffness_it_realises_and_the_observer_sees_it():

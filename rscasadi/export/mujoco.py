@@ -260,3 +260,34 @@ def export_mujoco(model_file, out, log=print, variant: str = "complete") -> Path
             "complete": "each a link, a slow and a fast rotor, the gear an equality, the spring a tendon"}[variant]
     log(f"wrote {Path(out) / 'model.xml'}: {arm.n} joints, {what} (RK4 at {TIMESTEP * 1e3:g} ms)")
     return Path(out) / "model.xml"
+
+
+def compare_variants(arm, trajectory) -> dict:
+    """The feedforward torques of `trajectory` (rscasadi.sim.simulation.feedforward), held over
+    each MuJoCo step, open loop, applied to each export of `arm` and to rscasadi's CVODES replay:
+    the largest link-angle difference (rad) of each variant's MuJoCo motion from the replay
+    ("reduced": None for an arm with unbalanced rotors, which that model cannot hold)."""
+    import mujoco
+    from rscasadi.sim.simulation import feedforward, simulate
+    n = arm.n
+    t = np.arange(int(round(trajectory.duration / TIMESTEP)) + 1) * TIMESTEP
+    ff = feedforward(arm, trajectory, t)
+    ours = simulate(arm, ff["x0"], t, ff["tau"], interpolation="constant")["theta"]
+    balanced = all(getattr(jt, part).balanced for jt in arm.model.joints for part in ("slow_rotor", "fast_rotor"))
+    runs = {}
+    for variant in VARIANTS:
+        if variant == "reduced" and not balanced:
+            continue
+        m = mujoco.MjModel.from_xml_string(mujoco_xml(arm.model, variant))
+        d = mujoco.MjData(m)
+        T = np.eye(2 * n)[:n] if variant == "armature" else gear_map(arm, m)       # armature: the links alone
+        x0 = ff["x0"] if variant != "armature" else np.r_[ff["x0"][:n], np.zeros(n), ff["x0"][2 * n:3 * n], np.zeros(n)]
+        d.qpos[:], d.qvel[:] = T @ x0[:2 * n], T @ x0[2 * n:]
+        back, worst = np.linalg.pinv(T), 0.0
+        for k in range(len(t) - 1):
+            d.ctrl[:] = ff["tau"][:, k]
+            mujoco.mj_step(m, d)
+            worst = max(worst, float(np.max(np.abs((back @ d.qpos)[:n] - ours[:, k + 1]))))
+        runs[variant] = worst
+    return {"seconds": float(t[-1]), "timestep": TIMESTEP, "complete": runs["complete"],
+            "reduced": runs.get("reduced"), "armature": runs["armature"]}

@@ -154,6 +154,13 @@ def run(out, log=print) -> list:
             raise PartFailed("the closed-loop MPC's tracking error is not finite")
         return f"{out / 'mpc'}/: closed-loop MPC max tracking error {worst:.2e} rad"
 
+    def mujoco():
+        from rscasadi.studies.mujoco_twin import run as run_mujoco
+        res = run_mujoco(out / "mujoco", out / "identification" / "excitation" / "trajectory.toml", log=log)
+        return (f"{out / 'mujoco'}/: MuJoCo's complete export within "
+                f"{max(r['complete'] for r in res['exports'].values()):.1e} rad of the model, "
+                f"the impedance's contact force within {max(abs(r['error_percent']) for r in res['impedance']):.2f} %")
+
     def mpc_task(name, problem, limits_kept=True):
         def work():
             import dataclasses
@@ -194,6 +201,7 @@ def run(out, log=print) -> list:
          needs=("ocp panda_shelf",))
     for name in INTERACTION_ARMS:
         part(f"interaction {name}", lambda name=name: interaction_study(name, out / "interaction", log))
+    part("mujoco", mujoco, needs=("identification",))
     write_json(out / "summary.json", {
         "run": run_stamp(), "seconds": sum(seconds.values()),
         "parts": [{"part": name, "status": state, "produced": what, "seconds": seconds.get(name, 0.0)}
