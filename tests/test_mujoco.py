@@ -197,11 +197,12 @@ def test_impedance_presses_a_mujoco_table_at_the_stiffness_it_realises_and_the_o
     encoders on MuJoCo's plant, its target moved 5 mm below a MuJoCo table the tool's capsule
     touches (MuJoCo's own contact, not rscasadi's): the settled force MuJoCo reports is K times the
     tool's distance from the target where MuJoCo holds it (within 1 %), without chatter, and the
-    momentum observer's link torques are MuJoCo's J^T f (measured 2026-11-26: 0.06 %, 0.008 %
-    peak-to-peak, 2e-5 of 0.94 N m)."""
+    momentum observer's link torques are MuJoCo's J^T f and it flags the contact, after it only
+    (measured 2026-11-26: 0.06 %, 0.008 % peak-to-peak, 2e-5 of 0.94 N m, 9 ms)."""
     from rscasadi.interaction.study import table_in_mujoco
     arm = rscasadi.load(ROOT / "problems" / "arm3_tool.toml")
     res = table_in_mujoco(arm, "tool", [0.0, 0.3, -0.5], 300.0)
     assert res["force"] > 1.0                                          # it presses
     assert abs(res["error_percent"]) < 1.0 and res["chatter_percent"] < 1.0, res
     assert res["observer_error"] < 0.01 * res["observer_torque"], res
+    assert 0 <= res["delay_ms"] < 20 and np.isnan(res["false_alarm_s"]), res          # flagged, only after

@@ -140,13 +140,14 @@ def wall(arm: Arm, frame: str, theta0, stiffness: float, wall_stiffness: float, 
 
 def table_in_mujoco(arm: Arm, frame: str, theta0, stiffness: float, depth: float = 0.005, gap: float = 0.002,
                     seconds: float = 2.0, ramp: float = 0.5, half: float = 0.02, rotational: float = 50.0,
-                    zeta: float = 0.7, observer_gain: float = 50.0, **design) -> dict:
+                    zeta: float = 0.7, observer_gain: float = 50.0, threshold: float = 0.5, **design) -> dict:
     """(b) on MuJoCo's plant of the exported arm: a table (a box of half-width `half` m, MuJoCo's
     default contact) `gap` below the lowest point of the arm's capsules above it, the target moved
     in `ramp` s to `depth` below that touch: over the last 0.2 s the contact force MuJoCo reports
     against the stiffness the controller realises, K (p_z - p_ref,z) with p the frame where MuJoCo
     holds it, the force's peak-to-peak (chatter), and the momentum observer's link torques against
-    MuJoCo's J^T f (their mean difference, per joint the largest)."""
+    MuJoCo's J^T f (their mean difference, per joint the largest); the observer's flag (a link
+    torque above `threshold` N m) after MuJoCo's first contact, and its largest torque before."""
     from rscasadi.dynamics.kinematics import body_poses
     from rscasadi.export.mujoco import mujoco_plant
     from rscasadi.model.collision import capsules
@@ -175,7 +176,13 @@ def table_in_mujoco(arm: Arm, frame: str, theta0, stiffness: float, depth: float
     realised = stiffness * (run["p"][last, 2] - reference(seconds)[2])
     settled = np.arange(len(run["r"])) >= len(run["r"]) - 200           # the observer's last 0.2 s
     torque_error = np.abs((run["r"][settled] - run["true"][settled]).mean(axis=0))
-    return {"K": stiffness, "force": float(fz[last].mean()), "expected": float(realised.mean()),
+    t, r, true = run["t"][:-1], run["r"], run["true"]               # r, true: at the start of samples 2..
+    contact = t[int(np.argmax(np.abs(true).max(axis=1) > 0))]
+    flag, false_alarm = _first_flags(t, np.abs(r).max(axis=1) > threshold, contact)
+    return {"contact_s": float(contact), "flag_s": float(flag), "delay_ms": float(1e3 * (flag - contact)),
+            "false_alarm_s": float(false_alarm), "free_max_Nm": float(np.abs(r[t < contact]).max()),
+            "threshold_Nm": threshold,
+            "K": stiffness, "force": float(fz[last].mean()), "expected": float(realised.mean()),
             "error_percent": float(100 * (fz[last].mean() / realised.mean() - 1)),
             "chatter_percent": float(100 * np.ptp(fz[last]) / abs(fz[last].mean())),
             "observer_error": float(torque_error.max()), "observer_torque": float(np.abs(run["true"][-1]).max()),
