@@ -3,7 +3,9 @@ optimal-control problems, the identification demo, the closed-loop MPC studies a
 interaction studies, each part checked; a summary of what each produced."""
 from __future__ import annotations
 
+import functools
 import time
+from typing import Callable
 from pathlib import Path
 
 import numpy as np
@@ -94,11 +96,16 @@ def run(out, log=print) -> list:
     summary: list[tuple[str, str, str]] = []
     seconds: dict[str, float] = {}
 
+    began, parts = time.perf_counter(), 0                       # parts: set below, before the first runs
+
     def part(name, work, needs=()):
         missing = [n for n in needs if not any(s[0] == n and s[1] == "ok" for s in summary)]
         if missing:
             summary.append((name, "skipped", f"needs {', '.join(missing)}"))
             return
+        elapsed = time.perf_counter() - began
+        log(f"\nrscasadi reproduce: part {len(summary) + 1} of {parts}, {name} "
+            f"({elapsed // 60:.0f} min {elapsed % 60:.0f} s in)")
         start = time.perf_counter()
         try:
             summary.append((name, "ok", work()))
@@ -188,20 +195,21 @@ def run(out, log=print) -> list:
             return line
         return work
 
-    part("model", model)
-    part("paper", paper)
-    for name in OCP_PROBLEMS:
-        part(f"ocp {name}", ocp(name))
-    part("ocp panda_shelf", lambda: shelf_comparison(out, log))
-    part("identification", identification)
-    part("mpc", mpc, needs=("identification",))
-    part("mpc task space", mpc_task("mpc_tool", "mpc_arm3_tool.toml"))
-    # the minimum-time reference rides the deflection and speed limits: the MPC's soft limits overshoot
-    part("mpc panda shelf", mpc_task("mpc_panda_shelf", "mpc_panda_shelf.toml", limits_kept=False),
-         needs=("ocp panda_shelf",))
-    for name in INTERACTION_ARMS:
-        part(f"interaction {name}", lambda name=name: interaction_study(name, out / "interaction", log))
-    part("mujoco", mujoco, needs=("identification",))
+    schedule: list[tuple[str, Callable[[], str], tuple[str, ...]]] = [("model", model, ()), ("paper", paper, ())]
+    schedule += [(f"ocp {name}", ocp(name), ()) for name in OCP_PROBLEMS]
+    schedule += [("ocp panda_shelf", lambda: shelf_comparison(out, log), ()),
+                 ("identification", identification, ()),
+                 ("mpc", mpc, ("identification",)),
+                 ("mpc task space", mpc_task("mpc_tool", "mpc_arm3_tool.toml"), ()),
+                 # the minimum-time reference rides the deflection and speed limits: the MPC's soft limits overshoot
+                 ("mpc panda shelf", mpc_task("mpc_panda_shelf", "mpc_panda_shelf.toml", limits_kept=False),
+                  ("ocp panda_shelf",))]
+    schedule += [(f"interaction {name}", functools.partial(interaction_study, name, out / "interaction", log), ())
+                 for name in INTERACTION_ARMS]
+    schedule += [("mujoco", mujoco, ("identification",))]
+    parts = len(schedule)
+    for name, work, needs in schedule:
+        part(name, work, needs)
     write_json(out / "summary.json", {
         "run": run_stamp(), "seconds": sum(seconds.values()),
         "parts": [{"part": name, "status": state, "produced": what, "seconds": seconds.get(name, 0.0)}
