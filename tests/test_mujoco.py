@@ -192,16 +192,18 @@ def test_the_armature_model_misses_what_the_complete_one_keeps(name, trajectory)
     assert err["reduced"] > 10 * err["complete"], err
 
 
-def test_impedance_presses_a_mujoco_table_at_the_stiffness_it_realises_and_the_observer_sees_it():
-    """The Cartesian impedance controller (the generated C's Python twin) at 1 kHz with quantised
+def test_impedance_presses_a_mujoco_table_at_the_stiffness_it_realises_and_the_observer_sees_it(tmp_path):
+    """The generated C Cartesian impedance controller at 1 kHz with quantised
     encoders on MuJoCo's plant, its target moved 5 mm below a MuJoCo table the tool's capsule
     touches (MuJoCo's own contact, not rscasadi's): the settled force MuJoCo reports is K times the
     tool's distance from the target where MuJoCo holds it (within 1 %), without chatter, and the
     momentum observer's link torques are MuJoCo's J^T f and it flags the contact, after it only
     (measured 2026-11-26: 0.06 %, 0.008 % peak-to-peak, 2e-5 of 0.94 N m, 9 ms)."""
+    from rscasadi.interaction.generate import generate_impedance
     from rscasadi.interaction.study import table_in_mujoco
     arm = rscasadi.load(ROOT / "problems" / "arm3_tool.toml")
-    res = table_in_mujoco(arm, "tool", [0.0, 0.3, -0.5], 300.0)
+    generate_impedance(arm, tmp_path / "impedance", "tool", opt="-O1", log=lambda m: None)
+    res = table_in_mujoco(arm, "tool", [0.0, 0.3, -0.5], 300.0, compiled=tmp_path / "impedance")
     assert res["force"] > 1.0                                          # it presses
     assert abs(res["error_percent"]) < 1.0 and res["chatter_percent"] < 1.0, res
     assert res["observer_error"] < 0.01 * res["observer_torque"], res

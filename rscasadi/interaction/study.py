@@ -17,6 +17,7 @@ import numpy as np
 
 from rscasadi.dynamics.arm import Arm
 from rscasadi.dynamics.statics import rest_state
+from rscasadi.interaction.generate import CompiledImpedance
 from rscasadi.interaction.impedance import ImpedanceController
 from rscasadi.interaction.observer import MomentumObserver
 from rscasadi.native.controller import CODE_NAMES
@@ -34,20 +35,22 @@ def pose_of(arm: Arm, frame: str, theta) -> np.ndarray:
 
 
 class _Impedance:
-    """The impedance controller as the loop's controller, tracking reference(t) (12)."""
+    """The impedance controller as the loop's controller, tracking reference(t) (12): the Python
+    twin (ImpedanceController) or the generated C (CompiledImpedance: step returns its code)."""
 
-    def __init__(self, ctrl: ImpedanceController, reference, stiffness, damping_ratio):
+    def __init__(self, ctrl, reference, stiffness, damping_ratio):
         self.ctrl, self.reference, self.stiffness, self.damping_ratio = ctrl, reference, stiffness, damping_ratio
 
     def init(self, meas) -> None:
-        if self.ctrl.init(meas) != 0:
+        if self.ctrl.init(meas) != 0:                 # the C's init raises ControllerError itself
             raise InvalidArgument(f"impedance: the start state is outside the controller's box "
                                   f"({CODE_NAMES[self.ctrl.code]})")
 
     def step(self, k: int, meas) -> np.ndarray:
-        tau = self.ctrl.step(meas, self.reference(k * DT), self.stiffness, self.damping_ratio)
-        if self.ctrl.code != 0:
-            raise InvalidArgument(f"impedance: {CODE_NAMES[self.ctrl.code]} at t = {k * DT:.3f} s (stiffness "
+        out = self.ctrl.step(meas, self.reference(k * DT), self.stiffness, self.damping_ratio)
+        tau, code = out if isinstance(out, tuple) else (out, self.ctrl.code)
+        if code != 0:
+            raise InvalidArgument(f"impedance: {CODE_NAMES[code]} at t = {k * DT:.3f} s (stiffness "
                                   f"{list(np.ravel(self.stiffness))}: TOO_STIFF is beyond what the springs allow "
                                   f"the passive design)")
         return tau
@@ -55,13 +58,14 @@ class _Impedance:
 
 def impedance_loop(arm: Arm, frame: str, theta0, world: World, seconds: float, reference, stiffness,
                    damping_ratio, observer_gain: float | None = None, substeps: int = 8, plant=None,
-                   **design) -> dict:
+                   compiled=None, **design) -> dict:
     """The arm at rest at theta0 under the Cartesian impedance controller (`design` keywords as
     `impedance_law`), the reference reference(t) (12), in `world` (rscasadi.sim.loop): per sample
     t, the frame's position p, the wrench at world.frames[0] (6), the deflections psi, the
     torques, the observer's link torques r and the true J^T f (when observer_gain is given).
     `plant`: another plant giving that wrench (rscasadi.export.mujoco.mujoco_plant with a world
-    of its own), else rscasadi's contacts of `world`."""
+    of its own), else rscasadi's contacts of `world`; `compiled`: the directory of the generated C
+    controller (generate_impedance) to run instead of its Python twin."""
     n, samples = arm.n, int(round(seconds / DT))
     place, jac = arm.frame_placement(frame), arm.frame_jacobian(world.frames[0], "local_world_aligned")
     x0 = rest_state(arm, theta0)
@@ -75,7 +79,8 @@ def impedance_loop(arm: Arm, frame: str, theta0, world: World, seconds: float, r
             seen["r"].append(obs.step(meas, tau)[:n])
             seen["true"].append(np.array(jac(x[:n])).T @ wrench[:, 0])
     run = run_loop(arm, contact_plant(arm, world, DT, substeps) if plant is None else plant,
-                   _Impedance(ImpedanceController(arm, frame, **design), reference, stiffness, damping_ratio),
+                   _Impedance(ImpedanceController(arm, frame, **design) if compiled is None else
+                              CompiledImpedance(compiled), reference, stiffness, damping_ratio),
                    x0, samples, DT, watch=watch)
     x = run.x[:, 1:]
     rows = {"t": run.t[1:], "p": np.array(place.map(samples)(x[:n])[1]).T, "f": np.array([w[:, 0] for w in run.wrenches]),
@@ -140,14 +145,16 @@ def wall(arm: Arm, frame: str, theta0, stiffness: float, wall_stiffness: float, 
 
 def table_in_mujoco(arm: Arm, frame: str, theta0, stiffness: float, depth: float = 0.005, gap: float = 0.002,
                     seconds: float = 2.0, ramp: float = 0.5, half: float = 0.02, rotational: float = 50.0,
-                    zeta: float = 0.7, observer_gain: float = 50.0, threshold: float = 0.5, **design) -> dict:
+                    zeta: float = 0.7, observer_gain: float = 50.0, threshold: float = 0.5, compiled=None,
+                    **design) -> dict:
     """(b) on MuJoCo's plant of the exported arm: a table (a box of half-width `half` m, MuJoCo's
     default contact) `gap` below the lowest point of the arm's capsules above it, the target moved
     in `ramp` s to `depth` below that touch: over the last 0.2 s the contact force MuJoCo reports
     against the stiffness the controller realises, K (p_z - p_ref,z) with p the frame where MuJoCo
     holds it, the force's peak-to-peak (chatter), and the momentum observer's link torques against
     MuJoCo's J^T f (their mean difference, per joint the largest); the observer's flag (a link
-    torque above `threshold` N m) after MuJoCo's first contact, and its largest torque before."""
+    torque above `threshold` N m) after MuJoCo's first contact, and its largest torque before.
+    `compiled`: the generated C controller's directory (impedance_loop)."""
     from rscasadi.dynamics.kinematics import body_poses
     from rscasadi.export.mujoco import mujoco_plant
     from rscasadi.model.collision import capsules
@@ -170,7 +177,7 @@ def table_in_mujoco(arm: Arm, frame: str, theta0, stiffness: float, depth: float
         return ref0 - np.r_[0, 0, (3 * s_ ** 2 - 2 * s_ ** 3) * (gap + depth), np.zeros(9)]
     run = impedance_loop(arm, frame, theta0, World(frames=[frame]), seconds, reference,
                          [stiffness] * 3 + [rotational] * 3, [zeta] * 6, observer_gain=observer_gain,
-                         plant=mujoco_plant(arm, DT, world=table, frame=frame), **design)
+                         plant=mujoco_plant(arm, DT, world=table, frame=frame), compiled=compiled, **design)
     last = run["t"] > run["t"][-1] - 0.2
     fz = run["f"][:, 2]
     realised = stiffness * (run["p"][last, 2] - reference(seconds)[2])
