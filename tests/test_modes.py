@@ -70,3 +70,28 @@ def test_the_mode_rk4_amplifies_is_the_one_the_nonlinear_model_shows():
     assert np.max(np.abs(runs[3])) > 3e-3 and np.max(np.abs(runs[3] - runs[40])) > 3e-3
     assert np.max(np.abs(runs[4] - runs[40])) < 2e-4
     assert not integrator_notes(arm, p)              # along its own trajectory the problem's 3 substeps hold
+
+
+def test_auto_substeps_are_the_fewest_that_hold_every_mode_or_refused_naming_it(tmp_path):
+    """substeps = "auto" (the MPC's default): along the Panda problem's trajectory the file's own 3,
+    stretched up the 4 the 72 Hz mode needs; on the reference arm with a flange a thousand times
+    lighter no substeps up to the limit hold its spring mode: refused, naming the field, the mode
+    and the joint, before any C is generated."""
+    import dataclasses
+    import tomllib
+    from rscasadi.model.modelfile import ModelFileError
+    from rscasadi.mpc.problem import MPCProblem, load_mpc_problem, mpc_model, with_substeps
+    p = dataclasses.replace(load_mpc_problem(ROOT / "problems" / "mpc_panda.toml"), substeps="auto")
+    arm = rscasadi.Arm(mpc_model(p))
+    assert with_substeps(p, arm).substeps == 3
+    up = dataclasses.replace(p, trajectory=None, theta_start=np.zeros(7))
+    assert with_substeps(up, arm).substeps == rk4_substeps(linear_modes(arm, np.zeros(7)), 0.02) == 4
+    with open(REFERENCE, "rb") as fh:
+        doc = tomllib.load(fh)
+    flange = doc["joints"][2]["link"]
+    flange["mass"] *= 1e-3
+    flange["inertia"] = [v * 1e-3 for v in flange["inertia"]]
+    (tmp_path / "light.toml").write_text(to_toml(doc))
+    light = MPCProblem(tmp_path / "light.toml", trajectory=ROOT / "problems" / "trajectory_arm3.toml", interval=0.02)
+    with pytest.raises(ModelFileError, match=r"field 'substeps': auto: even 20 RK4 steps .* Hz spring mode of elbow_pitch"):
+        with_substeps(light, rscasadi.Arm(mpc_model(light)))

@@ -43,7 +43,7 @@ import numpy as np
 
 from rscasadi.dynamics.arm import Arm
 from rscasadi.model.limits import limit_arrays as model_limits
-from rscasadi.mpc.problem import SOFT, LINE_SEARCH, MPCProblem
+from rscasadi.mpc.problem import SOFT, LINE_SEARCH, MPCProblem, with_substeps
 from rscasadi.task.terms import Clearance, FrameTracking, JointTracking, Posture, StateBound
 
 
@@ -349,8 +349,9 @@ def rti_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None = No
     each with a line search on the rollout's cost), then the plan shifted by one sample.
     params: the posture (n) and the payload's mass (if `arm` takes it: `controller_arm`).
     step_jacobian: as `interval_functions`."""
+    p = with_substeps(p, arm)
     n, N, nx = arm.n, p.horizon, 4 * arm.n
-    F, Fx = interval_functions(arm, p.interval, p.substeps, step_jacobian)
+    F, Fx = interval_functions(arm, p.interval, int(p.substeps), step_jacobian)
     limits = limit_arrays(arm)
     residual = stage_residual(arm, p, limits)
     xm, ref = ca.MX.sym("x", nx), ca.MX.sym("reference", reference_rows(n, p), N)
@@ -394,8 +395,9 @@ def prepare_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None 
     """mpc_prepare(reference, X, U, params) -> the real-time iteration's QP before the
     measurement (`_Linearisation` without xm): H, g0, M, the maps Eb, Phi, Gf of the plan's change and, with hard
     angle limits, the rows C, cl0, cu0, Cx (empty without).  Only for sqp_iterations = 1."""
+    p = with_substeps(p, arm)
     n, N, nx = arm.n, p.horizon, 4 * arm.n
-    F, _ = interval_functions(arm, p.interval, p.substeps, step_jacobian)
+    F, _ = interval_functions(arm, p.interval, int(p.substeps), step_jacobian)
     limits = limit_arrays(arm)
     ref = ca.MX.sym("reference", reference_rows(n, p), N)
     params = ca.MX.sym("params", n_params(arm))

@@ -13,7 +13,7 @@ import numpy as np
 from rscasadi.files import safe_name
 from rscasadi.mpc.formulation import (PREPARED, controller_arm, feedback_function, hold_function, n_params,
                                       prepare_function, reference_rows, rti_function)
-from rscasadi.mpc.problem import mpc_model, mpc_problem
+from rscasadi.mpc.problem import AUTO, mpc_model, mpc_problem, problem_poses, with_substeps
 from rscasadi.model.limits import limit_arrays, measurement_bounds
 from rscasadi.native.build import cached_library, compiler, native_flags
 from rscasadi.native.controller import boxes, c_words, task_reference_bounds
@@ -63,20 +63,6 @@ def guard_bounds(model, p, rows: int) -> dict:
     return {"tau_max": limit_arrays(model)["tau"], "x_lo": x_lo, "x_hi": x_hi, "ref_lo": ref_lo, "ref_hi": ref_hi}
 
 
-def problem_poses(p, n: int, count: int = 5) -> list[np.ndarray]:
-    """Where the arm will be: `count` poses along the reference trajectory or the solution's
-    motion, else theta_start, else zero."""
-    import json
-    from rscasadi.sim.trajectory import load_trajectory
-    if p.trajectory is not None:
-        traj = load_trajectory(p.trajectory)
-        return list(traj(np.linspace(0.0, traj.duration, count))[0].T)
-    if p.solution is not None and Path(p.solution).is_file():
-        theta = np.asarray(json.loads(Path(p.solution).read_text())["theta"], float)
-        return list(theta[:, np.linspace(0, theta.shape[1] - 1, count).astype(int)].T)
-    return [np.asarray(p.theta_start, float) if p.theta_start is not None else np.zeros(n)]
-
-
 def integrator_notes(arm, p, poses=None) -> list[str]:
     """What RK4 with the problem's substeps does to the arm's spring modes at rest at its poses
     (`problem_poses`; rscasadi.dynamics.modes): a note per joint whose mode it amplifies where the
@@ -110,6 +96,10 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
         p = dataclasses.replace(p, model=Path(model).resolve())
     model = mpc_model(p)
     arm = controller_arm(model, p.parametric)
+    if p.substeps == AUTO:
+        p = with_substeps(p, arm)
+        log(f"substeps = auto: {p.substeps} RK4 steps of {1e3 * p.interval / int(p.substeps):.3g} ms per interval, the "
+            f"fewest that amplify none of the arm's spring modes at the problem's poses")
     for line in integrator_notes(arm, p):
         log(line)
     cc, flags = compiler(), [opt, "-std=c99"] + (native_flags() if native else [])

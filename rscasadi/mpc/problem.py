@@ -23,6 +23,7 @@ WEIGHTS = {"theta": 1e5, "dtheta": 1.0, "tau": 1e-3, "limits": 1e5, "angle_limit
 JOINT_WEIGHTS, TASK_WEIGHTS = ("theta", "dtheta"), ("position", "velocity", "orientation", "posture")
 SOFT = 0.9                   # penalties start at this fraction of the psi and dphi limits (and of
                              # the link-angle range's half-width, about its middle)
+AUTO = "auto"               # substeps chosen from the arm's spring modes (with_substeps)
 LINE_SEARCH = (1.0, 0.5, 0.25, 0.125)   # step sizes tried when sqp_iterations > 1
 # sizes refused before the work: the condensed QP's C grows as N^2 (20 intervals on 7 joints are
 # 30 MB of C, 6 CPU-minutes to compile), and every unrolled iteration adds to it
@@ -35,7 +36,8 @@ MAX_SIZES = {"horizon": (50, "the condensed QP's C grows as horizon^2: 20 interv
 @dataclass
 class MPCProblem:
     """An MPC problem: the `model` and the reference `trajectory`, the controller's `sample_time`,
-    a horizon of `horizon` intervals of `interval` s with `substeps` RK4 steps each, the SQP
+    a horizon of `horizon` intervals of `interval` s with `substeps` RK4 steps each ("auto", the
+    default: the fewest that amplify none of the arm's spring modes, `with_substeps`), the SQP
     iterations per sample (1: the real-time iteration) and the QP's interior-point iterations,
     and the cost `weights` (theta, dtheta, tau, limits, angle_limits; in task space position, velocity,
     orientation, posture; obstacles).  Task space: `frame` (its position, and its rotation if
@@ -53,7 +55,7 @@ class MPCProblem:
     sample_time: float = 1e-3
     horizon: int = 10
     interval: float = 0.01
-    substeps: int = 5
+    substeps: int | str = AUTO
     sqp_iterations: int = 1
     qp_iterations: int = 16
     weights: dict = field(default_factory=lambda: dict(WEIGHTS))
@@ -109,6 +111,8 @@ class MPCProblem:
                 fail(key, f"must be a positive number, got {v!r}")
         for key in ("horizon", "substeps", "sqp_iterations", "qp_iterations"):
             v = getattr(self, key)
+            if key == "substeps" and v == AUTO:
+                continue
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 fail(key, f"must be an integer >= 1, got {v!r}")
             if v > MAX_SIZES[key][0]:
@@ -217,3 +221,42 @@ def mpc_model(p: MPCProblem):
 def mpc_problem(problem) -> MPCProblem:
     """`problem` itself (checked) if an MPCProblem, else the problem file it names."""
     return problem.check() if isinstance(problem, MPCProblem) else load_mpc_problem(problem)
+
+
+def problem_poses(p, n: int, count: int = 5) -> list[np.ndarray]:
+    """Where the arm will be: `count` poses along the reference trajectory or the solution's
+    motion, else theta_start, else zero."""
+    import json
+    from rscasadi.sim.trajectory import load_trajectory
+    if p.trajectory is not None:
+        traj = load_trajectory(p.trajectory)
+        return list(traj(np.linspace(0.0, traj.duration, count))[0].T)
+    if p.solution is not None and Path(p.solution).is_file():
+        theta = np.asarray(json.loads(Path(p.solution).read_text())["theta"], float)
+        return list(theta[:, np.linspace(0, theta.shape[1] - 1, count).astype(int)].T)
+    return [np.asarray(p.theta_start, float) if p.theta_start is not None else np.zeros(n)]
+
+
+def with_substeps(p: MPCProblem, arm) -> MPCProblem:
+    """`p` itself if its substeps are a number; with substeps = "auto", `p` with the fewest RK4
+    substeps of its interval that amplify none of `arm`'s spring modes at the problem's poses
+    (`problem_poses`; rscasadi.dynamics.modes.rk4_substeps), refused naming the mode where more
+    than MAX_SIZES allows would be needed."""
+    import dataclasses
+    from rscasadi.dynamics.modes import linear_modes, rk4_spurious, rk4_substeps
+    if p.substeps != AUTO:
+        return p
+    most, need, hardest = MAX_SIZES["substeps"][0], 1, None
+    for theta in problem_poses(p, arm.n):
+        modes = linear_modes(arm, theta)
+        s = rk4_substeps(modes, p.interval, most)
+        if s is None:
+            hardest = max(rk4_spurious(modes, p.interval / most), key=lambda m: m.hz)
+            break
+        need = max(need, s)
+    if hardest is not None:
+        where = p.path if p.path is not None else "<MPCProblem>"
+        raise ModelFileError(f"{where}: field 'substeps': auto: even {most} RK4 steps of the {p.interval:g} s interval "
+                             f"amplify the {hardest.hz:.0f} Hz spring mode of {hardest.joint} (damping ratio "
+                             f"{hardest.damping_ratio:.2f}); shorten the interval")
+    return dataclasses.replace(p, substeps=need)
