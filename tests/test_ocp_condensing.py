@@ -204,9 +204,8 @@ def test_the_condensing_kernel_compiles_without_warnings(name, monkeypatch, tmp_
     base = load_problem(REFERENCE.parent / f"{name}.toml").replace(intervals=3)
     with pytest.raises(Built):
         Transcription(base, Arm(read(base.task.model)), N=3).nlp(log=lambda m: None)
-    (source,) = built.values()
-    at = source.index("/* condensed collocation kernel")
-    _strict_compile(source[:at], source[at:], tmp_path)
+    (kernel,) = [text for name, text in built.items() if name.endswith("kernel.c")]    # ours; CasADi's apart
+    _strict_compile("", kernel, tmp_path)
 
 
 @pytest.mark.parametrize("parametric", [False, True])

@@ -179,7 +179,8 @@ def _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols, dcols, split
     hc = _condensed_pattern(sp_H, keep, elim, scols)                  # the Hessian's nonzeros, by position in D
     hr, hcol = (np.array(v).tolist() for v in hc.get_triplet())
     lines = [f"/* condensed collocation kernel {prefix} (rscasadi/ocp/condensing.py) */\n",
-             "#include <stdlib.h>\n#include <string.h>\n",
+             "#include <math.h>\n#include <stdlib.h>\n#include <string.h>\n",
+             _declarations(fns),
              f"#define NK {nk}\n#define NY {ny}\n#define NS {ns}\n#define NR {nr}\n#define NROWS {nrows}\n"
              f"#define NZ {fns['lin'].size1_in(0)}\n#define ND {len(dcols)}\n#define NA {na}\n"
              f"#define NYALL {max(nyall, 1)}\n#define NFALL {max(nfall, 1)}\n#define NFY {max(nfy, 1)}\n#define NC {max(nc, 1)}\n#define NKEY {nk + sum(arg_nnz)}\n"
@@ -249,10 +250,38 @@ def condense(d1: ca.Function, f1: ca.Function, d2: ca.Function, split, keep, eli
     return Condensed(ext["rows"], (ext["first"], ext["objective"], ext["second"]), library, ext["newton"], prefix)
 
 
+def _declarations(fns: dict) -> str:
+    """What the kernel's unit needs of CasADi's: its types and the SX functions' prototypes (their
+    C is in units of their own, `_units`)."""
+    return ("#ifndef casadi_real\n#define casadi_real double\n#endif\n"
+            "#ifndef casadi_int\n#define casadi_int long long int\n#endif\n"
+            "#ifndef CASADI_SYMBOL_EXPORT\n#define CASADI_SYMBOL_EXPORT\n#endif\n"
+            + "".join(f"int {f.name()}(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, "
+                      f"int mem);\n" for f in fns.values()))
+
+
+UNITS = 4     # CasADi's functions in this many C files, compiled in parallel (a 10 MB file at -O1 took
+              # 75 s on 2 cores as one unit)
+
+
+def _units(prefix: str, fns: dict, kernel: str) -> dict:
+    """The kernel's C as translation units: the SX functions in up to UNITS files of about equal
+    size (by SX instructions, the largest first into the lightest), the kernel in its own."""
+    groups: list[list] = [[] for _ in range(min(UNITS, len(fns)))]
+    load = [0] * len(groups)
+    for f in sorted(fns.values(), key=lambda f: -f.n_instructions()):
+        i = load.index(min(load))
+        groups[i].append(f)
+        load[i] += f.n_instructions()
+    units = {f"{prefix}part{i}.c": casadi_c(group, f"{prefix}part{i}.c") for i, group in enumerate(groups) if group}
+    return units | {f"{prefix}kernel.c": kernel}
+
+
 def _compiled(prefix: str, fns: dict, kernel: str, log, opt: str | None) -> str:
     """The kernel's library: at -O1 unless RSCASADI_NLP_OPT says otherwise, for this processor."""
     opt = opt or os.environ.get("RSCASADI_NLP_OPT", "-O1")
-    name = prefix + "kernel.c"
-    source = casadi_c(fns.values(), name) + kernel
-    return str(cached_library({name: source}, [opt, *native_flags()], name="kernel", log=log,
-                              what=f"the condensing kernel ({len(source) // 1000} kB of C; once per problem shape)"))
+    units = _units(prefix, fns, kernel)
+    size = sum(len(text) for text in units.values()) // 1000
+    return str(cached_library(units, [opt, *native_flags()], name="kernel", log=log,
+                              what=f"the condensing kernel ({size} kB of C in {len(units)} units; once per problem "
+                                   "shape)"))
