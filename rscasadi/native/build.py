@@ -80,6 +80,20 @@ def casadi_c(functions, name: str) -> str:
         return (Path(d) / name).read_text()
 
 
+def casadi_units(functions, stem: str, units: int = 4) -> dict:
+    """The C of CasADi `functions` as up to `units` files (stem0.c, stem1.c, ...) of about equal
+    size by instructions, the largest first into the lightest, for `cached_library` to compile in
+    parallel (one 10 MB file compiles on one core).  Each file is self-contained: CasADi prefixes
+    its internal symbols with the file's name."""
+    groups: list[list] = [[] for _ in range(max(1, min(units, len(functions))))]
+    load = [0] * len(groups)
+    for f in sorted(functions, key=lambda f: -f.n_instructions()):
+        i = load.index(min(load))
+        groups[i].append(f)
+        load[i] += f.n_instructions()
+    return {f"{stem}{i}.c": casadi_c(group, f"{stem}{i}.c") for i, group in enumerate(groups) if group}
+
+
 def library_key(sources: dict, cc: list, flags, link) -> str:
     """The hash naming a library: its sources, compiler, flags, link arguments, CasADi's version."""
     digest = hashlib.sha256()

@@ -34,7 +34,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from rscasadi.native.build import cached_library, casadi_c, native_flags
+from rscasadi.native.build import cached_library, casadi_units, native_flags
 
 NEWTON_MAX_ITER = 50
 NEWTON_STEP_TOL = 1e-10         # relative: after such a step Newton's error is ~1e-20
@@ -252,7 +252,7 @@ def condense(d1: ca.Function, f1: ca.Function, d2: ca.Function, split, keep, eli
 
 def _declarations(fns: dict) -> str:
     """What the kernel's unit needs of CasADi's: its types and the SX functions' prototypes (their
-    C is in units of their own, `_units`)."""
+    C is in units of their own, native.build.casadi_units)."""
     return ("#ifndef casadi_real\n#define casadi_real double\n#endif\n"
             "#ifndef casadi_int\n#define casadi_int long long int\n#endif\n"
             "#ifndef CASADI_SYMBOL_EXPORT\n#define CASADI_SYMBOL_EXPORT\n#endif\n"
@@ -264,23 +264,10 @@ UNITS = 4     # CasADi's functions in this many C files, compiled in parallel (a
               # 75 s on 2 cores as one unit)
 
 
-def _units(prefix: str, fns: dict, kernel: str) -> dict:
-    """The kernel's C as translation units: the SX functions in up to UNITS files of about equal
-    size (by SX instructions, the largest first into the lightest), the kernel in its own."""
-    groups: list[list] = [[] for _ in range(min(UNITS, len(fns)))]
-    load = [0] * len(groups)
-    for f in sorted(fns.values(), key=lambda f: -f.n_instructions()):
-        i = load.index(min(load))
-        groups[i].append(f)
-        load[i] += f.n_instructions()
-    units = {f"{prefix}part{i}.c": casadi_c(group, f"{prefix}part{i}.c") for i, group in enumerate(groups) if group}
-    return units | {f"{prefix}kernel.c": kernel}
-
-
 def _compiled(prefix: str, fns: dict, kernel: str, log, opt: str | None) -> str:
     """The kernel's library: at -O1 unless RSCASADI_NLP_OPT says otherwise, for this processor."""
     opt = opt or os.environ.get("RSCASADI_NLP_OPT", "-O1")
-    units = _units(prefix, fns, kernel)
+    units = casadi_units(list(fns.values()), f"{prefix}part", UNITS) | {f"{prefix}kernel.c": kernel}
     size = sum(len(text) for text in units.values()) // 1000
     return str(cached_library(units, [opt, *native_flags()], name="kernel", log=log,
                               what=f"the condensing kernel ({size} kB of C in {len(units)} units; once per problem "
