@@ -10,7 +10,7 @@ from __future__ import annotations
 import ctypes
 import json
 import os
-import shutil
+import tempfile
 from pathlib import Path
 
 import casadi as ca
@@ -22,10 +22,10 @@ from rscasadi.model.parameters import PARAMETRIC, tied_balanced
 from rscasadi.dynamics.kinematics import REFERENCES
 from rscasadi.model.parameters import gear_ratios
 from rscasadi.model.checks import identifier
-from rscasadi.files import OutputError, fresh_directory, safe_name, write_json
-from rscasadi.native.generate import C_IDENTIFIER
+from rscasadi.files import OutputError, safe_name
+from rscasadi.native.generate import C_IDENTIFIER, package
 from rscasadi.codegen.step_kernel import kernel_source
-from rscasadi.native.build import OPT_LEVELS, BuildError, cached_library, compiler, native_flags
+from rscasadi.native.build import OPT_LEVELS, BuildError, compiler, native_flags
 from rscasadi.native.loader import CompiledController, ControllerError
 from rscasadi.errors import InvalidArgument
 
@@ -309,12 +309,12 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
     except BuildError as exc:
         raise CodegenError(str(exc)) from None
     flags = [opt, "-std=c99"] + (native_flags() if native else [])
-    with fresh_directory(out) as tmp:
-        takes_p = parametric != "none"
-        fns, omitted = functions(arm, prefix, takes_p, frames, external)
-        header_gen = ca.CodeGenerator(CASADI_HEADER.removesuffix(".h"), {"with_header": True})
-        sources = []
-        kernels = {}                                # name -> (point Function, C body, declarations)
+    takes_p = parametric != "none"
+    fns, omitted = functions(arm, prefix, takes_p, frames, external)
+    header_gen = ca.CodeGenerator(CASADI_HEADER.removesuffix(".h"), {"with_header": True})
+    texts: dict[str, str] = {}
+    kernels = {}                                    # name -> step_kernel.Kernel
+    with tempfile.TemporaryDirectory() as d:
         for name, f in fns.items():
             gen = ca.CodeGenerator(f"{f.name()}.c", {"with_header": False})
             if name == "step_jacobian" and not f.is_a("SXFunction"):   # past straight-line SX: the C kernel
@@ -324,53 +324,44 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
             else:
                 gen.add(f)
                 header_gen.add(f)
-            gen.generate(str(tmp) + os.sep)
-            sources.append(tmp / f"{f.name()}.c")
-            if name in kernels:
-                with open(sources[-1], "a") as fh:
-                    fh.write(kernels[name].body)
-        header_gen.generate(str(tmp) + os.sep)
-        (tmp / f"{CASADI_HEADER.removesuffix('.h')}.c").unlink()        # only its header is used
-        (tmp / HEADER).write_text(arm_header(arm, prefix, [k.header for k in kernels.values()]))
-        texts = {src.name: src.read_text() for src in sources}
-        if not takes_p:                             # the feedforward as a guarded controller
-            controller = feedforward_controller(arm, fns, prefix)
-            for name, text in controller.items():
-                (tmp / name).write_text(text)
-            texts.update(controller, **{name: (tmp / name).read_text() for name in (HEADER, CASADI_HEADER)})
-        try:
-            lib = cached_library(texts, flags, name="arm", what=f"{len(sources)} sources", log=log, cc=cc,
-                                 log_hit=True)
-        except BuildError as exc:
-            raise CodegenError(str(exc)) from None
-        shutil.copy2(lib, tmp / LIBRARY)
-        manifest = {
-            "model": str(getattr(arm.model, "path", "")),
-            "header": HEADER,
-            "headers": [HEADER, CASADI_HEADER],       # the one to include, and CasADi's, which it includes
-            "sources": [s.name for s in sources] + ([FEEDFORWARD + ".c"] if not takes_p else []),
-            "controllers": {"feedforward": {"header": FEEDFORWARD + ".h", "type": f"{prefix + '_' if prefix else ''}ff_t",
-                                            "init": f"{prefix + '_' if prefix else ''}ff_init",
-                                            "step": f"{prefix + '_' if prefix else ''}ff_step"}} if not takes_p else {},
-            "library": LIBRARY,
-            "functions": {name: {"symbol": f.name(), "inputs": _io(f, False), "outputs": _io(f, True),
-                                 "n_instructions": kernels[name].n_instructions if name in kernels else f.n_instructions()}
-                          for name, f in fns.items()},
-            "kernels": {name: "structured C kernel (step_kernel.py); n_instructions: the SX of one stage "
-                              "point (forward dynamics and M's factors, then dr/dx, which it evaluates at "
-                              "the four points at once)" for name in kernels},
-            "omitted": omitted,
-            "parametric": parametric,
-            "frames": {name: identifier(name) for name in frames},
-            "external": {"frames": external, "wrench": "[force; moment] at the frame's origin, world axes"}
-                        if external else None,
-            "parameters": _parameters(arm) if takes_p else None,
-            "prefix": prefix,
-            "compiler": cc + flags,
-            "source_hash": lib.stem.rsplit("_", 1)[1],
-        }
-        write_json(tmp / "manifest.json", manifest, indent=2)
-    return manifest
+            gen.generate(d + os.sep)
+            texts[f"{f.name()}.c"] = (Path(d) / f"{f.name()}.c").read_text() + (kernels[name].body if name in kernels else "")
+        header_gen.generate(d + os.sep)                # only its header is used
+        texts[CASADI_HEADER] = (Path(d) / CASADI_HEADER).read_text()
+    sources = [file for file in texts if file.endswith(".c")]
+    texts[HEADER] = arm_header(arm, prefix, [k.header for k in kernels.values()])
+    if not takes_p:                                 # the feedforward as a guarded controller
+        texts.update(feedforward_controller(arm, fns, prefix))
+    manifest = {
+        "model": str(getattr(arm.model, "path", "")),
+        "header": HEADER,
+        "headers": [HEADER, CASADI_HEADER],           # the one to include, and CasADi's, which it includes
+        "sources": sources + ([FEEDFORWARD + ".c"] if not takes_p else []),
+        "controllers": {"feedforward": {"header": FEEDFORWARD + ".h", "type": f"{prefix + '_' if prefix else ''}ff_t",
+                                        "init": f"{prefix + '_' if prefix else ''}ff_init",
+                                        "step": f"{prefix + '_' if prefix else ''}ff_step"}} if not takes_p else {},
+        "functions": {name: {"symbol": f.name(), "inputs": _io(f, False), "outputs": _io(f, True),
+                             "n_instructions": kernels[name].n_instructions if name in kernels else f.n_instructions()}
+                      for name, f in fns.items()},
+        "kernels": {name: "structured C kernel (step_kernel.py); n_instructions: the SX of one stage "
+                          "point (forward dynamics and M's factors, then dr/dx, which it evaluates at "
+                          "the four points at once)" for name in kernels},
+        "omitted": omitted,
+        "parametric": parametric,
+        "frames": {name: identifier(name) for name in frames},
+        "external": {"frames": external, "wrench": "[force; moment] at the frame's origin, world axes"}
+                    if external else None,
+        "parameters": _parameters(arm) if takes_p else None,
+        "prefix": prefix,
+    }
+    # the library is built from the functions' sources (and the feedforward's, which includes the
+    # headers): the parametric library of another arm, its macros in the header aside, is a cache hit
+    built = texts if not takes_p else {file: texts[file] for file in sources}
+    try:
+        return package(out, texts, flags, LIBRARY, manifest, log, cc, name="arm", what=f"{len(sources)} sources",
+                       built=built)
+    except BuildError as exc:
+        raise CodegenError(str(exc)) from None
 
 
 def _parameters(arm: Arm) -> dict:

@@ -1,4 +1,5 @@
-"""The one pipeline of a generated controller (the MPC, the impedance controller, the observer):
+"""The one pipeline of a generated controller (the MPC, the impedance controller, the observer;
+`package`, its last step, also writes the arm's library, rscasadi.codegen.generate):
 CasADi Functions generated to C, the controller's template files filled in, the input guard,
 compiled once per source by the one build step, written whole with a manifest that the ctypes
 loader (native.loader) reads.
@@ -87,17 +88,29 @@ def write_controller(kind: str, prefix: str, functions: list[ca.Function], templ
         {**common, **sizes, **body})
     sources.update(guard_source())
     sources.update(extra_sources or {})
+    manifest = {**manifest, "header": names["header"], "symbol": names["sym"],
+                "sources": sorted(k for k in sources if k.endswith(".c")),
+                "api": {f"{names['sym']}_{k}": v for k, v in manifest["api"].items()}}
+    manifest = package(out, sources, flags, names["library"], manifest, log, cc, name=kind,
+                       what=f"the {LABELS.get(kind, kind)} ({' '.join(flags)})")
+    log(f"wrote {Path(out) / names['library']}, {names['header']} and manifest.json")
+    return manifest
+
+
+def package(out, sources: dict, flags: list, library: str, manifest: dict, log=print, cc: list | None = None,
+            name: str = "lib", what: str | None = None, built: dict | None = None) -> dict:
+    """The last step of every generated library (controllers and the arm's): `sources` (file name
+    -> text, headers included) written into `out` with the shared `library` the one build step
+    makes of `built` (default: all of them; cached by their hash, so a header no source includes
+    should stay out) and manifest.json, `manifest` completed with the library, the compiler and
+    the source hash; whole or not at all."""
     cc = compiler() if cc is None else cc
-    out = Path(out)
-    with fresh_directory(out) as tmp:
+    with fresh_directory(Path(out)) as tmp:
         for file, text in sources.items():
             (tmp / file).write_text(text)
-        lib = cached_library(sources, flags, name=kind, what=f"the {LABELS.get(kind, kind)} ({' '.join(flags)})",
-                             log=log, cc=cc, log_hit=True)
-        shutil.copy2(lib, tmp / names["library"])
-        manifest = {**manifest, "header": names["header"], "library": names["library"], "symbol": names["sym"],
-                    "sources": sorted(k for k in sources if k.endswith(".c")), "compiler": cc + flags,
-                    "api": {f"{names['sym']}_{k}": v for k, v in manifest["api"].items()}}
+        lib = cached_library(sources if built is None else built, flags, name=name, what=what, log=log, cc=cc,
+                             log_hit=True)
+        shutil.copy2(lib, tmp / library)
+        manifest = {**manifest, "library": library, "compiler": cc + flags, "source_hash": lib.stem.rsplit("_", 1)[1]}
         write_json(tmp / "manifest.json", manifest, indent=2)
-    log(f"wrote {out / names['library']}, {names['header']} and manifest.json")
     return manifest
