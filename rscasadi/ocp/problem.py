@@ -413,8 +413,8 @@ def check_against_model(problem: Problem, model):
         check_names(model, t.parameters, f"{problem.path}: parameters")
     except ValueError as exc:
         raise ModelFileError(str(exc)) from None
-    if t.path is not None and t.path.frame not in [f.name for f in model.frames]:
-        raise ModelFileError(f"{problem.path}: field 'path.frame': {model.path} has no frame {t.path.frame!r}")
+    if t.path is not None:
+        t.path.check(model, where)
     for name, (lo, _) in t.design.items():
         if name.endswith(".gear_ratio") and lo <= 0:
             raise ModelFileError(f"{problem.path}: field 'design.{name}': a gear ratio stays positive "

@@ -132,6 +132,13 @@ class ToolPath:
         return self.position(self.arc_length(t))
 
     # -- files ----------------------------------------------------------------------------------
+    def check(self, model, where="<task>") -> "ToolPath":
+        """The path's frame is one of `model`'s."""
+        from rscasadi.model.types import ModelFileError
+        if self.frame not in [f.name for f in model.frames]:
+            raise ModelFileError(f"{where}: field 'path.frame': {model.path} has no frame {self.frame!r}")
+        return self
+
     def to_dict(self) -> dict:
         out = {"frame": self.frame, "speed": self.speed, "tolerance": self.tolerance}
         if self.kind == "circle":
