@@ -42,6 +42,7 @@ from rscasadi.model.parameters import gear_ratios
 from rscasadi.ocp.assembly import Calls, Piece, chain_rule_derivatives, constraints_and_objective
 from rscasadi.ocp.condensing import Condensed, condense
 from rscasadi.ocp.problem import Goal, Problem
+from rscasadi.task.objects import Limits
 from rscasadi.task.terms import Clearance, objective_terms
 
 
@@ -86,6 +87,7 @@ class Transcription:
         self.constraints = ([Clearance(problem.task.obstacles)] if problem.task.obstacles else []) + \
             [t for t in problem.task.terms if t.constraint]
         self.row_bounds = [t.bounds(self.arm) for t in self.constraints]
+        self.limits = Limits.of(arm.model).narrowed(problem.transcription.limit_margin)   # the NLP's reserve
         self.acc_scale = self._acceleration_scale()
         # a family's NLP takes the acceleration scale as parameters too (it is the arm's): p_fixed
         # = (the fixed parameters, then the scale)
@@ -346,15 +348,11 @@ class Transcription:
 
     def _limit(self, key):
         """A psi or dphi limit per joint (inf: none), less the transcription's limit_margin."""
-        return (1 - self.p.transcription.limit_margin) * np.array([jt.limits.get(key, np.inf) for jt in self.model.joints])
+        return getattr(self.limits, key)
 
     def _range(self):
         """The link-angle ranges (lo, hi), each narrowed by limit_margin of its width at both ends."""
-        inf, m = np.inf, self.p.transcription.limit_margin
-        lo = np.array([jt.limits.get("theta", (-inf, inf))[0] for jt in self.model.joints])
-        hi = np.array([jt.limits.get("theta", (-inf, inf))[1] for jt in self.model.joints])
-        inset = np.where(np.isfinite(hi - lo), m * (hi - lo) / 2, 0.0)
-        return lo + inset, hi - inset
+        return self.limits.theta_lo, self.limits.theta_hi
 
     def _path_bounds(self):
         """Bounds of one stage's path rows: gap rows and dynamics = 0, then the limits."""
