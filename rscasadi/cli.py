@@ -434,18 +434,18 @@ def main(argv=None, exit_on_interrupt: bool = False):
     mid-solve crashes in its destructor)."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    interrupt.install()                     # Ctrl-C inside a solver stops the command, not just the solver
+    interrupt.install(command=exit_on_interrupt)    # Ctrl-C inside a solver stops the command, not just the solver
     try:
         code = args.func(args)
     except BaseException as exc:
         # an interrupt can surface as another exception when it lands inside a C extension
         if isinstance(exc, KeyboardInterrupt) or interrupt.happened():
             word, code = ("terminated", 143) if interrupt.terminated() else ("interrupted", 130)
-            print(f"rscasadi: {word}; nothing half-written was kept", file=sys.stderr)
             if exit_on_interrupt:
                 sys.stdout.flush()
-                sys.stderr.flush()
+                interrupt.say(f"rscasadi: {word}; nothing half-written was kept")
                 os._exit(code)
+            print(f"rscasadi: {word}; nothing half-written was kept", file=sys.stderr)
             return code
         if isinstance(exc, (ModelFileError, OutputError, CheckError, ValueError)):
             print(f"rscasadi: error: {exc}", file=sys.stderr)

@@ -40,6 +40,7 @@ _LAYOUTS: dict = {}
 # fatrop keeps one output writer per process, replaced by every solver it creates: one solve at a
 # time per process (threads could race on it; processes, as the sweeps use, run in parallel)
 _ONE_AT_A_TIME = threading.Lock()
+_STOPPED: list = []                                     # solvers stopped midway, kept (see `solve`)
 _Dp = ctypes.POINTER(ctypes.c_double)
 _SESSIONS = 4                   # fatrop solvers kept per DirectFatrop (one per bound layout, the newest)
 
@@ -308,9 +309,9 @@ class DirectFatrop:
                 ret = self._interruptible(lambda: self.driver.rsf_run(
                     ctypes.c_void_p(session), ptr(x0), ptr(p), ptr(lbx), ptr(ubx), ptr(lbg), ptr(ubg), verbose, ptr(x),
                     ptr(lam_g), ptr(lam_x), ptr(stats)))
-            except KeyboardInterrupt:                    # a solver stopped midway is not reused, nor destroyed:
-                self._sessions.pop(id(L), None)          # fatrop's teardown of it crashes (left to the process)
-                raise
+            except KeyboardInterrupt:                    # a solver stopped midway is not reused, nor destroyed
+                _STOPPED.append(self._sessions.pop(id(L)))   # (fatrop's teardown of it crashes): it and the
+                raise                                    # arrays it points into stay with the process
             if ret == -1:                                # an exception inside fatrop: a new solver next time
                 self.driver.rsf_close(ctypes.c_void_p(self._sessions.pop(id(L))[0]))
         if stats[17]:
