@@ -145,7 +145,8 @@ def _cmd_mpc(args):
 def _cmd_simulate(args):
     from rscasadi.identification.synthetic import simulate_log
     simulate_log(args.model, args.trajectory, args.out, rate=args.rate, noise=args.noise, perturb=args.perturb,
-                 true_model=args.true_model, simulator=args.simulator, log=lambda msg: print(msg, flush=True))
+                 true_model=args.true_model, simulator=args.simulator, columns=args.columns, log_rate=args.log_rate,
+                 log=lambda msg: print(msg, flush=True))
 
 
 def _cmd_view(args):
@@ -342,8 +343,15 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("simulate", help="a synthetic log of the arm along a trajectory, to try identification")
     p.add_argument("model")
     p.add_argument("trajectory", help="trajectory file (rscasadi excite's trajectory.toml, or start/amplitude)")
-    p.add_argument("--out", required=True, help="the log to write (CSV: t,theta_j,phi_j,tau_j)")
-    p.add_argument("--rate", type=positive(float), default=1000.0, help="samples per second (default 1000)")
+    p.add_argument("--out", required=True, help="the log to write (CSV: t and the --columns groups)")
+    p.add_argument("--rate", type=positive(float), default=1000.0, help="the control loop's rate (default 1000 Hz)")
+    p.add_argument("--log-rate", type=positive(float), default=None, metavar="HZ",
+                   help="samples per second in the log (default --rate; it must divide --rate): a robot that "
+                        "publishes at 100 Hz while it controls at 1 kHz")
+    p.add_argument("--columns", default="theta,phi,tau", metavar="GROUPS",
+                   help="the sensors logged, comma-separated groups of theta, phi, tau, T, dtheta, dphi "
+                        "(default theta,phi,tau; theta,T: a link-side log, what sold SEA and torque-sensing arms "
+                        "publish)")
     p.add_argument("--noise", type=positive(float, zero=True), default=0.005,
                    help="torque noise, a fraction of each joint's torque limit (default 0.005)")
     p.add_argument("--perturb", type=positive(int, zero=True), default=None, metavar="SEED",
@@ -355,7 +363,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "exported (rscasadi export mujoco; a perturbed arm then keeps linear springs and no "
                         "Coulomb loss, which MJCF cannot hold)")
     p.set_defaults(func=_cmd_simulate)
-    p = sub.add_parser("identify", help="identify the complete model from logs (CSV: t,theta_j,phi_j,tau_j[,T_j])")
+    p = sub.add_parser("identify", help="identify the complete model from logs (CSV: t,theta_j and any of "
+                       "phi_j, tau_j, T_j, dtheta_j, dphi_j)")
     p.add_argument("model", help="model file: kinematics, gear ratios and the starting guess")
     p.add_argument("logs", nargs="+", help="one or more logs")
     p.add_argument("--out", required=True, help="directory for model.toml, report.json and figures")

@@ -98,6 +98,11 @@ def _cell(row: str, k: int, value: str) -> str:
     (lambda rows: rows.__setitem__(9, "0.0075," + rows[9].split(",", 1)[1]), "not uniform"),
     (lambda rows: rows.__setitem__(slice(30, None), []), "only"),
     (lambda rows: rows.__setitem__(3, rows[3] + ",1.0"), "line 4"),
+    (lambda rows: rows.__setitem__(0, rows[0].replace("phi_", "T_")), "'tau_1' (motor torque) needs 'phi_1..phi_3'"),
+    (lambda rows: rows.__setitem__(0, rows[0].replace("tau_", "i_")), "unexpected column 'i_1' (a motor current"),
+    (lambda rows: rows.__setitem__(0, rows[0].replace("tau_3", "T_3")), "missing column 'tau_3'"),
+    (lambda rows: rows.__setitem__(0, rows[0].replace("phi_2", "theta_1")), "column 'theta_1' appears twice"),
+    (lambda rows: rows.__setitem__(0, rows[0].replace("tau_", "dphi_")), "no torque column"),
 ])
 def test_bad_logs_are_refused_naming_file_and_column(tmp_path, mutate, words):
     path = tmp_path / "run.csv"

@@ -31,6 +31,7 @@ import scipy.linalg
 import scipy.signal
 
 from rscasadi.dynamics.arm import Arm, load
+from rscasadi.dynamics.statics import spring_deflection
 from rscasadi.files import CheckError, check_writable, fresh_directory, write_json
 from rscasadi.model.modelfile import BODIES, ArmModel, document, to_toml
 from rscasadi.model.parameters import INERTIAL, PER_JOINT, body_from_parameters, n_linear, payload_slice
@@ -101,8 +102,12 @@ def sea_modes_hz(arm: Arm, theta) -> np.ndarray:
 
 
 def cutoff_hz(arm: Arm, log: Log) -> tuple[float, str]:
-    """The filter cut-off for this arm and log, and why: twice the highest SEA mode at the log's
-    mean pose, at least 20 Hz, at most half the Nyquist frequency."""
+    """The filter cut-off for this arm and log, and why.  A log with motor angles: twice the
+    highest SEA mode at the log's mean pose, at least 20 Hz, at most half the Nyquist frequency
+    (the spring rows carry k1 and d in those modes).  A link-side log (no motor angle, so no
+    spring rows): where the logged motion ends, `motion_cutoff_hz`."""
+    if log.link_side:
+        return motion_cutoff_hz(log)
     modes = sea_modes_hz(arm, np.mean(log.theta, axis=1))
     nyquist = 0.5 / log.dt
     fc = min(max(20.0, CUTOFF_FACTOR * modes.max()), 0.5 * nyquist)
@@ -113,41 +118,81 @@ def cutoff_hz(arm: Arm, log: Log) -> tuple[float, str]:
     return fc, why
 
 
+SIGNAL_OVER_NOISE = 100.0     # the motion's band: where the link angles' spectrum is this far above the noise
+
+
+def motion_cutoff_hz(log: Log) -> tuple[float, str]:
+    """The cut-off of a link-side log from its data: per joint, the power spectrum of the link
+    angle (Welch, detrended) against its noise floor (the median of the top fifth of the band);
+    the motion's band ends at the highest frequency still SIGNAL_OVER_NOISE above that floor,
+    and the cut-off is 1.5x the widest joint's band end (at least 1 Hz, at most 0.4 Nyquist).
+    Differentiating twice multiplies the noise by (2 pi f)^2, so everything above the motion is
+    noise in the accelerations; the SEA modes carry nothing these rows can identify."""
+    fs, nyquist = 1.0 / log.dt, 0.5 / log.dt
+    f, P = scipy.signal.welch(log.theta, fs=fs, nperseg=min(log.t.size, max(256, int(4 * fs))), detrend="linear",
+                              axis=1)
+    ends = []
+    for Pj in P:
+        floor = max(float(np.median(Pj[f >= 0.8 * nyquist])), 1e-300)
+        above = np.flatnonzero(Pj[1:] > SIGNAL_OVER_NOISE * floor) + 1
+        ends.append(float(f[above[-1]]) if above.size else float(f[1]))
+    widest = int(np.argmax(ends))
+    fc = float(min(max(1.5 * ends[widest], 1.0), 0.4 * nyquist))
+    why = (f"{fc:.1f} Hz: 1.5x where the logged motion ends ({ends[widest]:.1f} Hz, joint {widest + 1}: its link "
+           f"angle's spectrum falls to {SIGNAL_OVER_NOISE:g}x its noise floor; per joint "
+           f"{', '.join(f'{e:.1f}' for e in ends)} Hz), so the accelerations keep the motion and lose the noise "
+           f"that differentiation amplifies (a link-side log has no spring rows; Nyquist {nyquist:.0f} Hz)")
+    return fc, why
+
+
 @dataclass
 class Signals:
     """A log low-passed (zero-phase), its speeds and accelerations by finite differences of the
-    filtered angles, the torques filtered alike; edges dropped, decimated (`prepare`)."""
+    filtered angles (or of the filtered logged speeds), the torques filtered alike; edges
+    dropped, decimated (`prepare`).  phi_measured False: a link-side log's phi, reconstructed
+    from its torque T by the model file's spring law (`spring_deflection`)."""
     theta: np.ndarray
     phi: np.ndarray
     dtheta: np.ndarray
     dphi: np.ndarray
     ddtheta: np.ndarray
     ddphi: np.ndarray
-    tau: np.ndarray
+    tau: np.ndarray | None
     T: np.ndarray | None
     t: np.ndarray
+    phi_measured: bool = True
 
     def state(self):
         return [self.theta, self.phi, self.dtheta, self.dphi, self.ddtheta, self.ddphi]
 
 
-def prepare(log: Log, fc: float, decimate: int | None = None) -> Signals:
+def prepare(log: Log, fc: float, decimate: int | None = None, arm: Arm | None = None) -> Signals:
     """Zero-phase low-pass of angles and torques alike, derivatives, edges dropped, decimated
-    (by default to one row every 1 / (2 fc))."""
+    (by default to one row every 1 / (2 fc)).  A link-side log needs `arm`: its phi is
+    theta + the spring's deflection under the logged T."""
     decimate = decimate or max(1, int(0.5 / (fc * log.dt)))
     sos = scipy.signal.butter(4, fc, fs=1.0 / log.dt, output="sos")
     lp = lambda x: scipy.signal.sosfiltfilt(sos, x, axis=1)
     d = lambda x: np.gradient(x, log.dt, axis=1)
-    theta, phi = lp(log.theta), lp(log.phi)
-    dtheta, dphi = d(theta), d(phi)
+    theta = lp(log.theta)
+    T = None if log.T is None else lp(log.T)
+    if log.phi is not None:
+        phi = lp(log.phi)
+    elif arm is not None and T is not None:
+        phi = theta + spring_deflection(arm, T.T).T       # (samples, n) broadcasts against k1
+    else:
+        raise LogError(f"{log.path}: no column phi_1..phi_{log.n}, and no arm given to reconstruct it from T")
+    dtheta = lp(log.dtheta) if log.dtheta is not None else d(theta)
+    dphi = lp(log.dphi) if log.dphi is not None else d(phi)
     # a logged torque is the command held on [t_k, t_k+1): centred at t_k + dt/2, so at t_k it is
     # the mean of two neighbours (a half-sample delay otherwise biases the rotor inertias: +3.7 %
     # on the elbow's at its 30 Hz SEA mode in the synthetic test)
     held = lambda x: np.concatenate([x[:, :1], 0.5 * (x[:, 1:] + x[:, :-1])], axis=1)
     keep = slice(int(EDGE_S / log.dt), len(log.t) - int(EDGE_S / log.dt), decimate)
+    cut = lambda x: None if x is None else x[:, keep]
     return Signals(theta[:, keep], phi[:, keep], dtheta[:, keep], dphi[:, keep], d(dtheta)[:, keep],
-                   d(dphi)[:, keep], lp(held(log.tau))[:, keep], None if log.T is None else lp(log.T)[:, keep],
-                   log.t[keep])
+                   d(dphi)[:, keep], cut(None if log.tau is None else lp(held(log.tau))), cut(T), log.t[keep],
+                   log.phi is not None)
 
 
 # ----------------------------------------------------------------------------- rows
@@ -162,8 +207,25 @@ class Rows:
     t: np.ndarray               # time of every row
 
 
+def row_kinds(log: Log) -> tuple:
+    """The rows a log's columns give: motor-torque rows (phi, tau), spring rows (phi: the link
+    equations driven by the measured deflection), link-torque rows (T)."""
+    return tuple(k for k, has in (("tau", log.tau is not None), ("spring", log.phi is not None),
+                                  ("T", log.T is not None)) if has)
+
+
+def base_kinds(logs: list) -> tuple:
+    """The row kinds whose column space the base parameters are computed in: motor-torque and
+    spring rows where a log has them (a torque sensor beside them adds no combination), else
+    the link-torque rows."""
+    kinds = {k for log in logs for k in row_kinds(log)}
+    chosen = tuple(k for k in ("tau", "spring") if k in kinds)
+    return chosen + (("T",) if "T" in kinds and "tau" not in kinds else ())
+
+
 def rows(arm: Arm, sig: Signals, unknowns: Unknowns, reduced: bool = False) -> Rows:
-    """The regression rows of one filtered log: Y th = [tau; T] for every sample and joint."""
+    """The regression rows of one filtered log: Y th = [tau; T] for every sample and joint, as
+    far as the log's columns go (`row_kinds`)."""
     n, count = arm.n, sig.t.size
     Yf = regressor(arm, reduced=reduced).map(count)
     Y = np.array(Yf(*sig.state())[0]).reshape(2 * n, count, -1) @ unknowns.E        # (2n, count, m)
@@ -172,8 +234,11 @@ def rows(arm: Arm, sig: Signals, unknowns: Unknowns, reduced: bool = False) -> R
     # the filtered torque no longer equals the loss at the filtered speed: those rows are left out
     eps = arm.model.column("eps")
     moving = [np.abs(sig.dphi[j]) > REVERSAL * eps[j] for j in range(n)]
-    blocks = [(f"tau_{j + 1}", Y[j][moving[j]], sig.tau[j][moving[j]], sig.t[moving[j]]) for j in range(n)]
-    blocks += [(f"spring_{j + 1}", Y[n + j] - Ys[j], np.zeros(count), sig.t) for j in range(n)]
+    blocks = []
+    if sig.tau is not None:
+        blocks += [(f"tau_{j + 1}", Y[j][moving[j]], sig.tau[j][moving[j]], sig.t[moving[j]]) for j in range(n)]
+    if sig.phi_measured:
+        blocks += [(f"spring_{j + 1}", Y[n + j] - Ys[j], np.zeros(count), sig.t) for j in range(n)]
     if sig.T is not None:
         blocks += [(f"T_{j + 1}", Y[n + j], sig.T[j], sig.t) for j in range(n)]
     return Rows(np.vstack([b[1] for b in blocks]), np.concatenate([b[2] for b in blocks]),
@@ -184,6 +249,8 @@ def rows(arm: Arm, sig: Signals, unknowns: Unknowns, reduced: bool = False) -> R
 def check_moving(rows_: Rows, arm: Arm, path) -> None:
     """Refuse a log in which a joint's motor hardly turns: its torque rows (kept outside the
     Coulomb reversal band) are too few to fit or to predict that joint's torque."""
+    if "tau_1" not in rows_.labels:              # a link-side log: the rank check covers its motion
+        return
     for j, jt in enumerate(arm.model.joints):
         b = rows_.labels.index(f"tau_{j + 1}")
         count = int(np.sum(rows_.block == b))
@@ -245,9 +312,11 @@ class LeastSquares:
         return float(np.sqrt(max(var, 0.0)))
 
 
-def structural_base(arm: Arm, unknowns: Unknowns, samples: int = 200, reduced: bool = False) -> BaseParameters:
-    """The base parameters of th, from random samples: what no data can separate."""
-    W = stacked(arm, random_samples(arm, samples, np.random.default_rng(0)), reduced=reduced) @ unknowns.E
+def structural_base(arm: Arm, unknowns: Unknowns, samples: int = 200, reduced: bool = False,
+                    kinds=("tau", "spring")) -> BaseParameters:
+    """The base parameters of th in rows of `kinds` (`base_kinds`), from random samples: what
+    no data with those columns can separate; `unidentifiable` names what they do not see at all."""
+    W = stacked(arm, random_samples(arm, samples, np.random.default_rng(0)), kinds, reduced) @ unknowns.E
     return base_of(W, unknowns.names, rtol=1e-9)
 
 
@@ -439,6 +508,8 @@ class Identification:
     cutoff_why: str
     rows: Rows
     fit_status: str = "converged"
+    sensors: str = ""               # the columns the logs had, in words
+    kinds: tuple = ()               # the row kinds the base parameters were computed in
 
     def std(self) -> np.ndarray:
         out = np.full(len(self.th), np.nan)
@@ -465,8 +536,8 @@ def identify(arm: Arm, logs: list[Log], reduced: bool = False, fc: float | None 
     if short:
         raise LogError(f"{', '.join(short)}: column 't': shorter than {4 * EDGE_S:g} s, too short to filter and "
                        f"excite the parameters")
-    rows_ = combine([rows(arm, prepare(log, fc), unknowns, reduced) for log in logs])
-    base = structural_base(arm, unknowns, reduced=reduced)
+    rows_ = combine([rows(arm, prepare(log, fc, arm=arm), unknowns, reduced) for log in logs])
+    base = structural_base(arm, unknowns, reduced=reduced, kinds=base_kinds(logs))
     excited = excitation_rank(rows_, base)
     if excited < base.rank:
         raise LogError(f"{', '.join(lg.path for lg in logs)}: the logged motion determines only {excited} of the "
@@ -475,11 +546,13 @@ def identify(arm: Arm, logs: list[Log], reduced: bool = False, fc: float | None 
     check_moving(rows_, arm, ", ".join(lg.path for lg in logs))
     ls = least_squares(rows_, base, th_nominal)
     # what filtering does to the estimate: again at a lower cut-off (still above the SEA modes)
-    probe = combine([rows(arm, prepare(log, FILTER_PROBE * fc), unknowns, reduced) for log in logs])
+    probe = combine([rows(arm, prepare(log, FILTER_PROBE * fc, arm=arm), unknowns, reduced) for log in logs])
     moved = ls.beta - least_squares(probe, base, th_nominal, bootstrap=False).beta
     ls.cov_filter = np.outer(moved, moved)
     th, status = physical_fit(arm, unknowns, ls, th_nominal)
-    return Identification(unknowns, ls, th, th_nominal, identified_model(arm, unknowns, th), fc, why, rows_, status)
+    sensors = "; ".join(sorted({log.describe() for log in logs}))
+    return Identification(unknowns, ls, th, th_nominal, identified_model(arm, unknowns, th), fc, why, rows_, status,
+                          sensors, base_kinds(logs))
 
 
 # ----------------------------------------------------------------------------- command
@@ -518,6 +591,9 @@ def report(ident: Identification, arm: Arm, validation: dict | None, log_files: 
     return {
         "warnings": warnings, "uncertain": uncertain,
         "model": str(arm.model.path), "logs": [str(f) for f in log_files],
+        "sensors": ident.sensors, "rows": list(ident.kinds),
+        "undetermined": {"parameters": ident.ls.base.unidentifiable,
+                         "why": f"no logged column determines them ({ident.sensors}): kept at the model file's values"},
         "cutoff_hz": ident.cutoff_hz, "cutoff_why": ident.cutoff_why,
         "condition_number": ident.ls.condition, "physical_fit": ident.fit_status, "base_parameters": base,
         "parameters": {name: {"nominal": float(nom), "estimate": float(est), "std": None if np.isnan(s) else float(s)}
@@ -534,12 +610,23 @@ def report(ident: Identification, arm: Arm, validation: dict | None, log_files: 
     }
 
 
+def _grouped(names: list) -> str:
+    """Parameter names shortened: an attribute undetermined at every joint named once."""
+    joints = sorted({name.split(".", 1)[0] for name in names})
+    attrs = sorted({name.split(".", 1)[1] for name in names}, key=[n.split(".", 1)[1] for n in names].index)
+    every = [a for a in attrs if len(joints) > 1 and all(f"{j}.{a}" in names for j in joints)]
+    rest = [name for name in names if name.split(".", 1)[1] not in every]
+    parts = ([f"{', '.join(every)} of every joint"] if every else []) + rest[:6]
+    return "; ".join(parts) + (f" and {len(rest) - 6} more (report.json: undetermined)" if len(rest) > 6 else "")
+
+
 def plot(out: Path, rows_: Rows, th: np.ndarray, title: str):
     """Measured against predicted torques of every joint, written to `out`.png."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    taus = [b for b, label in enumerate(rows_.labels) if label.startswith("tau")]
+    taus = ([b for b, label in enumerate(rows_.labels) if label.startswith("tau")]
+            or [b for b, label in enumerate(rows_.labels) if label.startswith("T_")])
     fig, axes = plt.subplots(len(taus), 1, figsize=(8, 2.2 * len(taus)), sharex=True, squeeze=False)
     pred = rows_.A @ th
     for ax, b in zip(axes[:, 0], taus):
@@ -565,13 +652,13 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
     val_log = read_log(validate, arm.n) if validate else None
     if val_log is not None:                          # refused before the work, not after it
         fc = cutoff or cutoff_hz(arm, logs[0])[0]
-        check_moving(rows(arm, prepare(val_log, fc), Unknowns.of(arm.model), reduced), arm, validate)
+        check_moving(rows(arm, prepare(val_log, fc, arm=arm), Unknowns.of(arm.model), reduced), arm, validate)
     if explain:
         u = Unknowns.of(arm.model)
         fc = cutoff or cutoff_hz(arm, logs[0])[0]
         th_nominal = u.from_p(arm.parameters()[1][:n_linear(arm.model)])
-        ls = least_squares(combine([rows(arm, prepare(lg, fc), u, reduced) for lg in logs]),
-                           structural_base(arm, u, reduced=reduced), th_nominal)
+        ls = least_squares(combine([rows(arm, prepare(lg, fc, arm=arm), u, reduced) for lg in logs]),
+                           structural_base(arm, u, reduced=reduced, kinds=base_kinds(logs)), th_nominal)
         for line in ls.base.explain():
             log(line)
         log(f"{ls.base.rank} base parameters of {len(u.names)}; not identifiable at all: "
@@ -581,14 +668,20 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
     log(f"cut-off {ident.cutoff_why}")
     log(f"{ident.ls.base.rank} base parameters, condition number {ident.ls.condition:.3g}; "
         f"physically consistent fit {ident.fit_status}")
+    undetermined = ident.ls.base.unidentifiable
+    if undetermined:
+        log(f"{len(undetermined)} parameters no logged column determines ({ident.sensors}), kept at the model "
+            f"file's values: {_grouped(undetermined)}")
     validation: dict | None = None
     val_rows = None
     if val_log is not None:
-        sig = prepare(val_log, ident.cutoff_hz)
+        sig = prepare(val_log, ident.cutoff_hz, arm=arm)
         val_rows = rows(arm, sig, ident.unknowns, reduced)
-        validation = {"log": str(validate), "prediction": predict(val_rows, ident.th)}
+        validation = {"log": str(validate), "prediction": predict(val_rows, ident.th),
+                      "nominal": predict(val_rows, ident.th_nominal)}
         worst = max(v["relative"] for v in validation["prediction"].values())
-        log(f"validation on {validate}: worst relative RMS error {worst:.3%}")
+        nominal = max(v["relative"] for v in validation["nominal"].values())
+        log(f"validation on {validate}: worst relative RMS error {worst:.3%} (the model file's: {nominal:.3%})")
     here = lambda f: os.path.relpath(Path(f).resolve(), Path(out).resolve())   # paths as seen from DIR
     if validation:
         validation["log"] = here(validate)
@@ -600,7 +693,7 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
         (tmp / "model.toml").write_text(f"# identified by rscasadi identify from {', '.join(rep['logs'])}\n"
                                          + to_toml(document(ident.model)))
         write_json(tmp / "report.json", rep, indent=2)
-        first = prepare(logs[0], ident.cutoff_hz)
+        first = prepare(logs[0], ident.cutoff_hz, arm=arm)
         plot(tmp / "fit", rows(arm, first, ident.unknowns, reduced), ident.th,
              f"identification log {Path(log_files[0]).name}")
         if val_rows is not None:

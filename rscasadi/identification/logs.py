@@ -1,9 +1,17 @@
-"""Logs of an FS-SEA arm: what it measures, as CSV.
+"""Logs of an FS-SEA arm: what its sensors measure, as CSV.
 
-Header `t,theta_1..theta_n,phi_1..phi_n,tau_1..tau_n`, optionally followed by `T_1..T_n` (a
-torque sensor on the SEA output); joints numbered base to tip; SI units (s, rad, N m);
-uniform sampling.  `phi` is the slow-side angle: the motor encoder divided by the gear ratio.
-`tau` is the motor torque (motor side).  Every defect is refused naming the file and column.
+The header names the columns, in any order: `t` and the link angles `theta_1..theta_n` always;
+then whichever of these groups the robot has, each for every joint:
+
+| group | what | needs |
+|---|---|---|
+| `phi_j` | slow-side motor angle: the motor encoder divided by the gear ratio | |
+| `tau_j` | motor torque (motor side), the command held on [t_k, t_k+1) | `phi_j` |
+| `T_j` | SEA output or joint torque sensor | |
+| `dtheta_j`, `dphi_j` | measured speeds, used instead of differentiated angles | `theta_j`, `phi_j` |
+
+At least one torque group (`tau` or `T`).  Joints are numbered base to tip; SI units (s, rad,
+N m); uniform sampling.  Every defect is refused naming the file and column.
 """
 from __future__ import annotations
 
@@ -15,6 +23,11 @@ import numpy as np
 
 from rscasadi.model.modelfile import ModelFileError
 
+GROUPS = ("theta", "phi", "tau", "T", "dtheta", "dphi")        # the order a written log keeps
+NEEDS = {"tau": "phi", "dphi": "phi"}                          # a group that means nothing without another
+WHAT = {"theta": "link angle", "phi": "slow-side motor angle", "tau": "motor torque", "T": "SEA or joint torque",
+        "dtheta": "link speed", "dphi": "slow-side motor speed"}
+
 
 class LogError(ModelFileError):
     """A log file is not what an FS-SEA arm measures."""
@@ -22,14 +35,17 @@ class LogError(ModelFileError):
 
 @dataclass
 class Log:
-    """A log (docs/user-guide/logs.md): time, link and motor angles, motor torques, and SEA
-    torques if a torque sensor was logged; arrays are (n, N)."""
+    """A log (docs/user-guide/logs.md): time and link angles, and whichever of motor angles,
+    motor torques, SEA/joint torques and measured speeds the robot logged; arrays are (n, N),
+    None where not logged."""
     path: str
     t: np.ndarray
     theta: np.ndarray          # (n, N)
-    phi: np.ndarray
-    tau: np.ndarray
+    phi: np.ndarray | None = None
+    tau: np.ndarray | None = None
     T: np.ndarray | None = None
+    dtheta: np.ndarray | None = None
+    dphi: np.ndarray | None = None
 
     @property
     def dt(self) -> float:
@@ -39,25 +55,76 @@ class Log:
     def n(self) -> int:
         return self.theta.shape[0]
 
+    @property
+    def groups(self) -> tuple:
+        """The column groups logged, in GROUPS' order."""
+        return tuple(g for g in GROUPS if getattr(self, g) is not None)
 
-def header(n: int, torque_sensor: bool = False) -> list[str]:
-    """The columns of a log of an n-joint arm: t, theta_j, phi_j, tau_j [, T_j]."""
-    cols = ["t"] + [f"{q}_{j}" for q in ("theta", "phi", "tau") for j in range(1, n + 1)]
-    return cols + ([f"T_{j}" for j in range(1, n + 1)] if torque_sensor else [])
+    @property
+    def link_side(self) -> bool:
+        """Link angles and joint torques only: no motor angle (a sold SEA or torque-sensing arm)."""
+        return self.phi is None
+
+    def describe(self) -> str:
+        return ", ".join(f"{WHAT[g]} ({g}_j)" for g in self.groups)
+
+
+def header(n: int, torque_sensor: bool = False, groups: tuple | None = None) -> list[str]:
+    """The columns of a log of an n-joint arm: t, then each group's j = 1..n (by default theta,
+    phi, tau [, T])."""
+    groups = groups or (("theta", "phi", "tau") + (("T",) if torque_sensor else ()))
+    return ["t"] + [f"{g}_{j}" for g in GROUPS if g in groups for j in range(1, n + 1)]
 
 
 def write_log(path, log: Log):
-    """Write `log` as CSV with the header `header` gives."""
+    """Write `log` as CSV, its groups in GROUPS' order."""
     import io
     from rscasadi.files import write_text
-    n = log.n
-    data = [log.t, *log.theta, *log.phi, *log.tau] + ([*log.T] if log.T is not None else [])
-    rows = np.vstack(data).T
+    groups = log.groups
+    rows = np.vstack([log.t] + [row for g in groups for row in getattr(log, g)]).T
     text = io.StringIO(newline="")
     w = csv.writer(text)
-    w.writerow(header(n, log.T is not None))
+    w.writerow(header(log.n, groups=groups))
     w.writerows([[repr(float(v)) for v in row] for row in rows])
     write_text(path, text.getvalue())                     # whole or not at all
+
+
+def column_groups(path, cols: list, n: int) -> dict:
+    """{group: [column index of joint 1..n]} from a header, every defect refused by name."""
+    expected = (f"t,theta_1..theta_{n} and any of the groups phi_j, tau_j, T_j, dtheta_j, dphi_j "
+                f"(j = 1..{n}) for a {n}-joint arm")
+    seen, where, unexpected = set(), {}, []
+    for k, c in enumerate(cols):
+        if c in seen:
+            raise LogError(f"{path}: header: column {c!r} appears twice")
+        seen.add(c)
+        if c == "t":
+            continue
+        group, _, j = c.rpartition("_")
+        if group not in GROUPS or not j.isdigit() or not 1 <= int(j) <= n:
+            unexpected.append((c, group))
+            continue
+        where.setdefault(group, {})[int(j)] = k
+    for need in ("t", "theta_1"):
+        if need not in seen:
+            raise LogError(f"{path}: header: missing column {need!r}; expected {expected}")
+    for g, js in where.items():
+        missing = [j for j in range(1, n + 1) if j not in js]
+        if missing:
+            raise LogError(f"{path}: header: missing column '{g}_{missing[0]}' ({WHAT[g]}s are logged for joints "
+                           f"{', '.join(str(j) for j in sorted(js))}: a group is logged for every joint or none)")
+    for c, group in unexpected:
+        hint = (" (a motor current: convert it to tau_j with the torque constant)" if group in ("i", "current")
+                else f" (this arm has {n} joints)" if group in GROUPS else "")
+        raise LogError(f"{path}: header: unexpected column {c!r}{hint}; expected {expected}")
+    for g, need in NEEDS.items():
+        if g in where and need not in where:
+            raise LogError(f"{path}: header: column '{g}_1' ({WHAT[g]}) needs '{need}_1..{need}_{n}' "
+                           f"({WHAT[need]}), which the log lacks")
+    if "tau" not in where and "T" not in where:
+        raise LogError(f"{path}: header: no torque column: identification needs tau_1..tau_{n} (motor torque) "
+                       f"or T_1..T_{n} (SEA or joint torque); expected {expected}")
+    return {g: [where[g][j] for j in range(1, n + 1)] for g in GROUPS if g in where}
 
 
 def read_log(path, n: int, min_samples: int = 50) -> Log:
@@ -73,17 +140,7 @@ def read_log(path, n: int, min_samples: int = 50) -> Log:
     if not rows:
         raise LogError(f"{path}: empty log (expected the header {','.join(header(n))})")
     cols = [c.strip() for c in rows[0]]
-    for want in (header(n), header(n, True)):
-        if cols == want:
-            break
-    else:
-        expected = header(n)
-        missing = [c for c in expected if c not in cols]
-        extra = [c for c in cols if c not in header(n, True)]
-        what = (f"missing column {missing[0]!r}" if missing else f"unexpected column {extra[0]!r}" if extra
-                else "columns out of order")
-        raise LogError(f"{path}: header: {what}; expected {','.join(expected)} (optionally ,T_1..T_{n}) "
-                       f"for a {n}-joint arm")
+    groups = column_groups(path, cols, n)
     body = rows[1:]
     if len(body) < min_samples:
         raise LogError(f"{path}: only {len(body)} samples; at least {min_samples} are needed to estimate "
@@ -111,5 +168,4 @@ def read_log(path, n: int, min_samples: int = 50) -> Log:
         i = int(np.argmax(np.abs(dt - np.median(dt))))
         raise LogError(f"{path}: column 't': sampling is not uniform (step {dt[i]:.6g} s at line {i + 3}, "
                        f"median {np.median(dt):.6g} s); resample the log first")
-    blocks = [data[:, 1 + k * n: 1 + (k + 1) * n].T for k in range(len(cols) // n)]
-    return Log(str(path), t, blocks[0], blocks[1], blocks[2], blocks[3] if len(blocks) > 3 else None)
+    return Log(str(path), t, **{g: data[:, idx].T for g, idx in groups.items()})

@@ -3,7 +3,7 @@ parameters of the body the model file's [payload] names, everything else held at
 file's values (an arm identified before), from a short log of the arm moving with it.
 
 The SEAs are torque sensors: with the spring law known, T_spring(state) = k1 psi + k3 psi^3 +
-d dpsi is the torque the links receive, so the link rows
+d dpsi is the torque the links receive (or the logged T_j of a link-side log), so the link rows
 
     Y_T(x) p_payload + y0_T(x) = T_spring(x)
 
@@ -41,12 +41,14 @@ def _rows(arm: Arm, sig, known: list) -> tuple[list, list, list]:
     y0 = y0.reshape(2 * n, count)
     c = {a: arm.model.column(a)[:, None] for a in ("k1", "k3", "d", "eps")}
     psi, dpsi = sig.phi - sig.theta, sig.dphi - sig.dtheta
-    T_spring = c["k1"] * psi + c["k3"] * psi ** 3 + c["d"] * dpsi
+    T_link = c["k1"] * psi + c["k3"] * psi ** 3 + c["d"] * dpsi if sig.phi_measured else sig.T
     A, y, labels = [], [], []
     for j in range(n):
         A.append(Y[n + j])
-        y.append(T_spring[j] - y0[n + j])
+        y.append(T_link[j] - y0[n + j])
         labels.append(f"T_{j + 1}")
+        if sig.tau is None:
+            continue
         moving = np.abs(sig.dphi[j]) > REVERSAL * c["eps"][j, 0]
         A.append(Y[j][moving])
         y.append(sig.tau[j][moving] - y0[j][moving])
@@ -66,7 +68,7 @@ def identify_payload(arm: Arm, logs: list[Log], fc: float | None = None) -> dict
     fc = fc or cutoff_hz(arm, logs[0])[0]
     A_b, y_b = [], []                                   # one block per kind, joint and log
     for log in logs:
-        A, y, _ = _rows(arm, prepare(log, fc), known)
+        A, y, _ = _rows(arm, prepare(log, fc, arm=arm), known)
         A_b += [a for a, v in zip(A, y) if v.size]
         y_b += [v for v in y if v.size]
     size = np.array([max(np.sqrt(np.mean(v ** 2)), 1e-9) for v in y_b])
@@ -174,10 +176,10 @@ def run(model_file, log_files, out, validate=None, cutoff=None, log=print) -> di
 def link_torque_error(arm: Arm, log: Log, fc: float) -> list:
     """Per joint: RMS of (the model's link torque - the spring's torque) / RMS of the spring's
     torque along a filtered log."""
-    sig = prepare(log, fc)
+    sig = prepare(log, fc, arm=arm)
     T = np.array(arm.inverse_dynamics().map(sig.t.size)(*sig.state())[1])
     c = {a: arm.model.column(a)[:, None] for a in ("k1", "k3", "d")}
     psi, dpsi = sig.phi - sig.theta, sig.dphi - sig.dtheta
-    T_spring = c["k1"] * psi + c["k3"] * psi ** 3 + c["d"] * dpsi
+    T_spring = c["k1"] * psi + c["k3"] * psi ** 3 + c["d"] * dpsi if sig.phi_measured else sig.T
     return [float(np.sqrt(np.mean((T[j] - T_spring[j]) ** 2)) / max(np.sqrt(np.mean(T_spring[j] ** 2)), 1e-300))
             for j in range(arm.n)]

@@ -69,17 +69,28 @@ def random_samples(arm, count: int, rng) -> list:
             rng.normal(0, 2, (n, count)), rng.normal(0, 5, (n, count)), rng.normal(0, 5, (n, count))]
 
 
-def stacked(arm, samples, with_spring: bool = True, reduced: bool = False) -> np.ndarray:
-    """The rows tau, and T - T_spring (the link equations with the spring as their torque), of
-    every sample stacked: the matrix whose column space identification works in."""
+ROW_KINDS = ("tau", "spring", "T")
+
+
+def stacked(arm, samples, kinds=("tau", "spring"), reduced: bool = False) -> np.ndarray:
+    """The rows of `kinds` of every sample stacked: tau (the motor torques), spring (T - T_spring,
+    the link equations with the spring as their torque), T (the link torques): the matrix whose
+    column space identification from logs with those rows works in."""
     count = samples[0].shape[1]
     Y = np.array(regressor(arm, reduced=reduced).map(count)(*samples)[0])   # (2n, count * n_lin)
     n, n_lin = arm.n, n_linear(arm.model)
     Y = Y.reshape(2 * n, count, n_lin)                                    # [row, sample, column]
-    rows = [Y[:n]]
-    if with_spring:
-        Ys = np.array(spring_regressor(arm).map(count)(*samples[:4])).reshape(n, count, n_lin)
-        rows.append(Y[n:] - Ys)
+    rows = []
+    for kind in kinds:
+        if kind == "tau":
+            rows.append(Y[:n])
+        elif kind == "spring":
+            Ys = np.array(spring_regressor(arm).map(count)(*samples[:4])).reshape(n, count, n_lin)
+            rows.append(Y[n:] - Ys)
+        elif kind == "T":
+            rows.append(Y[n:])
+        else:
+            raise ValueError(f"stacked: row kind {kind!r} is none of {ROW_KINDS}")
     return np.concatenate(rows, axis=0).transpose(1, 0, 2).reshape(-1, n_lin)
 
 

@@ -60,13 +60,20 @@ def perturbed_arm(arm: Arm, rng, k3_fraction: float = 0.2, coulomb: float = 0.5)
                                    path=arm.model.path + " (perturbed)"))
 
 
+SENSOR_NOISE = {"T": 0.005, "dtheta": 1e-3, "dphi": 1e-3}   # a torque sensor: of the largest |T|; speeds: rad/s
+
+
 def record(true_arm: Arm, nominal_arm: Arm, trajectory, rate: float = 1000.0, rng=None,
-           torque_noise: float = 0.005, substeps: int = 4, ff_step: float = 0.002, plant=None) -> tuple[Log, dict]:
+           torque_noise: float = 0.005, substeps: int = 4, ff_step: float = 0.002, plant=None,
+           columns=("theta", "phi", "tau"), every: int = 1) -> tuple[Log, dict]:
     """Drive the true arm along `trajectory` (nominal feedforward + motor-side PD) and log what its
     sensors see: the one closed loop (rscasadi.sim.loop) on `plant` (default: `substeps` RK4 steps
     of the true arm's complete model per sample; e.g. rscasadi.export.mujoco.mujoco_plant(true_arm,
     dt)), quantised encoders, the applied torques (within the limits) logged with noise of
-    `torque_noise` times each limit.  Returns the log and the true state history {t, x, tau_applied}."""
+    `torque_noise` times each limit.  `columns`: the groups logged (rscasadi.identification.logs:
+    T the true spring torque with noise of SENSOR_NOISE["T"] of its largest magnitude, speeds the
+    true ones with SENSOR_NOISE's noise); `every`: one logged sample per `every` control steps.
+    Returns the log and the true state history {t, x, tau_applied}."""
     rng = np.random.default_rng(0) if rng is None else rng
     n, dt = true_arm.n, 1.0 / rate
     N = int(round(trajectory.duration * rate)) + 1
@@ -82,12 +89,22 @@ def record(true_arm: Arm, nominal_arm: Arm, trajectory, rate: float = 1000.0, rn
     run = run_loop(true_arm, plant, controller, x0, N, dt, sensors=Encoders(true_arm, dt))
     limits = np.array([jt.limits.get("tau", np.max(np.abs(run.tau), initial=1.0)) for jt in true_arm.model.joints])
     tau_logged = run.tau + rng.normal(0, 1, run.tau.shape) * (torque_noise * limits)[:, None]
-    log = Log("<synthetic>", t, run.meas[:n], run.meas[n:2 * n], tau_logged)
-    return log, {"t": t, "x": run.x[:, :N], "tau": run.tau}
+    x = run.x[:, :N]
+    psi, dpsi = x[n:2 * n] - x[:n], x[3 * n:] - x[2 * n:3 * n]
+    k = {a: true_arm.model.column(a)[:, None] for a in ("k1", "k3", "d")}
+    T = k["k1"] * psi + k["k3"] * psi ** 3 + k["d"] * dpsi
+    noisy = lambda v, s: v + rng.normal(0, 1, v.shape) * s
+    measured = {"theta": run.meas[:n], "phi": run.meas[n:2 * n], "tau": tau_logged,
+                "T": noisy(T, SENSOR_NOISE["T"] * np.max(np.abs(T), axis=1, keepdims=True)),
+                "dtheta": noisy(x[2 * n:3 * n], SENSOR_NOISE["dtheta"]), "dphi": noisy(x[3 * n:], SENSOR_NOISE["dphi"])}
+    pick = slice(None, None, every)
+    log = Log("<synthetic>", t[pick], **{g: measured[g][:, pick] for g in columns})
+    return log, {"t": t, "x": x, "tau": run.tau}
 
 
 def simulate_log(model, trajectory, out, rate: float = 1000.0, noise: float = 0.005, perturb: int | None = None,
-                 true_model=None, simulator: str = "rscasadi", log=print) -> Path:
+                 true_model=None, simulator: str = "rscasadi", columns="theta,phi,tau", log_rate: float | None = None,
+                 log=print) -> Path:
     """`rscasadi simulate`: the log (docs/user-guide/logs.md's format) that the arm of
     `model`, or with `perturb` (a seed) a different arm of its family (every parameter off by
     10-40 %, a cubic spring and Coulomb loss added: perturbed_arm), records along `trajectory`
@@ -95,7 +112,9 @@ def simulate_log(model, trajectory, out, rate: float = 1000.0, noise: float = 0.
     feedforward and a motor-side PD, with torque noise of `noise` times each torque limit; the
     true arm's model file into `true_model` if given.  `simulator` "mujoco": the true arm
     exported to MuJoCo (rscasadi.export.mujoco) is the plant, at its 1 ms RK4 step; a perturbed
-    arm then keeps linear springs and no Coulomb loss (what MJCF holds)."""
+    arm then keeps linear springs and no Coulomb loss (what MJCF holds).  `columns`: the sensors
+    logged (comma-separated groups, checked as a log's header is); `log_rate`: the log's sample
+    rate, a divisor of the loop's `rate`."""
     import time
     from rscasadi.dynamics.arm import load
     from rscasadi.files import check_writable, write_text
@@ -113,6 +132,16 @@ def simulate_log(model, trajectory, out, rate: float = 1000.0, noise: float = 0.
     traj = load_trajectory(trajectory)
     if traj.n != nominal.n:
         raise InvalidArgument(f"{trajectory}: {traj.n} joints, the model {model} has {nominal.n}")
+    groups = tuple(g.strip() for g in str(columns).split(",") if g.strip())
+    from rscasadi.identification.logs import LogError, column_groups
+    try:
+        column_groups("simulate --columns", ["t"] + [f"{g}_{j}" for g in groups for j in range(1, nominal.n + 1)],
+                   nominal.n)
+    except LogError as exc:
+        raise InvalidArgument(str(exc).replace("header: ", "")) from None
+    every = int(round(rate / log_rate)) if log_rate else 1
+    if log_rate and (every < 1 or abs(every * log_rate - rate) > 1e-9 * rate):
+        raise InvalidArgument(f"simulate: --log-rate {log_rate:g} must divide --rate {rate:g}")
     if simulator not in ("rscasadi", "mujoco"):
         raise InvalidArgument(f"simulate: --simulator must be rscasadi or mujoco, got {simulator!r}")
     rng = np.random.default_rng(0 if perturb is None else perturb)
@@ -125,7 +154,8 @@ def simulate_log(model, trajectory, out, rate: float = 1000.0, noise: float = 0.
     log(f"simulating {true.model.name} along {Path(trajectory).name}: {traj.duration:g} s at {rate:g} Hz "
         f"({'MuJoCo, the arm exported' if mujoco else 'the complete model, RK4'}) ...")
     t0 = time.perf_counter()
-    lg, _ = record(true, nominal, traj, rate=rate, rng=rng, torque_noise=noise, plant=plant)
+    lg, _ = record(true, nominal, traj, rate=rate, rng=rng, torque_noise=noise, plant=plant, columns=groups,
+                   every=every)
     write_log(out, lg)
     if true_model:
         write_text(true_model, f"# the arm that recorded {out.name} (rscasadi simulate --perturb {perturb})\n"
