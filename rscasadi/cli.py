@@ -369,7 +369,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("logs", nargs="+", help="one or more logs")
     p.add_argument("--out", required=True, help="directory for model.toml, report.json and figures")
     p.add_argument("--validate", default=None, help="a held-out log: prediction error of the identified model")
-    p.add_argument("--cutoff", type=positive(float), default=None, help="filter cut-off (Hz); default 2x the highest SEA mode")
+    p.add_argument("--cutoff", type=positive(float), default=None,
+                   help="filter cut-off (Hz); default: 2x the highest SEA mode, or for a link-side log where the "
+                        "logged motion ends (report.json: cutoff_why; with --validate, cutoff_check tries others)")
     p.add_argument("--explain", action="store_true", help="print the base parameters as combinations of physical ones")
     p.add_argument("--reduced", action="store_true", help="identify the DLR/Spong reduced model instead (ablation)")
     p.add_argument("--only", choices=["payload"], default=None,

@@ -610,6 +610,32 @@ def report(ident: Identification, arm: Arm, validation: dict | None, log_files: 
     }
 
 
+CUTOFF_FACTORS = (0.5, 0.7, 1.0, 1.4, 2.0)   # the cut-offs the held-out check tries, times the chosen one
+CUTOFF_BETTER = 0.8                          # another cut-off this much better in the check is warned about
+
+
+def cutoff_check(arm: Arm, logs: list, val_log: Log, ident: "Identification", reduced: bool = False) -> list:
+    """Whether the chosen cut-off is near the best: the base parameters estimated (least squares)
+    with the logs filtered at CUTOFF_FACTORS times it, each predicting the held-out log filtered
+    at the chosen cut-off (one target for all: a lower cut-off would otherwise win by smoothing
+    its own target).  [{factor, cutoff_hz, held_out_worst}] of the worst column's relative RMS error."""
+    base, fc0 = ident.ls.base, ident.cutoff_hz
+    val = rows(arm, prepare(val_log, fc0, arm=arm), ident.unknowns, reduced)
+    out = []
+    for factor in CUTOFF_FACTORS:
+        fc = factor * fc0
+        if fc >= 0.45 / min(lg.dt for lg in logs):
+            continue
+        fit = combine([rows(arm, prepare(lg, fc, arm=arm), ident.unknowns, reduced) for lg in logs])
+        beta = least_squares(fit, base, ident.th_nominal, bootstrap=False).beta
+        pred = val.A[:, base.independent] @ beta                # = A th for every th of these base parameters
+        worst = max(float(np.sqrt(np.mean((pred[val.block == b] - val.y[val.block == b]) ** 2)
+                                  / max(np.mean(val.y[val.block == b] ** 2), 1e-300)))
+                    for b, label in enumerate(val.labels) if not label.startswith("spring"))
+        out.append({"factor": factor, "cutoff_hz": fc, "held_out_worst": worst})
+    return out
+
+
 def _grouped(names: list) -> str:
     """Parameter names shortened: an attribute undetermined at every joint named once."""
     joints = sorted({name.split(".", 1)[0] for name in names})
@@ -682,11 +708,21 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
         worst = max(v["relative"] for v in validation["prediction"].values())
         nominal = max(v["relative"] for v in validation["nominal"].values())
         log(f"validation on {validate}: worst relative RMS error {worst:.3%} (the model file's: {nominal:.3%})")
+        check = cutoff_check(arm, logs, val_log, ident, reduced)
+        validation["cutoff_check"] = check
+        mine = next(c["held_out_worst"] for c in check if c["factor"] == 1.0)
+        best = min(check, key=lambda c: c["held_out_worst"])
+        log("cut-off check (least squares at each cut-off, held-out worst error): " + ", ".join(
+            f"{c['cutoff_hz']:.1f} Hz {c['held_out_worst']:.2%}" for c in check))
     here = lambda f: os.path.relpath(Path(f).resolve(), Path(out).resolve())   # paths as seen from DIR
     if validation:
         validation["log"] = here(validate)
     rep = report(ident, arm, validation, [here(f) for f in log_files])
     rep["model"] = here(model_file)
+    if validation and best["held_out_worst"] < CUTOFF_BETTER * mine:
+        rep["warnings"].append(f"the cut-off {best['cutoff_hz']:.1f} Hz predicts the held-out log better than the "
+                               f"chosen {ident.cutoff_hz:.1f} Hz ({best['held_out_worst']:.2%} against {mine:.2%} "
+                               f"worst error): try --cutoff {best['cutoff_hz']:.1f}")
     for warning in rep["warnings"]:
         log(f"warning: {warning}")
     with fresh_directory(out) as tmp:
