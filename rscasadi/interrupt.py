@@ -15,7 +15,7 @@ from __future__ import annotations
 import os
 import signal
 
-_state = {"interrupted": False, "terminated": False, "command": False, "stderr": -1}
+_state: dict = {"interrupted": False, "terminated": False, "command": False, "stderr": -1}
 
 
 def _handler(signum, frame):

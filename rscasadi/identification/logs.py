@@ -93,7 +93,9 @@ def column_groups(path, cols: list, n: int) -> dict:
     """{group: [column index of joint 1..n]} from a header, every defect refused by name."""
     expected = (f"t,theta_1..theta_{n} and any of the groups phi_j, tau_j, T_j, dtheta_j, dphi_j "
                 f"(j = 1..{n}) for a {n}-joint arm")
-    seen, where, unexpected = set(), {}, []
+    seen: set = set()
+    where: dict[str, dict[int, int]] = {}
+    unexpected: list = []
     for k, c in enumerate(cols):
         if c in seen:
             raise LogError(f"{path}: header: column {c!r} appears twice")
