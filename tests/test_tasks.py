@@ -335,16 +335,26 @@ def test_a_start_off_the_path_is_refused(tmp_path):
 
 def test_a_problem_may_give_the_arm_its_collision_geometry(tool_arm, capsule_arm):
     """The same obstacle task with the capsules given by the problem instead of the model file:
-    the same clearance; without any, refused; a bad one refused naming the problem file."""
+    the same capsules, and the same NLP, so the same solution to the last digit (a short
+    interpreted solve each); without any, refused; a bad one refused naming the problem file."""
+    from rscasadi.model.collision import capsules, with_collision
     from rscasadi.ocp.problem import Obstacle
     arm = rscasadi.load(capsule_arm)
     th0, th1 = np.array([0.0, 0.3, -0.5]), np.array([0.8, 0.9, -1.2])
     obstacle = Obstacle("sphere", np.array(arm.frame_placement("tool")((th0 + th1) / 2)[1]).ravel(), 0.05)
     shape = {"margin": 0.01, "tip": "tool", "links": {"shoulder_pitch": 0.04, "elbow_pitch": 0.03}}
+    tool = rscasadi.load(tool_arm / "arm3_tool.toml").model
+    plain = lambda caps: [(c.link, c.body, c.a.tolist(), c.b.tolist(), c.radius) for c in caps]   # noqa: E731
+    assert plain(capsules(with_collision(tool, shape, "<Problem>"))) == plain(capsules(arm.model))
     task = dict(objective="min_time", duration=1.0, theta_start=th0, theta_end=th1, obstacles=(obstacle,))
-    given = solve(Problem(Task(tool_arm / "arm3_tool.toml", collision=shape, **task), TranscriptionOptions(intervals=40)),
+    short = dict(transcription=TranscriptionOptions(intervals=10, compiled=False, condense=False),
+                 solver=SolverOptions(name="ipopt"), verification=Verification(rounds=0))
+    given = solve(Problem(Task(tool_arm / "arm3_tool.toml", collision=shape, **task), **short),
                   print_level=0, log=lambda m: None)
-    assert given.success and given["collision"] == shape
+    own = solve(Problem(Task(capsule_arm, **task), **short), print_level=0, log=lambda m: None)
+    assert given["solver_success"] and given["collision"] == shape and given["iterations"] == own["iterations"]
+    assert np.max(np.abs(given.theta - own.theta)) < 1e-12
+    assert given["verification"]["min_clearance"] == pytest.approx(own["verification"]["min_clearance"], abs=1e-12)
     from rscasadi.ocp import verify
     assert verify(given)["min_clearance"] == pytest.approx(given["verification"]["min_clearance"])
     with pytest.raises(ModelFileError, match=r"<Problem>: field 'collision.links.nowhere'"):

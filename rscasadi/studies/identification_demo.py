@@ -49,7 +49,7 @@ def model_errors(arm: Arm, true_arm: Arm, ident, ident_red, val_log) -> dict:
     """Noise-free model error on the held-out motion: each identified model's motor torques
     against the true arm's, on the same filtered signals, relative to the true torques' RMS."""
     u = ident.unknowns
-    sig = ident_mod.prepare(val_log, ident.cutoff_hz)
+    sig = ident_mod.prepare(val_log, ident.cutoff_hz, arm=arm)
     th_true = u.from_p(true_arm.parameters()[1][:n_linear(arm.model)])
     complete, reduced = ident_mod.rows(arm, sig, u), ident_mod.rows(arm, sig, u, reduced=True)
     out = {}
