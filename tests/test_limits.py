@@ -52,7 +52,8 @@ def test_the_ocp_and_the_mpc_studies_share_the_figure():
 @pytest.fixture(scope="module")
 def narrow_yaw(tmp_path_factory):
     """The reference arm with the shoulder yaw's range narrowed to +-0.3 rad, and its MPC with the
-    link-angle penalty on and off, and with hard limits (no penalty)."""
+    link-angle penalty on and off, and with hard limits (no penalty); 5 intervals of 10 ms, the
+    substeps the arm's modes ask for (a short horizon: the tests compile three)."""
     from rscasadi.mpc import generate_mpc
     d = tmp_path_factory.mktemp("narrow_yaw")
     model = arm3_with(d, "tau = 0.6, dphi = 4.0, psi = 0.15, theta = [-0.3, 0.3]")
@@ -60,7 +61,7 @@ def narrow_yaw(tmp_path_factory):
     for name, weight, kind in (("on", None, "soft"), ("off", 0.0, "soft"), ("hard", 0.0, "hard")):
         extra = "" if weight is None else f"angle_limits = {weight}\n"
         problem = d / f"mpc_{name}.toml"
-        problem.write_text(f'model = "{model.name}"\nhorizon = 10\ninterval = 0.01\nsubsteps = 5\n'
+        problem.write_text(f'model = "{model.name}"\nhorizon = 5\ninterval = 0.01\nsubsteps = "auto"\n'
                            f'angle_limits = "{kind}"\n[weights]\n{extra}')
         out[name] = (problem, d / f"mpc_{name}")
         generate_mpc(problem, out[name][1], opt="-O1", log=lambda m: None)
