@@ -593,7 +593,8 @@ def report(ident: Identification, arm: Arm, validation: dict | None, log_files: 
         "model": str(arm.model.path), "logs": [str(f) for f in log_files],
         "sensors": ident.sensors, "rows": list(ident.kinds),
         "undetermined": {"parameters": ident.ls.base.unidentifiable,
-                         "why": f"no logged column determines them ({ident.sensors}): kept at the model file's values"},
+                         "why": f"no effect on what the logs measure ({ident.sensors}): kept at the model file's "
+                                "values"},
         "cutoff_hz": ident.cutoff_hz, "cutoff_why": ident.cutoff_why,
         "condition_number": ident.ls.condition, "physical_fit": ident.fit_status, "base_parameters": base,
         "parameters": {name: {"nominal": float(nom), "estimate": float(est), "std": None if np.isnan(s) else float(s)}
@@ -696,8 +697,8 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
         f"physically consistent fit {ident.fit_status}")
     undetermined = ident.ls.base.unidentifiable
     if undetermined:
-        log(f"{len(undetermined)} parameters no logged column determines ({ident.sensors}), kept at the model "
-            f"file's values: {_grouped(undetermined)}")
+        log(f"{len(undetermined)} parameters have no effect on what the logs measure ({ident.sensors}), kept at "
+            f"the model file's values: {_grouped(undetermined)}")
     validation: dict | None = None
     val_rows = None
     if val_log is not None:
