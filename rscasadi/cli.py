@@ -242,6 +242,12 @@ def _cmd_excite(args):
         log=lambda msg: print(msg, flush=True))
 
 
+def _cmd_frf(args):
+    from rscasadi.identification.frf import run as run_frf
+    run_frf(args.model, args.out, args.log, joint=args.joint, output=args.output, pose=args.pose,
+            resolution=args.resolution, say=lambda m: print(m, flush=True))
+
+
 def _cmd_identify(args):
     if args.only == "payload":
         from rscasadi.identification.payload import run as run_payload
@@ -377,6 +383,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--only", choices=["payload"], default=None,
                    help="identify only the model file's [payload], everything else held at the file's values")
     p.set_defaults(func=_cmd_identify)
+    p = sub.add_parser("frf", help="a joint's frequency response: the model's (complete and rigid) and a log's")
+    p.add_argument("model")
+    p.add_argument("log", nargs="?", default=None, help="a log with tau_j (the input): its H1 estimate beside the model's")
+    p.add_argument("--joint", type=positive(int), default=1, help="the joint (from 1; default 1)")
+    p.add_argument("--output", choices=("phi", "theta"), default="phi",
+                   help="the response of the motor angle (default: collocated, anti-resonance and resonance) or the link's")
+    p.add_argument("--pose", type=float, nargs="+", default=None, metavar="RAD",
+                   help="the link angles to linearise at (default: the log's mean, else mid-range)")
+    p.add_argument("--resolution", type=positive(float), default=0.25, metavar="HZ",
+                   help="the log estimate's frequency bins (default 0.25 Hz; finer bins average fewer segments)")
+    p.add_argument("--out", required=True, help="directory for frf.png and frf.json")
+    p.set_defaults(func=_cmd_frf)
     p = sub.add_parser("view", help="a solution.json or a model file as a 3D animation in one HTML file (offline)")
     p.add_argument("result", help="a solution.json (rscasadi ocp) or a model file")
     p.add_argument("--out", required=True, help="the HTML file to write (open it as view.html#t=0.35 for 0.35 s)")

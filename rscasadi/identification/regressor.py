@@ -24,6 +24,7 @@ import casadi as ca
 import numpy as np
 import scipy.linalg
 
+from rscasadi.errors import InvalidArgument
 from rscasadi.model.parameters import n_linear
 
 STATE_ACC = ["theta", "phi", "dtheta", "dphi", "ddtheta", "ddphi"]
@@ -90,7 +91,7 @@ def stacked(arm, samples, kinds=("tau", "spring"), reduced: bool = False) -> np.
         elif kind == "T":
             rows.append(Y[n:])
         else:
-            raise ValueError(f"stacked: row kind {kind!r} is none of {ROW_KINDS}")
+            raise InvalidArgument(f"stacked: row kind {kind!r} is none of {ROW_KINDS}")
     return np.concatenate(rows, axis=0).transpose(1, 0, 2).reshape(-1, n_lin)
 
 
