@@ -34,7 +34,7 @@ def _compare(arm_a, arm_b, p, rng, names=FUNCTIONS, tol=1e-11):
 
 def test_names_and_nominal_values(arm3):
     names, p = arm3.parameters()
-    assert len(names) == len(p) == 3 * 35 + 3 and len(set(names)) == len(names)
+    assert len(names) == len(p) == 3 * 38 + 3 and len(set(names)) == len(names)
     assert names[:3] == ["shoulder_yaw.link.mass", "shoulder_yaw.link.mx", "shoulder_yaw.link.my"]
     assert p[names.index("elbow_pitch.sea.k1")] == 600.0
     assert p[names.index("elbow_pitch.fast_rotor.Izz")] == pytest.approx(1.6e-5)

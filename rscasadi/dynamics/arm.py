@@ -68,6 +68,12 @@ class Arm:
         c = (phys or self.physics).columns
         return c["b"] * dphi + c["c"] * ca.tanh(dphi / c["eps"])
 
+    def link_loss(self, theta, dtheta, phys=None):
+        """T_L = link_b dtheta + link_c tanh(dtheta / eps) + cb_k (theta - cb_theta0): what the link
+        loses to its bearings and its counterbalance spring, beside the SEA's torque."""
+        c = (phys or self.physics).columns
+        return c["link_b"] * dtheta + c["link_c"] * ca.tanh(dtheta / c["eps"]) + c["cb_k"] * (theta - c["cb_theta0"])
+
     def _phi_force(self, phys, x, tau):
         """Q_phi = -T - T_B2 - mu tau (docs/user-guide/model.md section 3)."""
         return -self.sea_torque(*x, phys=phys) - self.gear_loss(x[3], phys) - phys.columns["gear_ratio"] * tau
@@ -112,6 +118,7 @@ class Arm:
             segs, kin = self._kin(reduced, phys, x)
             f_ext = kinematics.link_wrenches(self.model, frames, theta, f) if f else None
             T, Qi_phi = rec.inverse_dynamics(segs, kin, ddtheta, ddphi, phys.gravity, f_ext)  # eq. (26)
+            T = T + self.link_loss(theta, dtheta, phys)                    # the spring also carries T_L
             tau = -(Qi_phi + self.sea_torque(*x, phys=phys) + self.gear_loss(dphi, phys)) \
                 / phys.columns["gear_ratio"]                                                  # eq. (22)
             return [tau, T]
@@ -126,8 +133,8 @@ class Arm:
             x = (theta, phi, dtheta, dphi)
             segs, kin = self._kin(reduced, phys, x)
             f_ext = kinematics.link_wrenches(self.model, frames, theta, f) if f else None
-            return list(rec.forward_dynamics(segs, kin, self.sea_torque(*x, phys=phys), self._phi_force(phys, x, tau),
-                                             phys.gravity, f_ext))
+            link = self.sea_torque(*x, phys=phys) - self.link_loss(theta, dtheta, phys)
+            return list(rec.forward_dynamics(segs, kin, link, self._phi_force(phys, x, tau), phys.gravity, f_ext))
         name = ("reduced_forward_dynamics" if reduced else "forward_dynamics") + ("_external" if external else "")
         return self._function(name, STATE + ["tau"] + wrench_names, ["ddtheta", "ddphi"], build, parametric,
                               key=(name, tuple(external)))

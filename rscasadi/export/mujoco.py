@@ -8,6 +8,8 @@ Per joint j, inside the body of link j - 1 (the world for j = 1), at the joint f
   - the series spring and its damper: a fixed tendon of length phi_j - theta_j with stiffness k1
     and damping d (the link feels +k1 (phi - theta), the slow rotor the opposite);
   - the gear loss b dphi: the slow rotor's joint damping;
+  - the link-side viscous loss link_b dtheta and the counterbalance spring cb_k (theta - theta0):
+    the link hinge's damping, stiffness and springref;
   - the motor: an actuator on the fast rotor, its torque tau_j the model's motor torque (through
     the gear the slow side receives -mu_j tau_j, as in the model), ctrlrange the torque limit.
 Inertias are each body's own (mass, centre of mass, inertia about it, in the joint or link frame;
@@ -21,7 +23,7 @@ capsules are the geometry.
 MuJoCo keeps the gear only as a constraint it solves softly: the file asks for RK4 at 1 ms and
 an equality nearly hard (solimp 0.9999), under which its motion follows the complete model
 (tests/test_mujoco.py). Not expressed, and refused by name: a cubic spring term (k3), Coulomb
-gear loss (c; MuJoCo's frictionloss is another law).
+loss on the gear (c) or the link (link_loss c; MuJoCo's frictionloss is another law).
 """
 from __future__ import annotations
 
@@ -94,6 +96,8 @@ def check_exportable(model) -> None:
     problems = [f"{jt.name}: k3 = {jt.k3:g} (a cubic spring; a tendon's is linear)" for jt in model.joints if jt.k3]
     problems += [f"{jt.name}: gear_loss c = {jt.c:g} (Coulomb loss; MuJoCo's frictionloss is another law)"
                  for jt in model.joints if jt.c]
+    problems += [f"{jt.name}: link_loss c = {jt.link_c:g} (Coulomb loss; MuJoCo's frictionloss is another law)"
+                 for jt in model.joints if jt.link_c]
     if problems:
         raise InvalidArgument(f"{model.path}: cannot be exported to MuJoCo exactly: " + "; ".join(problems))
 
@@ -129,10 +133,13 @@ def mujoco_xml(model, variant: str = "complete") -> str:
         jt, name = model.joints[j], names[j]
         pos, quat = _numbers(jt.origin_xyz), _quat(jt.R)
         theta = jt.limits.get("theta")
-        rigid = f' armature="{float(jt.rotor_inertia)!r}" damping="{float(jt.b)!r}"' if armature else ""
+        rigid = f' armature="{float(jt.rotor_inertia)!r}"' if armature else ""
+        damping = jt.link_b + (jt.b if armature else 0.0)
+        link_side = (f' damping="{float(damping)!r}"' if damping else "") + (
+            f' stiffness="{float(jt.cb_k)!r}" springref="{float(jt.cb_theta0)!r}"' if jt.cb_k else "")
         out = [f'{indent}<body name="{name}_link" pos="{pos}" quat="{quat}">',
                _inertial(jt.link, indent + "  ").rstrip("\n"),
-               f'{indent}  <joint name="{name}" type="hinge" axis="0 0 1"{rigid}'
+               f'{indent}  <joint name="{name}" type="hinge" axis="0 0 1"{rigid}{link_side}'
                + (f' range="{theta[0]!r} {theta[1]!r}"' if theta is not None and np.all(np.isfinite(theta)) else "")
                + "/>"] + _attached(model, j + 1, indent + "  ")
         if j + 1 < len(model.joints):

@@ -34,7 +34,8 @@ from rscasadi.dynamics.arm import Arm, load
 from rscasadi.dynamics.statics import spring_deflection
 from rscasadi.files import CheckError, check_writable, fresh_directory, write_json
 from rscasadi.model.modelfile import BODIES, ArmModel, document, to_toml
-from rscasadi.model.parameters import INERTIAL, PER_JOINT, body_from_parameters, n_linear, payload_slice
+from rscasadi.model.parameters import (ACTUATOR, ACTUATOR_ATTR, INERTIAL, PER_JOINT, body_from_parameters, n_linear,
+                                       payload_slice)
 from rscasadi.identification.logs import Log, LogError, read_log
 from rscasadi.identification.regressor import BaseParameters, base_of, random_samples, regressor, spring_regressor, stacked
 
@@ -43,6 +44,7 @@ CUTOFF_FACTOR = 2.0  # filter cut-off / highest SEA mode (1.5 biases k1 by 100 s
 EDGE_S = 0.25        # seconds dropped at both ends of a log (filter transients)
 REVERSAL = 10.0      # motor-torque rows with |dphi| < REVERSAL * eps (Coulomb's tanh) are left out
 MIN_ROWS = 20        # a joint with fewer motor-torque rows than this is not moved by the log
+OPTIONAL = ("link_loss", "counterbalance")   # identified only at joints whose model file gives the table
 
 
 # ----------------------------------------------------------------------------- the unknowns
@@ -51,7 +53,8 @@ MIN_ROWS = 20        # a joint with fewer motor-torque rows than this is not mov
 class Unknowns:
     """The identification vector th: p_lin = E th.  Links keep their ten parameters; a rotor
     that is balanced in the model file stays balanced (mass, mz, Ixx = Iyy, Izz); every
-    actuator keeps k1, k3, d, b, c."""
+    actuator keeps k1, k3, d, b, c, and its link-side loss and counterbalance spring where the
+    model file gives those tables (elsewhere they are held at zero)."""
     names: list
     E: np.ndarray
     kinds: list        # per entry: ("link" | "rotor", joint, body) or ("actuator", joint, attr)
@@ -76,7 +79,9 @@ class Unknowns:
                 else:
                     for r, q in enumerate(INERTIAL):
                         add(f"{jt.name}.{body}.{q}", [first + r], ("link" if body == "link" else "body", j, body))
-            for r, a in enumerate(("sea.k1", "sea.k3", "sea.d", "gear_loss.b", "gear_loss.c")):
+            for r, a in enumerate(ACTUATOR):
+                if a.split(".")[0] in OPTIONAL and a.split(".")[0] not in jt.declared:
+                    continue                   # a term the model file does not give: held at zero
                 add(f"{jt.name}.{a}", [base + 30 + r], ("actuator", j, a))
         held = payload_slice(model)
         for r, q in enumerate(INERTIAL[:held.stop - held.start]):             # a payload: its ten, as a link's
@@ -425,9 +430,10 @@ def physical_fit(arm: Arm, unknowns: Unknowns, ls: LeastSquares, th_nominal: np.
         Dinv = np.diag(1.0 / d)                          # congruence: each body's J on the scale of its nominal
         cons.append(Dinv @ J @ Dinv - FIT_MARGIN * np.eye(4) >> 0)
     for j, jt in enumerate(model.joints):
-        for attr in ("sea.k1", "sea.k3", "sea.d", "gear_loss.b", "gear_loss.c"):
-            k = unknowns.names.index(f"{jt.name}.{attr}")
-            cons.append(x[k] >= (1e-3 if attr == "sea.k1" else 0.0))
+        for attr in ACTUATOR:
+            if f"{jt.name}.{attr}" in unknowns.names:
+                k = unknowns.names.index(f"{jt.name}.{attr}")
+                cons.append(x[k] >= (1e-3 if attr == "sea.k1" else 0.0))
     d = 1.0 / np.sqrt(np.maximum(np.diag(ls.info), 1e-300))
     W = np.linalg.cholesky(d[:, None] * ls.info * d[None, :]).T / d[None, :]     # W^T W = info
     data = W @ ls.base.P @ np.diag(scale)
@@ -474,9 +480,8 @@ def identified_model(arm: Arm, unknowns: Unknowns, th: np.ndarray) -> ArmModel:
     for j, jt in enumerate(arm.model.joints):
         base = j * PER_JOINT
         bodies = {b: body_from_parameters(p[base + 10 * i: base + 10 * (i + 1)]) for i, b in enumerate(BODIES)}
-        k1, k3, d, b, c = p[base + 30: base + 35]
-        joints.append(dataclasses.replace(jt, k1=float(k1), k3=float(k3), d=float(d), b=float(b), c=float(c),
-                                          **bodies))
+        act = {a: float(v) for a, v in zip(ACTUATOR_ATTR, p[base + 30: base + PER_JOINT])}
+        joints.append(dataclasses.replace(jt, **act, **bodies))
     held = arm.model.payload
     if held is not None:
         held = dataclasses.replace(held, body=body_from_parameters(p[payload_slice(arm.model)]))

@@ -7,7 +7,7 @@ import tomllib
 
 import numpy as np
 
-from rscasadi.model.types import (BASE, BODY_KEYS, GEAR_LOSS_KEYS, LIMIT_KEYS, SEA_KEYS, Body, ModelFileError,
+from rscasadi.model.types import (BASE, BODY_KEYS, COUNTERBALANCE_KEYS, GEAR_LOSS_KEYS, LIMIT_KEYS, LINK_LOSS_KEYS, SEA_KEYS, Body, ModelFileError,
                                   inertia_problem)
 from rscasadi.errors import InvalidArgument
 
@@ -88,7 +88,8 @@ def _body(ctx, fld, value) -> Body:
     return Body(mass, com, inertia)
 
 
-ACTUATOR_KEYS = {"name", "gear_ratio", "sea", "gear_loss", "limits", "slow_rotor", "fast_rotor"}
+ACTUATOR_KEYS = {"name", "gear_ratio", "sea", "gear_loss", "limits", "slow_rotor", "fast_rotor", "link_loss",
+                 "counterbalance"}
 
 
 def joint_context(path, idx, raw) -> _Ctx:
@@ -108,6 +109,9 @@ def actuator(ctx, t: dict, names) -> dict:
                  f"{BASE!r} names the base frame (and its joint would name its link's frame)")
     sea = _table(ctx, "sea", t["sea"], SEA_KEYS, ("k1",))
     loss = _table(ctx, "gear_loss", t.get("gear_loss", {}), GEAR_LOSS_KEYS)
+    link = _table(ctx, "link_loss", t.get("link_loss", {}), LINK_LOSS_KEYS)
+    balance = _table(ctx, "counterbalance", t.get("counterbalance", {}), COUNTERBALANCE_KEYS, ("k",)
+                     if "counterbalance" in t else ())
     lim_raw = _table(ctx, "limits", t.get("limits", {}), LIMIT_KEYS)
     limits = {key: _number(ctx, f"limits.{key}", lim_raw[key], positive=True)
               for key in ("tau", "dphi", "psi") if key in lim_raw}
@@ -125,6 +129,11 @@ def actuator(ctx, t: dict, names) -> dict:
         b=_number(ctx, "gear_loss.b", loss.get("b", 0.0), nonneg=True),
         c=_number(ctx, "gear_loss.c", loss.get("c", 0.0), nonneg=True),
         eps=_number(ctx, "gear_loss.eps", loss.get("eps", 0.01), positive=True),
+        link_b=_number(ctx, "link_loss.b", link.get("b", 0.0), nonneg=True),
+        link_c=_number(ctx, "link_loss.c", link.get("c", 0.0), nonneg=True),
+        cb_k=_number(ctx, "counterbalance.k", balance.get("k", 0.0), nonneg=True),
+        cb_theta0=_number(ctx, "counterbalance.theta0", balance.get("theta0", 0.0)),
+        declared=frozenset(key for key in ("link_loss", "counterbalance") if key in t),
         limits=limits,
         slow_rotor=_body(ctx, "slow_rotor", t["slow_rotor"]),
         fast_rotor=_body(ctx, "fast_rotor", t["fast_rotor"]),

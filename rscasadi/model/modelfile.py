@@ -93,6 +93,16 @@ def body_document(body: Body) -> dict:
             "inertia": [float(I[0, 0]), float(I[1, 1]), float(I[2, 2]), float(I[0, 1]), float(I[0, 2]), float(I[1, 2])]}
 
 
+def link_side_document(jt) -> dict:
+    """A joint's link_loss and counterbalance tables, where the file gave them or they are not zero."""
+    out = {}
+    if "link_loss" in jt.declared or jt.link_b or jt.link_c:
+        out["link_loss"] = {"b": jt.link_b, "c": jt.link_c}
+    if "counterbalance" in jt.declared or jt.cb_k:
+        out["counterbalance"] = {"k": jt.cb_k, "theta0": jt.cb_theta0}
+    return out
+
+
 def document(model: ArmModel) -> dict:
     """The link-list form (docs/user-guide/model.md section 4) of any model, URDF-based ones included."""
     joints = []
@@ -101,7 +111,8 @@ def document(model: ArmModel) -> dict:
         joints.append({"name": jt.name, "origin_xyz": [float(x) for x in jt.origin_xyz],
                        **rotation_document(jt.R, "origin_rpy", "origin_R"), "gear_ratio": jt.gear_ratio,
                        "sea": {"k1": jt.k1, "k3": jt.k3, "d": jt.d},
-                       "gear_loss": {"b": jt.b, "c": jt.c, "eps": jt.eps}, **({"limits": limits} if limits else {}),
+                       "gear_loss": {"b": jt.b, "c": jt.c, "eps": jt.eps}, **link_side_document(jt),
+                       **({"limits": limits} if limits else {}),
                        **{b: body_document(getattr(jt, b)) for b in BODIES}})
     frames, held, shape = frames_document(model), payload_document(model), collision_document(model)
     return {"name": model.name, "gravity": [float(g) for g in model.gravity], **({"frames": frames} if frames else {}),

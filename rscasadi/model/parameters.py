@@ -43,8 +43,10 @@ from rscasadi.model.modelfile import BODIES, ArmModel, Body
 from rscasadi.errors import InvalidArgument
 
 INERTIAL = ("mass", "mx", "my", "mz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
-ACTUATOR = ("sea.k1", "sea.k3", "sea.d", "gear_loss.b", "gear_loss.c")
-ACTUATOR_ATTR = ("k1", "k3", "d", "b", "c")
+ACTUATOR = ("sea.k1", "sea.k3", "sea.d", "gear_loss.b", "gear_loss.c", "link_loss.b", "link_loss.c",
+            "counterbalance.k")
+ACTUATOR_ATTR = ("k1", "k3", "d", "b", "c", "link_b", "link_c", "cb_k")
+CONSTANTS = ("eps", "gear_ratio", "cb_theta0")     # per-joint numbers the dynamics read that p does not hold
 GRAVITY = ("gravity.x", "gravity.y", "gravity.z")
 PER_JOINT = len(BODIES) * len(INERTIAL) + len(ACTUATOR)
 
@@ -164,7 +166,8 @@ def n_linear(model: ArmModel) -> int:
 @dataclass
 class Physics:
     """What the recursions read: per joint the spatial inertias {link, slow_rotor, fast_rotor}
-    (6x6), the actuator columns k1, k3, d, b, c (n x 1), the constants eps and gear_ratio, and
+    (6x6), the actuator columns k1, k3, d, b, c, link_b, link_c, cb_k (n x 1), the constants eps,
+    gear_ratio and cb_theta0, and
     gravity.  `symbolic` says whether they are expressions of p (then every rotor is written in
     its spinning frame, exact for any p, except the rotors (j, part) in `balanced`, balanced for
     every p) or the model file's numbers."""
@@ -176,7 +179,7 @@ class Physics:
 
     @staticmethod
     def constant(model: ArmModel) -> "Physics":
-        cols = {a: ca.DM(model.column(a)) for a in ACTUATOR_ATTR + ("eps", "gear_ratio")}
+        cols = {a: ca.DM(model.column(a)) for a in ACTUATOR_ATTR + CONSTANTS}
         inertias = [{b: spatial_inertia(getattr(jt, b)) for b in BODIES} for jt in model.joints]
         held = ca.DM(spatial_inertia(model.payload.body)) if model.payload is not None else None
         return Physics(_with_payload(model, inertias, held), cols, np.asarray(model.gravity, float), False)
@@ -191,7 +194,7 @@ class Physics:
                              for i, b in enumerate(BODIES)})
             act.append(p[base + 30: base + PER_JOINT])
         cols = {a: ca.vertcat(*[act[j][i] for j in range(n)]) for i, a in enumerate(ACTUATOR_ATTR)}
-        cols.update({a: ca.DM(model.column(a)) for a in ("eps", "gear_ratio")})
+        cols.update({a: ca.DM(model.column(a)) for a in CONSTANTS})
         held = payload_slice(model)
         inertias = _with_payload(model, inertias, spatial_from_parameters(p[held.start:held.stop])
                                  if model.payload is not None else None)

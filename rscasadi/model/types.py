@@ -15,10 +15,12 @@ from rscasadi.errors import Error, NotFound
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
 TOP_KEYS = {"name", "gravity", "joints", "frames", "payload", "collision"}
 JOINT_KEYS = {"name", "origin_xyz", "origin_rpy", "origin_R", "gear_ratio", "sea", "gear_loss", "limits",
-              "link", "slow_rotor", "fast_rotor"}
+              "link", "slow_rotor", "fast_rotor", "link_loss", "counterbalance"}
 BODY_KEYS = {"mass", "com", "inertia"}
 SEA_KEYS = {"k1", "k3", "d"}
 GEAR_LOSS_KEYS = {"b", "c", "eps"}
+LINK_LOSS_KEYS = {"b", "c"}                 # link side: b dtheta + c tanh(dtheta / eps)
+COUNTERBALANCE_KEYS = {"k", "theta0"}       # a joint spring beside the SEA: k (theta - theta0)
 LIMIT_KEYS = {"tau", "dphi", "psi", "theta"}
 BODIES = ("link", "slow_rotor", "fast_rotor")
 
@@ -68,8 +70,9 @@ class Body:
 @dataclass(frozen=True)
 class Joint:
     """One joint: its placement and axis (origin_xyz, origin_rpy, R), its actuator (gear ratio, SEA
-    spring k1, k3 and damping d, gear losses b, c, eps, limits) and its three bodies (link, slow
-    rotor, fast rotor)."""
+    spring k1, k3 and damping d, gear losses b, c, eps, limits), its three bodies (link, slow
+    rotor, fast rotor), and what acts on the link beside the spring: a link-side loss (link_b,
+    link_c) and a counterbalance spring (cb_k, cb_theta0)."""
     name: str
     origin_xyz: np.ndarray   # J_j origin in the parent frame
     origin_rpy: np.ndarray
@@ -86,6 +89,11 @@ class Joint:
     fast_rotor: Body
 
     origin_R: np.ndarray | None = None   # J_j's rotation when it came from a URDF (else from origin_rpy)
+    link_b: float = 0.0                  # link-side viscous loss (N m s/rad), [joints.link_loss] b
+    link_c: float = 0.0                  # link-side Coulomb loss (N m), [joints.link_loss] c
+    cb_k: float = 0.0                    # counterbalance spring on the link (N m/rad), [joints.counterbalance] k
+    cb_theta0: float = 0.0               # where it is relaxed (rad)
+    declared: frozenset = frozenset()    # the optional tables the file gives (link_loss, counterbalance)
 
     @property
     def R(self) -> np.ndarray:

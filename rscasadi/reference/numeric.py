@@ -77,6 +77,13 @@ class Numeric:
         TB2 = m.column("b") * dphi + m.column("c") * np.tanh(np.asarray(dphi) / m.column("eps"))
         return T, TB2
 
+    def link_side(self, theta, dtheta):
+        """T_L per joint, public order: the link's viscous and Coulomb loss and its counterbalance
+        spring (docs/user-guide/model.md section 2)."""
+        m, theta, dtheta = self.model, np.asarray(theta, float), np.asarray(dtheta, float)
+        return (m.column("link_b") * dtheta + m.column("link_c") * np.tanh(dtheta / m.column("eps"))
+                + m.column("cb_k") * (theta - m.column("cb_theta0")))
+
     def frames(self, theta, phi, dtheta, dphi):
         """Eq. (12) and eqs. (1), (9), (18): every operator in the base frame, tip (k=1) to base."""
         n, th, ph, dth, dph = self.n, self._k(theta), self._k(phi), self._k(dtheta), self._k(dphi)
@@ -132,6 +139,7 @@ class Numeric:
             inboard = np.zeros(6) if k == 1 else Phi(s["l"][k - 1]) @ (f + Fs[k - 1] + Ff[k - 1])
             f = inboard + s["M"][k] @ alpha[k] + s["b"][k]
             T[k] = s["h"][k] @ f                                   # eq. (26)
+        T = T + self._k(self.link_side(theta, dtheta))             # the spring carries the link's losses too
         T_spring, TB2 = self.sea(theta, phi, dtheta, dphi)
         T_spring, TB2, tau = self._k(T_spring), self._k(TB2), np.zeros(n + 2)
         for k in range(1, n + 1):                                  # eq. (22)
@@ -167,6 +175,7 @@ class Numeric:
     def forward_dynamics(self, theta, phi, dtheta, dphi, tau):
         n, s = self.n, self.frames(theta, phi, dtheta, dphi)
         T, TB2 = (self._k(v) for v in self.sea(theta, phi, dtheta, dphi))
+        T_link = T - self._k(self.link_side(theta, dtheta))        # what turns the link: the spring less T_L
         tau_k = self._k(tau)
         G, nu, leaf = [None] * (n + 2), np.zeros(n + 2), [None] * (n + 2)
         P_plus, z_plus = np.zeros((6, 6)), np.zeros(6)             # P_0^+ = 0, z_0^+ = f_ext = 0
@@ -180,7 +189,7 @@ class Numeric:
                 z = Ph @ z_plus + P @ s["a"][k] + s["b"][k]        # eq. (5)
             D = H @ P @ H
             G[k] = P @ H / D
-            eps = T[k] - H @ z
+            eps = T_link[k] - H @ z
             nu[k] = eps / D
             P_plus = (np.eye(6) - np.outer(G[k], H)) @ P
             z_plus = z + G[k] * eps
@@ -208,7 +217,7 @@ class Numeric:
         the rotors' accelerations formed with ddtheta_guess.  Returns ddtheta."""
         n, s = self.n, self.frames(theta, phi, dtheta, dphi)
         _, alpha_s, alpha_f = self.link_accelerations(s, ddtheta_guess, ddphi)
-        T = self._k(self.sea(theta, phi, dtheta, dphi)[0])
+        T = self._k(self.sea(theta, phi, dtheta, dphi)[0] - self.link_side(theta, dtheta))
         dth, dph, ddph = self._k(dtheta), self._k(dphi), self._k(ddphi)
 
         def step(P, z, H, torque):                                 # D, G, tau-bar, P^+, eps, v, z^+
@@ -288,13 +297,13 @@ class ReducedNumeric(Numeric):
             f = (Phi(s["l"][k - 1]) @ f if k > 1 else f) + s["M"][k] @ alpha[k] + s["b"][k]
             T[k] = s["h"][k] @ f
         T_spring, TB2 = self.sea(theta, phi, dtheta, dphi)
-        return -(self.B * ddphi + T_spring + TB2) / self.mu, self._j(T)
+        return -(self.B * ddphi + T_spring + TB2) / self.mu, self._j(T) + self.link_side(theta, dtheta)
 
     def forward_dynamics(self, theta, phi, dtheta, dphi, tau):
         """Eqs. (4)-(6) on the links; ddphi = (-mu tau - T - T_B2) / B."""
         n, s = self.n, self.frames(theta, phi, dtheta, dphi)
         T_spring, TB2 = self.sea(theta, phi, dtheta, dphi)
-        T = self._k(T_spring)
+        T = self._k(T_spring - self.link_side(theta, dtheta))
         G, nu = [None] * (n + 2), np.zeros(n + 2)
         P_plus, z_plus = np.zeros((6, 6)), np.zeros(6)
         for k in range(1, n + 1):
