@@ -80,11 +80,16 @@ def test_mujoco_holds_the_viscous_link_loss_and_the_counterbalance(tmp_path):
         mujoco_xml(coulomb.model)
 
 
+OFFSETS = [0.05, -0.3, 0.1]          # N m: what each joint's torque sensor reads at zero torque
+
+
 def test_a_link_side_log_identifies_link_losses_and_a_counterbalance(tmp_path):
     """A perturbed arm3 with link losses and counterbalance springs the model file only declares
-    (zeros; theta0 given): from a link-side log (theta, T) at 1 kHz, each recovered within 2 %
-    (or 0.05 of a zero), and the held-out link torques within 2 %; the same log identified on the
-    file without the tables misses them by more than 20 %."""
+    (zeros; theta0 given), its torque sensors offset: from a link-side log (theta, T) at 1 kHz,
+    each recovered within 2 % (or 0.05 of a zero), the offsets within three of their reported
+    standard deviations (below 0.05 N m), and the held-out
+    link torques within 2 %; the same log identified on the file without the tables misses them
+    by more than 20 %."""
     from rscasadi.identification.identify import run
     from rscasadi.identification.logs import write_log
     from rscasadi.identification.synthetic import perturbed_arm, record
@@ -103,6 +108,7 @@ def test_a_link_side_log_identifies_link_losses_and_a_counterbalance(tmp_path):
     for name, traj in (("ident", ROOT / "results" / "identification" / "excitation" / "trajectory.toml"),
                        ("valid", ROOT / "problems" / "trajectory_arm3.toml")):
         log, _ = record(true, nominal, load_trajectory(traj), rng=np.random.default_rng(1), columns=("theta", "T"))
+        log.T = log.T + np.array(OFFSETS)[:, None]            # the torque sensors' offsets
         write_log(tmp_path / f"{name}.csv", log)
     errors = {}
     for model in ("declared", "plain"):
@@ -113,4 +119,7 @@ def test_a_link_side_log_identifies_link_losses_and_a_counterbalance(tmp_path):
             for jt, want in zip(ident.model.joints, truth):
                 for got, w in zip((jt.link_b, jt.link_c, jt.cb_k), want):
                     assert abs(got - w) <= max(0.02 * w, 0.05), (jt.name, got, w)
+            for jt, offset in zip(ident.model.joints, OFFSETS):
+                got = rep["parameters"][f"{jt.name}.T_offset"]        # the shoulder's trades with gravity
+                assert abs(got["estimate"] - offset) < 3 * got["std"] + 0.005 and got["std"] < 0.05, (jt.name, got)
     assert errors["declared"] < 0.02 and errors["plain"] > 0.2, errors

@@ -122,9 +122,9 @@ def run(model_file, out, log_file=None, joint: int = 1, output: str = "phi", pos
         band=(0.5, 200.0), resolution: float = 0.25, say=print) -> dict:
     """`rscasadi frf MODEL [LOG] --joint J --out DIR`: DIR/frf.png (the complete model's response,
     the rigid one's and, with a log, the log's estimate where its coherence exceeds COHERENT) and
-    DIR/frf.json (the first anti-resonance and resonance of the model's and the log's).  The pose: `pose`, else the log's mean link
-    angles, else every joint at the middle of its range; `resolution`: the log's bins (Hz; finer
-    bins average fewer segments).  Joints are numbered from 1."""
+    DIR/frf.json (the first anti-resonance and resonance of the model's and the log's).  The
+    pose: `pose`, else the log's mean link angles, else every joint at the middle of its range;
+    `resolution`: the log's bins (Hz; finer bins average fewer segments).  Joints from 1."""
     from pathlib import Path
 
     from rscasadi.dynamics.arm import load
@@ -163,7 +163,8 @@ def run(model_file, out, log_file=None, joint: int = 1, output: str = "phi", pos
         fl, Gl, coh = log_frf(lg, j, output, resolution)
         good = (fl >= band[0]) & (fl <= hi_f) & (coh > COHERENT)
         curves.append((f"log {Path(log_file).name} (H1, coherence > {COHERENT:g})", fl[good], Gl[good], "C3."))
-        result["log"] = {"file": str(log_file), **peaks(fl[good], Gl[good], model_frf(stiff, theta, j, fl[good], output)),
+        rigid_there = model_frf(stiff, theta, j, fl[good], output)
+        result["log"] = {"file": str(log_file), **peaks(fl[good], Gl[good], rigid_there),
                          "coherent_band_hz": [float(fl[good].min()), float(fl[good].max())] if good.any() else None}
     say(f"{arm.model.name}, joint {joint}, tau -> {output}: " + "; ".join(
         f"{name} anti-resonance {_hz(r['antiresonance_hz'])}, resonance {_hz(r['resonance_hz'])}"

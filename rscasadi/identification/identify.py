@@ -60,7 +60,9 @@ class Unknowns:
     kinds: list        # per entry: ("link" | "rotor", joint, body) or ("actuator", joint, attr)
 
     @staticmethod
-    def of(model: ArmModel) -> "Unknowns":
+    def of(model: ArmModel, sensor_offsets: bool = False) -> "Unknowns":
+        """The unknowns of `model`; sensor_offsets: one more per joint, the offset of its T
+        sensor (T_j logged = T_j + offset; no parameter of the model: its column of E is zero)."""
         n_lin = n_linear(model)
         cols, names, kinds = [], [], []
 
@@ -86,11 +88,21 @@ class Unknowns:
         held = payload_slice(model)
         for r, q in enumerate(INERTIAL[:held.stop - held.start]):             # a payload: its ten, as a link's
             add(f"payload.{q}", [held.start + r], ("body", model.n, "payload"))
+        if sensor_offsets:
+            for j, jt in enumerate(model.joints):
+                add(f"{jt.name}.T_offset", [], ("offset", j, "T"))
         return Unknowns(names, np.array(cols).T, kinds)
 
+    def offsets(self) -> list:
+        """(index in th, joint) of every sensor offset."""
+        return [(k, kind[1]) for k, kind in enumerate(self.kinds) if kind[0] == "offset"]
+
     def from_p(self, p_lin) -> np.ndarray:
-        """th from p_lin: each unknown read off its first physical parameter (tied ones are equal)."""
-        return np.asarray(p_lin, float)[np.argmax(self.E > 0, axis=0)]
+        """th from p_lin: each unknown read off its first physical parameter (tied ones are
+        equal); sensor offsets 0."""
+        th = np.asarray(p_lin, float)[np.argmax(self.E > 0, axis=0)]
+        th[[k for k, _ in self.offsets()]] = 0.0
+        return th
 
 
 # ----------------------------------------------------------------------------- signals
@@ -220,12 +232,10 @@ def row_kinds(log: Log) -> tuple:
 
 
 def base_kinds(logs: list) -> tuple:
-    """The row kinds whose column space the base parameters are computed in: motor-torque and
-    spring rows where a log has them (a torque sensor beside them adds no combination), else
-    the link-torque rows."""
+    """The row kinds whose column space the base parameters are computed in: every kind some
+    log has (a torque sensor beside motor-torque and spring rows adds its offsets)."""
     kinds = {k for log in logs for k in row_kinds(log)}
-    chosen = tuple(k for k in ("tau", "spring") if k in kinds)
-    return chosen + (("T",) if "T" in kinds and "tau" not in kinds else ())
+    return tuple(k for k in ("tau", "spring", "T") if k in kinds)
 
 
 def rows(arm: Arm, sig: Signals, unknowns: Unknowns, reduced: bool = False) -> Rows:
@@ -245,7 +255,10 @@ def rows(arm: Arm, sig: Signals, unknowns: Unknowns, reduced: bool = False) -> R
     if sig.phi_measured:
         blocks += [(f"spring_{j + 1}", Y[n + j] - Ys[j], np.zeros(count), sig.t) for j in range(n)]
     if sig.T is not None:
-        blocks += [(f"T_{j + 1}", Y[n + j], sig.T[j], sig.t) for j in range(n)]
+        for j in range(n):
+            A = Y[n + j].copy()
+            A[:, [k for k, jj in unknowns.offsets() if jj == j]] = 1.0           # T_j logged = T_j + offset_j
+            blocks.append((f"T_{j + 1}", A, sig.T[j], sig.t))
     return Rows(np.vstack([b[1] for b in blocks]), np.concatenate([b[2] for b in blocks]),
                 np.concatenate([np.full(len(b[2]), i) for i, b in enumerate(blocks)]), [b[0] for b in blocks],
                 np.concatenate([b[3] for b in blocks]))
@@ -322,6 +335,10 @@ def structural_base(arm: Arm, unknowns: Unknowns, samples: int = 200, reduced: b
     """The base parameters of th in rows of `kinds` (`base_kinds`), from random samples: what
     no data with those columns can separate; `unidentifiable` names what they do not see at all."""
     W = stacked(arm, random_samples(arm, samples, np.random.default_rng(0)), kinds, reduced) @ unknowns.E
+    if "T" in kinds and unknowns.offsets():                # the T rows (the last n of each sample) see offsets
+        rows_per = W.shape[0] // samples
+        for k, j in unknowns.offsets():
+            W[rows_per - arm.n + j::rows_per, k] = 1.0
     return base_of(W, unknowns.names, rtol=1e-9)
 
 
@@ -531,7 +548,7 @@ class Identification:
 
 def identify(arm: Arm, logs: list[Log], reduced: bool = False, fc: float | None = None) -> Identification:
     """Everything from logs to a physically consistent model."""
-    unknowns = Unknowns.of(arm.model)
+    unknowns = Unknowns.of(arm.model, sensor_offsets=any(log.T is not None for log in logs))
     th_nominal = unknowns.from_p(arm.parameters()[1][:n_linear(arm.model)])
     if fc is None:
         fc, why = cutoff_hz(arm, logs[0])
@@ -684,9 +701,11 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
     val_log = read_log(validate, arm.n) if validate else None
     if val_log is not None:                          # refused before the work, not after it
         fc = cutoff or cutoff_hz(arm, logs[0])[0]
-        check_moving(rows(arm, prepare(val_log, fc, arm=arm), Unknowns.of(arm.model), reduced), arm, validate)
+        held_out = rows(arm, prepare(val_log, fc, arm=arm), Unknowns.of(arm.model, any(lg.T is not None for lg in logs)),
+                        reduced)
+        check_moving(held_out, arm, validate)
     if explain:
-        u = Unknowns.of(arm.model)
+        u = Unknowns.of(arm.model, any(lg.T is not None for lg in logs))
         fc = cutoff or cutoff_hz(arm, logs[0])[0]
         th_nominal = u.from_p(arm.parameters()[1][:n_linear(arm.model)])
         ls = least_squares(combine([rows(arm, prepare(lg, fc, arm=arm), u, reduced) for lg in logs]),

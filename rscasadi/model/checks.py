@@ -7,8 +7,8 @@ import tomllib
 
 import numpy as np
 
-from rscasadi.model.types import (BASE, BODY_KEYS, COUNTERBALANCE_KEYS, GEAR_LOSS_KEYS, LIMIT_KEYS, LINK_LOSS_KEYS, SEA_KEYS, Body, ModelFileError,
-                                  inertia_problem)
+from rscasadi.model.types import (BASE, BODY_KEYS, COUNTERBALANCE_KEYS, GEAR_LOSS_KEYS, LIMIT_KEYS, LINK_LOSS_KEYS,
+                                  SEA_KEYS, Body, ModelFileError, inertia_problem)
 from rscasadi.errors import InvalidArgument
 
 class _Ctx:
