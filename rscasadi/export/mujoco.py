@@ -226,12 +226,14 @@ def contact_wrench(m, d, frame: str):
     return total
 
 
-def mujoco_plant(arm, dt: float, world: str = "", frame: str | None = None):
+def mujoco_plant(arm, dt: float, world: str = "", frame: str | None = None, push=None):
     """(x, tau, t) -> (x after dt, wrench): the arm exported (`mujoco_xml`) and simulated by
     MuJoCo at its own timestep, for rscasadi.sim.loop.run_loop (x = theta, phi, dtheta, dphi).
     `world`: MJCF elements added to the worldbody (a table: its geoms collide with the arm's
     capsules); `frame`: the wrench the contacts exert on the arm at that frame after each sample
-    (6 x 1, `contact_wrench`), else None."""
+    (6 x 1, `contact_wrench`), else None; `push(t)`: a wrench [force; moment] (world axes, at
+    `frame`'s origin) applied to the frame's body through every MuJoCo step of the sample that
+    starts at t (mj_applyFT), and added to the wrench returned."""
     import mujoco
     m = mujoco.MjModel.from_xml_string(with_world(mujoco_xml(arm.model), world))
     d = mujoco.MjData(m)
@@ -241,15 +243,25 @@ def mujoco_plant(arm, dt: float, world: str = "", frame: str | None = None):
         raise InvalidArgument(f"mujoco_plant: dt = {dt!r} s must be a whole number of MuJoCo's {m.opt.timestep!r} s steps")
     if frame is not None:
         m.site(safe_name(frame))                                     # a KeyError now, not mid-run
+    if push is not None and frame is None:
+        raise InvalidArgument("mujoco_plant: push needs the frame it acts at")
 
     def plant(x, tau, t):
         d.qpos[:], d.qvel[:], d.ctrl[:] = T @ x[:2 * n], T @ x[2 * n:], tau
+        applied = np.zeros(6) if push is None else np.asarray(push(t), float)
         for _ in range(steps):
+            d.qfrc_applied[:] = 0.0
+            if applied.any():
+                mujoco.mj_kinematics(m, d)                           # where the frame is now
+                site = m.site(safe_name(frame))
+                mujoco.mj_applyFT(m, d, applied[:3], applied[3:], d.site_xpos[site.id], int(site.bodyid[0]),
+                                  d.qfrc_applied)
             mujoco.mj_step(m, d)
+        d.qfrc_applied[:] = 0.0
         wrench = None
         if frame is not None:
             mujoco.mj_forward(m, d)                                  # the contacts at the new state
-            wrench = contact_wrench(m, d, safe_name(frame))[:, None]
+            wrench = (contact_wrench(m, d, safe_name(frame)) + applied)[:, None]
         return np.r_[back @ d.qpos, back @ d.qvel], wrench
     return plant
 

@@ -196,6 +196,31 @@ def table_in_mujoco(arm: Arm, frame: str, theta0, stiffness: float, depth: float
             "trace": (run["t"], fz)}
 
 
+def push_in_mujoco(arm: Arm, frame: str, theta0, stiffness: float, force=(0.0, 0.0, -2.0), start: float = 0.2,
+                   seconds: float = 1.2, rotational: float = 50.0, zeta: float = 0.7, observer_gain: float = 50.0,
+                   compiled=None, **design) -> dict:
+    """The impedance controller holding `frame` where it is at theta0, on MuJoCo's plant of the
+    exported arm, pushed at the frame by `force` (N, world axes) from `start` s on: over the last
+    0.2 s the frame's displacement against force / K (the stiffness the controller realises),
+    and the momentum observer's link torques against J^T f of the push."""
+    from rscasadi.export.mujoco import mujoco_plant
+    ref0 = pose_of(arm, frame, theta0)
+    wrench = np.r_[np.asarray(force, float), np.zeros(3)]
+    run = impedance_loop(arm, frame, theta0, World(frames=[frame]), seconds, lambda t: ref0,
+                         [stiffness] * 3 + [rotational] * 3, [zeta] * 6, observer_gain=observer_gain,
+                         plant=mujoco_plant(arm, DT, frame=frame, push=lambda t: wrench * (t >= start - 1e-12)),
+                         compiled=compiled, **design)
+    last = run["t"] > run["t"][-1] - 0.2
+    moved = run["p"][last].mean(axis=0) - ref0[:3]
+    expected = np.asarray(force, float) / stiffness
+    k = int(np.argmax(np.abs(expected)))
+    settled = np.arange(len(run["r"])) >= len(run["r"]) - 200
+    torque_error = np.abs((run["r"][settled] - run["true"][settled]).mean(axis=0))
+    return {"K": stiffness, "force": list(map(float, force)), "displacement": moved.tolist(),
+            "expected": expected.tolist(), "error_percent": float(100 * (moved[k] / expected[k] - 1)),
+            "observer_error": float(torque_error.max()), "observer_torque": float(np.abs(run["true"][-1]).max())}
+
+
 def _first_flags(t, flagged, contact: float) -> tuple[float, float]:
     """The first flag at or after the contact (NaN: never), and the first one before it (a false
     alarm; NaN: none)."""

@@ -35,20 +35,26 @@ def exports(tmp: Path, log) -> dict:
     return out
 
 
-def impedance(log) -> list:
-    """The generated C impedance controller on arm3's tool pressed 5 mm into a MuJoCo table."""
+def impedance(log) -> tuple[list, list]:
+    """The generated C impedance controller on arm3's tool pressed 5 mm into a MuJoCo table, and
+    holding it against a 2 N push (MuJoCo's applied force)."""
     import tempfile
     from rscasadi.interaction.generate import generate_impedance
-    from rscasadi.interaction.study import table_in_mujoco
+    from rscasadi.interaction.study import push_in_mujoco, table_in_mujoco
     arm, rows = load(PROBLEMS / "arm3_tool.toml"), []
     with tempfile.TemporaryDirectory() as build:
         generate_impedance(arm, Path(build) / "impedance", "tool", log=log)
         runs = [table_in_mujoco(arm, "tool", TOOL_START, K, compiled=Path(build) / "impedance") for K in STIFFNESSES]
+        pushes = [push_in_mujoco(arm, "tool", TOOL_START, K, compiled=Path(build) / "impedance") for K in STIFFNESSES]
+    for r in pushes:
+        log(f"  impedance K = {r['K']:g} N/m pushed with 2 N in MuJoCo: moved {1e3 * r['displacement'][2]:.3f} mm, "
+            f"F / K {1e3 * r['expected'][2]:.3f} mm ({r['error_percent']:+.3f} %), observer off by "
+            f"{r['observer_error']:.1e} N m")
     for r in runs:
         rows.append({k: v for k, v in r.items() if k != "trace"} | {"trace": [list(map(float, v)) for v in r["trace"]]})
         log(f"  impedance K = {r['K']:g} N/m on a MuJoCo table: force {r['force']:.3f} N, K x distance {r['expected']:.3f} N "
             f"({r['error_percent']:+.2f} %), chatter {r['chatter_percent']:.3f} %, observer off by {r['observer_error']:.1e} N m")
-    return rows
+    return rows, pushes
 
 
 def mpc(log) -> dict:
@@ -107,6 +113,13 @@ def table(summary: dict) -> str:
     lines += ["", "The generated C impedance controller's target 5 mm into a MuJoCo table under the tool; the observer's flag: "
                   "a link torque above 0.5 N m (before the contact its largest was "
               f"{max(r['free_max_Nm'] for r in summary['impedance']):.2f} N m)."]
+    if summary.get("push"):
+        lines += ["", "| K (N/m) | push (N) | moved (mm) | F / K (mm) | error | observer error (N m) |",
+                  "|---|---|---|---|---|---|"]
+        lines += [f"| {r['K']:g} | {r['force'][2]:g} | {1e3 * r['displacement'][2]:.4f} | {1e3 * r['expected'][2]:.4f} | "
+                  f"{r['error_percent']:+.3f} % | {r['observer_error']:.1e} |" for r in summary["push"]]
+        lines += ["", "The same controller holding the tool where it is, pushed down at the tool in MuJoCo (mj_applyFT) "
+                      "from 0.2 s: its displacement over the last 0.2 s of 1.2 s."]
     if summary.get("mpc"):
         lines += ["", "| controller | max error, rscasadi plant (rad) | max error, MuJoCo plant (rad) | "
                       "RMS, rscasadi | RMS, MuJoCo |", "|---|---|---|---|---|"]
@@ -151,7 +164,7 @@ def run(out, excitation_trajectory=None, log=print) -> dict:
         log("MuJoCo: the exports against rscasadi's replay ...")
         summary: dict = {"run": run_stamp(), "exports": exports(tmp, log)}
         log("MuJoCo: impedance control and the observer against a table ...")
-        summary["impedance"] = impedance(log)
+        summary["impedance"], summary["push"] = impedance(log)
         log("MuJoCo: the C MPC driving the MuJoCo arm ...")
         summary["mpc"] = mpc(log)
         if excitation_trajectory is not None:
