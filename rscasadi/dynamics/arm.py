@@ -12,6 +12,7 @@ from rscasadi.model.parameters import (Physics, family as parameter_family, gear
 from rscasadi.errors import InvalidArgument
 
 STATE = ["theta", "phi", "dtheta", "dphi"]
+ABS_SMOOTH = 1e-3    # N m: |T| in the load-dependent gear loss is sqrt(T^2 + ABS_SMOOTH^2) - ABS_SMOOTH
 
 
 class Arm:
@@ -63,10 +64,12 @@ class Arm:
         c, psi, dpsi = (phys or self.physics).columns, phi - theta, dphi - dtheta
         return c["k1"] * psi + c["k3"] * psi ** 3 + c["d"] * dpsi
 
-    def gear_loss(self, dphi, phys=None):
-        """T_B2 = b dphi + c tanh(dphi / eps)."""
+    def gear_loss(self, dphi, phys=None, T=0.0):
+        """T_B2 = b dphi + (c + c1 |T|) tanh(dphi / eps): the harmonic drive's loss grows with the
+        torque T it transmits (the SEA's); |T| smoothed as sqrt(T^2 + ABS_SMOOTH^2) - ABS_SMOOTH."""
         c = (phys or self.physics).columns
-        return c["b"] * dphi + c["c"] * ca.tanh(dphi / c["eps"])
+        load = ca.sqrt(T * T + ABS_SMOOTH ** 2) - ABS_SMOOTH
+        return c["b"] * dphi + (c["c"] + c["c1"] * load) * ca.tanh(dphi / c["eps"])
 
     def link_loss(self, theta, dtheta, phys=None):
         """T_L = link_b dtheta + link_c tanh(dtheta / eps) + cb_k (theta - cb_theta0): what the link
@@ -76,7 +79,8 @@ class Arm:
 
     def _phi_force(self, phys, x, tau):
         """Q_phi = -T - T_B2 - mu tau (docs/user-guide/model.md section 3)."""
-        return -self.sea_torque(*x, phys=phys) - self.gear_loss(x[3], phys) - phys.columns["gear_ratio"] * tau
+        T = self.sea_torque(*x, phys=phys)
+        return -T - self.gear_loss(x[3], phys, T) - phys.columns["gear_ratio"] * tau
 
     # -- plumbing ---------------------------------------------------------------------------
     def _symbols(self, *names):
@@ -119,8 +123,8 @@ class Arm:
             f_ext = kinematics.link_wrenches(self.model, frames, theta, f) if f else None
             T, Qi_phi = rec.inverse_dynamics(segs, kin, ddtheta, ddphi, phys.gravity, f_ext)  # eq. (26)
             T = T + self.link_loss(theta, dtheta, phys)                    # the spring also carries T_L
-            tau = -(Qi_phi + self.sea_torque(*x, phys=phys) + self.gear_loss(dphi, phys)) \
-                / phys.columns["gear_ratio"]                                                  # eq. (22)
+            T_s = self.sea_torque(*x, phys=phys)
+            tau = -(Qi_phi + T_s + self.gear_loss(dphi, phys, T_s)) / phys.columns["gear_ratio"]   # eq. (22)
             return [tau, T]
         name = ("reduced_inverse_dynamics" if reduced else "inverse_dynamics") + ("_external" if external else "")
         return self._function(name, STATE + ["ddtheta", "ddphi"] + wrench_names, ["tau", "T"], build, parametric,
@@ -252,11 +256,12 @@ class Arm:
                               parametric)
 
     def energy(self, *, parametric: bool = False) -> ca.Function:
-        """theta, phi, dtheta, dphi -> E: kinetic + gravitational + SEA spring energy."""
+        """theta, phi, dtheta, dphi -> E: kinetic + gravitational + SEA and counterbalance spring energy."""
         def build(phys, theta, phi, dtheta, dphi):
             segs, kin = self._kin(False, phys, (theta, phi, dtheta, dphi))
             psi, c = phi - theta, phys.columns
-            spring = ca.sum1(0.5 * c["k1"] * psi ** 2 + 0.25 * c["k3"] * psi ** 4)
+            spring = ca.sum1(0.5 * c["k1"] * psi ** 2 + 0.25 * c["k3"] * psi ** 4
+                             + 0.5 * c["cb_k"] * (theta - c["cb_theta0"]) ** 2)
             return [rec.energy(segs, kin, phys.gravity) + spring]
         return self._function("energy", STATE, ["E"], build, parametric)
 
@@ -268,7 +273,7 @@ class Arm:
             segs, kin = self._kin(False, phys, x)
             T, Qi_phi = rec.inverse_dynamics(segs, kin, ddtheta, ddphi, phys.gravity)
             T_s = self.sea_torque(*x, phys=phys)
-            r = ca.vertcat(T - T_s, Qi_phi + T_s + self.gear_loss(dphi, phys))
+            r = ca.vertcat(T + self.link_loss(theta, dtheta, phys) - T_s, Qi_phi + T_s + self.gear_loss(dphi, phys, T_s))
             return ca.cse([ca.jacobian(r, ca.vertcat(*x))])
         return self._function("residual_jacobian", STATE + ["ddtheta", "ddphi"], ["jacobian"], build, parametric)
 

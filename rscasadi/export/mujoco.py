@@ -98,6 +98,8 @@ def check_exportable(model) -> None:
                  for jt in model.joints if jt.c]
     problems += [f"{jt.name}: link_loss c = {jt.link_c:g} (Coulomb loss; MuJoCo's frictionloss is another law)"
                  for jt in model.joints if jt.link_c]
+    problems += [f"{jt.name}: gear_loss c1 = {jt.c1:g} (a loss growing with the transmitted torque; MJCF has none)"
+                 for jt in model.joints if jt.c1]
     if problems:
         raise InvalidArgument(f"{model.path}: cannot be exported to MuJoCo exactly: " + "; ".join(problems))
 

@@ -136,7 +136,7 @@ def condition_number(arm: Arm, traj: Trajectory, samples: int = 400) -> float:
 @functools.lru_cache(maxsize=8)
 def _design_parts(arm: Arm):
     """The design model's sample functions (rows, limits) and the base parameters (built once per arm)."""
-    unknowns = Unknowns.of(arm.model)
+    unknowns = Unknowns.of(arm.model, load_losses=False)      # the design excites the linear part
     base = structural_base(arm, unknowns)
     th_nom = unknowns.from_p(arm.parameters()[1][:n_linear(arm.model)])
     col_scale = np.abs(base.P) @ prior_scale(unknowns, th_nom)

@@ -45,6 +45,7 @@ EDGE_S = 0.25        # seconds dropped at both ends of a log (filter transients)
 REVERSAL = 10.0      # motor-torque rows with |dphi| < REVERSAL * eps (Coulomb's tanh) are left out
 MIN_ROWS = 20        # a joint with fewer motor-torque rows than this is not moved by the log
 OPTIONAL = ("link_loss", "counterbalance")   # identified only at joints whose model file gives the table
+LOAD_PASSES = 3      # fixed-point passes for a gear's load-dependent loss without a logged T
 
 
 # ----------------------------------------------------------------------------- the unknowns
@@ -57,12 +58,16 @@ class Unknowns:
     model file gives those tables (elsewhere they are held at zero)."""
     names: list
     E: np.ndarray
-    kinds: list        # per entry: ("link" | "rotor", joint, body) or ("actuator", joint, attr)
+    kinds: list        # per entry: ("link" | "rotor", joint, body), ("actuator", joint, attr),
+    #                    ("offset", joint, "T") or ("c1", joint, "gear_loss.c1"): the last two not in p_lin
+    fixed: dict        # {index: nominal} of the unknowns not in p_lin (E's column zero)
 
     @staticmethod
-    def of(model: ArmModel, sensor_offsets: bool = False) -> "Unknowns":
+    def of(model: ArmModel, sensor_offsets: bool = False, load_losses: bool = True) -> "Unknowns":
         """The unknowns of `model`; sensor_offsets: one more per joint, the offset of its T
-        sensor (T_j logged = T_j + offset; no parameter of the model: its column of E is zero)."""
+        sensor (T_j logged = T_j + offset); load_losses: the gear's load-dependent loss c1 at the
+        joints whose file gives it.  Neither is in p_lin (their columns of E are zero): `rows`
+        forms their columns from the data."""
         n_lin = n_linear(model)
         cols, names, kinds = [], [], []
 
@@ -88,20 +93,31 @@ class Unknowns:
         held = payload_slice(model)
         for r, q in enumerate(INERTIAL[:held.stop - held.start]):             # a payload: its ten, as a link's
             add(f"payload.{q}", [held.start + r], ("body", model.n, "payload"))
-        if sensor_offsets:
-            for j, jt in enumerate(model.joints):
+        fixed = {}
+        for j, jt in enumerate(model.joints):
+            if load_losses and "gear_loss.c1" in jt.declared:
+                fixed[len(names)] = jt.c1
+                add(f"{jt.name}.gear_loss.c1", [], ("c1", j, "gear_loss.c1"))
+        for j, jt in enumerate(model.joints):
+            if sensor_offsets:
+                fixed[len(names)] = 0.0
                 add(f"{jt.name}.T_offset", [], ("offset", j, "T"))
-        return Unknowns(names, np.array(cols).T, kinds)
+        return Unknowns(names, np.array(cols).T, kinds, fixed)
 
     def offsets(self) -> list:
         """(index in th, joint) of every sensor offset."""
         return [(k, kind[1]) for k, kind in enumerate(self.kinds) if kind[0] == "offset"]
 
+    def load_losses(self) -> list:
+        """(index in th, joint) of every gear's load-dependent loss c1."""
+        return [(k, kind[1]) for k, kind in enumerate(self.kinds) if kind[0] == "c1"]
+
     def from_p(self, p_lin) -> np.ndarray:
         """th from p_lin: each unknown read off its first physical parameter (tied ones are
-        equal); sensor offsets 0."""
+        equal); those not in p_lin at their nominal (`fixed`)."""
         th = np.asarray(p_lin, float)[np.argmax(self.E > 0, axis=0)]
-        th[[k for k, _ in self.offsets()]] = 0.0
+        for k, v in self.fixed.items():
+            th[k] = v
         return th
 
 
@@ -238,12 +254,31 @@ def base_kinds(logs: list) -> tuple:
     return tuple(k for k in ("tau", "spring", "T") if k in kinds)
 
 
-def rows(arm: Arm, sig: Signals, unknowns: Unknowns, reduced: bool = False) -> Rows:
+def load_loss_column(arm: Arm, theta, phi, dtheta, dphi, T=None, spring=None) -> np.ndarray:
+    """d tau / d c1 per joint and sample (n, count): -|T| tanh(dphi / eps) / mu, |T| smoothed as
+    the model's (ABS_SMOOTH), T the logged SEA torque, else the spring law's at `spring` (a model;
+    default the arm's)."""
+    from rscasadi.dynamics.arm import ABS_SMOOTH
+    col = lambda a: (spring or arm.model).column(a)[:, None]            # noqa: E731
+    if T is None:
+        psi, dpsi = phi - theta, dphi - dtheta
+        T = col("k1") * psi + col("k3") * psi ** 3 + col("d") * dpsi
+    load = np.sqrt(T ** 2 + ABS_SMOOTH ** 2) - ABS_SMOOTH
+    return -load * np.tanh(dphi / arm.model.column("eps")[:, None]) / arm.model.column("gear_ratio")[:, None]
+
+
+def rows(arm: Arm, sig: Signals, unknowns: Unknowns, reduced: bool = False, spring=None) -> Rows:
     """The regression rows of one filtered log: Y th = [tau; T] for every sample and joint, as
-    far as the log's columns go (`row_kinds`)."""
+    far as the log's columns go (`row_kinds`); the gears' load-dependent losses with the logged T
+    or the spring law of `spring` (a model; default the arm's)."""
     n, count = arm.n, sig.t.size
     Yf = regressor(arm, reduced=reduced).map(count)
     Y = np.array(Yf(*sig.state())[0]).reshape(2 * n, count, -1) @ unknowns.E        # (2n, count, m)
+    if unknowns.load_losses():
+        w = load_loss_column(arm, sig.theta, sig.phi, sig.dtheta, sig.dphi, T=sig.T if sig.phi_measured else None,
+                             spring=spring)
+        for k, j in unknowns.load_losses():
+            Y[j, :, k] = w[j]
     Ys = np.array(spring_regressor(arm).map(count)(*sig.state()[:4])).reshape(n, count, -1) @ unknowns.E
     # near a velocity reversal the Coulomb term c tanh(dphi / eps) jumps within milliseconds, and
     # the filtered torque no longer equals the loss at the filtered speed: those rows are left out
@@ -335,10 +370,15 @@ def structural_base(arm: Arm, unknowns: Unknowns, samples: int = 200, reduced: b
     """The base parameters of th in rows of `kinds` (`base_kinds`), from random samples: what
     no data with those columns can separate; `unidentifiable` names what they do not see at all."""
     W = stacked(arm, random_samples(arm, samples, np.random.default_rng(0)), kinds, reduced) @ unknowns.E
+    rows_per = W.shape[0] // samples
     if "T" in kinds and unknowns.offsets():                # the T rows (the last n of each sample) see offsets
-        rows_per = W.shape[0] // samples
         for k, j in unknowns.offsets():
             W[rows_per - arm.n + j::rows_per, k] = 1.0
+    if "tau" in kinds and unknowns.load_losses():          # the tau rows (the first n) see the load losses
+        theta, phi, dtheta, dphi = random_samples(arm, samples, np.random.default_rng(0))[:4]
+        w = load_loss_column(arm, theta, phi, dtheta, dphi)
+        for k, j in unknowns.load_losses():
+            W[j::rows_per, k] = w[j]
     return base_of(W, unknowns.names, rtol=1e-9)
 
 
@@ -447,7 +487,7 @@ def physical_fit(arm: Arm, unknowns: Unknowns, ls: LeastSquares, th_nominal: np.
         Dinv = np.diag(1.0 / d)                          # congruence: each body's J on the scale of its nominal
         cons.append(Dinv @ J @ Dinv - FIT_MARGIN * np.eye(4) >> 0)
     for j, jt in enumerate(model.joints):
-        for attr in ACTUATOR:
+        for attr in ACTUATOR + ("gear_loss.c1",):
             if f"{jt.name}.{attr}" in unknowns.names:
                 k = unknowns.names.index(f"{jt.name}.{attr}")
                 cons.append(x[k] >= (1e-3 if attr == "sea.k1" else 0.0))
@@ -498,6 +538,7 @@ def identified_model(arm: Arm, unknowns: Unknowns, th: np.ndarray) -> ArmModel:
         base = j * PER_JOINT
         bodies = {b: body_from_parameters(p[base + 10 * i: base + 10 * (i + 1)]) for i, b in enumerate(BODIES)}
         act = {a: float(v) for a, v in zip(ACTUATOR_ATTR, p[base + 30: base + PER_JOINT])}
+        act.update({"c1": float(th[k]) for k, jj in unknowns.load_losses() if jj == j})
         joints.append(dataclasses.replace(jt, **act, **bodies))
     held = arm.model.payload
     if held is not None:
@@ -558,7 +599,8 @@ def identify(arm: Arm, logs: list[Log], reduced: bool = False, fc: float | None 
     if short:
         raise LogError(f"{', '.join(short)}: column 't': shorter than {4 * EDGE_S:g} s, too short to filter and "
                        f"excite the parameters")
-    rows_ = combine([rows(arm, prepare(log, fc, arm=arm), unknowns, reduced) for log in logs])
+    signals = [prepare(log, fc, arm=arm) for log in logs]
+    rows_ = combine([rows(arm, sig, unknowns, reduced) for sig in signals])
     base = structural_base(arm, unknowns, reduced=reduced, kinds=base_kinds(logs))
     excited = excitation_rank(rows_, base)
     if excited < base.rank:
@@ -566,12 +608,21 @@ def identify(arm: Arm, logs: list[Log], reduced: bool = False, fc: float | None 
                        f"{base.rank} identifiable parameter combinations: log a longer or richer motion "
                        f"(rscasadi excite designs one)")
     check_moving(rows_, arm, ", ".join(lg.path for lg in logs))
-    ls = least_squares(rows_, base, th_nominal)
-    # what filtering does to the estimate: again at a lower cut-off (still above the SEA modes)
-    probe = combine([rows(arm, prepare(log, FILTER_PROBE * fc, arm=arm), unknowns, reduced) for log in logs])
-    moved = ls.beta - least_squares(probe, base, th_nominal, bootstrap=False).beta
-    ls.cov_filter = np.outer(moved, moved)
-    th, status = physical_fit(arm, unknowns, ls, th_nominal)
+    # a load-dependent gear loss c1 |T| is linear in c1 once T is known: the logged T where there
+    # is one, else the spring law's T, at the model file's spring first, then at the identified one
+    # (a fixed point: LOAD_PASSES passes, each a least-squares fit and a physical one)
+    iterate = bool(unknowns.load_losses()) and any(lg.T is None for lg in logs)
+    spring = None
+    for _ in range(LOAD_PASSES if iterate else 1):
+        rows_ = combine([rows(arm, sig, unknowns, reduced, spring) for sig in signals])
+        ls = least_squares(rows_, base, th_nominal)
+        # what filtering does to the estimate: again at a lower cut-off (still above the SEA modes)
+        probe = combine([rows(arm, prepare(log, FILTER_PROBE * fc, arm=arm), unknowns, reduced, spring)
+                         for log in logs])
+        moved = ls.beta - least_squares(probe, base, th_nominal, bootstrap=False).beta
+        ls.cov_filter = np.outer(moved, moved)
+        th, status = physical_fit(arm, unknowns, ls, th_nominal)
+        spring = identified_model(arm, unknowns, th)
     sensors = "; ".join(sorted({log.describe() for log in logs}))
     return Identification(unknowns, ls, th, th_nominal, identified_model(arm, unknowns, th), fc, why, rows_, status,
                           sensors, base_kinds(logs))
@@ -643,13 +694,13 @@ def cutoff_check(arm: Arm, logs: list, val_log: Log, ident: "Identification", re
     at the chosen cut-off (one target for all: a lower cut-off would otherwise win by smoothing
     its own target).  [{factor, cutoff_hz, held_out_worst}] of the worst column's relative RMS error."""
     base, fc0 = ident.ls.base, ident.cutoff_hz
-    val = rows(arm, prepare(val_log, fc0, arm=arm), ident.unknowns, reduced)
+    val = rows(arm, prepare(val_log, fc0, arm=arm), ident.unknowns, reduced, ident.model)
     out = []
     for factor in CUTOFF_FACTORS:
         fc = factor * fc0
         if fc >= 0.45 / min(lg.dt for lg in logs):
             continue
-        fit = combine([rows(arm, prepare(lg, fc, arm=arm), ident.unknowns, reduced) for lg in logs])
+        fit = combine([rows(arm, prepare(lg, fc, arm=arm), ident.unknowns, reduced, ident.model) for lg in logs])
         beta = least_squares(fit, base, ident.th_nominal, bootstrap=False).beta
         pred = val.A[:, base.independent] @ beta                # = A th for every th of these base parameters
         worst = max(float(np.sqrt(np.mean((pred[val.block == b] - val.y[val.block == b]) ** 2)
@@ -727,7 +778,7 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
     val_rows = None
     if val_log is not None:
         sig = prepare(val_log, ident.cutoff_hz, arm=arm)
-        val_rows = rows(arm, sig, ident.unknowns, reduced)
+        val_rows = rows(arm, sig, ident.unknowns, reduced, ident.model)
         validation = {"log": str(validate), "prediction": predict(val_rows, ident.th),
                       "nominal": predict(val_rows, ident.th_nominal)}
         worst = max(v["relative"] for v in validation["prediction"].values())
@@ -755,7 +806,7 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
                                          + to_toml(document(ident.model)))
         write_json(tmp / "report.json", rep, indent=2)
         first = prepare(logs[0], ident.cutoff_hz, arm=arm)
-        plot(tmp / "fit", rows(arm, first, ident.unknowns, reduced), ident.th,
+        plot(tmp / "fit", rows(arm, first, ident.unknowns, reduced, ident.model), ident.th,
              f"identification log {Path(log_files[0]).name}")
         if val_rows is not None:
             plot(tmp / "validation", val_rows, ident.th, f"held-out log {Path(validate).name}")

@@ -133,7 +133,9 @@ def actuator(ctx, t: dict, names) -> dict:
         link_c=_number(ctx, "link_loss.c", link.get("c", 0.0), nonneg=True),
         cb_k=_number(ctx, "counterbalance.k", balance.get("k", 0.0), nonneg=True),
         cb_theta0=_number(ctx, "counterbalance.theta0", balance.get("theta0", 0.0)),
-        declared=frozenset(key for key in ("link_loss", "counterbalance") if key in t),
+        c1=_number(ctx, "gear_loss.c1", loss.get("c1", 0.0), nonneg=True),
+        declared=frozenset([key for key in ("link_loss", "counterbalance") if key in t]
+                           + (["gear_loss.c1"] if "c1" in loss else [])),
         limits=limits,
         slow_rotor=_body(ctx, "slow_rotor", t["slow_rotor"]),
         fast_rotor=_body(ctx, "fast_rotor", t["fast_rotor"]),

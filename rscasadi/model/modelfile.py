@@ -111,7 +111,9 @@ def document(model: ArmModel) -> dict:
         joints.append({"name": jt.name, "origin_xyz": [float(x) for x in jt.origin_xyz],
                        **rotation_document(jt.R, "origin_rpy", "origin_R"), "gear_ratio": jt.gear_ratio,
                        "sea": {"k1": jt.k1, "k3": jt.k3, "d": jt.d},
-                       "gear_loss": {"b": jt.b, "c": jt.c, "eps": jt.eps}, **link_side_document(jt),
+                       "gear_loss": {"b": jt.b, "c": jt.c, "eps": jt.eps,
+                                     **({"c1": jt.c1} if jt.c1 or "gear_loss.c1" in jt.declared else {})},
+                       **link_side_document(jt),
                        **({"limits": limits} if limits else {}),
                        **{b: body_document(getattr(jt, b)) for b in BODIES}})
     frames, held, shape = frames_document(model), payload_document(model), collision_document(model)

@@ -46,7 +46,7 @@ INERTIAL = ("mass", "mx", "my", "mz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 ACTUATOR = ("sea.k1", "sea.k3", "sea.d", "gear_loss.b", "gear_loss.c", "link_loss.b", "link_loss.c",
             "counterbalance.k")
 ACTUATOR_ATTR = ("k1", "k3", "d", "b", "c", "link_b", "link_c", "cb_k")
-CONSTANTS = ("eps", "gear_ratio", "cb_theta0")     # per-joint numbers the dynamics read that p does not hold
+CONSTANTS = ("eps", "gear_ratio", "cb_theta0", "c1")   # per-joint numbers the dynamics read that p does not hold
 GRAVITY = ("gravity.x", "gravity.y", "gravity.z")
 PER_JOINT = len(BODIES) * len(INERTIAL) + len(ACTUATOR)
 
@@ -167,7 +167,7 @@ def n_linear(model: ArmModel) -> int:
 class Physics:
     """What the recursions read: per joint the spatial inertias {link, slow_rotor, fast_rotor}
     (6x6), the actuator columns k1, k3, d, b, c, link_b, link_c, cb_k (n x 1), the constants eps,
-    gear_ratio and cb_theta0, and
+    gear_ratio, cb_theta0 and c1, and
     gravity.  `symbolic` says whether they are expressions of p (then every rotor is written in
     its spinning frame, exact for any p, except the rotors (j, part) in `balanced`, balanced for
     every p) or the model file's numbers."""

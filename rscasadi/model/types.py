@@ -18,7 +18,7 @@ JOINT_KEYS = {"name", "origin_xyz", "origin_rpy", "origin_R", "gear_ratio", "sea
               "link", "slow_rotor", "fast_rotor", "link_loss", "counterbalance"}
 BODY_KEYS = {"mass", "com", "inertia"}
 SEA_KEYS = {"k1", "k3", "d"}
-GEAR_LOSS_KEYS = {"b", "c", "eps"}
+GEAR_LOSS_KEYS = {"b", "c", "eps", "c1"}
 LINK_LOSS_KEYS = {"b", "c"}                 # link side: b dtheta + c tanh(dtheta / eps)
 COUNTERBALANCE_KEYS = {"k", "theta0"}       # a joint spring beside the SEA: k (theta - theta0)
 LIMIT_KEYS = {"tau", "dphi", "psi", "theta"}
@@ -93,7 +93,8 @@ class Joint:
     link_c: float = 0.0                  # link-side Coulomb loss (N m), [joints.link_loss] c
     cb_k: float = 0.0                    # counterbalance spring on the link (N m/rad), [joints.counterbalance] k
     cb_theta0: float = 0.0               # where it is relaxed (rad)
-    declared: frozenset = frozenset()    # the optional tables the file gives (link_loss, counterbalance)
+    c1: float = 0.0                      # the gear's load-dependent Coulomb loss, per N m it transmits
+    declared: frozenset = frozenset()    # the optional terms the file gives (link_loss, counterbalance, gear_loss.c1)
 
     @property
     def R(self) -> np.ndarray:
