@@ -141,7 +141,7 @@ def test_info_and_view_take_the_whole_robot(tmp_path, capsys):
 
 def test_a_new_users_first_day_on_a_whole_robot_end_to_end(tmp_path, capsys):
     """Baxter's left arm from the actuator table, a margin and a held part with a radius, through
-    info --collision, codegen, a tool-goal OCP around a ball (short horizon), view (page and GIF),
+    info --collision, codegen, a tool-goal OCP around a ball (short horizon), view (the page),
     excite, simulate and identify, without a traceback. The OCP's clearance is measured on the capsules
     the solver used (the hand's cylinders, the fingers' boxes, the part's sphere), and re-checked
     here on the URDF's true shapes placed by Pinocchio (coal's cylinders and boxes) and the part's
@@ -224,9 +224,8 @@ name = "ipopt"
         assert min(gaps) - margin >= reported - 1e-9 and min(gaps) >= margin - 1e-6, (min(gaps), reported)
     from rscasadi.ocp.solution import solution_arm
     assert any(c.link.startswith("payload") for c in capsules(solution_arm(sol).model))
-    assert main(["view", str(tmp_path / "ocp" / "solution.json"), "--out", str(tmp_path / "view.html"),
-                 "--gif", str(tmp_path / "view.gif")]) in (0, None)
-    assert (tmp_path / "view.gif").read_bytes()[:6] in (b"GIF89a", b"GIF87a")
+    assert main(["view", str(tmp_path / "ocp" / "solution.json"), "--out", str(tmp_path / "view.html")]) in (0, None)
+    assert "<title>ocp/solution.json" in (tmp_path / "view.html").read_text()   # its GIF: test_view, this arm
     excite = tmp_path / "excite"                       # short settings; its condition (~1e6) accepted
     assert main(["excite", str(model), "--out", str(excite), "--harmonics", "3", "--samples", "20", "--starts", "1",
                  "--period", "6", "--max-condition", "1e8"]) in (0, None)
