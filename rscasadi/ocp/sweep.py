@@ -158,6 +158,21 @@ def _bar(done: int, total: int, width: int = 30) -> str:
     return f"[{'#' * fill}{'.' * (width - fill)}] {done}/{total} points"
 
 
+def check_reachable(scheduler: str, seconds: float = 3.0):
+    """A TCP connection to a tcp://HOST:PORT scheduler, before any work (Dask's client would
+    retry a refused one for its whole timeout); other schemes are left to Dask."""
+    import socket
+    from urllib.parse import urlsplit
+    where = urlsplit(scheduler if "://" in scheduler else f"tcp://{scheduler}")
+    if where.scheme != "tcp" or not where.hostname or where.port is None:
+        return
+    try:
+        socket.create_connection((where.hostname, where.port), timeout=seconds).close()
+    except OSError as exc:
+        raise ModelFileError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there "
+                             f"({exc.strerror or exc})") from None
+
+
 def run(sweep_file, out, scheduler: str | None = None, workers: int | None = None, log=print) -> dict:
     """Solve every grid point on Dask; write DIR/sweep.csv and DIR/sweep.png."""
     from distributed import Client, LocalCluster, as_completed
@@ -166,6 +181,8 @@ def run(sweep_file, out, scheduler: str | None = None, workers: int | None = Non
     sweep = load_sweep(sweep_file)
     out = Path(out)
     check_writable(out)
+    if scheduler:
+        check_reachable(scheduler)
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not (out / "sweep.csv").exists())):
         raise ModelFileError(f"{out}: exists and was not written by rscasadi sweep (no sweep.csv); refusing to write there")
     keys = list(sweep.grid)
