@@ -18,12 +18,12 @@ from rscasadi.identification.logs import Log, read_log, write_log
 PANDA = ROOT / "problems" / "panda_sea.toml"
 
 
-def fourier(path, seed):
+def fourier(path, seed, period=8.0):
     """A Fourier motion of the Panda about a pose clear of its limits (8 s, 3 harmonics)."""
     rng = np.random.default_rng(seed)
     a, b = rng.normal(0, 1, (7, 3)), rng.normal(0, 1, (7, 3))
     amp = np.array([0.5, 0.35, 0.5, 0.4, 0.6, 0.4, 0.8]) / np.sum(np.abs(a) + np.abs(b), axis=1)
-    path.write_text(to_toml({"kind": "fourier", "model": str(PANDA), "period": 8.0, "duration": 8.0,
+    path.write_text(to_toml({"kind": "fourier", "model": str(PANDA), "period": period, "duration": period,
                              "offset": [0.0, -0.3, 0.0, -2.0, 0.0, 1.7, 0.8],
                              "a": (a * amp[:, None]).tolist(), "b": (b * amp[:, None]).tolist()}))
     return path
@@ -60,16 +60,19 @@ def independent_fit(arm, ident_log, valid_log, fc) -> np.ndarray:
 @pytest.fixture(scope="module")
 def link_logs(tmp_path_factory):
     """Link-side logs (theta_j, T_j) of a perturbed Panda: identification and held-out motions at
-    1 kHz, and the held-out one again with --log-rate 100 (the loop still at 1 kHz)."""
+    1 kHz; a short motion at 1 kHz and again with --log-rate 100 (the loop still at 1 kHz)."""
     d = tmp_path_factory.mktemp("link_side")
     logs = {}
-    for name, seed in (("ident", 1), ("valid", 2)):
+    for name, seed, period in (("ident", 1, 8.0), ("valid", 2, 8.0), ("short", 3, 1.0)):
         logs[name] = d / f"{name}.csv"
-        assert main(["simulate", str(PANDA), str(fourier(d / f"{name}.toml", seed)), "--out", str(logs[name]),
+        assert main(["simulate", str(PANDA), str(fourier(d / f"{name}.toml", seed, period)), "--out", str(logs[name]),
                      "--perturb", "5", "--columns", "theta,T", "--true-model", str(d / "true.toml")]) in (0, None)
-    logs["valid_100"] = d / "valid_100.csv"
-    assert main(["simulate", str(PANDA), str(d / "valid.toml"), "--out", str(logs["valid_100"]), "--perturb", "5",
+    logs["short_100"] = d / "short_100.csv"
+    assert main(["simulate", str(PANDA), str(d / "short.toml"), "--out", str(logs["short_100"]), "--perturb", "5",
                  "--columns", "theta,T", "--log-rate", "100"]) in (0, None)
+    fast = read_log(logs["valid"], 7)                   # the held-out motion at 100 Hz: every tenth row
+    logs["valid_100"] = d / "valid_100.csv"
+    write_log(logs["valid_100"], Log("valid_100", fast.t[::10], fast.theta[:, ::10], T=fast.T[:, ::10]))
     return d, logs
 
 
@@ -79,7 +82,7 @@ def test_simulate_writes_the_columns_asked_at_the_log_rate(link_logs):
     _, logs = link_logs
     header = logs["valid"].read_text().splitlines()[0].split(",")
     assert header == ["t"] + [f"theta_{j}" for j in range(1, 8)] + [f"T_{j}" for j in range(1, 8)]
-    fast, slow = read_log(logs["valid"], 7), read_log(logs["valid_100"], 7)
+    fast, slow = read_log(logs["short"], 7), read_log(logs["short_100"], 7)
     assert slow.phi is None and slow.tau is None and slow.link_side
     assert np.array_equal(slow.t, fast.t[::10]) and np.array_equal(slow.T, fast.T[:, ::10])
     assert np.array_equal(slow.theta, fast.theta[:, ::10])
