@@ -614,7 +614,8 @@ def identify(arm: Arm, logs: list[Log], reduced: bool = False, fc: float | None 
     iterate = bool(unknowns.load_losses()) and any(lg.T is None for lg in logs)
     spring = None
     for _ in range(LOAD_PASSES if iterate else 1):
-        rows_ = combine([rows(arm, sig, unknowns, reduced, spring) for sig in signals])
+        if spring is not None:                         # the first pass takes the rows above
+            rows_ = combine([rows(arm, sig, unknowns, reduced, spring) for sig in signals])
         ls = least_squares(rows_, base, th_nominal)
         # what filtering does to the estimate: again at a lower cut-off (still above the SEA modes)
         probe = combine([rows(arm, prepare(log, FILTER_PROBE * fc, arm=arm), unknowns, reduced, spring)
