@@ -8,6 +8,14 @@ import numpy as np
 from rscasadi.dynamics.arm import Arm
 
 
+def spring_torque(model, theta, phi, dtheta, dphi) -> np.ndarray:
+    """T = k1 psi + k3 psi^3 + d dpsi of the model file's springs on numbers: arrays (n,) or
+    (n, samples), psi = phi - theta (the law Arm.sea_torque writes symbolically)."""
+    col = lambda a: model.column(a).reshape((-1,) + (1,) * (np.ndim(theta) - 1))   # noqa: E731
+    psi, dpsi = np.asarray(phi) - theta, np.asarray(dphi) - dtheta
+    return col("k1") * psi + col("k3") * psi ** 3 + col("d") * dpsi
+
+
 def spring_deflection(arm: Arm, T, psi=None, steps: int = 30):
     """psi with k1 psi + k3 psi^3 = T (static part of the spring law), by `steps` Newton steps;
     T / k1 exactly for linear springs.  T may be numbers or a CasADi expression."""

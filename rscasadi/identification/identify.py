@@ -31,7 +31,7 @@ import scipy.linalg
 import scipy.signal
 
 from rscasadi.dynamics.arm import Arm, load
-from rscasadi.dynamics.statics import spring_deflection
+from rscasadi.dynamics.statics import spring_deflection, spring_torque
 from rscasadi.files import CheckError, check_writable, fresh_directory, write_json
 from rscasadi.model.modelfile import BODIES, ArmModel, document, to_toml
 from rscasadi.model.parameters import (ACTUATOR, ACTUATOR_ATTR, INERTIAL, PER_JOINT, body_from_parameters, n_linear,
@@ -259,10 +259,8 @@ def load_loss_column(arm: Arm, theta, phi, dtheta, dphi, T=None, spring=None) ->
     the model's (ABS_SMOOTH), T the logged SEA torque, else the spring law's at `spring` (a model;
     default the arm's)."""
     from rscasadi.dynamics.arm import ABS_SMOOTH
-    col = lambda a: (spring or arm.model).column(a)[:, None]            # noqa: E731
     if T is None:
-        psi, dpsi = phi - theta, dphi - dtheta
-        T = col("k1") * psi + col("k3") * psi ** 3 + col("d") * dpsi
+        T = spring_torque((spring or arm.model), theta, phi, dtheta, dphi)
     load = np.sqrt(T ** 2 + ABS_SMOOTH ** 2) - ABS_SMOOTH
     return -load * np.tanh(dphi / arm.model.column("eps")[:, None]) / arm.model.column("gear_ratio")[:, None]
 

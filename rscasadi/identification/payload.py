@@ -22,6 +22,7 @@ import warnings
 import numpy as np
 
 from rscasadi.dynamics.arm import Arm
+from rscasadi.dynamics.statics import spring_torque
 from rscasadi.files import CheckError
 from rscasadi.identification.identify import REVERSAL, _pseudo_inertia, cutoff_hz, prepare
 from rscasadi.identification.logs import Log, LogError
@@ -39,9 +40,8 @@ def _rows(arm: Arm, sig, known: list) -> tuple[list, list, list]:
     Y, y0 = (np.array(v) for v in Yf(*sig.state()))
     Y = Y.reshape(2 * n, count, -1)
     y0 = y0.reshape(2 * n, count)
-    c = {a: arm.model.column(a)[:, None] for a in ("k1", "k3", "d", "eps")}
-    psi, dpsi = sig.phi - sig.theta, sig.dphi - sig.dtheta
-    T_link = c["k1"] * psi + c["k3"] * psi ** 3 + c["d"] * dpsi if sig.phi_measured else sig.T
+    eps = arm.model.column("eps")
+    T_link = spring_torque(arm.model, sig.theta, sig.phi, sig.dtheta, sig.dphi) if sig.phi_measured else sig.T
     A, y, labels = [], [], []
     for j in range(n):
         A.append(Y[n + j])
@@ -49,7 +49,7 @@ def _rows(arm: Arm, sig, known: list) -> tuple[list, list, list]:
         labels.append(f"T_{j + 1}")
         if sig.tau is None:
             continue
-        moving = np.abs(sig.dphi[j]) > REVERSAL * c["eps"][j, 0]
+        moving = np.abs(sig.dphi[j]) > REVERSAL * eps[j]
         A.append(Y[j][moving])
         y.append(sig.tau[j][moving] - y0[j][moving])
         labels.append(f"tau_{j + 1}")
@@ -178,8 +178,6 @@ def link_torque_error(arm: Arm, log: Log, fc: float) -> list:
     torque along a filtered log."""
     sig = prepare(log, fc, arm=arm)
     T = np.array(arm.inverse_dynamics().map(sig.t.size)(*sig.state())[1])
-    c = {a: arm.model.column(a)[:, None] for a in ("k1", "k3", "d")}
-    psi, dpsi = sig.phi - sig.theta, sig.dphi - sig.dtheta
-    T_spring = c["k1"] * psi + c["k3"] * psi ** 3 + c["d"] * dpsi if sig.phi_measured else sig.T
+    T_spring = spring_torque(arm.model, sig.theta, sig.phi, sig.dtheta, sig.dphi) if sig.phi_measured else sig.T
     return [float(np.sqrt(np.mean((T[j] - T_spring[j]) ** 2)) / max(np.sqrt(np.mean(T_spring[j] ** 2)), 1e-300))
             for j in range(arm.n)]

@@ -18,6 +18,7 @@ import numpy as np
 from rscasadi.sim.loop import Encoders, FeedforwardPD, rk4_plant, run_loop
 from rscasadi.sim.simulation import feedforward, motor_pd_gains
 from rscasadi.dynamics.arm import Arm
+from rscasadi.dynamics.statics import spring_torque
 from rscasadi.model.modelfile import Body, inertia_problem
 from rscasadi.identification.logs import Log
 from rscasadi.errors import Failed, InvalidArgument
@@ -90,9 +91,7 @@ def record(true_arm: Arm, nominal_arm: Arm, trajectory, rate: float = 1000.0, rn
     limits = np.array([jt.limits.get("tau", np.max(np.abs(run.tau), initial=1.0)) for jt in true_arm.model.joints])
     tau_logged = run.tau + rng.normal(0, 1, run.tau.shape) * (torque_noise * limits)[:, None]
     x = run.x[:, :N]
-    psi, dpsi = x[n:2 * n] - x[:n], x[3 * n:] - x[2 * n:3 * n]
-    k = {a: true_arm.model.column(a)[:, None] for a in ("k1", "k3", "d")}
-    T = k["k1"] * psi + k["k3"] * psi ** 3 + k["d"] * dpsi
+    T = spring_torque(true_arm.model, x[:n], x[n:2 * n], x[2 * n:3 * n], x[3 * n:])
     noisy = lambda v, s: v + rng.normal(0, 1, v.shape) * s
     measured = {"theta": run.meas[:n], "phi": run.meas[n:2 * n], "tau": tau_logged,
                 "T": noisy(T, SENSOR_NOISE["T"] * np.max(np.abs(T), axis=1, keepdims=True)),
