@@ -14,6 +14,7 @@ from rscasadi.ocp.solvers import options
 from rscasadi.ocp.transcription import Transcription
 from rscasadi.dynamics.arm import Arm
 from rscasadi.model.modelfile import read
+from rscasadi.model.parameters import with_values
 
 from conftest import REFERENCE, problem
 
@@ -44,11 +45,16 @@ def whole_graph_ad(nlp):
 ])
 def test_assembled_derivatives_equal_ad_of_the_whole_nlp(name, over):
     tr, nlp, lbg, ubg = transcription(name, **over)
+    _check_against_ad(tr, nlp)
+    assert len(lbg) == len(ubg) == nlp["g"].numel()
+
+
+def _check_against_ad(tr, nlp, seed=7):
     ref, (lam_f, lam_g) = whole_graph_ad(nlp)
     a = assembled(tr.pieces, nlp["x"], lam_f, lam_g, nlp["g"].numel())
     mine = ca.Function("mine", [nlp["x"], nlp["p"], lam_f, lam_g],
                        [a["grad_f"], a["jac_g"], a["grad_l"], a["hess"], a["triu_hess"]])
-    rng = np.random.default_rng(7)
+    rng = np.random.default_rng(seed)
     for _ in range(2):
         w = 0.3 * rng.standard_normal(nlp["x"].numel())
         P = 0.1 + rng.random(nlp["p"].numel())
@@ -56,7 +62,20 @@ def test_assembled_derivatives_equal_ad_of_the_whole_nlp(name, over):
         for k, (r, m) in enumerate(zip(ref(w, P, 0.7, lam), mine(w, P, 0.7, lam))):
             assert r.sparsity() == m.sparsity(), f"output {k}: sparsity"
             assert float(ca.norm_inf(r - m)) <= 1e-12 * max(1.0, float(ca.norm_inf(r))), f"output {k}"
-    assert len(lbg) == len(ubg) == nlp["g"].numel()
+
+
+def test_another_mesh_reuses_the_stage_derivatives_and_another_stage_does_not():
+    """A refinement round's NLP (more intervals, same stage) takes the stage's derivatives built
+    for the first round, and they are right there; a stage that differs (in one spring's
+    stiffness, a number the stage's code holds) gets its own."""
+    tr4, *_ = transcription("ocp_min_effort", N=4, dynamics="implicit")
+    tr7, nlp, _, _ = transcription("ocp_min_effort", N=7, dynamics="implicit")
+    assert tr7.pieces[0].derivatives is tr4.pieces[0].derivatives
+    _check_against_ad(tr7, nlp, seed=11)
+    stiffer = Arm(with_values(read(tr4.p.task.model), {f"{tr4.model.joints[-1].name}.sea.k1": 1.01 * tr4.model.joints[-1].k1}))
+    other = Transcription(tr4.p, stiffer, N=4)
+    other.nlp()
+    assert other.pieces[0].derivatives is not tr4.pieces[0].derivatives
 
 
 @pytest.mark.parametrize("solver", ["fatrop", "ipopt"])

@@ -141,7 +141,7 @@ def test_info_and_view_take_the_whole_robot(tmp_path, capsys):
 
 def test_a_new_users_first_day_on_a_whole_robot_end_to_end(tmp_path, capsys):
     """Baxter's left arm from the actuator table, a margin and a held part with a radius, through
-    info --collision, codegen, a tool-goal OCP around a ball (short horizon), view (the page),
+    info --collision, codegen, a tool-goal OCP around a ball verified on the complete model, view (the page),
     excite, simulate and identify, without a traceback. The OCP's clearance is measured on the capsules
     the solver used (the hand's cylinders, the fingers' boxes, the part's sphere), and re-checked
     here on the URDF's true shapes placed by Pinocchio (coal's cylinders and boxes) and the part's
@@ -178,18 +178,20 @@ tolerance = {{ position = 1e-3 }}
 [[obstacles]]
 sphere = {{ center = {ball["center"]}, radius = {ball["radius"]} }}
 [transcription]
-intervals = 8
+intervals = 12
 compiled = false
+dynamics = "implicit"
+limit_margin = 0.02
 [refinement]
-rounds = 0
+rounds = 2
 [solver]
 name = "ipopt"
-""")                                                   # fatrop's line search fails here after ~5 min
+""")                            # uncompiled: the lifted 7-joint NLP compiles for minutes, solves in seconds
     main(["ocp", str(tmp_path / "ocp.toml"), "--out", str(tmp_path / "ocp"), "--quiet"])
     sol = json.loads((tmp_path / "ocp" / "solution.json").read_text())
-    assert sol["solver_success"], sol["status"]
+    assert sol["success"], (sol["status"], sol["rounds"])              # verified on the complete model
     reported = sol["verification"]["min_clearance"]
-    assert reported > -2e-3                            # the replay between the 8 nodes stays at the margin
+    assert reported >= -1e-4                           # the replay between the nodes keeps the margin
     # the true shapes, independently: Pinocchio's parse of the URDF's collision geometry
     arm = rscasadi.load(model)
     pm = urdf_model(arm.model)
