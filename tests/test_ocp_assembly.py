@@ -8,7 +8,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from rscasadi.ocp import load_problem, solve_once
+from rscasadi.ocp import load_problem, solve, solve_once
 from rscasadi.ocp.assembly import Piece, assembled, derivative_functions, solver_functions
 from rscasadi.ocp.solvers import options
 from rscasadi.ocp.transcription import Transcription
@@ -95,6 +95,35 @@ def test_solver_loads_assembled_functions_with_its_own_signatures(solver):
         for key in theirs.name_out():
             scale = max(1.0, float(ca.norm_inf(expect[key])))
             assert float(ca.norm_inf(ca.densify(expect[key]) - ca.densify(got[key]))) <= 1e-12 * scale, (name, key)
+
+
+def test_a_compiled_piece_is_its_functions_for_any_mesh():
+    """Each piece compiles into a library of its own: its externals give the SX functions'
+    values to 1e-12 at random points; the stage of another mesh (a refinement round) is the same
+    library and compiles nothing; the lifted NLP solved on two meshes, compiled, ends where
+    CasADi's virtual machine ends."""
+    from rscasadi.ocp.assembly import derivative_functions, symbols
+    from rscasadi.ocp.solvers import compiled_piece
+    tr, *_ = transcription("ocp_min_time", N=4)
+    rng = np.random.default_rng(5)
+    for piece in tr.pieces:
+        built = compiled_piece(piece, "-O1", log=lambda m: None)
+        assert built.library and built.fn.is_a("MXFunction")
+        for ours, theirs in zip((built.fn, *built.derivatives), (piece.fn, *derivative_functions(piece))):
+            args = [rng.standard_normal(theirs.sparsity_in(i).shape) for i in range(theirs.n_in())]
+            for a, b in zip(ours.call(args), theirs.call(args)):
+                assert float(ca.norm_inf(a - b)) <= 1e-12 * max(1.0, float(ca.norm_inf(b)))
+    lines = []
+    tr7, *_ = transcription("ocp_min_time", N=7)
+    again = compiled_piece(tr7.pieces[0], "-O1", log=lines.append)
+    assert again.library == compiled_piece(tr.pieces[0], "-O1").library and lines == []
+    ends = {}
+    for compiled in (True, False):
+        p = load_problem(REFERENCE.parent / "ocp_min_time.toml").replace(intervals=10, condense=False, compiled=compiled,
+                                                                          solver="ipopt", rounds=1)
+        ends[compiled] = solve(p, log=lambda m: None, print_level=0)
+    assert [r["intervals"] for r in ends[True]["rounds"]] == [r["intervals"] for r in ends[False]["rounds"]]
+    assert abs(ends[True]["objective"] - ends[False]["objective"]) < 1e-7 * ends[False]["objective"]
 
 
 def test_compiled_limited_memory_ipopt_needs_no_hessian(pitch_arm):

@@ -290,7 +290,7 @@ def assembled(pieces: list, w: ca.MX, lam_f: ca.MX, lam_g: ca.MX, n_g: int, para
             "jac_parts": J, "hess_parts": H}
 
 
-ASSEMBLY_VERSION = "assembled-5"        # part of the compiled-NLP cache key
+ASSEMBLY_VERSION = "assembled-6"        # part of the compiled-NLP cache key
 NAMES = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l", "nlp_grad")
 # the same derivatives unscattered, for a caller that places them itself (ocp/fatrop/driver.c): each
 # piece's nonzeros as its map writes them, one output per piece (their places: places(pieces))

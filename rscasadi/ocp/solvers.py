@@ -1,18 +1,26 @@
 """The NLP solvers: fatrop (exploits the stage structure; a Riccati-based interior point) or
 IPOPT (general sparse, MUMPS), on the NLP's functions generated to C and compiled once
-(cached by the hash of the source), or in CasADi's virtual machine."""
+(cached by the hash of the source), or in CasADi's virtual machine.
+
+Compiled, the NLP is two kinds of C: each piece's functions (a stage's rows, objective and
+their derivatives; the start's and the end's), which do not depend on the mesh, each compiled
+once into its own library cached by its own hash; and the NLP's glue (the maps over the
+intervals and the placement of the pieces' nonzeros), which does, small and quick to compile.
+A refinement round, another mesh or the other solver then compiles only the glue (Baxter's
+7-joint lifted stage: 196 s of gcc once, not once per round)."""
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import os
 from pathlib import Path
 
 import casadi as ca
 
-from rscasadi.native.build import cache_dir, cached_library, casadi_c, compiler
+from rscasadi.native.build import cache_dir, cached_library, casadi_c, casadi_units, compiler
 from rscasadi.native.parallel import openmp_flags
 from rscasadi.ocp.fatrop.driver import DirectFatrop
-from rscasadi.ocp.assembly import ASSEMBLY_VERSION, assembled, places, solver_functions
+from rscasadi.ocp.assembly import ASSEMBLY_VERSION, Piece, assembled, derivative_functions, places, solver_functions, symbols
 from rscasadi.ocp.problem import Problem
 from rscasadi.ocp.transcription import Transcription
 
@@ -37,11 +45,10 @@ def make_solver(problem: Problem, tr: Transcription, nlp: dict, log=print, print
     """(solver, objective(x, p) Function) for this problem's NLP."""
     opts = options(problem, tr, print_level, extra)
     objective = ca.Function("f", [nlp["x"], nlp["p"]], [nlp["f"]])
-    if tr.condensed:
-        # the kernel's functions have no AD: the parameters' multipliers (by AD) are not asked for
-        opts["calc_lam_p"] = False
     if not problem.transcription.compiled and not tr.condensed:      # condensed: its kernel is C anyway
         return ca.nlpsol("ocp", problem.solver.name, nlp, opts), objective
+    # the compiled pieces have no AD: the parameters' multipliers (by AD) are not asked for
+    opts["calc_lam_p"] = False
     library = compiled_nlp(problem.solver.name, nlp, opts, tr.pieces, log)
     if direct(problem):
         return DirectFatrop(library, tr.structure(), opts["fatrop"], log, places(tr.pieces)), objective
@@ -70,9 +77,10 @@ def compiled_nlp(solver: str, nlp: dict, opts: dict, pieces: list, log=print, op
     if index.exists() and Path(index.read_text()).exists():
         log(f"compiled NLP: cache hit {index.read_text()}")
         return index.read_text()
+    pieces = [piece if piece.library else compiled_piece(piece, opt, log) for piece in pieces]
     libraries = sorted({piece.library for piece in pieces if piece.library})
-    # the solver's own functions give the signatures; with kernels (no AD) from a stand-in NLP
-    plain = ca.nlpsol("ocp", solver, nlp if not libraries else _stand_in(nlp, pieces), opts)
+    # the solver's own functions give the signatures, from a stand-in NLP (the pieces: no AD)
+    plain = ca.nlpsol("ocp", solver, _stand_in(nlp, pieces), opts)
     # fatrop's library also has the unscattered derivatives its direct interface reads
     source = casadi_c(solver_functions(plain, nlp, pieces, "openmp" if omp else "serial", raw=solver == "fatrop"),
                       "rscasadi_nlp.c")
@@ -88,3 +96,42 @@ def _stand_in(nlp: dict, pieces: list) -> dict:
     x, P, n_g = nlp["x"], nlp["p"], nlp["g"].numel()
     pattern = assembled(pieces, x, ca.MX.sym("lam_f"), ca.MX.sym("lam_g", n_g), n_g)["jac_g"].sparsity()
     return {"x": x, "p": P, "f": ca.sumsqr(x) + ca.sum1(P), "g": ca.densify(ca.mtimes(ca.DM(pattern, 1.0), x))}
+
+
+# the compiled pieces of this process, with the functions they stand for (a refinement round's
+# stage has the same Function objects: transcription._DERIVATIVES); kept, so their ids stay theirs
+_PIECES: dict[tuple, tuple] = {}
+
+
+def compiled_piece(piece: Piece, opt: str, log=print) -> Piece:
+    """The piece with its functions (rows, objective, and their first and second derivatives)
+    compiled into a library of their own, cached by its hash and named by the functions' (so that
+    pieces of any mesh link side by side), and loaded as `casadi.external`s."""
+    originals = (piece.fn, *derivative_functions(piece))
+    key = tuple(id(f) for f in originals)
+    if key in _PIECES and all(a is b for a, b in zip(_PIECES[key][0], originals)):
+        kept = _PIECES[key][1]
+        return dataclasses.replace(piece, fn=kept.fn, derivatives=kept.derivatives, library=kept.library)
+    z, args = symbols(piece.fn)
+    r, f = piece.fn(z, *args)
+    fns = {"rows": ca.Function("rows", [z, *args], [r]), "f": ca.Function("f", [z, *args], [f]),
+           "first": originals[1], "objective": originals[2], "second": originals[3]}
+    prefix = "rsp" + hashlib.sha256("".join(fn.serialize() for fn in fns.values()).encode()).hexdigest()[:16] + "_"
+    named = [_renamed(fn, prefix + k) for k, fn in fns.items()]
+    lib = str(cached_library(casadi_units(named, prefix, units=4), [opt], name="piece",
+                             what=f"the {piece.fn.name()}'s functions (for any mesh)", log=log))
+    ext = {k: ca.external(prefix + k, lib) for k in fns}
+    zm, am = symbols(ext["rows"])
+    fn = ca.Function(piece.fn.name(), [zm, *am], [ext["rows"](zm, *am), ext["f"](zm, *am)],
+                     piece.fn.name_in(), piece.fn.name_out())
+    out = dataclasses.replace(piece, fn=fn, derivatives=(ext["first"], ext["objective"], ext["second"]), library=lib)
+    _PIECES[key] = (originals, out)
+    while len(_PIECES) > 16:
+        _PIECES.pop(next(iter(_PIECES)))
+    return out
+
+
+def _renamed(fn: ca.Function, name: str) -> ca.Function:
+    """fn (SX) under another name: the same expressions."""
+    sym = fn.sx_in()
+    return ca.Function(name, sym, fn.call(sym), fn.name_in(), fn.name_out())
