@@ -1,6 +1,6 @@
 """What real joints have beyond the FS-SEA: the bearings' viscous and Coulomb loss after the
 spring, a counterbalance spring (docs/user-guide/model.md section 2, T_L), and a gear loss that
-grows with the torque transmitted (c1 |T|).  The dynamics against the numeric recursions and
+grows with the torque transmitted (c1 |T|) and towards rest (Stribeck).  The dynamics against the numeric recursions and
 Pinocchio (independent code), the model file both ways, MuJoCo's export, and identification from
 logs of an arm that has them (a URDF does not list them)."""
 import dataclasses
@@ -24,6 +24,7 @@ def with_link_side(tmp_path, seed=7, n=4):
         jt["link_loss"] = {"b": float(rng.uniform(0.1, 2)), "c": float(rng.uniform(0.1, 1))}
         jt["counterbalance"] = {"k": float(rng.uniform(1, 20)), "theta0": float(rng.uniform(-1, 1))}
         jt["gear_loss"]["c1"] = float(rng.uniform(0.01, 0.1))
+        jt["gear_loss"].update(stribeck=float(rng.uniform(0.1, 0.5)), v_stribeck=float(rng.uniform(0.3, 1.0)))
     (tmp_path / "arm.toml").write_text(to_toml(doc))
     return rscasadi.load(tmp_path / "arm.toml"), rng
 
@@ -48,6 +49,7 @@ def test_the_dynamics_with_link_losses_equal_the_independent_routes(tmp_path):
     again = document(arm.model)["joints"]
     for jt, d in zip(arm.model.joints, again):
         assert d["link_loss"] == {"b": jt.link_b, "c": jt.link_c} and d["gear_loss"]["c1"] == jt.c1
+        assert (d["gear_loss"]["stribeck"], d["gear_loss"]["v_stribeck"]) == (jt.stribeck, jt.v_stribeck) and jt.stribeck > 0
         assert d["counterbalance"] == {"k": jt.cb_k, "theta0": jt.cb_theta0}
     assert "link_loss" not in document(rscasadi.load(ROOT / "problems" / "arm3.toml").model)["joints"][0]
 
@@ -56,6 +58,9 @@ def test_the_dynamics_with_link_losses_equal_the_independent_routes(tmp_path):
     ({"link_loss": {"b": -0.1}}, "link_loss.b"),
     ({"link_loss": {"mu": 0.1}}, "link_loss.mu"),
     ({"counterbalance": {"theta0": 0.1}}, "counterbalance.k"),
+    ({"gear_loss": {"stribeck": 0.2}}, "gear_loss.v_stribeck"),
+    ({"gear_loss": {"v_stribeck": 0.1}}, "gear_loss.stribeck"),
+    ({"gear_loss": {"stribeck": 0.2, "v_stribeck": 0.0}}, "gear_loss.v_stribeck"),
 ])
 def test_bad_link_side_tables_are_refused_by_field(tmp_path, table, words):
     doc = document(rscasadi.load(ROOT / "problems" / "arm3.toml").model)
@@ -83,6 +88,9 @@ def test_mujoco_holds_the_viscous_link_loss_and_the_counterbalance(tmp_path):
     loaded = Arm(dataclasses.replace(arm3.model, joints=joints[:2] + (dataclasses.replace(joints[2], c1=0.02),)))
     with pytest.raises(Exception, match="elbow_pitch: gear_loss c1 = 0.02"):
         mujoco_xml(loaded.model)
+    sticky = Arm(dataclasses.replace(arm3.model, joints=joints[:2] + (dataclasses.replace(joints[2], stribeck=0.1),)))
+    with pytest.raises(Exception, match="elbow_pitch: gear_loss stribeck = 0.1"):
+        mujoco_xml(sticky.model)
 
 
 OFFSETS = [0.05, -0.3, 0.1]          # N m: what each joint's torque sensor reads at zero torque
@@ -130,11 +138,13 @@ def test_a_link_side_log_identifies_link_losses_and_a_counterbalance(tmp_path):
     assert errors["declared"] < 0.02 and errors["plain"] > 0.2, errors
 
 
-def test_a_load_dependent_gear_loss_is_identified_from_motor_side_logs(tmp_path):
-    """A perturbed arm3 whose gears lose (c + c1 |T|) tanh(dphi / eps), c1 = 3-5 % of the torque
-    they transmit; the model file declares c1 = 0: from a motor-side log (theta, phi, tau; T from
-    the spring law, a fixed point) c1 comes out within 15 % and k1 within 0.1 %, and the held-out
-    motor torques are predicted better than by the file without c1 (the elbow's error halved)."""
+def test_a_load_dependent_gear_loss_and_stribeck_are_identified_from_motor_side_logs(tmp_path):
+    """A perturbed arm3 whose gears lose (c + c1 |T| + s exp(-(dphi / v_s)^2)) tanh(dphi / eps),
+    c1 = 3-5 % of the torque they transmit, s = 0.4-0.8 N m beyond c at rest; the model file
+    declares c1 = 0 and s = 0 (at the true v_s): from a motor-side log (theta, phi, tau; T from
+    the spring law, a fixed point) c1 and s come out within 15 % and k1 within 0.1 %, and the
+    held-out motor torques are predicted better than by the file without them (the elbow's error
+    halved)."""
     from rscasadi.identification.identify import run
     from rscasadi.identification.logs import write_log
     from rscasadi.identification.synthetic import perturbed_arm, record
@@ -142,13 +152,13 @@ def test_a_load_dependent_gear_loss_is_identified_from_motor_side_logs(tmp_path)
     doc = document(rscasadi.load(ROOT / "problems" / "arm3.toml").model)
     (tmp_path / "plain.toml").write_text(to_toml(doc))
     for jt in doc["joints"]:
-        jt["gear_loss"]["c1"] = 0.0
+        jt["gear_loss"].update(c1=0.0, stribeck=0.0, v_stribeck=0.3)
     (tmp_path / "declared.toml").write_text(to_toml(doc))
     nominal = rscasadi.load(tmp_path / "declared.toml")
     true = perturbed_arm(nominal, np.random.default_rng(12))
-    c1 = [0.03, 0.05, 0.04]
-    true = Arm(dataclasses.replace(true.model, joints=tuple(dataclasses.replace(jt, c1=c)
-                                                             for jt, c in zip(true.model.joints, c1))))
+    c1, s = [0.03, 0.05, 0.04], [0.6, 0.8, 0.4]
+    true = Arm(dataclasses.replace(true.model, joints=tuple(dataclasses.replace(jt, c1=c, stribeck=si)
+                                                             for jt, c, si in zip(true.model.joints, c1, s))))
     for name, traj in (("ident", ROOT / "results" / "identification" / "excitation" / "trajectory.toml"),
                        ("valid", ROOT / "problems" / "trajectory_arm3.toml")):
         log, _ = record(true, nominal, load_trajectory(traj), rng=np.random.default_rng(1))
@@ -159,8 +169,9 @@ def test_a_load_dependent_gear_loss_is_identified_from_motor_side_logs(tmp_path)
                          validate=tmp_path / "valid.csv", log=lambda m: None)
         held_out[model] = [rep["validation"]["prediction"][f"tau_{j}"]["relative"] for j in (1, 2, 3)]
         if model == "declared":
-            for jt, want, truth in zip(ident.model.joints, c1, true.model.joints):
-                assert abs(jt.c1 - want) < 0.15 * want and abs(jt.k1 / truth.k1 - 1) < 1e-3, (jt.name, jt.c1, jt.k1)
+            for jt, truth in zip(ident.model.joints, true.model.joints):
+                assert abs(jt.c1 - truth.c1) < 0.15 * truth.c1 and abs(jt.k1 / truth.k1 - 1) < 1e-3, (jt.name, jt.c1, jt.k1)
+                assert abs(jt.stribeck - truth.stribeck) < 0.15 * truth.stribeck, (jt.name, jt.stribeck)
     assert max(held_out["declared"]) < max(held_out["plain"]), held_out
     assert held_out["declared"][1] < 0.5 * held_out["plain"][1], held_out
 

@@ -65,11 +65,13 @@ class Arm:
         return c["k1"] * psi + c["k3"] * psi ** 3 + c["d"] * dpsi
 
     def gear_loss(self, dphi, phys=None, T=0.0):
-        """T_B2 = b dphi + (c + c1 |T|) tanh(dphi / eps): the harmonic drive's loss grows with the
-        torque T it transmits (the SEA's); |T| smoothed as sqrt(T^2 + ABS_SMOOTH^2) - ABS_SMOOTH."""
+        """T_B2 = b dphi + (c + c1 |T| + s exp(-(dphi / v_s)^2)) tanh(dphi / eps): the harmonic
+        drive's loss grows with the torque T it transmits (the SEA's; |T| smoothed as
+        sqrt(T^2 + ABS_SMOOTH^2) - ABS_SMOOTH) and, by s (stribeck), towards rest (Stribeck)."""
         c = (phys or self.physics).columns
         load = ca.sqrt(T * T + ABS_SMOOTH ** 2) - ABS_SMOOTH
-        return c["b"] * dphi + (c["c"] + c["c1"] * load) * ca.tanh(dphi / c["eps"])
+        static = c["stribeck"] * ca.exp(-(dphi / c["v_stribeck"]) ** 2)
+        return c["b"] * dphi + (c["c"] + c["c1"] * load + static) * ca.tanh(dphi / c["eps"])
 
     def link_loss(self, theta, dtheta, phys=None):
         """T_L = link_b dtheta + link_c tanh(dtheta / eps) + cb_k (theta - cb_theta0): what the link

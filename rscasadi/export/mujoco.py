@@ -100,6 +100,8 @@ def check_exportable(model) -> None:
                  for jt in model.joints if jt.link_c]
     problems += [f"{jt.name}: gear_loss c1 = {jt.c1:g} (a loss growing with the transmitted torque; MJCF has none)"
                  for jt in model.joints if jt.c1]
+    problems += [f"{jt.name}: gear_loss stribeck = {jt.stribeck:g} (static friction falling with speed; MJCF has none)"
+                 for jt in model.joints if jt.stribeck]
     if problems:
         raise InvalidArgument(f"{model.path}: cannot be exported to MuJoCo exactly: " + "; ".join(problems))
 

@@ -59,15 +59,16 @@ class Unknowns:
     names: list
     E: np.ndarray
     kinds: list        # per entry: ("link" | "rotor", joint, body), ("actuator", joint, attr),
-    #                    ("offset", joint, "T") or ("c1", joint, "gear_loss.c1"): the last two not in p_lin
+    #                    ("offset", joint, "T"), ("c1", joint, "gear_loss.c1") or ("stribeck", joint,
+    #                    "gear_loss.stribeck"): the last three not in p_lin
     fixed: dict        # {index: nominal} of the unknowns not in p_lin (E's column zero)
 
     @staticmethod
     def of(model: ArmModel, sensor_offsets: bool = False, load_losses: bool = True) -> "Unknowns":
         """The unknowns of `model`; sensor_offsets: one more per joint, the offset of its T
-        sensor (T_j logged = T_j + offset); load_losses: the gear's load-dependent loss c1 at the
-        joints whose file gives it.  Neither is in p_lin (their columns of E are zero): `rows`
-        forms their columns from the data."""
+        sensor (T_j logged = T_j + offset); load_losses: the gear's load-dependent loss c1 and its
+        Stribeck excess at the joints whose file gives them (at the file's v_stribeck).  None is in
+        p_lin (their columns of E are zero): `rows` forms their columns from the data."""
         n_lin = n_linear(model)
         cols, names, kinds = [], [], []
 
@@ -98,6 +99,9 @@ class Unknowns:
             if load_losses and "gear_loss.c1" in jt.declared:
                 fixed[len(names)] = jt.c1
                 add(f"{jt.name}.gear_loss.c1", [], ("c1", j, "gear_loss.c1"))
+            if load_losses and "gear_loss.stribeck" in jt.declared:
+                fixed[len(names)] = jt.stribeck
+                add(f"{jt.name}.gear_loss.stribeck", [], ("stribeck", j, "gear_loss.stribeck"))
         for j, jt in enumerate(model.joints):
             if sensor_offsets:
                 fixed[len(names)] = 0.0
@@ -111,6 +115,10 @@ class Unknowns:
     def load_losses(self) -> list:
         """(index in th, joint) of every gear's load-dependent loss c1."""
         return [(k, kind[1]) for k, kind in enumerate(self.kinds) if kind[0] == "c1"]
+
+    def stribeck(self) -> list:
+        """(index in th, joint) of every gear's Stribeck excess."""
+        return [(k, kind[1]) for k, kind in enumerate(self.kinds) if kind[0] == "stribeck"]
 
     def from_p(self, p_lin) -> np.ndarray:
         """th from p_lin: each unknown read off its first physical parameter (tied ones are
@@ -265,6 +273,14 @@ def load_loss_column(arm: Arm, theta, phi, dtheta, dphi, T=None, spring=None) ->
     return -load * np.tanh(dphi / arm.model.column("eps")[:, None]) / arm.model.column("gear_ratio")[:, None]
 
 
+def stribeck_column(arm: Arm, dphi) -> np.ndarray:
+    """d tau / d s per joint and sample (n, count): -exp(-(dphi / v_s)^2) tanh(dphi / eps) / mu,
+    at the model file's Stribeck speed v_s."""
+    m = arm.model
+    fall = np.exp(-(dphi / m.column("v_stribeck")[:, None]) ** 2)
+    return -fall * np.tanh(dphi / m.column("eps")[:, None]) / m.column("gear_ratio")[:, None]
+
+
 def rows(arm: Arm, sig: Signals, unknowns: Unknowns, reduced: bool = False, spring=None) -> Rows:
     """The regression rows of one filtered log: Y th = [tau; T] for every sample and joint, as
     far as the log's columns go (`row_kinds`); the gears' load-dependent losses with the logged T
@@ -276,6 +292,10 @@ def rows(arm: Arm, sig: Signals, unknowns: Unknowns, reduced: bool = False, spri
         w = load_loss_column(arm, sig.theta, sig.phi, sig.dtheta, sig.dphi, T=sig.T if sig.phi_measured else None,
                              spring=spring)
         for k, j in unknowns.load_losses():
+            Y[j, :, k] = w[j]
+    if unknowns.stribeck():
+        w = stribeck_column(arm, sig.dphi)
+        for k, j in unknowns.stribeck():
             Y[j, :, k] = w[j]
     Ys = np.array(spring_regressor(arm).map(count)(*sig.state()[:4])).reshape(n, count, -1) @ unknowns.E
     # near a velocity reversal the Coulomb term c tanh(dphi / eps) jumps within milliseconds, and
@@ -376,6 +396,11 @@ def structural_base(arm: Arm, unknowns: Unknowns, samples: int = 200, reduced: b
         theta, phi, dtheta, dphi = random_samples(arm, samples, np.random.default_rng(0))[:4]
         w = load_loss_column(arm, theta, phi, dtheta, dphi)
         for k, j in unknowns.load_losses():
+            W[j::rows_per, k] = w[j]
+    if "tau" in kinds and unknowns.stribeck():             # and the Stribeck excesses
+        dphi = random_samples(arm, samples, np.random.default_rng(0))[3]
+        w = stribeck_column(arm, dphi)
+        for k, j in unknowns.stribeck():
             W[j::rows_per, k] = w[j]
     return base_of(W, unknowns.names, rtol=1e-9)
 
@@ -485,7 +510,7 @@ def physical_fit(arm: Arm, unknowns: Unknowns, ls: LeastSquares, th_nominal: np.
         Dinv = np.diag(1.0 / d)                          # congruence: each body's J on the scale of its nominal
         cons.append(Dinv @ J @ Dinv - FIT_MARGIN * np.eye(4) >> 0)
     for j, jt in enumerate(model.joints):
-        for attr in ACTUATOR + ("gear_loss.c1",):
+        for attr in ACTUATOR + ("gear_loss.c1", "gear_loss.stribeck"):
             if f"{jt.name}.{attr}" in unknowns.names:
                 k = unknowns.names.index(f"{jt.name}.{attr}")
                 cons.append(x[k] >= (1e-3 if attr == "sea.k1" else 0.0))
@@ -537,6 +562,7 @@ def identified_model(arm: Arm, unknowns: Unknowns, th: np.ndarray) -> ArmModel:
         bodies = {b: body_from_parameters(p[base + 10 * i: base + 10 * (i + 1)]) for i, b in enumerate(BODIES)}
         act = {a: float(v) for a, v in zip(ACTUATOR_ATTR, p[base + 30: base + PER_JOINT])}
         act.update({"c1": float(th[k]) for k, jj in unknowns.load_losses() if jj == j})
+        act.update({"stribeck": float(th[k]) for k, jj in unknowns.stribeck() if jj == j})
         joints.append(dataclasses.replace(jt, **act, **bodies))
     held = arm.model.payload
     if held is not None:

@@ -92,6 +92,17 @@ ACTUATOR_KEYS = {"name", "gear_ratio", "sea", "gear_loss", "limits", "slow_rotor
                  "counterbalance"}
 
 
+def _stribeck(ctx, loss: dict) -> dict:
+    """gear_loss.stribeck (N m) and its speed v_stribeck (rad/s), given together."""
+    if ("stribeck" in loss) != ("v_stribeck" in loss):
+        given, missing = ("stribeck", "v_stribeck") if "stribeck" in loss else ("v_stribeck", "stribeck")
+        ctx.fail(f"gear_loss.{missing}", f"gear_loss.{given} needs gear_loss.{missing} beside it")
+    if "stribeck" not in loss:
+        return {}
+    return {"stribeck": _number(ctx, "gear_loss.stribeck", loss["stribeck"], nonneg=True),
+            "v_stribeck": _number(ctx, "gear_loss.v_stribeck", loss["v_stribeck"], positive=True)}
+
+
 def joint_context(path, idx, raw) -> _Ctx:
     """The context naming joint idx (and its name, if the raw table has one) of the file at path."""
     name = raw.get("name") if isinstance(raw, dict) else None
@@ -134,8 +145,9 @@ def actuator(ctx, t: dict, names) -> dict:
         cb_k=_number(ctx, "counterbalance.k", balance.get("k", 0.0), nonneg=True),
         cb_theta0=_number(ctx, "counterbalance.theta0", balance.get("theta0", 0.0)),
         c1=_number(ctx, "gear_loss.c1", loss.get("c1", 0.0), nonneg=True),
+        **_stribeck(ctx, loss),
         declared=frozenset([key for key in ("link_loss", "counterbalance") if key in t]
-                           + (["gear_loss.c1"] if "c1" in loss else [])),
+                           + [f"gear_loss.{key}" for key in ("c1", "stribeck") if key in loss]),
         limits=limits,
         slow_rotor=_body(ctx, "slow_rotor", t["slow_rotor"]),
         fast_rotor=_body(ctx, "fast_rotor", t["fast_rotor"]),

@@ -112,7 +112,9 @@ def document(model: ArmModel) -> dict:
                        **rotation_document(jt.R, "origin_rpy", "origin_R"), "gear_ratio": jt.gear_ratio,
                        "sea": {"k1": jt.k1, "k3": jt.k3, "d": jt.d},
                        "gear_loss": {"b": jt.b, "c": jt.c, "eps": jt.eps,
-                                     **({"c1": jt.c1} if jt.c1 or "gear_loss.c1" in jt.declared else {})},
+                                     **({"c1": jt.c1} if jt.c1 or "gear_loss.c1" in jt.declared else {}),
+                                     **({"stribeck": jt.stribeck, "v_stribeck": jt.v_stribeck}
+                                        if jt.stribeck or "gear_loss.stribeck" in jt.declared else {})},
                        **link_side_document(jt),
                        **({"limits": limits} if limits else {}),
                        **{b: body_document(getattr(jt, b)) for b in BODIES}})

@@ -46,7 +46,7 @@ INERTIAL = ("mass", "mx", "my", "mz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 ACTUATOR = ("sea.k1", "sea.k3", "sea.d", "gear_loss.b", "gear_loss.c", "link_loss.b", "link_loss.c",
             "counterbalance.k")
 ACTUATOR_ATTR = ("k1", "k3", "d", "b", "c", "link_b", "link_c", "cb_k")
-CONSTANTS = ("eps", "gear_ratio", "cb_theta0", "c1")   # per-joint numbers the dynamics read that p does not hold
+CONSTANTS = ("eps", "gear_ratio", "cb_theta0", "c1", "stribeck", "v_stribeck")   # per-joint numbers the dynamics read that p does not hold
 GRAVITY = ("gravity.x", "gravity.y", "gravity.z")
 PER_JOINT = len(BODIES) * len(INERTIAL) + len(ACTUATOR)
 

@@ -18,7 +18,7 @@ JOINT_KEYS = {"name", "origin_xyz", "origin_rpy", "origin_R", "gear_ratio", "sea
               "link", "slow_rotor", "fast_rotor", "link_loss", "counterbalance"}
 BODY_KEYS = {"mass", "com", "inertia"}
 SEA_KEYS = {"k1", "k3", "d"}
-GEAR_LOSS_KEYS = {"b", "c", "eps", "c1"}
+GEAR_LOSS_KEYS = {"b", "c", "eps", "c1", "stribeck", "v_stribeck"}
 LINK_LOSS_KEYS = {"b", "c"}                 # link side: b dtheta + c tanh(dtheta / eps)
 COUNTERBALANCE_KEYS = {"k", "theta0"}       # a joint spring beside the SEA: k (theta - theta0)
 LIMIT_KEYS = {"tau", "dphi", "psi", "theta"}
@@ -94,7 +94,10 @@ class Joint:
     cb_k: float = 0.0                    # counterbalance spring on the link (N m/rad), [joints.counterbalance] k
     cb_theta0: float = 0.0               # where it is relaxed (rad)
     c1: float = 0.0                      # the gear's load-dependent Coulomb loss, per N m it transmits
-    declared: frozenset = frozenset()    # the optional terms the file gives (link_loss, counterbalance, gear_loss.c1)
+    stribeck: float = 0.0                # the gear's static friction beyond c at rest (N m), falling off
+    v_stribeck: float = 1.0              # as exp(-(dphi / v_stribeck)^2) with the speed (rad/s)
+    declared: frozenset = frozenset()    # the optional terms the file gives (link_loss, counterbalance,
+    #                                      gear_loss.c1, gear_loss.stribeck)
 
     @property
     def R(self) -> np.ndarray:

@@ -75,7 +75,8 @@ class Numeric:
         psi, dpsi = np.asarray(phi) - theta, np.asarray(dphi) - dtheta
         T = m.column("k1") * psi + m.column("k3") * psi ** 3 + m.column("d") * dpsi
         load = np.sqrt(T ** 2 + 1e-6) - 1e-3                       # |T|, smoothed as the model's (1e-3 N m)
-        TB2 = m.column("b") * dphi + (m.column("c") + m.column("c1") * load) * np.tanh(np.asarray(dphi) / m.column("eps"))
+        static = m.column("stribeck") * np.exp(-(np.asarray(dphi) / m.column("v_stribeck")) ** 2)
+        TB2 = m.column("b") * dphi + (m.column("c") + m.column("c1") * load + static) * np.tanh(np.asarray(dphi) / m.column("eps"))
         return T, TB2
 
     def link_side(self, theta, dtheta):

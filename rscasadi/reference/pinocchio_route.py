@@ -45,7 +45,7 @@ class PinocchioRoute:
                 self.model.appendBodyToJoint(jid, _inertia(held.body, np.eye(3)), pin.SE3(R_a @ f.R, R_a @ f.p))
         self.G, self.data = G, self.model.createData()
         self._cols = {a: model.column(a) for a in ("k1", "k3", "d", "b", "c", "eps", "gear_ratio", "link_b", "link_c",
-                                                   "cb_k", "cb_theta0", "c1")}
+                                                   "cb_k", "cb_theta0", "c1", "stribeck", "v_stribeck")}
 
     @classmethod
     def from_urdf(cls, model):
@@ -74,7 +74,8 @@ class PinocchioRoute:
         k = self._cols
         psi, dpsi = np.asarray(phi) - theta, np.asarray(dphi) - dtheta
         T = k["k1"] * psi + k["k3"] * psi ** 3 + k["d"] * dpsi
-        TB2 = k["b"] * dphi + (k["c"] + k["c1"] * (np.sqrt(T ** 2 + 1e-6) - 1e-3)) * np.tanh(np.asarray(dphi) / k["eps"])
+        coulomb = k["c"] + k["c1"] * (np.sqrt(T ** 2 + 1e-6) - 1e-3) + k["stribeck"] * np.exp(-(np.asarray(dphi) / k["v_stribeck"]) ** 2)
+        TB2 = k["b"] * dphi + coulomb * np.tanh(np.asarray(dphi) / k["eps"])
         TL = k["link_b"] * dtheta + k["link_c"] * np.tanh(np.asarray(dtheta) / k["eps"]) + k["cb_k"] * (theta - k["cb_theta0"])
         L = np.linalg.cholesky(M)                          # M = L L^T, then two triangular solves
         ddq = np.linalg.solve(L.T, np.linalg.solve(L, np.r_[T - TL, -T - TB2 - k["gear_ratio"] * tau] - c))
