@@ -93,3 +93,19 @@ def test_a_logged_response_matches_the_model_and_the_command_draws_both(tmp_path
     assert "column 'tau_1'" in capsys.readouterr().err and not (tmp_path / "no").exists()
     with pytest.raises(LogError, match="tau_1"):
         log_frf(Log("link", log.t, log.theta, T=log.theta), 0)
+
+
+def test_the_coulomb_terms_are_left_out_of_the_linear_response():
+    """arm3 held against gravity (its springs loaded, so c1 |T| is not zero at rest) with every
+    Coulomb-like term (c, c1, Stribeck, link_c): the same response as without them, to 1e-12;
+    a viscous term (b) does change it (the comparison can tell)."""
+    import dataclasses
+    from rscasadi.dynamics.arm import Arm
+    arm = rscasadi.load(ROOT / "problems" / "arm3.toml")
+    f, pose = np.geomspace(1.0, 100.0, 200), [0.2, 0.6, -0.9]
+    change = lambda **kw: Arm(dataclasses.replace(arm.model, joints=tuple(dataclasses.replace(jt, **kw)  # noqa: E731
+                                                                           for jt in arm.model.joints)))
+    plain = model_frf(change(c=0.0), pose, 1, f)
+    sticky = model_frf(change(c=0.5, c1=0.05, stribeck=0.3, v_stribeck=0.1, link_c=0.2), pose, 1, f)
+    assert np.max(np.abs(sticky - plain) / np.abs(plain)) < 1e-12
+    assert np.max(np.abs(model_frf(change(c=0.0, b=5.0), pose, 1, f) - plain) / np.abs(plain)) > 1e-3

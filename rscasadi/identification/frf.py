@@ -7,9 +7,10 @@ w_a^2 = k1 / J_link) and a resonance where motor and link ring against each othe
 A rigid joint (the "armature" model) has neither: its response falls as 1 / w^2 throughout.
 
 Model: the complete model linearised at rest at a pose (the springs holding the links against
-gravity, `rest_state`), x' = A x + B tau, G(jw) = e_out (jw I - A)^-1 B e_j.  The Coulomb term
-c tanh(dphi / eps) is left out: linearised at dphi = 0 it would be a damping c / eps, where at a
-log's amplitudes it acts as a dead band; an FRF is the response of the linear part.  The rigid
+gravity, `rest_state`), x' = A x + B tau, G(jw) = e_out (jw I - A)^-1 B e_j.  The Coulomb terms
+(c, c1 |T| and Stribeck's on the gear, link_c on the link, each times tanh(speed / eps)) are left
+out: linearised at rest they would be a damping (c + c1 |T| + s) / eps, where at a log's
+amplitudes they act as a dead band; an FRF is the response of the linear part.  The rigid
 comparison is the same arm with every spring 1e6 times stiffer (its modes far above the band).
 
 Log: the H1 estimate P_tau,y / P_tau,tau (Welch, Hann windows, half overlap; scipy.signal) and
@@ -35,9 +36,10 @@ RIGID = 1e6          # the rigid comparison's springs, times the model's
 
 def linearised(arm: Arm, theta) -> tuple[np.ndarray, np.ndarray]:
     """(A, B) of x' = A x + B tau at rest at the pose theta (x = theta, phi, dtheta, dphi; the
-    Coulomb term left out)."""
+    Coulomb terms left out)."""
     import casadi as ca
-    plain = Arm(dataclasses.replace(arm.model, joints=tuple(dataclasses.replace(jt, c=0.0) for jt in arm.model.joints)))
+    plain = Arm(dataclasses.replace(arm.model, joints=tuple(dataclasses.replace(jt, c=0.0, c1=0.0, stribeck=0.0, link_c=0.0)
+                                                            for jt in arm.model.joints)))
     n, fd = plain.n, plain.forward_dynamics()
     x, u = ca.SX.sym("x", 4 * n), ca.SX.sym("u", n)
     f = ca.vertcat(x[2 * n:], *fd(*ca.vertsplit(x, n), u))
