@@ -99,7 +99,9 @@ def _cell(row: str, k: int, value: str) -> str:
     (lambda rows: rows.__setitem__(slice(30, None), []), "only"),
     (lambda rows: rows.__setitem__(3, rows[3] + ",1.0"), "line 4"),
     (lambda rows: rows.__setitem__(0, rows[0].replace("phi_", "T_")), "'tau_1' (motor torque) needs 'phi_1..phi_3'"),
-    (lambda rows: rows.__setitem__(0, rows[0].replace("tau_", "i_")), "unexpected column 'i_1' (a motor current"),
+    (lambda rows: rows.__setitem__(0, rows[0].replace("tau_", "current_")), "unexpected column 'current_1' (a motor current is i_j)"),
+    (lambda rows: rows.__setitem__(0, rows[0].replace("phi_", "i_")), "both motor torques (tau_j) and motor currents (i_j)"),
+    (lambda rows: rows.__setitem__(0, rows[0].replace("tau_", "i_").replace("phi_", "T_")), "'i_1' (motor current) needs 'phi_1..phi_3'"),
     (lambda rows: rows.__setitem__(0, rows[0].replace("tau_3", "T_3")), "missing column 'tau_3'"),
     (lambda rows: rows.__setitem__(0, rows[0].replace("phi_2", "theta_1")), "column 'theta_1' appears twice"),
     (lambda rows: rows.__setitem__(0, rows[0].replace("tau_", "dphi_")), "no torque column"),
@@ -113,6 +115,36 @@ def test_bad_logs_are_refused_naming_file_and_column(tmp_path, mutate, words):
     with pytest.raises(LogError) as err:
         read_log(path, 3)
     assert "run.csv" in str(err.value) and words in str(err.value)
+
+
+def test_motor_currents_become_motor_torques_with_the_torque_constants(tmp_path):
+    """A log of motor currents i_j: with the model file's torque_constant per joint, the motor
+    torques are kt_j i_j (what a log of tau_j gives, to the digit); a model without a torque
+    constant for some joints is refused naming them, by `identify` before any work."""
+    import dataclasses
+    from conftest import to_toml
+    from rscasadi.identification.identify import run
+    from rscasadi.identification.logs import motor_torques
+    from rscasadi.model.modelfile import document
+    lg, kt = _log(), np.array([0.05, 0.08, 0.11])
+    lg.tau = np.random.default_rng(4).normal(0, 0.3, lg.tau.shape)
+    write_log(tmp_path / "tau.csv", lg)
+    write_log(tmp_path / "i.csv", dataclasses.replace(lg, tau=None, i=lg.tau / kt[:, None]))
+    assert (tmp_path / "i.csv").read_text().splitlines()[0].split(",")[7:10] == ["i_1", "i_2", "i_3"]
+    doc = document(rscasadi.load(ROOT / "problems" / "arm3.toml").model)
+    for jt, k in zip(doc["joints"], kt):
+        jt["torque_constant"] = float(k)
+    (tmp_path / "kt.toml").write_text(to_toml(doc))
+    arm = rscasadi.load(tmp_path / "kt.toml")
+    assert [jt.torque_constant for jt in arm.model.joints] == kt.tolist()
+    assert document(arm.model)["joints"][2]["torque_constant"] == kt[2]
+    got, want = motor_torques(read_log(tmp_path / "i.csv", 3), arm.model), read_log(tmp_path / "tau.csv", 3)
+    assert got.i is None and np.max(np.abs(got.tau - want.tau)) < 1e-12 * np.max(np.abs(want.tau))
+    del doc["joints"][1]["torque_constant"], doc["joints"][2]["torque_constant"]
+    (tmp_path / "some.toml").write_text(to_toml(doc))
+    with pytest.raises(LogError, match=r"i.csv.*torque_constant.*shoulder_pitch, elbow_pitch"):
+        run(tmp_path / "some.toml", [tmp_path / "i.csv"], tmp_path / "out", log=lambda m: None)
+    assert not (tmp_path / "out").exists()
 
 
 def test_log_round_trip_with_torque_sensor(tmp_path):

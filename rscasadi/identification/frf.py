@@ -131,7 +131,7 @@ def run(model_file, out, log_file=None, joint: int = 1, output: str = "phi", pos
 
     from rscasadi.dynamics.arm import load
     from rscasadi.files import check_writable, fresh_directory, write_json
-    from rscasadi.identification.logs import read_log
+    from rscasadi.identification.logs import motor_torques, read_log
     from rscasadi.model.limits import limit_arrays
     check_writable(out)
     arm = load(model_file)
@@ -139,7 +139,7 @@ def run(model_file, out, log_file=None, joint: int = 1, output: str = "phi", pos
         raise InvalidArgument(f"frf: --joint {joint}: {model_file} has joints 1..{arm.n}")
     if output not in OUTPUTS:
         raise InvalidArgument(f"frf: --output must be one of {', '.join(OUTPUTS)}, got {output!r}")
-    lg = read_log(log_file, arm.n) if log_file else None
+    lg = motor_torques(read_log(log_file, arm.n), arm.model) if log_file else None
     if lg is not None and lg.tau is None:
         raise LogError(f"{log_file}: column 'tau_{joint}': a frequency response needs the motor torque (the input); "
                        f"the log has {lg.describe()}")

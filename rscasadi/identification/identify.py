@@ -36,7 +36,7 @@ from rscasadi.files import CheckError, check_writable, fresh_directory, write_js
 from rscasadi.model.modelfile import BODIES, ArmModel, document, to_toml
 from rscasadi.model.parameters import (ACTUATOR, ACTUATOR_ATTR, INERTIAL, PER_JOINT, body_from_parameters, n_linear,
                                        payload_slice)
-from rscasadi.identification.logs import Log, LogError, read_log
+from rscasadi.identification.logs import Log, LogError, motor_torques, read_log
 from rscasadi.identification.regressor import BaseParameters, base_of, random_samples, regressor, spring_regressor, stacked
 
 PRIOR = 0.3          # relative standard deviation of the prior on the model file's values
@@ -773,8 +773,8 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
     write the identified model file, its report and figures into `out`; returns (report, ident)."""
     check_writable(out)
     arm = load(model_file)
-    logs = [read_log(f, arm.n) for f in log_files]
-    val_log = read_log(validate, arm.n) if validate else None
+    logs = [motor_torques(read_log(f, arm.n), arm.model) for f in log_files]
+    val_log = motor_torques(read_log(validate, arm.n), arm.model) if validate else None
     if val_log is not None:                          # refused before the work, not after it
         fc = cutoff or cutoff_hz(arm, logs[0])[0]
         held_out = rows(arm, prepare(val_log, fc, arm=arm), Unknowns.of(arm.model, any(lg.T is not None for lg in logs)),

@@ -7,15 +7,17 @@ then whichever of these groups the robot has, each for every joint:
 |---|---|---|
 | `phi_j` | slow-side motor angle: the motor encoder divided by the gear ratio | |
 | `tau_j` | motor torque (motor side), the command held on [t_k, t_k+1) | `phi_j` |
+| `i_j` | motor current (A), instead of tau_j: tau_j = kt_j i_j, kt_j the model file's `torque_constant` | `phi_j` |
 | `T_j` | SEA output or joint torque sensor | |
 | `dtheta_j`, `dphi_j` | measured speeds, used instead of differentiated angles | `theta_j`, `phi_j` |
 
-At least one torque group (`tau` or `T`).  Joints are numbered base to tip; SI units (s, rad,
+At least one torque group (`tau`, `i` or `T`).  Joints are numbered base to tip; SI units (s, rad,
 N m); uniform sampling.  Every defect is refused naming the file and column.
 """
 from __future__ import annotations
 
 import csv
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,10 +25,10 @@ import numpy as np
 
 from rscasadi.model.modelfile import ModelFileError
 
-GROUPS = ("theta", "phi", "tau", "T", "dtheta", "dphi")        # the order a written log keeps
-NEEDS = {"tau": "phi", "dphi": "phi"}                          # a group that means nothing without another
-WHAT = {"theta": "link angle", "phi": "slow-side motor angle", "tau": "motor torque", "T": "SEA or joint torque",
-        "dtheta": "link speed", "dphi": "slow-side motor speed"}
+GROUPS = ("theta", "phi", "tau", "i", "T", "dtheta", "dphi")   # the order a written log keeps
+NEEDS = {"tau": "phi", "i": "phi", "dphi": "phi"}              # a group that means nothing without another
+WHAT = {"theta": "link angle", "phi": "slow-side motor angle", "tau": "motor torque", "i": "motor current",
+        "T": "SEA or joint torque", "dtheta": "link speed", "dphi": "slow-side motor speed"}
 
 
 class LogError(ModelFileError):
@@ -43,6 +45,7 @@ class Log:
     theta: np.ndarray          # (n, N)
     phi: np.ndarray | None = None
     tau: np.ndarray | None = None
+    i: np.ndarray | None = None
     T: np.ndarray | None = None
     dtheta: np.ndarray | None = None
     dphi: np.ndarray | None = None
@@ -91,7 +94,7 @@ def write_log(path, log: Log):
 
 def column_groups(path, cols: list, n: int) -> dict:
     """{group: [column index of joint 1..n]} from a header, every defect refused by name."""
-    expected = (f"t,theta_1..theta_{n} and any of the groups phi_j, tau_j, T_j, dtheta_j, dphi_j "
+    expected = (f"t,theta_1..theta_{n} and any of the groups phi_j, tau_j (or i_j), T_j, dtheta_j, dphi_j "
                 f"(j = 1..{n}) for a {n}-joint arm")
     seen: set = set()
     where: dict[str, dict[int, int]] = {}
@@ -116,15 +119,18 @@ def column_groups(path, cols: list, n: int) -> dict:
             raise LogError(f"{path}: header: missing column '{g}_{missing[0]}' ({WHAT[g]}s are logged for joints "
                            f"{', '.join(str(j) for j in sorted(js))}: a group is logged for every joint or none)")
     for c, group in unexpected:
-        hint = (" (a motor current: convert it to tau_j with the torque constant)" if group in ("i", "current")
-                else f" (this arm has {n} joints)" if group in GROUPS else "")
+        hint = (" (a motor current is i_j)" if group == "current" else f" (this arm has {n} joints)" if group in GROUPS
+                else "")
         raise LogError(f"{path}: header: unexpected column {c!r}{hint}; expected {expected}")
+    if "tau" in where and "i" in where:
+        raise LogError(f"{path}: header: both motor torques (tau_j) and motor currents (i_j): give one")
     for g, need in NEEDS.items():
         if g in where and need not in where:
             raise LogError(f"{path}: header: column '{g}_1' ({WHAT[g]}) needs '{need}_1..{need}_{n}' "
                            f"({WHAT[need]}), which the log lacks")
-    if "tau" not in where and "T" not in where:
-        raise LogError(f"{path}: header: no torque column: identification needs tau_1..tau_{n} (motor torque) "
+    if "tau" not in where and "i" not in where and "T" not in where:
+        raise LogError(f"{path}: header: no torque column: identification needs tau_1..tau_{n} (motor torque), "
+                       f"i_1..i_{n} (motor current) "
                        f"or T_1..T_{n} (SEA or joint torque); expected {expected}")
     return {g: [where[g][j] for j in range(1, n + 1)] for g in GROUPS if g in where}
 
@@ -171,3 +177,17 @@ def read_log(path, n: int, min_samples: int = 50) -> Log:
         raise LogError(f"{path}: column 't': sampling is not uniform (step {dt[i]:.6g} s at line {i + 3}, "
                        f"median {np.median(dt):.6g} s); resample the log first")
     return Log(str(path), t, **{g: data[:, idx].T for g, idx in groups.items()})
+
+
+def motor_torques(log: Log, model) -> Log:
+    """The log with its motor currents as motor torques, tau_j = kt_j i_j (kt_j the model's
+    `torque_constant`, N m/A); a log without currents as it is.  Refused, naming the joints,
+    where the model gives no torque constant."""
+    if log.i is None:
+        return log
+    missing = [jt.name for jt in model.joints if jt.torque_constant is None]
+    if missing:
+        raise LogError(f"{log.path}: column 'i_1' (motor current) needs each joint's torque_constant (N m/A, motor "
+                       f"side) in the model file {model.path}: none for {', '.join(missing)}")
+    kt = np.array([jt.torque_constant for jt in model.joints])
+    return dataclasses.replace(log, tau=kt[:, None] * log.i, i=None)

@@ -139,15 +139,15 @@ def run(model_file, log_files, out, validate=None, cutoff=None, log=print) -> di
 
     from rscasadi.dynamics.arm import load
     from rscasadi.files import check_writable, fresh_directory, write_json, write_text
-    from rscasadi.identification.logs import read_log
+    from rscasadi.identification.logs import motor_torques, read_log
     from rscasadi.model.modelfile import document, to_toml
     check_writable(out)
     arm = load(model_file)
     if arm.model.payload is None:
         raise CheckError(f"{model_file}: --only payload needs a [payload] table (its frame and a guess)")
-    logs = [read_log(f, arm.n) for f in log_files]
+    logs = [motor_torques(read_log(f, arm.n), arm.model) for f in log_files]
     check_logs(logs)
-    held_out = read_log(validate, arm.n) if validate else None
+    held_out = motor_torques(read_log(validate, arm.n), arm.model) if validate else None
     log(f"identifying the payload at {arm.model.payload.frame!r} of {arm.model.name} from {len(logs)} log(s), "
         "everything else held at the model file's values ...")
     res = identify_payload(arm, logs, cutoff)

@@ -89,7 +89,7 @@ def _body(ctx, fld, value) -> Body:
 
 
 ACTUATOR_KEYS = {"name", "gear_ratio", "sea", "gear_loss", "limits", "slow_rotor", "fast_rotor", "link_loss",
-                 "counterbalance"}
+                 "counterbalance", "torque_constant"}
 
 
 def _stribeck(ctx, loss: dict) -> dict:
@@ -146,6 +146,8 @@ def actuator(ctx, t: dict, names) -> dict:
         cb_theta0=_number(ctx, "counterbalance.theta0", balance.get("theta0", 0.0)),
         c1=_number(ctx, "gear_loss.c1", loss.get("c1", 0.0), nonneg=True),
         **_stribeck(ctx, loss),
+        **({"torque_constant": _number(ctx, "torque_constant", t["torque_constant"], positive=True)}
+           if "torque_constant" in t else {}),
         declared=frozenset([key for key in ("link_loss", "counterbalance") if key in t]
                            + [f"gear_loss.{key}" for key in ("c1", "stribeck") if key in loss]),
         limits=limits,

@@ -116,6 +116,7 @@ def document(model: ArmModel) -> dict:
                                      **({"stribeck": jt.stribeck, "v_stribeck": jt.v_stribeck}
                                         if jt.stribeck or "gear_loss.stribeck" in jt.declared else {})},
                        **link_side_document(jt),
+                       **({"torque_constant": jt.torque_constant} if jt.torque_constant is not None else {}),
                        **({"limits": limits} if limits else {}),
                        **{b: body_document(getattr(jt, b)) for b in BODIES}})
     frames, held, shape = frames_document(model), payload_document(model), collision_document(model)

@@ -15,7 +15,7 @@ from rscasadi.errors import Error, NotFound
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
 TOP_KEYS = {"name", "gravity", "joints", "frames", "payload", "collision"}
 JOINT_KEYS = {"name", "origin_xyz", "origin_rpy", "origin_R", "gear_ratio", "sea", "gear_loss", "limits",
-              "link", "slow_rotor", "fast_rotor", "link_loss", "counterbalance"}
+              "link", "slow_rotor", "fast_rotor", "link_loss", "counterbalance", "torque_constant"}
 BODY_KEYS = {"mass", "com", "inertia"}
 SEA_KEYS = {"k1", "k3", "d"}
 GEAR_LOSS_KEYS = {"b", "c", "eps", "c1", "stribeck", "v_stribeck"}
@@ -96,6 +96,7 @@ class Joint:
     c1: float = 0.0                      # the gear's load-dependent Coulomb loss, per N m it transmits
     stribeck: float = 0.0                # the gear's static friction beyond c at rest (N m), falling off
     v_stribeck: float = 1.0              # as exp(-(dphi / v_stribeck)^2) with the speed (rad/s)
+    torque_constant: float | None = None  # N m/A, motor side: logged currents i_j become tau_j = kt i_j
     declared: frozenset = frozenset()    # the optional terms the file gives (link_loss, counterbalance,
     #                                      gear_loss.c1, gear_loss.stribeck)
 
