@@ -120,7 +120,8 @@ def test_bad_logs_are_refused_naming_file_and_column(tmp_path, mutate, words):
 def test_motor_currents_become_motor_torques_with_the_torque_constants(tmp_path):
     """A log of motor currents i_j: with the model file's torque_constant per joint, the motor
     torques are kt_j i_j (what a log of tau_j gives, to the digit); a model without a torque
-    constant for some joints is refused naming them, by `identify` before any work."""
+    constant for some joints is refused naming them, by `identify` and `simulate` before any work;
+    `simulate` logs the currents of a model that has them."""
     import dataclasses
     from conftest import to_toml
     from rscasadi.identification.identify import run
@@ -145,6 +146,13 @@ def test_motor_currents_become_motor_torques_with_the_torque_constants(tmp_path)
     with pytest.raises(LogError, match=r"i.csv.*torque_constant.*shoulder_pitch, elbow_pitch"):
         run(tmp_path / "some.toml", [tmp_path / "i.csv"], tmp_path / "out", log=lambda m: None)
     assert not (tmp_path / "out").exists()
+    traj = ROOT / "problems" / "trajectory_arm3.toml"                 # simulate logs currents likewise
+    assert main(["simulate", str(tmp_path / "some.toml"), str(traj), "--out", str(tmp_path / "sim.csv"),
+                 "--columns", "theta,phi,i"]) == 2 and not (tmp_path / "sim.csv").exists()
+    assert main(["simulate", str(tmp_path / "kt.toml"), str(traj), "--out", str(tmp_path / "sim.csv"), "--rate", "250",
+                 "--columns", "theta,phi,i", "--noise", "0"]) in (0, None)
+    sim = read_log(tmp_path / "sim.csv", 3)
+    assert sim.tau is None and sim.i is not None and np.all(np.abs(sim.i * kt[:, None]) <= 0.6 + 1e-9)
 
 
 def test_log_round_trip_with_torque_sensor(tmp_path):

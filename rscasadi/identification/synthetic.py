@@ -93,7 +93,8 @@ def record(true_arm: Arm, nominal_arm: Arm, trajectory, rate: float = 1000.0, rn
     x = run.x[:, :N]
     T = spring_torque(true_arm.model, x[:n], x[n:2 * n], x[2 * n:3 * n], x[3 * n:])
     noisy = lambda v, s: v + rng.normal(0, 1, v.shape) * s
-    measured = {"theta": run.meas[:n], "phi": run.meas[n:2 * n], "tau": tau_logged,
+    kt = np.array([jt.torque_constant or np.nan for jt in nominal_arm.model.joints])     # currents: tau / kt
+    measured = {"theta": run.meas[:n], "phi": run.meas[n:2 * n], "tau": tau_logged, "i": tau_logged / kt[:, None],
                 "T": noisy(T, SENSOR_NOISE["T"] * np.max(np.abs(T), axis=1, keepdims=True)),
                 "dtheta": noisy(x[2 * n:3 * n], SENSOR_NOISE["dtheta"]), "dphi": noisy(x[3 * n:], SENSOR_NOISE["dphi"])}
     pick = slice(None, None, every)
@@ -138,6 +139,10 @@ def simulate_log(model, trajectory, out, rate: float = 1000.0, noise: float = 0.
                    nominal.n)
     except LogError as exc:
         raise InvalidArgument(str(exc).replace("header: ", "")) from None
+    lacking = [jt.name for jt in nominal.model.joints if jt.torque_constant is None]
+    if "i" in groups and lacking:
+        raise InvalidArgument(f"simulate --columns: motor currents (i) need each joint's torque_constant in {model}: "
+                              f"none for {', '.join(lacking)}")
     every = int(round(rate / log_rate)) if log_rate else 1
     if log_rate and (every < 1 or abs(every * log_rate - rate) > 1e-9 * rate):
         raise InvalidArgument(f"simulate: --log-rate {log_rate:g} must divide --rate {rate:g}")
