@@ -450,3 +450,17 @@ def test_identification_on_logs_mujoco_recorded(excitation, tmp_path):
     found = rscasadi.load(tmp_path / "ident" / "model.toml")
     for mine, theirs in zip(found.model.joints, true.model.joints):
         assert abs(mine.k1 - theirs.k1) < 0.01 * theirs.k1, (mine.name, mine.k1, theirs.k1)
+
+
+def test_synthetic_sensors_read_with_an_offset_and_a_latency():
+    """record's torque sensor with offsets and a 2 ms latency reads what the plain one read 2 ms
+    before, plus the offset, to the digit (the same draws of noise)."""
+    from rscasadi.identification.synthetic import record
+    arm = rscasadi.load(REFERENCE)
+    traj = load_trajectory(ROOT / "problems" / "trajectory_arm3.toml")
+    kw = {"rate": 500.0, "columns": ("theta", "T")}
+    plain, _ = record(arm, arm, traj, rng=np.random.default_rng(3), **kw)
+    real, _ = record(arm, arm, traj, rng=np.random.default_rng(3), offsets={"T": [0.1, -0.2, 0.3]},
+                     delays={"T": 0.004}, **kw)
+    assert np.array_equal(real.theta, plain.theta)
+    assert np.max(np.abs(real.T[:, 2:] - plain.T[:, :-2] - np.array([[0.1], [-0.2], [0.3]]))) < 1e-12

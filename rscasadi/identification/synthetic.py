@@ -66,14 +66,17 @@ SENSOR_NOISE = {"T": 0.005, "dtheta": 1e-3, "dphi": 1e-3}   # a torque sensor: o
 
 def record(true_arm: Arm, nominal_arm: Arm, trajectory, rate: float = 1000.0, rng=None,
            torque_noise: float = 0.005, substeps: int = 4, ff_step: float = 0.002, plant=None,
-           columns=("theta", "phi", "tau"), every: int = 1) -> tuple[Log, dict]:
+           columns=("theta", "phi", "tau"), every: int = 1, offsets: dict | None = None,
+           delays: dict | None = None) -> tuple[Log, dict]:
     """Drive the true arm along `trajectory` (nominal feedforward + motor-side PD) and log what its
     sensors see: the one closed loop (rscasadi.sim.loop) on `plant` (default: `substeps` RK4 steps
     of the true arm's complete model per sample; e.g. rscasadi.export.mujoco.mujoco_plant(true_arm,
     dt)), quantised encoders, the applied torques (within the limits) logged with noise of
     `torque_noise` times each limit.  `columns`: the groups logged (rscasadi.identification.logs:
     T the true spring torque with noise of SENSOR_NOISE["T"] of its largest magnitude, speeds the
-    true ones with SENSOR_NOISE's noise); `every`: one logged sample per `every` control steps.
+    true ones with SENSOR_NOISE's noise); `every`: one logged sample per `every` control steps;
+    `offsets` {group: per-joint values} added to what a sensor reads (a torque sensor's zero);
+    `delays` {group: seconds} by which a sensor's samples lag (its latency, whole control steps).
     Returns the log and the true state history {t, x, tau_applied}."""
     rng = np.random.default_rng(0) if rng is None else rng
     n, dt = true_arm.n, 1.0 / rate
@@ -97,6 +100,11 @@ def record(true_arm: Arm, nominal_arm: Arm, trajectory, rate: float = 1000.0, rn
     measured = {"theta": run.meas[:n], "phi": run.meas[n:2 * n], "tau": tau_logged, "i": tau_logged / kt[:, None],
                 "T": noisy(T, SENSOR_NOISE["T"] * np.max(np.abs(T), axis=1, keepdims=True)),
                 "dtheta": noisy(x[2 * n:3 * n], SENSOR_NOISE["dtheta"]), "dphi": noisy(x[3 * n:], SENSOR_NOISE["dphi"])}
+    for g, value in (offsets or {}).items():
+        measured[g] = measured[g] + np.asarray(value, float)[:, None]
+    for g, lag in (delays or {}).items():
+        k = int(round(lag / dt))
+        measured[g] = np.hstack([np.repeat(measured[g][:, :1], k, axis=1), measured[g][:, :measured[g].shape[1] - k]])
     pick = slice(None, None, every)
     log = Log("<synthetic>", t[pick], **{g: measured[g][:, pick] for g in columns})
     return log, {"t": t, "x": x, "tau": run.tau}
