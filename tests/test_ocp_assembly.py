@@ -2,7 +2,6 @@
 through its model calls) against CasADi's AD of the whole NLP graph: every objective, explicit and
 implicit dynamics, design variables carried as states, fixed model parameters, random points and
 multipliers; and the functions a compiled solver loads are those assembled ones."""
-import dataclasses
 
 import casadi as ca
 import numpy as np
