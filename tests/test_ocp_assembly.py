@@ -101,7 +101,7 @@ def test_a_compiled_piece_is_its_functions_for_any_mesh():
     values to 1e-12 at random points; the stage of another mesh (a refinement round) is the same
     library and compiles nothing; the lifted NLP solved on two meshes, compiled, ends where
     CasADi's virtual machine ends."""
-    from rscasadi.ocp.assembly import derivative_functions, symbols
+    from rscasadi.ocp.assembly import derivative_functions
     from rscasadi.ocp.solvers import compiled_piece
     tr, *_ = transcription("ocp_min_time", N=4)
     rng = np.random.default_rng(5)
