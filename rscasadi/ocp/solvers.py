@@ -6,8 +6,8 @@ Compiled, the NLP is two kinds of C: each piece's functions (a stage's rows, obj
 their derivatives; the start's and the end's), which do not depend on the mesh, each compiled
 once into its own library cached by its own hash; and the NLP's glue (the maps over the
 intervals and the placement of the pieces' nonzeros), which does, small and quick to compile.
-A refinement round, another mesh or the other solver then compiles only the glue (Baxter's
-7-joint lifted stage: 196 s of gcc once, not once per round)."""
+A refinement round, another mesh or the other solver then compiles only the glue (arm3's
+minimum-time NLP, lifted: 1.2-3.3 s of glue a round, against 12-22 s for the whole NLP)."""
 from __future__ import annotations
 
 import dataclasses
