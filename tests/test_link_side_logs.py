@@ -133,20 +133,22 @@ def test_a_motor_side_log_with_friction_the_model_only_approximates(panda_logs, 
     are predicted as well as by an independent least-squares fit on the same data (within 10 %
     of its error, joint by joint, or 1e-3), far better than by the model file, and c1 comes out
     within 30 % on the joints that carry load."""
-    from rscasadi.identification.identify import run
+    from rscasadi.identification import identify as I
     d, recorded = panda_logs
     logs = sensors(d, recorded, ("theta", "phi", "tau"))
     said = []
-    first, _ = run(d / "declared.toml", [logs["ident"]], tmp_path / "default", validate=logs["valid"], log=said.append)
+    first, _ = I.run(d / "declared.toml", [logs["ident"]], tmp_path / "default", validate=logs["valid"], log=said.append)
     assert first["rows"] == ["tau", "spring"]
     best = min(first["validation"]["cutoff_check"], key=lambda c: c["held_out_worst"])
     assert best["factor"] < 1.0 and any(f"try --cutoff {best['cutoff_hz']:.1f}" in line for line in said), said
-    report, ident = run(d / "declared.toml", [logs["ident"]], tmp_path / "identified", validate=logs["valid"],
-                        cutoff=best["cutoff_hz"], log=lambda m: None)
-    ours = np.array([report["validation"]["prediction"][f"tau_{j}"]["relative"] for j in range(1, 8)])
-    nominal_err = np.array([report["validation"]["nominal"][f"tau_{j}"]["relative"] for j in range(1, 8)])
+    # identified there (what `identify --cutoff` fits), predicting the held-out log as run() does
+    arm = rscasadi.load(d / "declared.toml")
+    ident = I.identify(arm, [read_log(logs["ident"], 7)], fc=best["cutoff_hz"])
+    held = I.rows(arm, I.prepare(read_log(logs["valid"], 7), ident.cutoff_hz, arm=arm), ident.unknowns, False, ident.model)
+    ours = np.array([I.predict(held, ident.th)[f"tau_{j}"]["relative"] for j in range(1, 8)])
+    nominal_err = np.array([I.predict(held, ident.th_nominal)[f"tau_{j}"]["relative"] for j in range(1, 8)])
     theirs = motor_side_fit(rscasadi.load(PANDA), read_log(logs["ident"], 7), read_log(logs["valid"], 7),
-                            report["cutoff_hz"])
+                            ident.cutoff_hz)
     assert np.all(ours <= 1.1 * theirs + 1e-3), (ours, theirs)
     assert np.all(ours < 0.3 * nominal_err), (ours, nominal_err)
     c1 = np.array([jt.c1 for jt in ident.model.joints])

@@ -15,7 +15,8 @@
    the standard deviation of every identifiable combination.
 4. A physically consistent model (`physical_fit`): each body's pseudo-inertia J is positive
    definite (a linear matrix inequality, Wensing, Kim and Slotine 2017; balanced rotors keep
-   their balanced parameters), k1 > 0 and k3, d, b, c >= 0, fitted to the base estimate in its
+   their balanced parameters), k1 > 0 and k3, d, b, c (and c1, the Stribeck excess, the link
+   losses and the counterbalance where declared) >= 0, fitted to the base estimate in its
    information metric plus a weak prior (30 %) on the model file's values for the directions the
    data cannot see: a convex semidefinite program (cvxpy, Clarabel) with one optimum.
 """
