@@ -96,10 +96,11 @@ def record(true_arm: Arm, nominal_arm: Arm, trajectory, rate: float = 1000.0, rn
     x = run.x[:, :N]
     T = spring_torque(true_arm.model, x[:n], x[n:2 * n], x[2 * n:3 * n], x[3 * n:])
     noisy = lambda v, s: v + rng.normal(0, 1, v.shape) * s
-    kt = np.array([jt.torque_constant or np.nan for jt in nominal_arm.model.joints])     # currents: tau / kt
-    measured = {"theta": run.meas[:n], "phi": run.meas[n:2 * n], "tau": tau_logged, "i": tau_logged / kt[:, None],
+    measured = {"theta": run.meas[:n], "phi": run.meas[n:2 * n], "tau": tau_logged,
                 "T": noisy(T, SENSOR_NOISE["T"] * np.max(np.abs(T), axis=1, keepdims=True)),
                 "dtheta": noisy(x[2 * n:3 * n], SENSOR_NOISE["dtheta"]), "dphi": noisy(x[3 * n:], SENSOR_NOISE["dphi"])}
+    if "i" in columns:                                  # motor currents: tau / kt (simulate checks kt is given)
+        measured["i"] = tau_logged / np.array([jt.torque_constant for jt in nominal_arm.model.joints])[:, None]
     for g, value in (offsets or {}).items():
         measured[g] = measured[g] + np.asarray(value, float)[:, None]
     for g, lag in (delays or {}).items():
