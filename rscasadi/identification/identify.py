@@ -144,23 +144,75 @@ def sea_modes_hz(arm: Arm, theta) -> np.ndarray:
 
 
 def cutoff_hz(arm: Arm, log: Log) -> tuple[float, str]:
-    """The filter cut-off for this arm and log, and why.  A log with motor angles: twice the
-    highest SEA mode at the log's mean pose, at least 20 Hz, at most half the Nyquist frequency
-    (the spring rows carry k1 and d in those modes).  A link-side log (no motor angle, so no
-    spring rows): where the logged motion ends, `motion_cutoff_hz`."""
+    """The filter cut-off for this arm and log, and why.  A link-side log (no motor angle, so no
+    spring rows): where the logged motion ends, `motion_cutoff_hz`.  A log with motor angles:
+    `motor_side_cutoff_hz`, the motion's band unless the log excites the SEA modes."""
     if log.link_side:
         return motion_cutoff_hz(log)
+    return motor_side_cutoff_hz(arm, log)
+
+
+SIGNAL_OVER_NOISE = 100.0     # motion (or a ringing mode): where a spectrum is this far above its noise
+MODE_BAND = 0.15         # ... within this relative distance of the mode at the mean pose (the modes move with it)
+
+
+def excited_modes(arm: Arm, log: Log) -> tuple[np.ndarray, np.ndarray]:
+    """The SEA modes at the log's mean pose (`sea_modes_hz`) and, for each, how far the spring
+    deflection phi - theta rises above its noise floor near it (Welch, the largest over joints
+    and over MODE_BAND about the mode; the floor is the median of the top fifth of the band).  A
+    smooth motion leaves the modes near the noise (the Panda's Fourier motions: 3-45x); steps,
+    bumps and a rich excitation ring them (500-30000x, the reference arm's logs)."""
     modes = sea_modes_hz(arm, np.mean(log.theta, axis=1))
+    fs, nyquist = 1.0 / log.dt, 0.5 / log.dt
+    f, P = scipy.signal.welch(log.phi - log.theta, fs=fs, nperseg=min(log.t.size, max(256, int(4 * fs))),
+                              detrend="linear", axis=1)
+    floor = np.maximum(np.median(P[:, f >= 0.8 * nyquist], axis=1), 1e-300)
+    rise = np.array([float(np.max(P[:, near] / floor[:, None])) if np.any(near := np.abs(f - m) <= MODE_BAND * m)
+                     else 0.0 for m in modes])
+    return modes, rise
+
+
+def motor_side_cutoff_hz(arm: Arm, log: Log) -> tuple[float, str]:
+    """The cut-off of a log with motor angles: CUTOFF_FACTOR x the highest SEA mode the log
+    excites (`excited_modes`; a mode rings where the deflection rises SIGNAL_OVER_NOISE above its
+    noise: ringing springs carry k1 and d, and a filter through them biased k1 by 100 standard
+    deviations at 1.5x), else 1.5x where the motor and link angles'
+    motion ends (`band_ends_hz`: above it differentiation amplifies only noise); never above
+    CUTOFF_FACTOR x the highest mode, at least 20 Hz, at most half the Nyquist frequency."""
+    modes, rise = excited_modes(arm, log)
     nyquist = 0.5 / log.dt
-    fc = min(max(20.0, CUTOFF_FACTOR * modes.max()), 0.5 * nyquist)
-    why = (f"{fc:.1f} Hz: {CUTOFF_FACTOR:g}x the highest SEA mode ({modes.max():.1f} Hz; modes "
-           f"{', '.join(f'{m:.1f}' for m in modes)} Hz at the mean pose), so the spring dynamics that carry "
-           f"k1 and d pass, while encoder quantisation amplified by differentiation is cut above them "
-           f"(Nyquist {nyquist:.0f} Hz)")
+    ends = band_ends_hz(log.theta, log.dt)
+    rung = modes[rise >= SIGNAL_OVER_NOISE]
+    need = CUTOFF_FACTOR * rung.max() if rung.size else 0.0
+    fc = min(max(20.0, need, 1.5 * ends.max()), CUTOFF_FACTOR * modes.max(), 0.5 * nyquist)
+    listed = ", ".join(f"{m:.1f} ({r:.0f}x)" for m, r in zip(modes, rise))
+    if rung.size and fc == need:
+        reason = (f"{CUTOFF_FACTOR:g}x the highest SEA mode the log excites ({rung.max():.1f} Hz), so the ringing "
+                  "springs that carry k1 and d pass")
+    else:
+        reason = (f"the logged motion ends at {ends.max():.1f} Hz (joint {int(np.argmax(ends)) + 1}'s link angle) and "
+                  f"no SEA mode above it rings: 1.5x that, so the accelerations keep the motion and lose the noise "
+                  f"that differentiation amplifies")
+        reason += {20.0: ", raised to 20 Hz (the lowest for motor rows)",
+                   CUTOFF_FACTOR * modes.max(): f", capped at {CUTOFF_FACTOR:g}x the highest SEA mode",
+                   0.5 * nyquist: ", capped at half the Nyquist frequency"}.get(fc, "")
+    why = (f"{fc:.1f} Hz: {reason} (SEA modes at the mean pose, Hz, and how far the deflection rises above its "
+           f"noise there: {listed}; a mode rings above {SIGNAL_OVER_NOISE:g}x; Nyquist {nyquist:.0f} Hz)")
     return fc, why
 
 
-SIGNAL_OVER_NOISE = 100.0     # the motion's band: where the link angles' spectrum is this far above the noise
+def band_ends_hz(x: np.ndarray, dt: float) -> np.ndarray:
+    """Per row of x (joints x samples): the highest frequency at which its power spectrum (Welch,
+    detrended) is still SIGNAL_OVER_NOISE above its noise floor (the median of the top fifth of
+    the band): where the logged motion ends."""
+    fs, nyquist = 1.0 / dt, 0.5 / dt
+    f, P = scipy.signal.welch(x, fs=fs, nperseg=min(x.shape[1], max(256, int(4 * fs))), detrend="linear", axis=1)
+    ends = []
+    for Pj in P:
+        floor = max(float(np.median(Pj[f >= 0.8 * nyquist])), 1e-300)
+        above = np.flatnonzero(Pj[1:] > SIGNAL_OVER_NOISE * floor) + 1
+        ends.append(float(f[above[-1]]) if above.size else float(f[1]))
+    return np.array(ends)
 
 
 def motion_cutoff_hz(log: Log) -> tuple[float, str]:
@@ -170,14 +222,8 @@ def motion_cutoff_hz(log: Log) -> tuple[float, str]:
     and the cut-off is 1.5x the widest joint's band end (at least 1 Hz, at most 0.4 Nyquist).
     Differentiating twice multiplies the noise by (2 pi f)^2, so everything above the motion is
     noise in the accelerations; the SEA modes carry nothing these rows can identify."""
-    fs, nyquist = 1.0 / log.dt, 0.5 / log.dt
-    f, P = scipy.signal.welch(log.theta, fs=fs, nperseg=min(log.t.size, max(256, int(4 * fs))), detrend="linear",
-                              axis=1)
-    ends = []
-    for Pj in P:
-        floor = max(float(np.median(Pj[f >= 0.8 * nyquist])), 1e-300)
-        above = np.flatnonzero(Pj[1:] > SIGNAL_OVER_NOISE * floor) + 1
-        ends.append(float(f[above[-1]]) if above.size else float(f[1]))
+    nyquist = 0.5 / log.dt
+    ends = band_ends_hz(log.theta, log.dt)
     widest = int(np.argmax(ends))
     fc = float(min(max(1.5 * ends[widest], 1.0), 0.4 * nyquist))
     why = (f"{fc:.1f} Hz: 1.5x where the logged motion ends ({ends[widest]:.1f} Hz, joint {widest + 1}: its link "
