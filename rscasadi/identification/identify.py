@@ -22,6 +22,7 @@
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 import warnings
 from dataclasses import dataclass
@@ -60,16 +61,23 @@ class Unknowns:
     names: list
     E: np.ndarray
     kinds: list        # per entry: ("link" | "rotor", joint, body), ("actuator", joint, attr),
-    #                    ("offset", joint, "T"), ("c1", joint, "gear_loss.c1") or ("stribeck", joint,
-    #                    "gear_loss.stribeck"): the last three not in p_lin
+    #                    ("offset", joint, "T"), ("c1", joint, "gear_loss.c1"), ("stribeck", joint,
+    #                    "gear_loss.stribeck") or ("kt", joint, "torque_constant"): the last four not in p_lin
     fixed: dict        # {index: nominal} of the unknowns not in p_lin (E's column zero)
+    shift: dict = dataclasses.field(default_factory=dict)   # {index: value}: th holds value - shift there
 
     @staticmethod
-    def of(model: ArmModel, sensor_offsets: bool = False, load_losses: bool = True) -> "Unknowns":
+    def of(model: ArmModel, sensor_offsets: bool = False, load_losses: bool = True,
+           torque_constants: str | None = None) -> "Unknowns":
         """The unknowns of `model`; sensor_offsets: one more per joint, the offset of its T
         sensor (T_j logged = T_j + offset); load_losses: the gear's load-dependent loss c1 and its
-        Stribeck excess at the joints whose file gives them (at the file's v_stribeck).  None is in
-        p_lin (their columns of E are zero): `rows` forms their columns from the data."""
+        Stribeck excess at the joints whose file gives them (at the file's v_stribeck);
+        torque_constants: the motors' torque constants, from logged currents (`kt_scale`):
+        "sensor", each one (a logged T fixes the scale); "ratios", all but the last joint's, which
+        follows from them: their mean relative change is held at zero (currents alone fix tau = kt
+        i only up to a scale every parameter shares).  Each is held in th as its change from the
+        file's (`shift`), so that the motor-torque rows keep tau = kt_file i as their data.
+        None of these is in p_lin (their columns of E are zero): `rows` forms their columns from the data."""
         n_lin = n_linear(model)
         cols, names, kinds = [], [], []
 
@@ -107,7 +115,35 @@ class Unknowns:
             if sensor_offsets:
                 fixed[len(names)] = 0.0
                 add(f"{jt.name}.T_offset", [], ("offset", j, "T"))
-        return Unknowns(names, np.array(cols).T, kinds, fixed)
+        shift = {}
+        for j, jt in enumerate(model.joints):
+            if torque_constants == "sensor" or (torque_constants == "ratios" and j < model.n - 1):
+                fixed[len(names)], shift[len(names)] = 0.0, jt.torque_constant
+                add(f"{jt.name}.torque_constant", [], ("kt", j, "torque_constant"))
+        return Unknowns(names, np.array(cols).T, kinds, fixed, shift)
+
+    def kt_change(self, model: ArmModel) -> np.ndarray:
+        """(n, len(th)): each motor's torque-constant change kt_j - kt_file_j as a linear function
+        of th (zero rows without currents; with "ratios" the last joint's from the others')."""
+        K = np.zeros((model.n, len(self.names)))
+        for k, j in self.torque_constants():
+            K[j, k] = 1.0
+        if self.torque_constants() and len(self.torque_constants()) < model.n:     # sum_j change_j / kt_j = 0
+            kt = model.column("torque_constant")
+            for k, j in self.torque_constants():
+                K[-1, k] = -kt[-1] / kt[j]
+        return K
+
+    def values(self, th) -> np.ndarray:
+        """th as the parameters' values: a torque constant's change from the file's plus the file's."""
+        out = np.asarray(th, float).copy()
+        for k, v in self.shift.items():
+            out[k] += v
+        return out
+
+    def torque_constants(self) -> list:
+        """(index in th, joint) of every motor's torque constant (its change from the file's)."""
+        return [(k, kind[1]) for k, kind in enumerate(self.kinds) if kind[0] == "kt"]
 
     def offsets(self) -> list:
         """(index in th, joint) of every sensor offset."""
@@ -249,6 +285,7 @@ class Signals:
     T: np.ndarray | None
     t: np.ndarray
     phi_measured: bool = True
+    i: np.ndarray | None = None     # the motor currents, filtered as tau, where logged
 
     def state(self):
         return [self.theta, self.phi, self.dtheta, self.dphi, self.ddtheta, self.ddphi]
@@ -280,7 +317,7 @@ def prepare(log: Log, fc: float, decimate: int | None = None, arm: Arm | None = 
     cut = lambda x: None if x is None else x[:, keep]
     return Signals(theta[:, keep], phi[:, keep], dtheta[:, keep], dphi[:, keep], d(dtheta)[:, keep],
                    d(dphi)[:, keep], cut(None if log.tau is None else lp(held(log.tau))), cut(T), log.t[keep],
-                   log.phi is not None)
+                   log.phi is not None, cut(None if log.i is None else lp(held(log.i))))
 
 
 # ----------------------------------------------------------------------------- rows
@@ -344,6 +381,10 @@ def rows(arm: Arm, sig: Signals, unknowns: Unknowns, reduced: bool = False, spri
         w = stribeck_column(arm, sig.dphi)
         for k, j in unknowns.stribeck():
             Y[j, :, k] = w[j]
+    if unknowns.torque_constants() and sig.i is not None:   # Y th - (kt - kt_file) i = kt_file i
+        K = unknowns.kt_change(arm.model)
+        for j in range(n):
+            Y[j] -= sig.i[j][:, None] * K[j][None, :]
     Ys = np.array(spring_regressor(arm).map(count)(*sig.state()[:4])).reshape(n, count, -1) @ unknowns.E
     # near a velocity reversal the Coulomb term c tanh(dphi / eps) jumps within milliseconds, and
     # the filtered torque no longer equals the loss at the filtered speed: those rows are left out
@@ -449,6 +490,10 @@ def structural_base(arm: Arm, unknowns: Unknowns, samples: int = 200, reduced: b
         w = stribeck_column(arm, dphi)
         for k, j in unknowns.stribeck():
             W[j::rows_per, k] = w[j]
+    if "tau" in kinds and unknowns.torque_constants():     # and the currents (any: a motor's own column)
+        currents, K = np.random.default_rng(1).normal(size=(arm.n, samples)), unknowns.kt_change(arm.model)
+        for j in range(arm.n):
+            W[j::rows_per] -= currents[j][:, None] * K[j][None, :]
     return base_of(W, unknowns.names, rtol=1e-9)
 
 
@@ -561,6 +606,8 @@ def physical_fit(arm: Arm, unknowns: Unknowns, ls: LeastSquares, th_nominal: np.
             if f"{jt.name}.{attr}" in unknowns.names:
                 k = unknowns.names.index(f"{jt.name}.{attr}")
                 cons.append(x[k] >= (1e-3 if attr == "sea.k1" else 0.0))
+    for k, _ in unknowns.torque_constants():              # kt > 0: th = kt - kt_file, scaled by kt_file
+        cons.append(x[k] >= 1e-3 - 1.0)
     d = 1.0 / np.sqrt(np.maximum(np.diag(ls.info), 1e-300))
     W = np.linalg.cholesky(d[:, None] * ls.info * d[None, :]).T / d[None, :]     # W^T W = info
     data = W @ ls.base.P @ np.diag(scale)
@@ -592,6 +639,8 @@ def prior_scale(unknowns: Unknowns, th_nominal) -> np.ndarray:
         elif q == "k3":
             k1 = th_nominal[unknowns.names.index(name.replace("sea.k3", "sea.k1"))]
             scale[k] = k1 / 0.05 ** 2
+        elif k in unknowns.shift:                         # a torque constant's change: the file's kt
+            scale[k] = abs(unknowns.shift[k])
         else:                                             # a loss (b, c, d) with nominal 0
             scale[k] = 1.0
     return np.maximum(scale, 1e-12)
@@ -610,6 +659,8 @@ def identified_model(arm: Arm, unknowns: Unknowns, th: np.ndarray) -> ArmModel:
         act = {a: float(v) for a, v in zip(ACTUATOR_ATTR, p[base + 30: base + PER_JOINT])}
         act.update({"c1": float(th[k]) for k, jj in unknowns.load_losses() if jj == j})
         act.update({"stribeck": float(th[k]) for k, jj in unknowns.stribeck() if jj == j})
+        if unknowns.torque_constants():
+            act["torque_constant"] = float(jt.torque_constant + unknowns.kt_change(arm.model)[j] @ th)
         joints.append(dataclasses.replace(jt, **act, **bodies))
     held = arm.model.payload
     if held is not None:
@@ -658,9 +709,20 @@ class Identification:
         return float(c @ self.th), self.ls.std_of(c)
 
 
+def kt_scale(logs: list[Log]) -> str | None:
+    """How the logs determine the motors' torque constants (`Unknowns.of`): None without currents;
+    "sensor" where a torque sensor's T fixes the scale; else "ratios": currents give tau = kt i
+    only up to a scale that every other parameter shares (kt, the inertias, springs and losses
+    times one factor predict the same motions), so only the torque constants' ratios are found."""
+    if not any(lg.i is not None for lg in logs):
+        return None
+    return "sensor" if any(lg.T is not None for lg in logs) else "ratios"
+
+
 def identify(arm: Arm, logs: list[Log], reduced: bool = False, fc: float | None = None) -> Identification:
     """Everything from logs to a physically consistent model."""
-    unknowns = Unknowns.of(arm.model, sensor_offsets=any(log.T is not None for log in logs))
+    unknowns = Unknowns.of(arm.model, sensor_offsets=any(log.T is not None for log in logs),
+                           torque_constants=kt_scale(logs))
     th_nominal = unknowns.from_p(arm.parameters()[1][:n_linear(arm.model)])
     if fc is None:
         fc, why = cutoff_hz(arm, logs[0])
@@ -688,7 +750,7 @@ def identify(arm: Arm, logs: list[Log], reduced: bool = False, fc: float | None 
         if spring is not None:                         # the first pass takes the rows above
             rows_ = combine([rows(arm, sig, unknowns, reduced, spring) for sig in signals])
         ls = least_squares(rows_, base, th_nominal)
-        # what filtering does to the estimate: again at a lower cut-off (still above the SEA modes)
+        # what filtering does to the estimate: again at FILTER_PROBE times the cut-off
         probe = combine([rows(arm, prepare(log, FILTER_PROBE * fc, arm=arm), unknowns, reduced, spring)
                          for log in logs])
         moved = ls.beta - least_squares(probe, base, th_nominal, bootstrap=False).beta
@@ -723,7 +785,7 @@ def report(ident: Identification, arm: Arm, validation: dict | None, log_files: 
         reflected[jt.name] = {"nominal": float(reflected_inertia(u, arm.model, j) @ ident.th_nominal),
                               "estimate": est, "std": s}
     residual = {label: float(s) for label, s in zip(ident.rows.labels, ident.ls.sigma)}
-    uncertain = {name: float(s / abs(est)) for name, est, s in zip(u.names, ident.th, std)
+    uncertain = {name: float(s / abs(est)) for name, est, s in zip(u.names, u.values(ident.th), std)
                  if np.isfinite(s) and abs(est) > 0 and s > UNCERTAIN * abs(est)}
     warnings = []
     if ident.ls.condition > WEAK_CONDITION:
@@ -733,6 +795,14 @@ def report(ident: Identification, arm: Arm, validation: dict | None, log_files: 
     if uncertain:
         warnings.append(f"{len(uncertain)} parameters uncertain by more than {UNCERTAIN:.0%} of their estimate "
                         f"(report.json: uncertain): " + ", ".join(sorted(uncertain, key=uncertain.get, reverse=True)[:6]))
+    parameters = {name: {"nominal": float(nom), "estimate": float(est), "std": None if np.isnan(s) else float(s)}
+                  for name, nom, est, s in zip(u.names, u.values(ident.th_nominal), u.values(ident.th), std)}
+    if u.torque_constants():                              # every motor's, the last one's too where it follows
+        K = u.kt_change(arm.model)
+        for j, jt in enumerate(arm.model.joints):
+            parameters[f"{jt.name}.torque_constant"] = {"nominal": jt.torque_constant,
+                                                         "estimate": float(jt.torque_constant + K[j] @ ident.th),
+                                                         "std": ident.ls.std_of(K[j])}
     return {
         "warnings": warnings, "uncertain": uncertain,
         "model": str(arm.model.path), "logs": [str(f) for f in log_files],
@@ -742,8 +812,7 @@ def report(ident: Identification, arm: Arm, validation: dict | None, log_files: 
                                 "values"},
         "cutoff_hz": ident.cutoff_hz, "cutoff_why": ident.cutoff_why,
         "condition_number": ident.ls.condition, "physical_fit": ident.fit_status, "base_parameters": base,
-        "parameters": {name: {"nominal": float(nom), "estimate": float(est), "std": None if np.isnan(s) else float(s)}
-                       for name, nom, est, s in zip(u.names, ident.th_nominal, ident.th, std)},
+        "parameters": parameters,
         "reflected_rotor_inertia": reflected,
         "residual_rms": residual,
         "fit": predict(ident.rows, ident.th),
@@ -828,7 +897,7 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
                         reduced)
         check_moving(held_out, arm, validate)
     if explain:
-        u = Unknowns.of(arm.model, any(lg.T is not None for lg in logs))
+        u = Unknowns.of(arm.model, any(lg.T is not None for lg in logs), torque_constants=kt_scale(logs))
         fc = cutoff or cutoff_hz(arm, logs[0])[0]
         th_nominal = u.from_p(arm.parameters()[1][:n_linear(arm.model)])
         ls = least_squares(combine([rows(arm, prepare(lg, fc, arm=arm), u, reduced) for lg in logs]),
@@ -840,6 +909,9 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
     log(f"identifying {arm.model.name} from {len(logs)} log(s) ...")
     ident = identify(arm, logs, reduced=reduced, fc=cutoff)
     log(f"cut-off {ident.cutoff_why}")
+    if kt_scale(logs) == "ratios":
+        log("torque constants: their ratios from the currents; their mean held at the model file's (currents alone "
+            "cannot tell a scale shared by every parameter; a joint torque sensor T_j in the log would)")
     log(f"{ident.ls.base.rank} base parameters, condition number {ident.ls.condition:.3g}; "
         f"physically consistent fit {ident.fit_status}")
     undetermined = ident.ls.base.unidentifiable

@@ -180,9 +180,10 @@ def read_log(path, n: int, min_samples: int = 50) -> Log:
 
 
 def motor_torques(log: Log, model) -> Log:
-    """The log with its motor currents as motor torques, tau_j = kt_j i_j (kt_j the model's
-    `torque_constant`, N m/A); a log without currents as it is.  Refused, naming the joints,
-    where the model gives no torque constant."""
+    """The log with its motor currents as motor torques too, tau_j = kt_j i_j (kt_j the model's
+    `torque_constant`, N m/A; the currents kept, for identification to correct kt where a torque
+    sensor fixes the scale); a log without currents as it is.  Refused, naming the joints, where
+    the model gives no torque constant."""
     if log.i is None:
         return log
     missing = [jt.name for jt in model.joints if jt.torque_constant is None]
@@ -190,4 +191,4 @@ def motor_torques(log: Log, model) -> Log:
         raise LogError(f"{log.path}: column 'i_1' (motor current) needs each joint's torque_constant (N m/A, motor "
                        f"side) in the model file {model.path}: none for {', '.join(missing)}")
     kt = np.array([jt.torque_constant for jt in model.joints])
-    return dataclasses.replace(log, tau=kt[:, None] * log.i, i=None)
+    return dataclasses.replace(log, tau=kt[:, None] * log.i)

@@ -99,8 +99,9 @@ def record(true_arm: Arm, nominal_arm: Arm, trajectory, rate: float = 1000.0, rn
     measured = {"theta": run.meas[:n], "phi": run.meas[n:2 * n], "tau": tau_logged,
                 "T": noisy(T, SENSOR_NOISE["T"] * np.max(np.abs(T), axis=1, keepdims=True)),
                 "dtheta": noisy(x[2 * n:3 * n], SENSOR_NOISE["dtheta"]), "dphi": noisy(x[3 * n:], SENSOR_NOISE["dphi"])}
-    if "i" in columns:                                  # motor currents: tau / kt (simulate checks kt is given)
-        measured["i"] = tau_logged / np.array([jt.torque_constant for jt in nominal_arm.model.joints])[:, None]
+    if "i" in columns:               # motor currents: tau / kt, the true motors' (simulate checks kt is given)
+        motors = true_arm if all(jt.torque_constant for jt in true_arm.model.joints) else nominal_arm
+        measured["i"] = tau_logged / np.array([jt.torque_constant for jt in motors.model.joints])[:, None]
     for g, value in (offsets or {}).items():
         measured[g] = measured[g] + np.asarray(value, float)[:, None]
     for g, lag in (delays or {}).items():
