@@ -1,8 +1,10 @@
 """Nonlinear MPC on the complete model, generated to C (`rscasadi mpc PROBLEM.toml --out DIR`).
 
 Multiple shooting on the complete model: a state plan X (4n x N+1, at the ends of N intervals of
-length h) and a torque plan U (n x N, held on each interval); each interval is `substeps` RK4
-steps of `step`, its sensitivities from the structured `step_jacobian` (codegen.generate).
+length h) and a torque plan U (n x N, held on each interval); each interval is `substeps` steps
+of the problem's integrator (RK4, or the L-stable Rosenbrock ROS2 where the spring modes are
+too fast for RK4: `with_integrator`), its sensitivities from the structured step Jacobians
+(codegen.generate, codegen.rosenbrock).
 Gauss-Newton SQP: the QP of each iteration is condensed onto dU (Bock & Plitt; the gaps of the
 shooting nodes enter its affine part); its motor-torque box is solved by a fixed number of
 primal-dual interior-point iterations (`box_qp`: no data-dependent loops, no allocation). `sqp_iterations = 1` is
@@ -43,7 +45,7 @@ import numpy as np
 
 from rscasadi.dynamics.arm import Arm
 from rscasadi.model.limits import limit_arrays as model_limits
-from rscasadi.mpc.problem import SOFT, LINE_SEARCH, MPCProblem, with_substeps
+from rscasadi.mpc.problem import SOFT, LINE_SEARCH, MPCProblem, with_integrator
 from rscasadi.task.terms import Clearance, FrameTracking, JointTracking, Posture, StateBound
 
 
@@ -62,19 +64,23 @@ def n_params(arm: Arm) -> int:
     return arm.n + (arm.n_p if arm.free else 0)
 
 
-def interval_functions(arm: Arm, h: float, substeps: int, step_jacobian: ca.Function | None = None):
-    """F: (x, tau, m) -> (x after h, A = dx/dx0, B = dx/dtau): `substeps` RK4 steps and their
-    structured Jacobians chained (A = A_s ... A_1, B = A_s (...) B_1 + ... + B_s); Fx: the state
-    alone.  m: the arm's parameters (controller_arm; empty if none).
+def interval_functions(arm: Arm, h: float, substeps: int, step_jacobian: ca.Function | None = None,
+                       integrator: str = "rk4"):
+    """F: (x, tau, m) -> (x after h, A = dx/dx0, B = dx/dtau): `substeps` steps of `integrator`
+    ("rk4": classical Runge-Kutta, codegen.generate.step_functions; "ros2": the L-stable
+    Rosenbrock step for fast spring modes, codegen.rosenbrock) and their structured Jacobians
+    chained (A = A_s ... A_1, B = A_s (...) B_1 + ... + B_s); Fx: the state alone.  m: the arm's
+    parameters (controller_arm; empty if none).
     One substep (step, Jacobian and the chain's products) is one Function, straight-line SX when
     the step Jacobian is SX (small arms), called `substeps` times: its C is generated once, so
     the controller compiles in a fifth of the time of one straight-line interval, as fast.
-    step_jacobian: a Function to use in place of step_functions' (the generated controller's
-    structured C kernel, `generate.step_kernel`)."""
+    step_jacobian: a Function to use in place of step_functions' RK4 one (the generated
+    controller's structured C kernel, `generate.step_kernel`)."""
     from rscasadi.codegen.generate import step_functions
+    from rscasadi.codegen.rosenbrock import ros2_functions
     n, hs, parametric = arm.n, h / substeps, bool(arm.free)
-    step, step_jac = step_functions(arm, parametric=parametric)
-    step_jac = step_jac if step_jacobian is None else step_jacobian
+    step, step_jac = (ros2_functions if integrator == "ros2" else step_functions)(arm, parametric=parametric)
+    step_jac = step_jacobian if step_jacobian is not None and integrator == "rk4" else step_jac
     sym = ca.SX if step_jac.is_a("SXFunction") else ca.MX
     if sym is ca.SX:
         step = step.expand()
@@ -349,9 +355,9 @@ def rti_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None = No
     each with a line search on the rollout's cost), then the plan shifted by one sample.
     params: the posture (n) and the payload's mass (if `arm` takes it: `controller_arm`).
     step_jacobian: as `interval_functions`."""
-    p = with_substeps(p, arm)
+    p = with_integrator(p, arm)
     n, N, nx = arm.n, p.horizon, 4 * arm.n
-    F, Fx = interval_functions(arm, p.interval, int(p.substeps), step_jacobian)
+    F, Fx = interval_functions(arm, p.interval, int(p.substeps), step_jacobian, p.integrator)
     limits = limit_arrays(arm)
     residual = stage_residual(arm, p, limits)
     xm, ref = ca.MX.sym("x", nx), ca.MX.sym("reference", reference_rows(n, p), N)
@@ -395,9 +401,9 @@ def prepare_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None 
     """mpc_prepare(reference, X, U, params) -> the real-time iteration's QP before the
     measurement (`_Linearisation` without xm): H, g0, M, the maps Eb, Phi, Gf of the plan's change and, with hard
     angle limits, the rows C, cl0, cu0, Cx (empty without).  Only for sqp_iterations = 1."""
-    p = with_substeps(p, arm)
+    p = with_integrator(p, arm)
     n, N, nx = arm.n, p.horizon, 4 * arm.n
-    F, _ = interval_functions(arm, p.interval, int(p.substeps), step_jacobian)
+    F, _ = interval_functions(arm, p.interval, int(p.substeps), step_jacobian, p.integrator)
     limits = limit_arrays(arm)
     ref = ca.MX.sym("reference", reference_rows(n, p), N)
     params = ca.MX.sym("params", n_params(arm))

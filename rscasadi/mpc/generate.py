@@ -13,7 +13,7 @@ import numpy as np
 from rscasadi.files import safe_name
 from rscasadi.mpc.formulation import (PREPARED, controller_arm, feedback_function, hold_function, n_params,
                                       prepare_function, reference_rows, rti_function)
-from rscasadi.mpc.problem import AUTO, mpc_model, mpc_problem, problem_poses, with_substeps
+from rscasadi.mpc.problem import AUTO, ROS2_STEP, RK4_MOST, mpc_model, mpc_problem, problem_poses, with_integrator
 from rscasadi.model.limits import limit_arrays, measurement_bounds
 from rscasadi.native.build import cached_library, compiler, native_flags
 from rscasadi.native.controller import boxes, c_words, task_reference_bounds
@@ -96,15 +96,19 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
         p = dataclasses.replace(p, model=Path(model).resolve())
     model = mpc_model(p)
     arm = controller_arm(model, p.parametric)
-    if p.substeps == AUTO:
-        p = with_substeps(p, arm)
-        log(f"substeps = auto: {p.substeps} RK4 steps of {1e3 * p.interval / int(p.substeps):.3g} ms per interval, the "
-            f"fewest that amplify none of the arm's spring modes at the problem's poses")
-    for line in integrator_notes(arm, p):
+    if AUTO in (p.substeps, p.integrator):
+        settled = with_integrator(p, arm)
+        why = ("the fewest that amplify none of the arm's spring modes at the problem's poses" if settled.integrator == "rk4"
+               else f"L-stable: RK4 would need more than {RK4_MOST} substeps for the arm's spring modes"
+               if p.integrator == AUTO else f"substeps of at most {1e3 * ROS2_STEP:g} ms")
+        log(f"integrator {settled.integrator}, {settled.substeps} steps of {1e3 * p.interval / int(settled.substeps):.3g} ms "
+            f"per interval: {why}")
+        p = settled
+    for line in integrator_notes(arm, p) if p.integrator == "rk4" else []:
         log(line)
     cc, flags = compiler(), [opt, "-std=c99"] + (native_flags() if native else [])
     name = lambda what: function_name("mpc", prefix, what)
-    kernel, step_jacobian = step_kernel(arm, flags, cc, log, name(KERNEL))
+    kernel, step_jacobian = step_kernel(arm, flags, cc, log, name(KERNEL)) if p.integrator == "rk4" else (None, None)
     split = p.sqp_iterations == 1                  # the real-time iteration: prepare, then feedback
     if split:
         prepare = prepare_function(arm, p, step_jacobian, name("rti_prepare"))
@@ -147,7 +151,7 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
                 "task_space": {"frame": p.frame, "orientation": p.orientation} if p.task_space else None,
                 "payload_mass": None if model.payload is None else model.payload.body.mass,
                 "obstacles": len(p.obstacles),
-                "horizon": p.horizon, "interval": p.interval, "substeps": p.substeps,
+                "horizon": p.horizon, "interval": p.interval, "substeps": p.substeps, "integrator": p.integrator,
                 "guard": {k: v.tolist() for k, v in guard.items()},
                 "sample_time": p.sample_time, "sqp_iterations": p.sqp_iterations, "qp_iterations": p.qp_iterations,
                 "weights": p.weights,

@@ -15,7 +15,7 @@ from rscasadi.task.objects import holding_payload
 from rscasadi.task.read import read_obstacles, read_path, read_payload
 from rscasadi.task.toolpath import ToolPath
 
-TOP = {"model", "trajectory", "sample_time", "horizon", "interval", "substeps", "sqp_iterations", "qp_iterations",
+TOP = {"model", "trajectory", "sample_time", "horizon", "interval", "substeps", "integrator", "sqp_iterations", "qp_iterations",
        "weights", "frame", "orientation", "path", "obstacles", "payload", "theta_start", "solution", "parametric", "angle_limits"}
 ANGLE_LIMITS = ("soft", "hard")
 WEIGHTS = {"theta": 1e5, "dtheta": 1.0, "tau": 1e-3, "limits": 1e5, "angle_limits": 1e8,
@@ -23,12 +23,15 @@ WEIGHTS = {"theta": 1e5, "dtheta": 1.0, "tau": 1e-3, "limits": 1e5, "angle_limit
 JOINT_WEIGHTS, TASK_WEIGHTS = ("theta", "dtheta"), ("position", "velocity", "orientation", "posture")
 SOFT = 0.9                   # penalties start at this fraction of the psi and dphi limits (and of
                              # the link-angle range's half-width, about its middle)
-AUTO = "auto"               # substeps chosen from the arm's spring modes (with_substeps)
+AUTO = "auto"               # integrator and substeps chosen from the arm's spring modes (with_integrator)
+INTEGRATORS = ("auto", "rk4", "ros2")
+RK4_MOST = 4                # integrator = auto: RK4 where this many substeps hold every spring mode, else ROS2
+ROS2_STEP = 0.01            # s: the longest ROS2 substep substeps = auto takes (its error on the rigid motion)
 LINE_SEARCH = (1.0, 0.5, 0.25, 0.125)   # step sizes tried when sqp_iterations > 1
 # sizes refused before the work: the condensed QP's C grows as N^2 (20 intervals on 7 joints are
 # 30 MB of C, 6 CPU-minutes to compile), and every unrolled iteration adds to it
 MAX_SIZES = {"horizon": (50, "the condensed QP's C grows as horizon^2: 20 intervals on 7 joints are 30 MB of C"),
-             "substeps": (20, "each RK4 substep is unrolled into the C"),
+             "substeps": (20, "each substep is unrolled into the C"),
              "sqp_iterations": (10, "each SQP iteration is unrolled into the C"),
              "qp_iterations": (100, "each interior-point iteration is unrolled into the C")}
 
@@ -36,8 +39,9 @@ MAX_SIZES = {"horizon": (50, "the condensed QP's C grows as horizon^2: 20 interv
 @dataclass
 class MPCProblem:
     """An MPC problem: the `model` and the reference `trajectory`, the controller's `sample_time`,
-    a horizon of `horizon` intervals of `interval` s with `substeps` RK4 steps each ("auto", the
-    default: the fewest that amplify none of the arm's spring modes, `with_substeps`), the SQP
+    a horizon of `horizon` intervals of `interval` s, each `substeps` steps of `integrator` ("rk4"
+    or "ros2"; "auto", the default for both: RK4 with the fewest substeps that amplify none of the
+    arm's spring modes where RK4_MOST do, else the L-stable ROS2, `with_integrator`), the SQP
     iterations per sample (1: the real-time iteration) and the QP's interior-point iterations,
     and the cost `weights` (theta, dtheta, tau, limits, angle_limits; in task space position, velocity,
     orientation, posture; obstacles).  Task space: `frame` (its position, and its rotation if
@@ -56,6 +60,7 @@ class MPCProblem:
     horizon: int = 10
     interval: float = 0.01
     substeps: int | str = AUTO
+    integrator: str = AUTO
     sqp_iterations: int = 1
     qp_iterations: int = 16
     weights: dict = field(default_factory=lambda: dict(WEIGHTS))
@@ -148,6 +153,8 @@ class MPCProblem:
                 fail("solution", f"no file {self.solution}")
         if self.parametric not in PROBLEM_PARAMETRIC:
             fail("parametric", f"must be one of {', '.join(PROBLEM_PARAMETRIC)}, got {self.parametric!r}")
+        if self.integrator not in INTEGRATORS:
+            fail("integrator", f"must be one of {', '.join(INTEGRATORS)}, got {self.integrator!r}")
         if self.angle_limits not in ANGLE_LIMITS:
             fail("angle_limits", f"must be one of {', '.join(ANGLE_LIMITS)}, got {self.angle_limits!r}")
         if self.theta_start is not None and not np.all(np.isfinite(self.theta_start)):
@@ -237,26 +244,40 @@ def problem_poses(p, n: int, count: int = 5) -> list[np.ndarray]:
     return [np.asarray(p.theta_start, float) if p.theta_start is not None else np.zeros(n)]
 
 
-def with_substeps(p: MPCProblem, arm) -> MPCProblem:
-    """`p` itself if its substeps are a number; with substeps = "auto", `p` with the fewest RK4
-    substeps of its interval that amplify none of `arm`'s spring modes at the problem's poses
-    (`problem_poses`; rscasadi.dynamics.modes.rk4_substeps), refused naming the mode where more
-    than MAX_SIZES allows would be needed."""
+def with_integrator(p: MPCProblem, arm) -> MPCProblem:
+    """`p` with its integrator and substeps settled (`p` itself if both are given).  From the
+    arm's spring modes at the problem's poses (`problem_poses`; rscasadi.dynamics.modes):
+    RK4's substeps = "auto" are the fewest that amplify none of them (refused, naming the mode,
+    where more than MAX_SIZES allows would be needed: ROS2 holds any mode); ROS2's are the fewest
+    of at most ROS2_STEP s (its accuracy on the rigid motion: it damps every mode, fast or not);
+    integrator = "auto" is RK4 where RK4_MOST substeps (or the given number) hold every mode, else
+    ROS2, whose stability does not depend on the step."""
     import dataclasses
     from rscasadi.dynamics.modes import linear_modes, rk4_spurious, rk4_substeps
-    if p.substeps != AUTO:
+    if p.substeps != AUTO and p.integrator != AUTO:
         return p
-    most, need, hardest = MAX_SIZES["substeps"][0], 1, None
+    most = MAX_SIZES["substeps"][0]
+    need, hardest = 1, None                            # RK4's fewest substeps over the poses
     for theta in problem_poses(p, arm.n):
         modes = linear_modes(arm, theta)
         s = rk4_substeps(modes, p.interval, most)
         if s is None:
             hardest = max(rk4_spurious(modes, p.interval / most), key=lambda m: m.hz)
+            need = None
             break
         need = max(need, s)
-    if hardest is not None:
+    integrator = p.integrator
+    if integrator == AUTO:
+        enough = RK4_MOST if p.substeps == AUTO else p.substeps
+        integrator = "rk4" if need is not None and need <= enough else "ros2"
+    if p.substeps != AUTO:
+        return dataclasses.replace(p, integrator=integrator)
+    if integrator == "ros2":
+        return dataclasses.replace(p, integrator=integrator, substeps=max(1, int(np.ceil(p.interval / ROS2_STEP - 1e-9))))
+    if need is None:
         where = p.path if p.path is not None else "<MPCProblem>"
         raise ModelFileError(f"{where}: field 'substeps': auto: even {most} RK4 steps of the {p.interval:g} s interval "
                              f"amplify the {hardest.hz:.0f} Hz spring mode of {hardest.joint} (damping ratio "
-                             f"{hardest.damping_ratio:.2f}); shorten the interval")
-    return dataclasses.replace(p, substeps=need)
+                             f"{hardest.damping_ratio:.2f}); shorten the interval, or integrator = \"ros2\" (or "
+                             f"\"auto\"), stable at any step")
+    return dataclasses.replace(p, integrator=integrator, substeps=need)
