@@ -108,6 +108,44 @@ def test_prepare_then_feedback_is_a_step_and_a_feedback_needs_a_prepare(mpc_dir,
     assert two.prepare(ref) == 0 and two.feedback(x)[2] == 0
 
 
+def test_the_riccati_qp_is_the_condensed_one_and_its_c_does_not_grow_with_the_horizon(mpc_dir, arm3, tmp_path):
+    """qp = "riccati" (HPIPM's interior-point method on the stage structure) solves the same QP
+    as the condensed controller: the same torques to 1e-6 of the limit over 20 samples toward a
+    reference within reach (prepare then feedback, the phases apart, each plan carried on); a NaN
+    measurement is refused as the condensed one refuses it.  At 40 intervals (auto: Riccati from
+    15) its C is the size it is at 10, where the condensed QP's grows as N^2, and it tracks."""
+    import dataclasses
+    p = load_mpc_problem(PROBLEM)
+    ric = tmp_path / "riccati"
+    said = []
+    M.generate_mpc(dataclasses.replace(p, qp="riccati"), ric, opt="-O1", log=said.append)
+    x = rest_state(arm3, [0.1, 0.4, -0.6])
+    ref = np.vstack([np.tile(x[:3, None] + 0.001, (1, p.horizon)), np.zeros((3, p.horizon))])
+    mine, theirs = CompiledMPC(ric), CompiledMPC(mpc_dir)
+    assert mine.init(x) == theirs.init(x) == 0
+    limit = np.array([jt.limits["tau"] for jt in arm3.model.joints])
+    saturated = 0
+    for _ in range(20):
+        assert mine.prepare(ref) == theirs.prepare(ref) == 0
+        (a, _, fa), (b, _, fb) = mine.feedback(x), theirs.feedback(x)
+        assert fa == fb == 0 and np.max(np.abs(a - b)) < 1e-6 * np.max(limit), (a, b)
+        saturated += int(np.any(np.abs(b) > 0.999 * limit))
+    assert saturated == 0                                    # the QP's solution, not only its bounds
+    x_bad = x.copy()
+    x_bad[2] = np.nan
+    mine.prepare(ref)
+    theirs.prepare(ref)
+    (a, _, fa), (b, _, fb) = mine.feedback(x_bad), theirs.feedback(x_bad)
+    assert fa == fb == 6 and np.array_equal(a, b)
+    long = dataclasses.replace(p, horizon=40)
+    M.generate_mpc(long, tmp_path / "long", opt="-O1", log=said.append)
+    assert any("(-O1 -std=c99 -I" in line for line in said)                # HPIPM's headers: auto took Riccati
+    size = lambda d: sum(f.stat().st_size for f in d.glob("*.c"))
+    assert size(tmp_path / "long") < 1.05 * size(ric), (size(tmp_path / "long"), size(ric))
+    res = closed_loop(long, tmp_path / "long", duration=0.3, log=lambda m: None)
+    assert res["MPC (C)"]["max_error"] < res["feedforward + PD"]["max_error"]
+
+
 def test_a_nan_measurement_keeps_the_plan_and_says_so(mpc_dir, arm3):
     """A NaN in the measured state: MPC_BAD_MEASUREMENT (6), the holding torque of the last good
     state (finite, within the limits), and the next good measurement gets the same torque as if

@@ -435,6 +435,28 @@ def feedback_function(arm: Arm, p: MPCProblem, prepare: ca.Function, name: str =
                        ["x", "X", "U", *got], ["tau", "X_next", "U_next"])
 
 
+def stage_functions(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None = None, prefix: str = "mpc_"):
+    """The QP's pieces one interval at a time, for the Riccati recursion (qp = "riccati", the
+    controller's C loops over the intervals): interval (x, tau, m) -> (x_next, A, B), the
+    interval's steps and sensitivities (`interval_functions`), and residual (x, u, reference_k,
+    posture) -> (r, dr/dx, dr/du) at an interval's end (`stage_residual`), every output dense
+    (column-major in C).  The stage QP they give (rscasadi_mpc.c) is `_Linearisation`'s, interval
+    by interval: with the gaps b_k = x_next - X_{k+1} and their propagation e_{k+1} = A_k e_k +
+    b_k, the residual at X_{k+1} + e_{k+1}, linear in (dx_k, du_k) through dx_{k+1} = A_k dx_k +
+    B_k du_k + b_k."""
+    p = with_integrator(p, arm)
+    n, nx = arm.n, 4 * arm.n
+    F, _ = interval_functions(arm, p.interval, int(p.substeps), step_jacobian, p.integrator)
+    x, u, m = ca.MX.sym("x", nx), ca.MX.sym("tau", n), ca.MX.sym("m", F.size1_in(2))
+    interval = ca.Function(prefix + "interval", [x, u, m], [ca.densify(v) for v in F(x, u, m)],
+                           ["x", "tau", "m"], ["x_next", "A", "B"])
+    residual = stage_residual(arm, p, limit_arrays(arm))
+    ins = residual.sx_in()
+    residual = ca.Function(prefix + "residual", ins, [ca.densify(v) for v in residual(*ins)],
+                           ["x", "u", "reference", "posture"], ["r", "Jx", "Ju"], {"cse": True})
+    return interval, residual
+
+
 def hold_function(arm: Arm, p: MPCProblem, name: str = "mpc_hold") -> ca.Function:
     """mpc_hold(x, params) -> (X, U): the initial plan, the arm held where it is over the horizon."""
     n = arm.n

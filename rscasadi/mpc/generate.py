@@ -11,9 +11,10 @@ import casadi as ca
 import numpy as np
 
 from rscasadi.files import safe_name
-from rscasadi.mpc.formulation import (PREPARED, controller_arm, feedback_function, hold_function, n_params,
+from rscasadi.mpc.formulation import (PREPARED, controller_arm, feedback_function, hold_function, n_params, stage_functions,
                                       prepare_function, reference_rows, rti_function)
-from rscasadi.mpc.problem import AUTO, ROS2_STEP, RK4_MOST, mpc_model, mpc_problem, problem_poses, with_integrator
+from rscasadi.mpc.problem import (AUTO, ROS2_STEP, RK4_MOST, mpc_model, mpc_problem, problem_poses, qp_of,
+                                  with_integrator)
 from rscasadi.model.limits import limit_arrays, measurement_bounds
 from rscasadi.native.build import cached_library, compiler, native_flags
 from rscasadi.native.controller import boxes, c_words, task_reference_bounds
@@ -47,6 +48,79 @@ def step_kernel(arm, flags: list, cc: list, log=print, name: str = f"mpc_{KERNEL
     lib = cached_library({f"{name}.c": text}, flags, name="mpc_kernel", what="the step Jacobian's kernel",
                          log=log, cc=cc, log_hit=True)
     return text, ca.external(name, str(lib))
+
+
+_HPIPM_PROBE = r"""
+#include "hpipm_d_ocp_qp_ipm.h"
+#include "hpipm_d_ocp_qp_dim.h"
+#include "hpipm_d_ocp_qp.h"
+#include "hpipm_d_ocp_qp_sol.h"
+#include "hpipm_d_part_cond.h"
+/* the bytes rscasadi_mpc.c's qp_structures places for this QP shape (NB blocks), or 0 */
+unsigned long rscasadi_hpipm_bytes(int N, int NB, int NX, int NU, int iters) {
+  static char dim_mem[1 << 16], bdim_mem[1 << 16], arg_mem[1 << 16], carg_mem[1 << 16];
+  int nx[N + 1], nu[N + 1], nbx[N + 1], nbu[N + 1], zero[N + 1];
+  for (int k = 0; k <= N; ++k) { nx[k] = k ? NX : 0; nu[k] = k < N ? NU : 0; nbx[k] = 0; nbu[k] = nu[k]; zero[k] = 0; }
+  int block_size[N + 1];
+  if (d_ocp_qp_dim_memsize(N) > sizeof(dim_mem) || d_ocp_qp_dim_memsize(NB) > sizeof(bdim_mem)
+      || d_part_cond_qp_arg_memsize(NB) > sizeof(carg_mem)) return 0;
+  struct d_ocp_qp_dim dim, bdim;
+  struct d_ocp_qp_ipm_arg arg;
+  struct d_part_cond_qp_arg carg;
+  d_ocp_qp_dim_create(N, &dim, dim_mem);
+  d_ocp_qp_dim_set_all(nx, nu, nbx, nbu, zero, zero, &dim);
+  d_ocp_qp_dim_create(NB, &bdim, bdim_mem);
+  d_part_cond_qp_compute_block_size(N, NB, block_size);
+  d_part_cond_qp_compute_dim(&dim, block_size, &bdim);
+  d_part_cond_qp_arg_create(NB, &carg, carg_mem);
+  d_part_cond_qp_arg_set_default(&carg);
+  if (d_ocp_qp_ipm_arg_memsize(&bdim) > sizeof(arg_mem)) return 0;
+  d_ocp_qp_ipm_arg_create(&bdim, &arg, arg_mem);
+  d_ocp_qp_ipm_arg_set_default(SPEED, &arg);
+  d_ocp_qp_ipm_arg_set_iter_max(&iters, &arg);
+  return 12 * 64 + sizeof(struct d_ocp_qp_dim) * 2 + sizeof(struct d_ocp_qp) * 2 + sizeof(struct d_ocp_qp_sol) * 2
+      + sizeof(struct d_part_cond_qp_arg) + sizeof(struct d_part_cond_qp_ws) + sizeof(int) * (N + 1)
+      + sizeof(struct d_ocp_qp_ipm_arg) + sizeof(struct d_ocp_qp_ipm_ws)
+      + d_ocp_qp_dim_memsize(N) + d_ocp_qp_memsize(&dim) + d_ocp_qp_sol_memsize(&dim)
+      + d_ocp_qp_dim_memsize(NB) + d_ocp_qp_memsize(&bdim) + d_ocp_qp_sol_memsize(&bdim)
+      + d_part_cond_qp_arg_memsize(NB) + d_part_cond_qp_ws_memsize(&dim, block_size, &bdim, &carg)
+      + d_ocp_qp_ipm_arg_memsize(&bdim) + d_ocp_qp_ipm_ws_memsize(&bdim, &arg);
+}
+"""
+
+
+def hpipm_flags() -> tuple[list, list]:
+    """The compile and link arguments of HPIPM as CasADi installs it (its headers, libhpipm and
+    the BLASFEO it calls); refused, naming what is missing, where this CasADi has none."""
+    from rscasadi.errors import InvalidArgument
+    from rscasadi.ocp.fatrop.driver import casadi_dir
+    inc, lib = casadi_dir() / "include", casadi_dir()
+    for need in (inc / "hpipm_d_ocp_qp_ipm.h", lib / "libhpipm.so"):
+        if not need.exists():
+            raise InvalidArgument(f"qp = \"riccati\" needs HPIPM, which this CasADi ({ca.__version__}) does not install: "
+                                  f"{need} missing (qp = \"condensed\" needs nothing)")
+    return [f"-I{inc}"], [f"-L{lib}", "-lhpipm", "-lblasfeo", f"-Wl,-rpath,{lib}"]
+
+
+def riccati_blocks(horizon: int, nx: int, nu: int) -> int:
+    """HPIPM's stages after partial condensing: blocks whose stacked torques about match the
+    state's size (nu N / nx of them: on the Panda, 4 intervals a block), where the Riccati
+    recursion's cost per stage (~nx^3) and the dense blocks' (~(nu block)^3) balance."""
+    return int(min(horizon, max(1, round(horizon * nu / nx))))
+
+
+def hpipm_words(horizon: int, nx: int, nu: int, iterations: int, cc: list, log=print) -> int:
+    """The 8-byte words HPIPM's structures and work take for this QP, as the controller places
+    them (HPIPM's own memsize functions, asked through a small library built once)."""
+    import ctypes
+    inc, link = hpipm_flags()
+    lib = ctypes.CDLL(str(cached_library({"hpipm_probe.c": _HPIPM_PROBE}, ["-O1", "-std=c99", *inc], link,
+                                         name="hpipm_probe", what="HPIPM's memory probe", log=log, cc=cc)))
+    lib.rscasadi_hpipm_bytes.restype = ctypes.c_ulong
+    size = lib.rscasadi_hpipm_bytes(horizon, riccati_blocks(horizon, nx, nu), nx, nu, iterations)
+    if not size:
+        raise RuntimeError(f"HPIPM's memory probe found no room for {horizon} stages of {nx} states")
+    return int(size) // 8 + 1
 
 
 def guard_bounds(model, p, rows: int) -> dict:
@@ -98,7 +172,8 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
     arm = controller_arm(model, p.parametric)
     if AUTO in (p.substeps, p.integrator):
         settled = with_integrator(p, arm)
-        why = ("the fewest that amplify none of the arm's spring modes at the problem's poses" if settled.integrator == "rk4"
+        why = ("the problem's substeps hold every spring mode at its poses" if p.substeps != AUTO and settled.integrator == "rk4"
+               else "the fewest that amplify none of the arm's spring modes at the problem's poses" if settled.integrator == "rk4"
                else f"L-stable: RK4 would need more than {RK4_MOST} substeps for the arm's spring modes"
                if p.integrator == AUTO else f"substeps of at most {1e3 * ROS2_STEP:g} ms")
         log(f"integrator {settled.integrator}, {settled.substeps} steps of {1e3 * p.interval / int(settled.substeps):.3g} ms "
@@ -110,7 +185,17 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
     name = lambda what: function_name("mpc", prefix, what)
     kernel, step_jacobian = step_kernel(arm, flags, cc, log, name(KERNEL)) if p.integrator == "rk4" else (None, None)
     split = p.sqp_iterations == 1                  # the real-time iteration: prepare, then feedback
-    if split:
+    qp = qp_of(p)
+    link: list = []
+    qp_words, nr = 1, 1
+    if qp == "riccati":
+        inc, link = hpipm_flags()
+        flags = flags + inc
+        interval, residual = stage_functions(arm, p, step_jacobian, name(""))
+        functions, prepared = [interval, residual], []
+        nr = residual.size1_out(0)
+        qp_words = hpipm_words(p.horizon, 4 * arm.n, arm.n, p.qp_iterations, cc, log)
+    elif split:
         prepare = prepare_function(arm, p, step_jacobian, name("rti_prepare"))
         functions = [prepare, feedback_function(arm, p, prepare, name("rti_feedback"))]
         prepared = [(k, prepare.nnz_out(k), list(prepare.size_out(k))) for k in PREPARED]
@@ -132,13 +217,18 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
     header = dict(model=model_name, n=n, nx=4 * n, N=p.horizon, nref=rows * p.horizon, rows=rows, ts=p.sample_time,
                   h=p.interval, iters=iters, reference=reference, target=target, ntarget=n_target,
                   nparams=n_params(arm), np=n_params(arm) - n, task=int(p.task_space), split=int(split),
-                  nprep=max(offsets[-1], 1), **boxes(guard, words=True), tau_limits=c_words(guard["tau_max"]))
+                  nprep=max(offsets[-1], 1), **boxes(guard, words=True), tau_limits=c_words(guard["tau_max"]),
+                  qp=("Riccati recursion (HPIPM)" if qp == "riccati" else "condensed onto the torques"),
+                  riccati=int(qp == "riccati"), qp_words=qp_words,
+                  nfirst=(16 * n * n + 4 * n * n + 4 * n + n) if qp == "riccati" else 1)
     parameter_names, values = arm.parameters()
     free = arm.free or []
     nominal = [float(dict(zip(parameter_names, values))[k]) for k in free]
     body = dict(nominal=", ".join(repr(v) for v in nominal) or "0.0",
                 mass_index=free.index("payload.mass") if "payload.mass" in free else -1, **boxes(guard),
-                nprepared=len(prepared), prep_offsets=", ".join(str(o) for o in offsets))
+                nprepared=len(prepared), prep_offsets=", ".join(str(o) for o in offsets), nr=nr,
+                w_tau=repr(float(p.weights["tau"])), shift=repr(p.sample_time / p.interval),
+                qp_iterations=p.qp_iterations, blocks=riccati_blocks(p.horizon, 4 * n, n))
     manifest = {"model": str(p.model), "problem": None if p.path is None else str(p.path),
                 "api": {"sizeof": [], "init": ["c", "x_measured"], "init_parameters": ["c", "x_measured", "p"],
                         "step": ["c", "x_measured", "reference", "tau_out"],
@@ -151,7 +241,7 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
                 "task_space": {"frame": p.frame, "orientation": p.orientation} if p.task_space else None,
                 "payload_mass": None if model.payload is None else model.payload.body.mass,
                 "obstacles": len(p.obstacles),
-                "horizon": p.horizon, "interval": p.interval, "substeps": p.substeps, "integrator": p.integrator,
+                "horizon": p.horizon, "interval": p.interval, "substeps": p.substeps, "integrator": p.integrator, "qp": qp,
                 "guard": {k: v.tolist() for k, v in guard.items()},
                 "sample_time": p.sample_time, "sqp_iterations": p.sqp_iterations, "qp_iterations": p.qp_iterations,
                 "weights": p.weights,
@@ -159,4 +249,4 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
                                              for (k, nnz, shape), o in zip(prepared, offsets)}}
     return write_controller("mpc", prefix, functions, TEMPLATES, header, body, out, flags, manifest, log,
                             extra_sources=None if kernel is None else {f"{name(KERNEL)}.c": kernel}, cc=cc,
-                            casadi_file=name("rti"))
+                            casadi_file=name("rti"), link=link)

@@ -15,7 +15,7 @@ from rscasadi.task.objects import holding_payload
 from rscasadi.task.read import read_obstacles, read_path, read_payload
 from rscasadi.task.toolpath import ToolPath
 
-TOP = {"model", "trajectory", "sample_time", "horizon", "interval", "substeps", "integrator", "sqp_iterations", "qp_iterations",
+TOP = {"model", "trajectory", "sample_time", "horizon", "interval", "substeps", "integrator", "qp", "sqp_iterations", "qp_iterations",
        "weights", "frame", "orientation", "path", "obstacles", "payload", "theta_start", "solution", "parametric", "angle_limits"}
 ANGLE_LIMITS = ("soft", "hard")
 WEIGHTS = {"theta": 1e5, "dtheta": 1.0, "tau": 1e-3, "limits": 1e5, "angle_limits": 1e8,
@@ -25,6 +25,8 @@ SOFT = 0.9                   # penalties start at this fraction of the psi and d
                              # the link-angle range's half-width, about its middle)
 AUTO = "auto"               # integrator and substeps chosen from the arm's spring modes (with_integrator)
 INTEGRATORS = ("auto", "rk4", "ros2")
+QPS = ("auto", "condensed", "riccati")
+RICCATI_FROM = 15           # qp = auto: the Riccati recursion from this horizon on (the condensed QP's C grows as N^2)
 RK4_MOST = 4                # integrator = auto: RK4 where this many substeps hold every spring mode, else ROS2
 ROS2_STEP = 0.01            # s: the longest ROS2 substep substeps = auto takes (its error on the rigid motion)
 LINE_SEARCH = (1.0, 0.5, 0.25, 0.125)   # step sizes tried when sqp_iterations > 1
@@ -41,8 +43,8 @@ class MPCProblem:
     """An MPC problem: the `model` and the reference `trajectory`, the controller's `sample_time`,
     a horizon of `horizon` intervals of `interval` s, each `substeps` steps of `integrator` ("rk4"
     or "ros2"; "auto", the default for both: RK4 with the fewest substeps that amplify none of the
-    arm's spring modes where RK4_MOST do, else the L-stable ROS2, `with_integrator`), the SQP
-    iterations per sample (1: the real-time iteration) and the QP's interior-point iterations,
+    arm's spring modes where RK4_MOST do, else the L-stable ROS2, `with_integrator`), the QP
+    (`qp_of`: "condensed", "riccati" or "auto"), the SQP iterations per sample (1: the real-time iteration) and the QP's interior-point iterations,
     and the cost `weights` (theta, dtheta, tau, limits, angle_limits; in task space position, velocity,
     orientation, posture; obstacles).  Task space: `frame` (its position, and its rotation if
     `orientation`, is the reference), `tool_path` (a `ToolPath` at a speed: the study's
@@ -61,6 +63,7 @@ class MPCProblem:
     interval: float = 0.01
     substeps: int | str = AUTO
     integrator: str = AUTO
+    qp: str = AUTO
     sqp_iterations: int = 1
     qp_iterations: int = 16
     weights: dict = field(default_factory=lambda: dict(WEIGHTS))
@@ -153,6 +156,13 @@ class MPCProblem:
                 fail("solution", f"no file {self.solution}")
         if self.parametric not in PROBLEM_PARAMETRIC:
             fail("parametric", f"must be one of {', '.join(PROBLEM_PARAMETRIC)}, got {self.parametric!r}")
+        if self.qp not in QPS:
+            fail("qp", f"must be one of {', '.join(QPS)}, got {self.qp!r}")
+        if self.qp == "riccati" and self.sqp_iterations != 1:
+            fail("qp", "riccati: the real-time iteration only (sqp_iterations = 1)")
+        if self.qp == "riccati" and self.angle_limits == "hard":
+            fail("qp", "riccati: hard link-angle rows are the condensed QP's (angle_limits = \"soft\", or qp = "
+                       "\"condensed\")")
         if self.integrator not in INTEGRATORS:
             fail("integrator", f"must be one of {', '.join(INTEGRATORS)}, got {self.integrator!r}")
         if self.angle_limits not in ANGLE_LIMITS:
@@ -244,6 +254,16 @@ def problem_poses(p, n: int, count: int = 5) -> list[np.ndarray]:
     return [np.asarray(p.theta_start, float) if p.theta_start is not None else np.zeros(n)]
 
 
+def qp_of(p: MPCProblem) -> str:
+    """The QP the controller solves: "condensed" (onto the torques, a dense interior-point method
+    in straight-line C: fastest at short horizons, its C growing as N^2) or "riccati" (HPIPM's
+    interior-point method on the stage structure, linear in N, C the same size at any N); "auto":
+    riccati from RICCATI_FROM intervals on, where the real-time iteration allows it."""
+    if p.qp != AUTO:
+        return p.qp
+    return "riccati" if p.horizon >= RICCATI_FROM and p.sqp_iterations == 1 and p.angle_limits == "soft" else "condensed"
+
+
 def with_integrator(p: MPCProblem, arm) -> MPCProblem:
     """`p` with its integrator and substeps settled (`p` itself if both are given).  From the
     arm's spring modes at the problem's poses (`problem_poses`; rscasadi.dynamics.modes):
@@ -268,7 +288,7 @@ def with_integrator(p: MPCProblem, arm) -> MPCProblem:
         need = max(need, s)
     integrator = p.integrator
     if integrator == AUTO:
-        enough = RK4_MOST if p.substeps == AUTO else p.substeps
+        enough = RK4_MOST if p.substeps == AUTO else int(p.substeps)
         integrator = "rk4" if need is not None and need <= enough else "ros2"
     if p.substeps != AUTO:
         return dataclasses.replace(p, integrator=integrator)

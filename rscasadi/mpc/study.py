@@ -71,7 +71,8 @@ def closed_loop(problem, mpc_dir, duration: float | None = None, tip_factor: flo
     motor-side PD, the C MPC.  `problem`: an `MPCProblem` or the path of its file.  Returns per
     controller the tracking error (max, RMS), the largest limit violation and, for the MPC, its
     time per step (measured in C); `traces`, if given, receives per controller the time, the error
-    over time and (MPC) the step times, for `plot_closed_loop`.  `simulator(plant, dt)` makes the
+    and the plant's state over time and (MPC) the step times and references, for `plot_closed_loop`
+    and the benchmarks.  `simulator(plant, dt)` makes the
     plant's step (rscasadi.sim.loop.rk4_plant; rscasadi.export.mujoco.mujoco_plant: MuJoCo's)."""
     from rscasadi.sim.simulation import feedforward, motor_pd_gains
     from rscasadi.sim.trajectory import load_trajectory
@@ -97,7 +98,9 @@ def closed_loop(problem, mpc_dir, duration: float | None = None, tip_factor: flo
         run = run_loop(plant, advance, controller, ff["x0"], K, dt, sensors=Encoders(plant, dt, exact=not quantised))
         e = np.max(np.abs(run.x[:n, 1:] - ff["theta_d"][:, 1:K + 1]), axis=0)
         if traces is not None:
-            traces[name] = {"t": t[1:K + 1], "error": e, "step_s": run.seconds}
+            traces[name] = {"t": t[1:K + 1], "error": e, "step_s": run.seconds, "x": run.x[:, :K].T}
+            if name == "MPC (C)":
+                traces[name]["reference"] = np.array([horizon(k) for k in range(K)])
         results[name] = {**tracking(t[1:], e), "max_limit_violation": limit_violation(plant, run), **step_times(run)}
         if name == "MPC (C)":                           # its motion, every 10 ms, for rscasadi view
             every = max(1, int(round(0.01 / dt)))

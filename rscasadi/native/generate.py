@@ -69,11 +69,11 @@ def _largest(macros: list[str]) -> str:
 
 def write_controller(kind: str, prefix: str, functions: list[ca.Function], templates: Path, header: dict, body: dict,
                      out, flags: list, manifest: dict, log=print, extra_sources: dict | None = None,
-                     cc: list | None = None, casadi_file: str | None = None) -> dict:
+                     cc: list | None = None, casadi_file: str | None = None, link: list | None = None) -> dict:
     """Generate `functions`, fill templates/rscasadi_<kind>.h and .c with `header` and `body`
     (plus sym, SYM, header, casadi_header, the work sizes sz_w, sz_iw and sz_w_check, sz_iw_check:
     C expressions of the largest of CasADi's own figures), add the guard and
-    `extra_sources`, compile with `flags` once per source, and write everything with the manifest
+    `extra_sources`, compile with `flags` once per source (linked with `link`), and write everything with the manifest
     (its header, library, symbol, sources and compiler filled in) into `out`, whole or not at all."""
     names = symbols(kind, prefix)
     casadi_file = functions[0].name() if casadi_file is None else casadi_file
@@ -92,13 +92,13 @@ def write_controller(kind: str, prefix: str, functions: list[ca.Function], templ
                 "sources": sorted(k for k in sources if k.endswith(".c")),
                 "api": {f"{names['sym']}_{k}": v for k, v in manifest["api"].items()}}
     manifest = package(out, sources, flags, names["library"], manifest, log, cc, name=kind,
-                       what=f"the {LABELS.get(kind, kind)} ({' '.join(flags)})")
+                       what=f"the {LABELS.get(kind, kind)} ({' '.join(flags)})", link=link)
     log(f"wrote {Path(out) / names['library']}, {names['header']} and manifest.json")
     return manifest
 
 
 def package(out, sources: dict, flags: list, library: str, manifest: dict, log=print, cc: list | None = None,
-            name: str = "lib", what: str | None = None, built: dict | None = None) -> dict:
+            name: str = "lib", what: str | None = None, built: dict | None = None, link: list | None = None) -> dict:
     """The last step of every generated library (controllers and the arm's): `sources` (file name
     -> text, headers included) written into `out` with the shared `library` the one build step
     makes of `built` (default: all of them; cached by their hash, so a header no source includes
@@ -108,8 +108,8 @@ def package(out, sources: dict, flags: list, library: str, manifest: dict, log=p
     with fresh_directory(Path(out)) as tmp:
         for file, text in sources.items():
             (tmp / file).write_text(text)
-        lib = cached_library(sources if built is None else built, flags, name=name, what=what, log=log, cc=cc,
-                             log_hit=True)
+        lib = cached_library(sources if built is None else built, flags, link or (), name=name, what=what, log=log,
+                             cc=cc, log_hit=True)
         shutil.copy2(lib, tmp / library)
         manifest = {**manifest, "library": library, "compiler": cc + flags, "source_hash": lib.stem.rsplit("_", 1)[1]}
         write_json(tmp / "manifest.json", manifest, indent=2)

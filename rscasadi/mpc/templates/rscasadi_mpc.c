@@ -4,6 +4,14 @@
 #include "${header}"
 #include "rscasadi_guard.h"
 #include "${casadi_header}"
+#if ${SYM}_RICCATI
+#include <stdint.h>
+#include "hpipm_d_ocp_qp_ipm.h"
+#include "hpipm_d_ocp_qp_dim.h"
+#include "hpipm_d_ocp_qp.h"
+#include "hpipm_d_ocp_qp_sol.h"
+#include "hpipm_d_part_cond.h"
+#endif
 
 #define NXP (${SYM}_NX * (${SYM}_HORIZON + 1))
 #define NUP (${SYM}_NU * ${SYM}_HORIZON)
@@ -75,6 +83,7 @@ int ${sym}_init_parameters(${sym}_t *c, const double *x_measured, const double *
   if (!c) return ${SYM}_BAD_ARGUMENT;
   c->ready = 0;
   c->prepared = 0;
+  c->qp_owner = 0;
   c->last_step_seconds = c->last_feedback_seconds = 0.0;
   if (!finite_all(p, ${SYM}_NP)) return ${SYM}_BAD_ARGUMENT;
   if (!rscasadi_within(x_measured, X_LO, X_HI, ${SYM}_NX)) return ${SYM}_BAD_MEASUREMENT;
@@ -94,10 +103,231 @@ static int reference_ok(const double *reference) {
   return 1;
 }
 
+#if ${SYM}_RICCATI
+#define NX ${SYM}_NX
+#define NU ${SYM}_NU
+#define NH ${SYM}_HORIZON
+#define NR ${nr}                              /* rows of an interval end's residual */
+#define NB ${blocks}                          /* HPIPM's stages after partial condensing (NH: none) */
+static const double W_TAU = ${w_tau};       /* the torque's weight */
+static const double SHIFT = ${shift};       /* the sample, in intervals: how far the plan moves */
+
+typedef struct {
+  struct d_ocp_qp_dim dim, bdim;          /* the intervals' QP; the blocks' (partially condensed) */
+  struct d_ocp_qp qp, bqp;
+  struct d_ocp_qp_sol sol, bsol;
+  struct d_part_cond_qp_arg carg;
+  struct d_part_cond_qp_ws cws;
+  struct d_ocp_qp_ipm_arg arg;            /* the interior-point method on the blocks' QP */
+  struct d_ocp_qp_ipm_ws ws;
+  int block_size[NH + 1];
+} hpipm_t;
+
+#define FITS(size) if (p + (size) > end) return NULL
+
+static char *aligned(char *p) { return (char *)(((uintptr_t)p + 63) & ~(uintptr_t)63); }
+
+/* HPIPM's structures in c->qp_memory (placed once per controller address), or NULL if they do not fit */
+static hpipm_t *qp_structures(${sym}_t *c) {
+  char *p = aligned((char *)c->qp_memory), *end = (char *)c->qp_memory + sizeof(c->qp_memory);
+  hpipm_t *h = (hpipm_t *)p;
+  if (c->qp_owner == c) return h;
+  int nx[NH + 1], nu[NH + 1], nbx[NH + 1], nbu[NH + 1], zero[NH + 1], idx[NU];
+  for (int k = 0; k <= NH; ++k) {
+    nx[k] = k == 0 ? 0 : NX;              /* x_0 is the measurement: eliminated into stage 0's b and r */
+    nu[k] = k < NH ? NU : 0;
+    nbx[k] = 0;
+    nbu[k] = nu[k];
+    zero[k] = 0;
+  }
+  p = aligned(p + sizeof(hpipm_t));
+  FITS(d_ocp_qp_dim_memsize(NH));
+  d_ocp_qp_dim_create(NH, &h->dim, p);
+  p = aligned(p + d_ocp_qp_dim_memsize(NH));
+  d_ocp_qp_dim_set_all(nx, nu, nbx, nbu, zero, zero, &h->dim);
+  FITS(d_ocp_qp_memsize(&h->dim));
+  d_ocp_qp_create(&h->dim, &h->qp, p);
+  p = aligned(p + d_ocp_qp_memsize(&h->dim));
+  FITS(d_ocp_qp_sol_memsize(&h->dim));
+  d_ocp_qp_sol_create(&h->dim, &h->sol, p);
+  p = aligned(p + d_ocp_qp_sol_memsize(&h->dim));
+  FITS(d_ocp_qp_dim_memsize(NB));         /* the blocks: NH / NB intervals each, their torques stacked */
+  d_ocp_qp_dim_create(NB, &h->bdim, p);
+  p = aligned(p + d_ocp_qp_dim_memsize(NB));
+  d_part_cond_qp_compute_block_size(NH, NB, h->block_size);
+  d_part_cond_qp_compute_dim(&h->dim, h->block_size, &h->bdim);
+  FITS(d_ocp_qp_memsize(&h->bdim));
+  d_ocp_qp_create(&h->bdim, &h->bqp, p);
+  p = aligned(p + d_ocp_qp_memsize(&h->bdim));
+  FITS(d_ocp_qp_sol_memsize(&h->bdim));
+  d_ocp_qp_sol_create(&h->bdim, &h->bsol, p);
+  p = aligned(p + d_ocp_qp_sol_memsize(&h->bdim));
+  FITS(d_part_cond_qp_arg_memsize(NB));
+  d_part_cond_qp_arg_create(NB, &h->carg, p);
+  p = aligned(p + d_part_cond_qp_arg_memsize(NB));
+  d_part_cond_qp_arg_set_default(&h->carg);
+  FITS(d_part_cond_qp_ws_memsize(&h->dim, h->block_size, &h->bdim, &h->carg));
+  d_part_cond_qp_ws_create(&h->dim, h->block_size, &h->bdim, &h->carg, &h->cws, p);
+  p = aligned(p + d_part_cond_qp_ws_memsize(&h->dim, h->block_size, &h->bdim, &h->carg));
+  FITS(d_ocp_qp_ipm_arg_memsize(&h->bdim));
+  d_ocp_qp_ipm_arg_create(&h->bdim, &h->arg, p);
+  p = aligned(p + d_ocp_qp_ipm_arg_memsize(&h->bdim));
+  d_ocp_qp_ipm_arg_set_default(SPEED, &h->arg);
+  int iter_max = ${qp_iterations}, warm = 0;
+  double tol = 1e-10;
+  d_ocp_qp_ipm_arg_set_iter_max(&iter_max, &h->arg);
+  d_ocp_qp_ipm_arg_set_tol_stat(&tol, &h->arg);
+  d_ocp_qp_ipm_arg_set_tol_eq(&tol, &h->arg);
+  d_ocp_qp_ipm_arg_set_tol_ineq(&tol, &h->arg);
+  d_ocp_qp_ipm_arg_set_tol_comp(&tol, &h->arg);
+  d_ocp_qp_ipm_arg_set_warm_start(&warm, &h->arg);
+  FITS(d_ocp_qp_ipm_ws_memsize(&h->bdim, &h->arg));
+  d_ocp_qp_ipm_ws_create(&h->bdim, &h->arg, &h->ws, p);
+  for (int i = 0; i < NU; ++i) idx[i] = i;
+  for (int k = 0; k < NH; ++k) d_ocp_qp_set_idxbu(k, idx, &h->qp);
+  c->qp_owner = c;
+  return h;
+}
+
+/* C = op(A)' op(B) style products on column-major arrays: out (m x n) = A' B, A (r x m), B (r x n) */
+static void at_b(const double *A, const double *B, int r, int m, int n, double *out) {
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < m; ++i) {
+      double s = 0.0;
+      for (int l = 0; l < r; ++l) s += A[l + r * i] * B[l + r * j];
+      out[i + m * j] = s;
+    }
+}
+
+/* out (m x n) = A B, A (m x r), B (r x n) */
+static void a_b(const double *A, const double *B, int m, int r, int n, double *out) {
+  for (int j = 0; j < n; ++j) {
+    for (int i = 0; i < m; ++i) out[i + m * j] = 0.0;
+    for (int l = 0; l < r; ++l) {
+      const double b = B[l + r * j];
+      for (int i = 0; i < m; ++i) out[i + m * j] += A[i + m * l] * b;
+    }
+  }
+}
+
+/* one interval's QP into HPIPM: the Gauss-Newton residual at X_{k+1} + e_{k+1}, written in
+ * (dx_k, du_k) through dx_{k+1} = A dx_k + B du_k + b (rscasadi.mpc.formulation.stage_functions) */
+static int riccati_interval(${sym}_t *c, hpipm_t *h, int k, const double *reference, double *e) {
+  double xn[NX], A[NX * NX], B[NX * NU], b[NX], Ae[NX], at[NX], r[NR], Jx[NR * NX], Ju[NR * NU];
+  double Jtx[NR * NX], Jtu[NR * NU], Q[NX * NX], S[NU * NX], R[NU * NU], q[NX], ru[NU], lo[NU], hi[NU];
+  const double *X = c->X + NX * k, *U = c->U + NU * k;
+  const casadi_real *arg[${sym}_interval_SZ_ARG + 1] = {X, U, c->params + NU};
+  casadi_real *res[${sym}_interval_SZ_RES + 1] = {xn, A, B};
+  if (${sym}_interval(arg, res, (casadi_int *)c->iw, c->w, 0) != 0) return ${SYM}_FAILED;
+  a_b(A, e, NX, NX, 1, Ae);
+  for (int i = 0; i < NX; ++i) {
+    b[i] = xn[i] - X[NX + i];             /* the gap to the next node */
+    e[i] = Ae[i] + b[i];                  /* the gaps propagated: e_{k+1} */
+    at[i] = X[NX + i] + e[i];
+  }
+  const casadi_real *arg2[${sym}_residual_SZ_ARG + 1] = {at, U, reference + NROWS * k, c->params};
+  casadi_real *res2[${sym}_residual_SZ_RES + 1] = {r, Jx, Ju};
+  if (${sym}_residual(arg2, res2, (casadi_int *)c->iw, c->w, 0) != 0) return ${SYM}_FAILED;
+  double JxAe[NR];
+  a_b(Jx, Ae, NR, NX, 1, JxAe);
+  a_b(Jx, A, NR, NX, NX, Jtx);
+  a_b(Jx, B, NR, NX, NU, Jtu);
+  for (int i = 0; i < NR * NU; ++i) Jtu[i] += Ju[i];
+  for (int i = 0; i < NR; ++i) r[i] -= JxAe[i];     /* r + Jx (dx_{k+1} - e_{k+1}) = r - Jx A e_k + ... */
+  at_b(Jtx, Jtx, NR, NX, NX, Q);
+  at_b(Jtu, Jtx, NR, NU, NX, S);
+  at_b(Jtu, Jtu, NR, NU, NU, R);
+  at_b(Jtx, r, NR, NX, 1, q);
+  at_b(Jtu, r, NR, NU, 1, ru);
+  for (int i = 0; i < NU; ++i) {
+    R[i + NU * i] += W_TAU;
+    ru[i] += W_TAU * U[i];
+    lo[i] = -TAU_MAX[i] - U[i];
+    hi[i] = TAU_MAX[i] - U[i];
+  }
+  if (k == 0) {                           /* x_0 = X_0 + dx_0 enters only b_0 and r_0: kept for the feedback */
+    double *first = c->first;
+    for (int i = 0; i < NX * NX; ++i) first[i] = A[i];
+    for (int i = 0; i < NU * NX; ++i) first[NX * NX + i] = S[i];
+    for (int i = 0; i < NX; ++i) first[NX * NX + NU * NX + i] = b[i];
+    for (int i = 0; i < NU; ++i) first[NX * NX + NU * NX + NX + i] = ru[i];
+  } else {
+    d_ocp_qp_set_A(k, A, &h->qp);
+    d_ocp_qp_set_Q(k, Q, &h->qp);
+    d_ocp_qp_set_S(k, S, &h->qp);
+    d_ocp_qp_set_q(k, q, &h->qp);
+  }
+  d_ocp_qp_set_B(k, B, &h->qp);
+  d_ocp_qp_set_b(k, b, &h->qp);
+  d_ocp_qp_set_R(k, R, &h->qp);
+  d_ocp_qp_set_r(k, ru, &h->qp);
+  d_ocp_qp_set_lbu(k, lo, &h->qp);
+  d_ocp_qp_set_ubu(k, hi, &h->qp);
+  return 0;
+}
+
+static int riccati_prepare(${sym}_t *c, const double *reference) {
+  hpipm_t *h = qp_structures(c);
+  if (!h) return ${SYM}_FAILED;
+  double e[NX] = {0.0}, zero[NX * NX] = {0.0};
+  for (int k = 0; k < NH; ++k) {
+    const int code = riccati_interval(c, h, k, reference, e);
+    if (code) return code;
+  }
+  d_ocp_qp_set_Q(NH, zero, &h->qp);       /* the last node's cost is the last interval's */
+  d_ocp_qp_set_q(NH, zero, &h->qp);
+  d_part_cond_qp_cond(&h->qp, &h->bqp, &h->carg, &h->cws);   /* at dx_0 = 0; the feedback moves b_0, r_0 */
+  return 0;
+}
+
+/* the QP from the measured state; the plan stepped (x_0 the measurement) and shifted by a sample */
+static int riccati_feedback(${sym}_t *c, const double *x_measured, double *tau_out) {
+  if (c->qp_owner != c) return ${SYM}_NOT_PREPARED;
+  hpipm_t *h = qp_structures(c);
+  double dx0[NX], v[NX], b0[NX], r0[NU], Xs[NXP], Us[NUP];
+  const double *A0 = c->first, *S0 = A0 + NX * NX;
+  for (int i = 0; i < NX; ++i) dx0[i] = x_measured[i] - c->X[i];
+  a_b(A0, dx0, NX, NX, 1, b0);            /* b_0 + A_0 dx_0, r_0 + S_0 dx_0 */
+  a_b(S0, dx0, NU, NX, 1, r0);
+  for (int i = 0; i < NX; ++i) b0[i] += S0[NU * NX + i];
+  for (int i = 0; i < NU; ++i) r0[i] += S0[NU * NX + NX + i];
+  d_ocp_qp_set_b(0, b0, &h->qp);
+  d_ocp_qp_set_r(0, r0, &h->qp);
+  d_part_cond_qp_cond_rhs(&h->qp, &h->bqp, &h->carg, &h->cws);   /* the vectors only: the matrices are the prepare's */
+  d_ocp_qp_ipm_solve(&h->bqp, &h->bsol, &h->arg, &h->ws);
+  int status = 0;
+  d_ocp_qp_ipm_get_status(&h->ws, &status);
+  if (status == 3) return ${SYM}_NOT_FINITE;   /* HPIPM met NaN */
+  d_part_cond_qp_expand_sol(&h->qp, &h->bsol, &h->sol, &h->carg, &h->cws);
+  for (int i = 0; i < NX; ++i) Xs[i] = x_measured[i];
+  for (int k = 1; k <= NH; ++k) {
+    d_ocp_qp_sol_get_x(k, &h->sol, v);
+    for (int i = 0; i < NX; ++i) Xs[NX * k + i] = c->X[NX * k + i] + v[i];
+  }
+  for (int k = 0; k < NH; ++k) {
+    d_ocp_qp_sol_get_u(k, &h->sol, v);
+    for (int i = 0; i < NU; ++i) {
+      const double u = c->U[NU * k + i], du = fmin(fmax(v[i], -TAU_MAX[i] - u), TAU_MAX[i] - u);
+      Us[NU * k + i] = u + du;
+    }
+  }
+  for (int i = 0; i < NU; ++i) tau_out[i] = Us[i];
+  for (int k = 0; k <= NH; ++k)           /* shifted: (1 - s) Z_k + s Z_{k+1}, the last node held */
+    for (int i = 0; i < NX; ++i)
+      c->X_next[NX * k + i] = (1 - SHIFT) * Xs[NX * k + i] + SHIFT * Xs[NX * (k < NH ? k + 1 : NH) + i];
+  for (int k = 0; k < NH; ++k)
+    for (int i = 0; i < NU; ++i)
+      c->U_next[NU * k + i] = (1 - SHIFT) * Us[NU * k + i] + SHIFT * Us[NU * (k < NH - 1 ? k + 1 : NH - 1) + i];
+  return 0;
+}
+#endif
+
 int ${sym}_prepare(${sym}_t *c, const double *reference) {
   if (!c || c->ready != RSCASADI_READY) return ${SYM}_NOT_INITIALISED;
   int code = reference_ok(reference) ? 0 : ${SYM}_BAD_REFERENCE;
-#if ${SYM}_SPLIT
+#if ${SYM}_RICCATI
+  if (!code) code = riccati_prepare(c, reference);
+#elif ${SYM}_SPLIT
   if (!code) {
     const casadi_real *arg[${sym}_rti_prepare_SZ_ARG + 1] = {reference, c->X, c->U, c->params};
     casadi_real *res[${sym}_rti_prepare_SZ_RES + 1];
@@ -124,7 +354,9 @@ static int feedback(${sym}_t *c, const double *x_measured, double *tau_out) {
   c->prepared = 0;                        /* a preparation serves one feedback */
   if (code == ${SYM}_BAD_REFERENCE || code == ${SYM}_NOT_PREPARED) return refuse(c, tau_out, code);
   if (!code) {
-#if ${SYM}_SPLIT
+#if ${SYM}_RICCATI
+    code = riccati_feedback(c, x_measured, tau_out);
+#elif ${SYM}_SPLIT
     const casadi_real *arg[${sym}_rti_feedback_SZ_ARG + 1] = {x_measured, c->X, c->U};
     for (int i = 0; i < NPREPARED; ++i) arg[3 + i] = c->prep + PREP_OFF[i];
     casadi_real *res[${sym}_rti_feedback_SZ_RES + 1] = {tau_out, c->X_next, c->U_next};

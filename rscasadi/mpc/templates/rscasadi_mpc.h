@@ -30,6 +30,12 @@
  * returns the prepare's code.  With more than one SQP iteration the prepare only keeps the
  * reference and the feedback does the whole step.
  *
+ * QP: ${qp}.  With the Riccati recursion (${SYM}_RICCATI 1: HPIPM, linked from CasADi's
+ * installation) the prepare forms each interval's QP (dynamics, cost) and the feedback solves it
+ * from the measured state; HPIPM's structures live in the controller's own memory, placed at
+ * the first prepare: a controller moved (copied) after that re-places them at its next prepare,
+ * and a feedback before it returns ${SYM}_NOT_PREPARED.
+ *
  * ${sym}_step_seconds: the duration of the last ${sym}_step or ${sym}_step_to (CLOCK_MONOTONIC);
  * ${sym}_feedback_seconds: of the last ${sym}_feedback (within a step too).
  * ${sym}_set_payload_mass: the payload's mass (kg) from the next step on (${SYM}_NO_PAYLOAD if the model
@@ -58,6 +64,7 @@
 #define ${SYM}_NOT_INITIALISED 8
 #define ${SYM}_NOT_PREPARED 9
 #define ${SYM}_SPLIT ${split}              /* 1: prepare does the linearisation (real-time iteration) */
+#define ${SYM}_RICCATI ${riccati}            /* 1: the QP by HPIPM's Riccati recursion on the stages */
 typedef struct ${sym}_s {
   double X[${SYM}_NX * (${SYM}_HORIZON + 1)], U[${SYM}_NU * ${SYM}_HORIZON];
   double X_next[${SYM}_NX * (${SYM}_HORIZON + 1)], U_next[${SYM}_NU * ${SYM}_HORIZON];
@@ -66,6 +73,9 @@ typedef struct ${sym}_s {
   double x_good[${SYM}_NX];                  /* the last measured state acted on */
   double prep[${nprep}];                  /* the prepared QP (manifest.json: prepared) */
   double reference[${SYM}_NREF];           /* the prepared reference (more than one SQP iteration) */
+  long long qp_memory[${qp_words}];        /* HPIPM's structures and work (${SYM}_RICCATI) */
+  double first[${nfirst}];                /* the first interval's A, S, b, r (${SYM}_RICCATI) */
+  const void *qp_owner;                   /* the controller they were placed for */
   double w[${sz_w}];
   long long iw[${sz_iw}];
   double last_step_seconds, last_feedback_seconds;
