@@ -4,14 +4,16 @@
    its size growing as N^2: generated up to N = 20) and the Riccati recursion (HPIPM, partially
    condensed into blocks of about 4 intervals): the time to generate and compile, the C's size,
    the median step and feedback (mpc_prepare before the sample, mpc_feedback from it: the
-   latency) timed in C over 2000 samples of the closed loop's own states, and the closed loop's
+   latency) timed in C along the 1000 samples of the closed loop's own states, and the closed loop's
    tracking of problems/trajectory_panda.toml (1 s, 20 % heavier last link);
 2. the Panda with a last link 50 times lighter, problems/mpc_panda.toml's settings untouched:
    integrator = auto takes ROS2 (RK4 would need more substeps than it allows), every step finite.
 
-    python benchmarks/bench_mpc_horizon.py      # writes results/bench_mpc_horizon.md (about 15 min)
+    python benchmarks/bench_mpc_horizon.py      # writes results/bench_mpc_horizon.md (about 20 min,
+                                                # every build from an empty cache)
 """
 import dataclasses
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -82,6 +84,7 @@ def light_wrist(work: Path, log=print) -> dict:
 
 def main():
     work = Path(tempfile.mkdtemp())
+    os.environ["RSCASADI_CACHE"] = str(work / "cache")      # every build timed from an empty cache
     base = dataclasses.replace(load_mpc_problem(PROBLEM), interval=0.01, substeps=2)
     rows = []
     for N in HORIZONS:
@@ -97,7 +100,7 @@ def main():
           "times in C, medians over the 1000 samples of a 1 s closed loop's states (quantised encoders, a 20 % "
           "heavier last link), the step's 99.9th percentile, and the feedback alone (mpc_feedback after "
           "mpc_prepare: the measurement-to-torque latency).", "",
-          "| QP | N | generate + compile (s) | C (MB) | step median (us) | step 99.9 % (us) | feedback (us) | "
+          "| QP | N | generate + compile, empty cache (s) | C (MB) | step median (us) | step 99.9 % (us) | feedback (us) | "
           "tracking (rad) |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         md.append(f"| {r['qp']} | {r['N']} | {r['build_s']:.0f} | {r['c_mb']:.1f} | {r['step_us']:.0f} | "
