@@ -113,13 +113,14 @@ def hpipm_words(horizon: int, nx: int, nu: int, iterations: int, cc: list, log=p
     """The 8-byte words HPIPM's structures and work take for this QP, as the controller places
     them (HPIPM's own memsize functions, asked through a small library built once)."""
     import ctypes
+    from rscasadi.errors import Failed
     inc, link = hpipm_flags()
     lib = ctypes.CDLL(str(cached_library({"hpipm_probe.c": _HPIPM_PROBE}, ["-O1", "-std=c99", *inc], link,
                                          name="hpipm_probe", what="HPIPM's memory probe", log=log, cc=cc)))
     lib.rscasadi_hpipm_bytes.restype = ctypes.c_ulong
     size = lib.rscasadi_hpipm_bytes(horizon, riccati_blocks(horizon, nx, nu), nx, nu, iterations)
     if not size:
-        raise RuntimeError(f"HPIPM's memory probe found no room for {horizon} stages of {nx} states")
+        raise Failed(f"HPIPM's memory probe found no room for {horizon} stages of {nx} states")
     return int(size) // 8 + 1
 
 
