@@ -237,9 +237,10 @@ def identified(synthetic, tmp_path_factory):
 
 
 # The two CI workers take whole files (--dist loadfile) in collection order: the longest files
-# first, so that no single long file runs alone at the end (the whole-robot day is one 2.5 min
-# test, last in the alphabet).
-LONGEST_FIRST = ("test_whole_robot.py", "test_tasks.py", "test_mpc.py", "test_link_side_logs.py", "test_identification.py")
+# first, so that no single long file runs alone at the end (the whole-robot day is one 2 min
+# test, last in the alphabet; the type checker one 30 s test near it).
+LONGEST_FIRST = ("test_whole_robot.py", "test_tasks.py", "test_mpc.py", "test_link_side_logs.py", "test_identification.py",
+                 "test_types.py")
 
 
 def pytest_collection_modifyitems(config, items):
