@@ -51,14 +51,17 @@ PROBLEMS = {name: ROOT / "problems" / f"{name}.toml" for name in ("mpc_arm3", "m
 
 @pytest.fixture(scope="module")
 def mpc_dirs(tmp_path_factory):
-    """The shipped MPC problems' controllers, and mpc_arm3's with hard link-angle limits (its C
-    symbols prefixed `hard_`: hard_mpc_init, ...)."""
+    """The shipped MPC problems' controllers, mpc_arm3's with hard link-angle limits (its C
+    symbols prefixed `hard_`: hard_mpc_init, ...) and with the Riccati QP (HPIPM)."""
     from rscasadi.mpc import generate_mpc
     hard = tmp_path_factory.mktemp("hard") / "mpc_arm3_hard.toml"
-    text = PROBLEMS["mpc_arm3"].read_text().replace('model = "', f'model = "{ROOT / "problems"}/')
-    hard.write_text(text.replace("[weights]", 'angle_limits = "hard"\n[weights]', 1).replace(
-        'trajectory = "', f'trajectory = "{ROOT / "problems"}/'))
+    text = PROBLEMS["mpc_arm3"].read_text().replace('model = "', f'model = "{ROOT / "problems"}/').replace(
+        'trajectory = "', f'trajectory = "{ROOT / "problems"}/')
+    hard.write_text(text.replace("[weights]", 'angle_limits = "hard"\n[weights]', 1))
     PROBLEMS["mpc_arm3_hard"] = hard
+    riccati = hard.with_name("mpc_arm3_riccati.toml")
+    riccati.write_text(text.replace("[weights]", 'qp = "riccati"\n[weights]', 1))
+    PROBLEMS["mpc_arm3_riccati"] = riccati
     out = {}
     for name, problem in PROBLEMS.items():
         out[name] = tmp_path_factory.mktemp(name) / "mpc"
@@ -76,12 +79,12 @@ def interaction_dirs(tmp_path_factory, arm):
     return d
 
 
-@pytest.mark.parametrize("name", ["mpc_arm3", "mpc_arm3_tool", "mpc_arm3_hard"])
+@pytest.mark.parametrize("name", ["mpc_arm3", "mpc_arm3_tool", "mpc_arm3_hard", "mpc_arm3_riccati"])
 def test_the_mpc_fuzzed_gives_safe_torques_and_recovers(mpc_dirs, name):
     """200 samples, 40 % of them with a bad entry in the measurement, the reference or the target:
     MPC_BAD_MEASUREMENT (6) or MPC_BAD_REFERENCE (7), the holding torque of the last good state;
     every good sample's torque equals a clean twin's to the last bit.  Also with hard link-angle
-    limits (QP rows)."""
+    limits (QP rows) and with the Riccati QP."""
     from rscasadi.mpc import CompiledMPC
     from rscasadi.mpc.problem import load_mpc_problem
     p = load_mpc_problem(PROBLEMS[name])
@@ -338,15 +341,17 @@ def test_controllers_with_prefixes_link_into_one_program(mpc_dirs, interaction_d
 
 def test_the_template_c_compiles_without_a_warning(mpc_dirs, interaction_dirs, built, tmp_path):
     """What rscasadi writes from its templates (not CasADi's generated files): every controller's
-    source and header, the arm library's guarded feedforward, under -Wall -Wextra -Werror -pedantic."""
+    source and header (the Riccati one with HPIPM's headers), the arm library's guarded
+    feedforward, under -Wall -Wextra -Werror -pedantic."""
     import json
+    from rscasadi.ocp.fatrop.driver import casadi_dir
     dirs = [*mpc_dirs.values(), *(d for d in interaction_dirs.iterdir() if d.is_dir())]
     sources = [d / json.loads((d / "manifest.json").read_text())["header"].replace(".h", ".c") for d in dirs]
     sources.append(built[0] / "rscasadi_feedforward.c")
-    assert len(sources) == 7 and all(f.exists() for f in sources), sources
+    assert len(sources) == 8 and all(f.exists() for f in sources), sources
     for f in sources:
         run = subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-c", str(f), f"-I{f.parent}",
-                              "-o", str(tmp_path / "x.o")], capture_output=True, text=True)
+                              f"-I{casadi_dir() / 'include'}", "-o", str(tmp_path / "x.o")], capture_output=True, text=True)
         assert run.returncode == 0, f"{f.name}: {run.stderr[-2000:]}"
 
 

@@ -25,7 +25,9 @@ typedef char casadi_int_is_long_long[sizeof(casadi_int) == sizeof(long long) ? 1
 typedef char work_fits[sizeof(((${sym}_t *)0)->w) >= sizeof(casadi_real) * (${sz_w_check}) ? 1 : -1];
 typedef char iwork_fits[sizeof(((${sym}_t *)0)->iw) >= sizeof(casadi_int) * (${sz_iw_check}) ? 1 : -1];
 #define NPREPARED ${nprepared}
+#if ${SYM}_SPLIT && !${SYM}_RICCATI
 static const int PREP_OFF[NPREPARED + 1] = {${prep_offsets}};   /* each prepared output in c->prep */
+#endif
 
 size_t ${sym}_sizeof(void) { return sizeof(${sym}_t); }
 
