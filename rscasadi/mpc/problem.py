@@ -15,8 +15,8 @@ from rscasadi.task.objects import holding_payload
 from rscasadi.task.read import read_obstacles, read_path, read_payload
 from rscasadi.task.toolpath import ToolPath
 
-TOP = {"model", "trajectory", "sample_time", "horizon", "interval", "substeps", "integrator", "qp", "sqp_iterations", "qp_iterations",
-       "weights", "frame", "orientation", "path", "obstacles", "payload", "theta_start", "solution", "parametric", "angle_limits"}
+TOP = {"model", "trajectory", "sample_time", "horizon", "interval", "substeps", "integrator", "qp", "sqp_iterations",
+       "qp_iterations", "weights", "frame", "orientation", "path", "obstacles", "payload", "theta_start", "solution", "parametric", "angle_limits"}
 ANGLE_LIMITS = ("soft", "hard")
 WEIGHTS = {"theta": 1e5, "dtheta": 1.0, "tau": 1e-3, "limits": 1e5, "angle_limits": 1e8,
            "position": 1e6, "velocity": 10.0, "orientation": 1e3, "posture": 1.0, "obstacles": 1e8}
@@ -44,9 +44,9 @@ class MPCProblem:
     a horizon of `horizon` intervals of `interval` s, each `substeps` steps of `integrator` ("rk4"
     or "ros2"; "auto", the default for both: RK4 with the fewest substeps that amplify none of the
     arm's spring modes where RK4_MOST do, else the L-stable ROS2, `with_integrator`), the QP
-    (`qp_of`: "condensed", "riccati" or "auto"), the SQP iterations per sample (1: the real-time iteration) and the QP's interior-point iterations,
-    and the cost `weights` (theta, dtheta, tau, limits, angle_limits; in task space position, velocity,
-    orientation, posture; obstacles).  Task space: `frame` (its position, and its rotation if
+    (`qp_of`: "condensed", "riccati" or "auto"), the SQP iterations per sample (1: the real-time
+    iteration) and the QP's interior-point iterations, and the cost `weights` (theta, dtheta, tau,
+    limits, angle_limits; in task space position, velocity, orientation, posture; obstacles).  Task space: `frame` (its position, and its rotation if
     `orientation`, is the reference), `tool_path` (a `ToolPath` at a speed: the study's
     reference, from rest at `theta_start`) or `solution` (an optimal-control solution.json: the
     frame's motion in it is the study's reference).  `obstacles` are soft (the model's [collision]
@@ -257,7 +257,8 @@ def problem_poses(p, n: int, count: int = 5) -> list[np.ndarray]:
 def qp_of(p: MPCProblem) -> str:
     """The QP the controller solves: "condensed" (onto the torques, a dense interior-point method
     in straight-line C: fastest at short horizons, its C growing as N^2) or "riccati" (HPIPM's
-    interior-point method on the stage structure, linear in N, C the same size at any N); "auto":
+    interior-point method on the stage structure, its C the same size at any N and its step
+    growing far slower with N); "auto":
     riccati from RICCATI_FROM intervals on, where the real-time iteration allows it."""
     if p.qp != AUTO:
         return p.qp
