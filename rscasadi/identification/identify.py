@@ -212,9 +212,10 @@ def motor_side_cutoff_hz(arm: Arm, log: Log) -> tuple[float, str]:
     """The cut-off of a log with motor angles: CUTOFF_FACTOR x the highest SEA mode the log
     excites (`excited_modes`; a mode rings where the deflection rises SIGNAL_OVER_NOISE above its
     noise: ringing springs carry k1 and d, and a filter through them biased k1 by 100 standard
-    deviations at 1.5x), else 1.5x where the motor and link angles'
-    motion ends (`band_ends_hz`: above it differentiation amplifies only noise); never above
-    CUTOFF_FACTOR x the highest mode, at least 20 Hz, at most half the Nyquist frequency."""
+    deviations at 1.5x), else 1.5x where the link angles' motion ends (`band_ends_hz`: above it
+    differentiation amplifies only noise; the motor angles are no guide, their spectrum stays high
+    up to the modes with the controller's answer to torque noise); never above CUTOFF_FACTOR x
+    the highest mode, at least 20 Hz, at most half the Nyquist frequency."""
     modes, rise = excited_modes(arm, log)
     nyquist = 0.5 / log.dt
     ends = band_ends_hz(log.theta, log.dt)
