@@ -68,27 +68,32 @@ def simulate(arm: Arm, x0, t, tau, method: str = "cvodes", tol: float = 1e-10, s
 
 def simulate_held(arm: Arm, x0, t, tau, substeps: int, tol: float = 1e-10) -> dict:
     """Torque samples tau[:, k] held on [t_k, t_k+1) (tau_interpolation "constant"; t may be
-    non-uniform), simulated with CVODES and reported `substeps` times finer than t.  Each fine
-    sample's interval is found by integer division, never by a float search (which picks the
-    wrong torque at a switch)."""
+    non-uniform), simulated with CVODES and reported `substeps` times finer than t.  One CVODES
+    run per interval, reporting on its grid without restarting (a restart per fine sample, from
+    order 1 and a tiny step, was 11x slower and 30x less accurate at the same tolerance)."""
     t = np.asarray(t, float)
-    F = held_interval(arm, tol)
-    idx = np.arange((len(t) - 1) * substeps) // substeps
-    h = np.diff(t)[idx] / substeps
-    X = np.array(F.mapaccum(len(idx))(x0, np.vstack([np.asarray(tau, float)[:, idx], h])))
-    fine = np.concatenate([[t[0]], t[idx] + h * (np.arange(len(idx)) % substeps + 1)])
-    return trajectory_record(arm, fine, np.hstack([np.asarray(x0, float).reshape(-1, 1), X]))
+    N = len(t) - 1
+    F = held_interval(arm, tol, substeps)
+    _, X = F.mapaccum(N)(x0, np.vstack([np.asarray(tau, float)[:, :N], np.diff(t)]))
+    h = np.diff(t) / substeps
+    fine = np.concatenate([[t[0]], (t[:-1, None] + h[:, None] * np.arange(1, substeps + 1)).ravel()])
+    return trajectory_record(arm, fine, np.hstack([np.asarray(x0, float).reshape(-1, 1), np.array(X)]))
 
 
-def held_interval(arm: Arm, tol: float = 1e-10) -> ca.Function:
+def held_interval(arm: Arm, tol: float = 1e-10, substeps: int | None = None) -> ca.Function:
     """(x, [tau; h]) -> x after h seconds of the complete model under the held torque tau (CVODES,
-    time scaled to [0, 1] so that one Function serves every interval length)."""
+    time scaled to [0, 1] so that one Function serves every interval length); with `substeps`,
+    (x, [tau; h]) -> (x at h, x at h/substeps, 2 h/substeps, ..., h as columns), one run."""
     n = arm.n
     x, p = ca.SX.sym("x", 4 * n), ca.SX.sym("p", n + 1)
     ode = {"x": x, "p": p, "ode": p[n] * _xdot(arm, False)(x, p[:n])}
-    F = ca.integrator("F", "cvodes", ode, 0.0, 1.0, {"abstol": tol, "reltol": tol, "max_num_steps": 100000})
+    grid = [1.0] if substeps is None else (np.arange(1, substeps + 1) / substeps).tolist()
+    F = ca.integrator("F", "cvodes", ode, 0.0, grid, {"abstol": tol, "reltol": tol, "max_num_steps": 100000})
     xs, ps = ca.MX.sym("x", 4 * n), ca.MX.sym("p", n + 1)
-    return ca.Function("held", [xs, ps], [F(x0=xs, p=ps)["xf"]])
+    X = F(x0=xs, p=ps)["xf"]
+    if substeps is None:
+        return ca.Function("held", [xs, ps], [X])
+    return ca.Function("held_grid", [xs, ps], [X[:, -1], X])
 
 
 def trajectory_record(arm: Arm, t, X) -> dict:
