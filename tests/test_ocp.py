@@ -99,14 +99,16 @@ def test_bad_problem_file_exit_code(tmp_path, capsys):
 
 def test_compiled_nlp_equals_vm_and_is_cached(pitch_arm):
     path = problem(pitch_arm, "c.toml", transcription={"intervals": 30, "compiled": True})
-    logs = []
-    a = solve(load_problem(path), print_level=0, log=logs.append)
-    b = solve(load_problem(path), print_level=0, log=logs.append)
+    first, again = [], []
+    a = solve(load_problem(path), print_level=0, log=first.append)
+    b = solve(load_problem(path), print_level=0, log=again.append)
     vm = solve(load_problem(problem(pitch_arm, "v.toml", transcription={"intervals": 30})), print_level=0,
                log=lambda m: None)
     assert a["success"] and b["success"] and vm["success"]
     assert abs(a["objective"] - vm["objective"]) < 1e-8 * vm["objective"]
-    assert any(m.startswith("compiled the NLP in") for m in logs) and any("cache hit" in m for m in logs)
+    # the first solve compiles (the condensing kernel, the end pieces); the second finds them all
+    assert any(m.startswith("compiled the condensing kernel") for m in first)
+    assert not any(m.startswith("compiling") for m in again), again
 
 
 def test_a_failed_fatrop_solve_falls_back_to_ipopt_and_says_so(pitch_arm):

@@ -201,7 +201,7 @@ def test_a_reused_solver_iterates_as_a_new_one(pitch_arm, monkeypatch):
              "lbx": lbx + shrink, "ubx": ubx - shrink}
     second = s(**other)
     assert s.stats()["success"] and len(s._sessions) == 1
-    fresh = DirectFatrop(s.library, s.structure, dict(s.options))
+    fresh = DirectFatrop(s.library, s.structure, dict(s.options), places=s.places, pieces=s.pieces)
     alone = fresh(**other)
     assert fresh.stats()["iter_count"] == s.stats()["iter_count"]
     for key in ("x", "lam_g", "lam_x"):

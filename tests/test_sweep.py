@@ -36,7 +36,8 @@ def test_sweep_on_two_workers_equals_each_point_solved_alone(pitch_arm, capsys):
     text = capsys.readouterr().out
     assert code == 1                                          # two points cannot be solved: said so
     assert "2 workers" in text and "4/4 points" in text
-    assert text.count("compiled the NLP in") == 1                 # one NLP for every point
+    assert text.count("compiled the condensing kernel") <= 1      # one kernel for every point (or the cache's)
+    assert "compiled the NLP" not in text                     # and nothing compiled per point
     table = rows(out)
     assert len(table) == 4 and (out / "sweep.png").exists()
     for r in table:

@@ -152,6 +152,26 @@ def _compile(cc: list, flags, link, sources: dict, lib: Path):
         record.replace(_record(lib))
 
 
+def indexed(key: str, build) -> tuple:
+    """(lines, found): what `build()` returns (lines of text, the first a library's path) for a
+    `key` made of everything that shapes that library, from the cache's index (found) if the
+    library it names is intact, else built now and indexed.  Why: the key (a serialised Function, source versions)
+    costs milliseconds where generating the C to hash it costs seconds."""
+    index = cache_dir() / "lib" / f"index_{hashlib.sha256(key.encode()).hexdigest()[:24]}"
+    try:
+        lines = index.read_text().split("\n")
+        if intact(Path(lines[0])):
+            return lines, True
+    except OSError:
+        pass
+    lines = [str(v) for v in build()]
+    index.parent.mkdir(parents=True, exist_ok=True)
+    tmp = index.with_name(f"{index.name}.{os.getpid()}.tmp")
+    tmp.write_text("\n".join(lines))
+    os.replace(tmp, index)                         # whole or not at all
+    return lines, False
+
+
 def cached_library(sources: dict, flags=(), link=(), name: str = "lib", what: str | None = None,
                    log=print, cc: list | None = None, log_hit: bool = False) -> Path:
     """The shared library of `sources` (file name -> C text; .h files are the headers the .c

@@ -43,6 +43,12 @@ class Piece:
     args: list
     derivatives: tuple | None = None     # its own (first, objective, second); by AD of fn if None
     library: str | None = None           # the shared library of fn's C kernel (condensing.py), if any
+    # where its functions are in `library` for a caller that evaluates the pieces itself
+    # (ocp/fatrop/driver.c): the C symbols of "value" (rows, f), "first", "objective", "second"
+    symbols: dict | None = None
+    # and its parameters there: (offset in the NLP's parameter vector, length, step per instance;
+    # a step < 0: the instance's index as a number)
+    arg_places: list | None = None
 
     @property
     def count(self):

@@ -34,7 +34,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from rscasadi.native.build import cached_library, casadi_units, native_flags
+from rscasadi.native.build import cached_library, casadi_units, compiler, indexed, native_flags
 
 NEWTON_MAX_ITER = 50
 NEWTON_STEP_TOL = 1e-10         # relative: after such a step Newton's error is ~1e-20
@@ -246,8 +246,41 @@ def condense(d1: ca.Function, f1: ca.Function, d2: ca.Function, split, keep, eli
     fns, rk, scols, dcols, args = _sx_functions(prefix, d1, f1, d2, split, keep, elim, grows)
     library = _compiled(prefix, fns, _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols, dcols, split,
                                                     d2.sparsity_out(1)), log, opt)
+    return loaded(library, prefix)
+
+
+def loaded(library: str, prefix: str) -> Condensed:
+    """The kernel in `library` under `prefix`, as external Functions."""
     ext = {name: ca.external(prefix + "ext_" + name, library) for name in ("rows", "first", "objective", "second", "newton")}
     return Condensed(ext["rows"], (ext["first"], ext["objective"], ext["second"]), library, ext["newton"], prefix)
+
+
+# what generates a kernel: a change to any of these files is a new kernel
+_GENERATOR = "".join(Path(__file__).with_name(name).read_text() for name in ("condensing.py", "assembly.py", "transcription.py"))
+_GENERATOR += KERNEL_C
+_KERNELS: dict[str, Condensed] = {}
+
+
+def cached_kernel(stage_key: str, build, log=print) -> Condensed:
+    """The condensed kernel of the stage piece whose serialisation hashes to `stage_key`: this
+    process's, the cache's (indexed by that key, the generator's source and the build flags:
+    no derivatives built, no C generated), or `build()`'s.  A refinement round or a new process
+    on the same task then sets up in milliseconds (the Panda's obstacle task: 13 s of symbolic
+    derivatives and 6 s of generated C otherwise)."""
+    opt = os.environ.get("RSCASADI_NLP_OPT", "-O1")
+    key = "\n".join([stage_key, hashlib.sha256(_GENERATOR.encode()).hexdigest(), ca.__version__, *compiler(), opt,
+                     *native_flags(), str(NEWTON_MAX_ITER), repr(NEWTON_STEP_TOL), repr(SPURIOUS)])
+    if key not in _KERNELS:
+        def fresh():
+            kernel = build()
+            return [kernel.library, kernel.prefix]
+        (library, prefix), _ = indexed(key, fresh)
+        while len(_KERNELS) >= 4:
+            _KERNELS.pop(next(iter(_KERNELS)))
+        _KERNELS[key] = loaded(library, prefix)
+    return _KERNELS[key]
+
+
 
 
 def _declarations(fns: dict) -> str:

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import casadi as ca
 
-from rscasadi.native.build import cache_dir, cached_library, casadi_c, casadi_units, compiler
+from rscasadi.native.build import cached_library, casadi_c, casadi_units, compiler, indexed
 from rscasadi.native.parallel import openmp_flags
-from rscasadi.ocp.fatrop.driver import DirectFatrop
+from rscasadi.ocp.fatrop.driver import DirectFatrop, NativePieces
 from rscasadi.ocp.assembly import ASSEMBLY_VERSION, Piece, assembled, derivative_functions, places, solver_functions, symbols
 from rscasadi.ocp.problem import Problem
 from rscasadi.ocp.transcription import Transcription
@@ -32,8 +32,12 @@ def options(problem: Problem, tr: Transcription, print_level: int, extra: dict |
         return {**tr.structure(), "print_time": False, "expand": False,
                 "fatrop": {"print_level": (10 if print_level > 5 else 5) if print_level else 0, "tol": 1e-8, "max_iter": 1000,
                            # condensed, a smaller first barrier: min time 33-37 iterations instead of
-                           # 40-53 (N = 50-200), min effort 18-20 instead of 19-22; lifted: no gain
-                           "mu_init": 1e-2 if tr.condensed else 1e-1, **extra}}
+                           # 40-53 (N = 50-200), min effort 18-20 instead of 19-22; lifted: no gain.
+                           # Around obstacles smaller still: the barrier of thousands of clearance
+                           # rows drove T from 1 s to 3.6-4.5 s before it came down (the Panda's
+                           # shelf task: 55-58 iterations at 3e-6-3e-5 against 250-309 at 1e-2;
+                           # reach_around 51-68 against 143)
+                           "mu_init": (1e-5 if problem.task.obstacles else 1e-2) if tr.condensed else 1e-1, **extra}}
     return {"print_time": False, "ipopt.print_level": print_level, "ipopt.sb": "yes", "ipopt.max_iter": 1000,
             "ipopt.tol": 1e-8, "ipopt.mu_strategy": "adaptive",
             "ipopt.mumps_pivot_order": 0,          # AMD: min-time N = 100 in 1.8 s instead of 4.5 s here
@@ -49,9 +53,12 @@ def make_solver(problem: Problem, tr: Transcription, nlp: dict, log=print, print
         return ca.nlpsol("ocp", problem.solver.name, nlp, opts), objective
     # the compiled pieces have no AD: the parameters' multipliers (by AD) are not asked for
     opts["calc_lam_p"] = False
+    if direct(problem):                # the driver evaluates the compiled pieces: nothing compiled per mesh
+        opt = os.environ.get("RSCASADI_NLP_OPT", "-O1")
+        pieces = [piece if piece.library else compiled_piece(piece, opt, log) for piece in tr.pieces]
+        native = NativePieces(pieces, nlp["x"].numel(), nlp["g"].numel(), nlp["p"].numel())
+        return DirectFatrop(None, tr.structure(), opts["fatrop"], log, places(pieces), native), objective
     library = compiled_nlp(problem.solver.name, nlp, opts, tr.pieces, log)
-    if direct(problem):
-        return DirectFatrop(library, tr.structure(), opts["fatrop"], log, places(tr.pieces)), objective
     return ca.nlpsol("ocp", problem.solver.name, library, opts), objective
 
 
@@ -68,26 +75,25 @@ def compiled_nlp(solver: str, nlp: dict, opts: dict, pieces: list, log=print, op
     opt = opt or os.environ.get("RSCASADI_NLP_OPT", "-O1")
     cc = compiler()
     omp = list(openmp_flags(tuple(cc)))
-    # generating the C just to hash it takes seconds: an index keyed by the serialised NLP finds
+    # generating the C just to hash it takes seconds: the index keyed by the serialised NLP finds
     # a library built before (sweep tasks, repeated solves) without generating anything
     graph = ca.Function("nlp", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]]).serialize()
-    index = cache_dir() / "lib" / ("index_" + hashlib.sha256((graph + solver + opt + repr(sorted(opts.items()))
-                                                             + " ".join(cc + omp) + ca.__version__
-                                                             + ASSEMBLY_VERSION).encode()).hexdigest()[:24])
-    if index.exists() and Path(index.read_text()).exists():
-        log(f"compiled NLP: cache hit {index.read_text()}")
-        return index.read_text()
-    pieces = [piece if piece.library else compiled_piece(piece, opt, log) for piece in pieces]
-    libraries = sorted({piece.library for piece in pieces if piece.library})
-    # the solver's own functions give the signatures, from a stand-in NLP (the pieces: no AD)
-    plain = ca.nlpsol("ocp", solver, _stand_in(nlp, pieces), opts)
-    # fatrop's library also has the unscattered derivatives its direct interface reads
-    source = casadi_c(solver_functions(plain, nlp, pieces, "openmp" if omp else "serial", raw=solver == "fatrop"),
-                      "rscasadi_nlp.c")
-    link = [a for lib_ in libraries for a in (lib_, f"-Wl,-rpath,{Path(lib_).parent}")]
-    lib = cached_library({"rscasadi_nlp.c": source}, [opt, *omp], link, name="nlp", what="the NLP", log=log, cc=cc)
-    index.write_text(str(lib))
-    return str(lib)
+    key = graph + solver + opt + repr(sorted(opts.items())) + " ".join(cc + omp) + ca.__version__ + ASSEMBLY_VERSION
+
+    def build():
+        compiled = [piece if piece.library else compiled_piece(piece, opt, log) for piece in pieces]
+        libraries = sorted({piece.library for piece in compiled if piece.library})
+        # the solver's own functions give the signatures, from a stand-in NLP (the pieces: no AD)
+        plain = ca.nlpsol("ocp", solver, _stand_in(nlp, compiled), opts)
+        # fatrop's library also has the unscattered derivatives its direct interface reads
+        source = casadi_c(solver_functions(plain, nlp, compiled, "openmp" if omp else "serial", raw=solver == "fatrop"),
+                          "rscasadi_nlp.c")
+        link = [a for lib_ in libraries for a in (lib_, f"-Wl,-rpath,{Path(lib_).parent}")]
+        return [cached_library({"rscasadi_nlp.c": source}, [opt, *omp], link, name="nlp", what="the NLP", log=log, cc=cc)]
+    (lib,), found = indexed(key, build)
+    if found:
+        log(f"compiled NLP: cache hit {lib}")
+    return lib
 
 
 def _stand_in(nlp: dict, pieces: list) -> dict:
@@ -111,10 +117,12 @@ def compiled_piece(piece: Piece, opt: str, log=print) -> Piece:
     key = tuple(id(f) for f in originals)
     if key in _PIECES and all(a is b for a, b in zip(_PIECES[key][0], originals)):
         kept = _PIECES[key][1]
-        return dataclasses.replace(piece, fn=kept.fn, derivatives=kept.derivatives, library=kept.library)
+        return dataclasses.replace(piece, fn=kept.fn, derivatives=kept.derivatives, library=kept.library,
+                                   symbols=kept.symbols)
     z, args = symbols(piece.fn)
     r, f = piece.fn(z, *args)
     fns = {"rows": ca.Function("rows", [z, *args], [r]), "f": ca.Function("f", [z, *args], [f]),
+           "value": ca.Function("value", [z, *args], [r, f]),
            "first": originals[1], "objective": originals[2], "second": originals[3]}
     prefix = "rsp" + hashlib.sha256("".join(fn.serialize() for fn in fns.values()).encode()).hexdigest()[:16] + "_"
     named = [_renamed(fn, prefix + k) for k, fn in fns.items()]
@@ -124,7 +132,8 @@ def compiled_piece(piece: Piece, opt: str, log=print) -> Piece:
     zm, am = symbols(ext["rows"])
     fn = ca.Function(piece.fn.name(), [zm, *am], [ext["rows"](zm, *am), ext["f"](zm, *am)],
                      piece.fn.name_in(), piece.fn.name_out())
-    out = dataclasses.replace(piece, fn=fn, derivatives=(ext["first"], ext["objective"], ext["second"]), library=lib)
+    out = dataclasses.replace(piece, fn=fn, derivatives=(ext["first"], ext["objective"], ext["second"]), library=lib,
+                              symbols={k: prefix + k for k in ("value", "first", "objective", "second")})
     _PIECES[key] = (originals, out)
     while len(_PIECES) > 16:
         _PIECES.pop(next(iter(_PIECES)))

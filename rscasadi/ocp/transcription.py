@@ -42,13 +42,13 @@ import numpy as np
 from rscasadi.dynamics.arm import Arm
 from rscasadi.model.parameters import gear_ratios
 from rscasadi.ocp.assembly import Calls, Piece, chain_rule_derivatives, constraints_and_objective
-from rscasadi.ocp.condensing import Condensed, condense
+from rscasadi.ocp.condensing import Condensed, cached_kernel, condense
 from rscasadi.ocp.problem import Goal, Problem
 from rscasadi.task.objects import Limits
 from rscasadi.task.terms import Clearance, objective_terms
 
 
-# the stage pieces' derivatives by the stage's serialisation (the few most recent stages)
+# the stage pieces (fn, derivatives or None) by the stage's serialisation (the few most recent)
 _DERIVATIVES: dict[str, tuple] = {}
 _KEPT = 4
 
@@ -240,8 +240,9 @@ class Transcription:
 
     def _stage_piece(self):
         """Stage k's constraint rows (gap closing, then path) and objective share, of its
-        variables z = (x_k, u_k, x_{k+1}), and their derivatives by the chain rule through the
-        stage's model calls (assembly.chain_rule_derivatives: 2.4x fewer instructions than AD)."""
+        variables z = (x_k, u_k, x_{k+1}): (fn, its key, derivatives()) with derivatives() their
+        derivatives by the chain rule through the stage's model calls
+        (assembly.chain_rule_derivatives: 2.4x fewer instructions than AD), built when asked."""
         n, nx, nu = self.n, self.nx, self.nu_lifted
         z = ca.SX.sym("z", 2 * nx + nu)
         x, u, x1 = z[:nx], z[nx:nx + nu], z[nx + nu:]
@@ -270,20 +271,26 @@ class Transcription:
         fn = ca.Function("stage_piece", [z, *args], list(pieces(self.stage)),
                          ["z", "w", "duration", "p_fixed", "effort_weight", "scale"] + (["theta_ref"] if self.tracking else [])
                          + (["path_target"] if timed else []), ["rows", "f"])
-        # the derivatives depend on the stage alone, not on the mesh: a refinement round (or
-        # another solve of the same stage) reuses them (7 joints: 8.6 s each time otherwise)
         key = hashlib.sha256((fn.serialize() + repr(self.condensed)).encode()).hexdigest()
         if key not in _DERIVATIVES:
-            self.calls = Calls()
-            try:
-                rows, f = pieces(self._stage)
-                derivatives = chain_rule_derivatives(fn, z, args, rows, f, self.calls, split=self.condensed)
-            finally:
-                self.calls = None
             while len(_DERIVATIVES) >= _KEPT:
                 _DERIVATIVES.pop(next(iter(_DERIVATIVES)))
-            _DERIVATIVES[key] = (fn, derivatives)
-        return _DERIVATIVES[key]
+            _DERIVATIVES[key] = (fn, None)
+        fn = _DERIVATIVES[key][0]            # the same Function object: compiled pieces are found by it
+
+        def derivatives():
+            # they depend on the stage alone, not on the mesh: a refinement round (or another
+            # solve of the same stage) reuses them (7 joints: 8.6 s each time otherwise)
+            if _DERIVATIVES.get(key, (None, None))[1] is None:
+                self.calls = Calls()
+                try:
+                    rows, f = pieces(self._stage)
+                    found = chain_rule_derivatives(fn, z, args, rows, f, self.calls, split=self.condensed)
+                finally:
+                    self.calls = None
+                _DERIVATIVES[key] = (fn, found)
+            return _DERIVATIVES[key][1]
+        return fn, key, derivatives
 
     def _boundary_piece(self, end: bool) -> ca.Function:
         """The start (at rest at theta_start; T is the min-time objective) or the end (at rest at
@@ -311,14 +318,18 @@ class Transcription:
         """A stage's path rows (without the dynamics rows when condensed), and the path's frame's 3."""
         return self.stage.size1_out(1) - (2 * self.n * self.m if self.condensed else 0) + (3 if self.tool_path else 0)
 
-    def _condensed(self, derivatives, log) -> Condensed:
+    def _condensed(self, key, derivatives, log) -> Condensed:
         """The stage piece with its accelerations eliminated (condensing.py): kept z = (x_k, tau_k,
-        x_{k+1}), solved rows = the dynamics at the points (the first path rows)."""
+        x_{k+1}), solved rows = the dynamics at the points (the first path rows).  Found by the
+        stage's key (this process's, or the cache's) without building its derivatives."""
         n, nx, nul, na = self.n, self.nx, self.nu_lifted, 2 * self.n * self.m
         nu = n + self.ns                                                      # tau, [ds]
         keep = np.r_[np.arange(nx + nu), nx + nul + np.arange(nx)]
-        d1, f1, d2, split = derivatives
-        return condense(d1, f1, d2, split, keep, nx + nu + np.arange(na), nx + np.arange(na), log=log)
+
+        def build():
+            d1, f1, d2, split = derivatives()
+            return condense(d1, f1, d2, split, keep, nx + nu + np.arange(na), nx + np.arange(na), log=log)
+        return cached_kernel(key, build, log)
 
     def nlp(self, log=print):
         """The NLP dict and its constant bounds on g; variables and constraints in stage order.
@@ -335,23 +346,34 @@ class Transcription:
         n0 = self.n_start
         stage_rows = np.vstack([np.arange(r)] + [r + n0 + (k - 1) * r + np.arange(r) for k in range(1, N)])
         n_g = r + n0 + (N - 1) * r + n_end
+        at = lambda key, step=0: (layout[key].start, layout[key].stop - layout[key].start if step == 0 else step, step)
         stage_args = [ca.reshape(par["w"], 1, N), par["duration"], par["p_fixed"], par["effort_weight"], par["scale"]]
+        stage_places = [at("w", 1), at("duration"), at("p_fixed"), at("effort_weight"), at("scale")]
         if self.tracking:
             stage_args.append(ca.reshape(par["theta_ref"], n, N))
+            stage_places.append(at("theta_ref", n))
         if self.tool_path and not self.ns:
             stage_args.append(ca.reshape(par["path_target"], 3, N))
-        stage, derivatives = self._stage_piece()
+            stage_places.append(at("path_target", 3))
+        stage, key, built = self._stage_piece()
+        symbols = None
         if self.condensed:
-            self.kernel = self._condensed(derivatives, log)
+            self.kernel = self._condensed(key, built, log)
             stage, derivatives = self.kernel.fn, self.kernel.derivatives
             stage_args.append(ca.DM(np.arange(N)).T)                        # the interval, for the kernel's cache
+            stage_places.append((0, 1, -1))
+            symbols = {role: self.kernel.prefix + "ext_" + name for role, name in
+                       (("value", "rows"), ("first", "first"), ("objective", "objective"), ("second", "second"))}
+        else:
+            derivatives = built()
+        target = "goal" if self.goal is not None else "theta_end"
         self.pieces = [
             Piece(stage, np.arange(N)[:, None] * stride + np.arange(stride + nx), stage_rows, stage_args, derivatives,
-                  self.kernel.library if self.kernel else None),
+                  self.kernel.library if self.kernel else None, symbols, stage_places),
             Piece(self._boundary_piece(False), np.arange(nx)[None, :], r + np.arange(n0)[None, :],
-                  [par["theta_start"], par["p_fixed"], par["scale"]]),
+                  [par["theta_start"], par["p_fixed"], par["scale"]], arg_places=[at("theta_start"), at("p_fixed"), at("scale")]),
             Piece(self._boundary_piece(True), N * stride + np.arange(nx)[None, :], n_g - n_end + np.arange(n_end)[None, :],
-                  [par["goal"] if self.goal is not None else par["theta_end"], par["p_fixed"], par["scale"]])]
+                  [par[target], par["p_fixed"], par["scale"]], arg_places=[at(target), at("p_fixed"), at("scale")])]
         g, f = constraints_and_objective(self.pieces, w, n_g)
         stage_lo, stage_hi = self._path_bounds()
         first_lo, first_hi = stage_lo.copy(), stage_hi.copy()

@@ -21,6 +21,22 @@
 typedef long long casadi_int;
 typedef int (*fn_t)(const double**, double**, casadi_int*, double*, int);
 
+/* A piece of the NLP evaluated by the driver itself (pieces mode): `count` instances of functions of
+   nz variables (instance k's: x[cols[k nz + j]]) and its parameters, with nr rows (rows[k nr + i]).
+   Parameter a of instance k is p[arg_off[a] + k arg_step[a]] .. (arg_len[a] numbers), or, where
+   arg_step[a] < 0, the number k itself (the condensing kernel's interval).  Its functions:
+   value (z, par) -> (rows, f), first -> (rows, J), objective -> (f, grad f), second (z, par, lam,
+   lam_f) -> (grad L, H); a vector output's nonzeros are the entries *_nz lists; J's and H's
+   nonzeros go out as they are, instance after instance (the places driver.py computed for them). */
+typedef struct {
+  int count, nz, nr, n_args;
+  const int *cols, *rows;
+  const int *arg_off, *arg_len, *arg_step;
+  fn_t value, first, objective, second;
+  const int *rows_nz, *grad_f_nz, *grad_l_nz;
+  int n_rows_nz, n_f_nz, n_grad_f_nz, n_grad_l_nz, nnz_j, nnz_h;
+} rsf_piece;
+
 typedef struct {
   int K, nv, ng;                           /* stages (N + 1), NLP variables, NLP rows */
   const int *nx, *nu, *xoff, *roff;        /* per stage: sizes, first variable, first row */
@@ -42,6 +58,8 @@ typedef struct {
   fn_t f, g, grad_f, jac_g, hess_l;
   fn_t fg;                                 /* (x, p) -> (f, g), or NULL: then jac_g's first output is g */
   int sz_arg, sz_res, sz_iw, sz_w;
+  int n_pieces;                            /* > 0: the pieces below instead of f, g, ... (no NLP library) */
+  const rsf_piece* pieces;
 } rsf_problem;
 
 typedef struct {
@@ -55,9 +73,17 @@ typedef struct {
   casadi_int* iw;
   double* w;
   int failed, bad_gap;
+  double *pbuf, *pf;                       /* pieces mode: per-instance vectors and objectives */
+  double* tbuf;                            /* per thread: z, parameters' k, rows, vector, lam, f */
+  const double*** targ;
+  double*** tres;
+  casadi_int** tiw;
+  double** tw;
+  int tsize, nthreads;                     /* pieces mode: the threads it has memory for */
 } rsf_data;
 
 #define D ((rsf_data*)user_data)
+#define FG(P) ((P)->fg || (P)->n_pieces)       /* f and g from one evaluation */
 
 static int pos(const rsf_problem* P, int k, int v) {      /* a stage variable's place: u, then x */
   int i = v - P->xoff[k];
@@ -90,6 +116,121 @@ static void call(rsf_data* d, fn_t f, const double** in, int n_in, double** out,
   }
 }
 
+#ifdef _OPENMP
+#include <omp.h>
+#define THREAD omp_get_thread_num()
+#define PROCS (omp_get_num_procs() > omp_get_max_threads() ? omp_get_num_procs() : omp_get_max_threads())
+#define TEAM(d) (omp_get_max_threads() < (d)->nthreads ? omp_get_max_threads() : (d)->nthreads)
+#else
+#define THREAD 0
+#define PROCS 1
+#define TEAM(d) 1
+#endif
+
+/* instance k of piece q on this thread's memory: fn's inputs z, the parameters (and lam, lam_f
+   for the Hessian), outputs out[0..1]; nonzero on failure */
+static int piece_call(rsf_data* d, const rsf_piece* q, int k, fn_t fn, const double* lam_f, double* out0, double* out1) {
+  int t = THREAD, a, j;
+  double* b = d->tbuf + (size_t)t * d->tsize;
+  double *z = b, *kk = b + q->nz, *lam = kk + 1;
+  const double** arg = d->targ[t];
+  double** res = d->tres[t];
+  for (j = 0; j < q->nz; ++j) z[j] = d->x[q->cols[(size_t)k * q->nz + j]];
+  *kk = k;
+  arg[0] = z;
+  for (a = 0; a < q->n_args; ++a) arg[1 + a] = q->arg_step[a] < 0 ? kk : d->p + q->arg_off[a] + (size_t)k * q->arg_step[a];
+  if (lam_f) {
+    for (j = 0; j < q->nr; ++j) lam[j] = d->lam[q->rows[(size_t)k * q->nr + j]];
+    arg[1 + q->n_args] = lam;
+    arg[2 + q->n_args] = lam_f;
+  }
+  res[0] = out0; res[1] = out1;
+  return rsf_stop || fn(arg, res, d->tiw[t], d->tw[t], 0);
+}
+
+/* this thread's output space after z, k and lam */
+static double* piece_out(rsf_data* d, const rsf_piece* q) {
+  return d->tbuf + (size_t)THREAD * d->tsize + q->nz + 1 + q->nr;
+}
+
+static void fail_all(double* v, int n) { int i; for (i = 0; i < n; ++i) v[i] = NAN; }
+
+/* f and g from the pieces; instance objectives summed in order (the same on any number of threads) */
+static void pieces_fg(rsf_data* d) {
+  const rsf_problem* P = d->P;
+  int q, k, i, bad = 0;
+  memset(d->gv, 0, sizeof(double) * P->ng);
+  d->fv = 0;
+  for (q = 0; q < P->n_pieces; ++q) {
+    const rsf_piece* Q = P->pieces + q;
+    #pragma omp parallel for schedule(static) private(i) reduction(|:bad) num_threads(TEAM(d))
+    for (k = 0; k < Q->count; ++k) {
+      double* r = piece_out(d, Q);
+      d->pf[k] = 0;
+      if (piece_call(d, Q, k, Q->value, 0, r, Q->n_f_nz ? d->pf + k : r + Q->n_rows_nz)) { bad = 1; continue; }
+      for (i = 0; i < Q->n_rows_nz; ++i) d->gv[Q->rows[(size_t)k * Q->nr + Q->rows_nz[i]]] = r[i];
+    }
+    for (k = 0; k < Q->count; ++k) d->fv += d->pf[k];
+  }
+  if (bad) { d->failed = 1; d->fv = NAN; fail_all(d->gv, P->ng); }
+}
+
+/* the gradient of f (into d->grad), summed over the instances in order */
+static void pieces_grad_f(rsf_data* d) {
+  const rsf_problem* P = d->P;
+  int q, k, i, bad = 0;
+  memset(d->grad, 0, sizeof(double) * P->nv);
+  for (q = 0; q < P->n_pieces; ++q) {
+    const rsf_piece* Q = P->pieces + q;
+    #pragma omp parallel for schedule(static) private(i) reduction(|:bad) num_threads(TEAM(d))
+    for (k = 0; k < Q->count; ++k) {
+      double* v = d->pbuf + (size_t)k * Q->nz;
+      double* r = piece_out(d, Q);
+      double f;
+      if (piece_call(d, Q, k, Q->objective, 0, &f, r)) { bad = 1; continue; }
+      memset(v, 0, sizeof(double) * Q->nz);
+      for (i = 0; i < Q->n_grad_f_nz; ++i) v[Q->grad_f_nz[i]] = r[i];
+    }
+    for (k = 0; k < Q->count; ++k)
+      for (i = 0; i < Q->nz; ++i) d->grad[Q->cols[(size_t)k * Q->nz + i]] += d->pbuf[(size_t)k * Q->nz + i];
+  }
+  if (bad) { d->failed = 1; fail_all(d->grad, P->nv); }
+}
+
+/* the Jacobian's nonzeros, piece after piece, instance after instance (d->a) */
+static void pieces_jac(rsf_data* d) {
+  const rsf_problem* P = d->P;
+  int q, k, bad = 0;
+  for (q = 0; q < P->n_pieces; ++q) {
+    const rsf_piece* Q = P->pieces + q;
+    #pragma omp parallel for schedule(static) reduction(|:bad) num_threads(TEAM(d))
+    for (k = 0; k < Q->count; ++k)
+      if (piece_call(d, Q, k, Q->first, 0, piece_out(d, Q), d->a + P->jpart[q] + (size_t)k * Q->nnz_j)) bad = 1;
+  }
+  if (bad) { d->failed = 1; fail_all(d->a, P->nnz_j); }
+}
+
+/* the Lagrangian's gradient (d->grad) and Hessian nonzeros (d->h) at multipliers d->lam, lam_f */
+static void pieces_hess(rsf_data* d, const double* lam_f) {
+  const rsf_problem* P = d->P;
+  int q, k, i, bad = 0;
+  memset(d->grad, 0, sizeof(double) * P->nv);
+  for (q = 0; q < P->n_pieces; ++q) {
+    const rsf_piece* Q = P->pieces + q;
+    #pragma omp parallel for schedule(static) private(i) reduction(|:bad) num_threads(TEAM(d))
+    for (k = 0; k < Q->count; ++k) {
+      double* v = d->pbuf + (size_t)k * Q->nz;
+      double* r = piece_out(d, Q);
+      if (piece_call(d, Q, k, Q->second, lam_f, r, d->h + P->hpart[q] + (size_t)k * Q->nnz_h)) { bad = 1; continue; }
+      memset(v, 0, sizeof(double) * Q->nz);
+      for (i = 0; i < Q->n_grad_l_nz; ++i) v[Q->grad_l_nz[i]] = r[i];
+    }
+    for (k = 0; k < Q->count; ++k)
+      for (i = 0; i < Q->nz; ++i) d->grad[Q->cols[(size_t)k * Q->nz + i]] += d->pbuf[(size_t)k * Q->nz + i];
+  }
+  if (bad) { d->failed = 1; fail_all(d->grad, P->nv); fail_all(d->h, P->nnz_h); }
+}
+
 /* f and g at d->x, evaluated together once per point: fatrop asks for g at a trial point, then f
    there, and (accepted) for the Jacobian there, whose constant terms are g again */
 static void eval_fg(rsf_data* d) {
@@ -98,7 +239,8 @@ static void eval_fg(rsf_data* d) {
   double* out[2] = {&d->fv, d->gv};
   const int n[2] = {1, P->ng};
   if (d->g_valid && !memcmp(d->gx, d->x, sizeof(double) * P->nv)) return;
-  call(d, P->fg, in, 2, out, n, 2);
+  if (P->n_pieces) pieces_fg(d);
+  else call(d, P->fg, in, 2, out, n, 2);
   memcpy(d->gx, d->x, sizeof(double) * P->nv);
   d->g_valid = 1;
 }
@@ -173,12 +315,13 @@ static fatrop_int constr_jac(const double* primal, const double* sp, const doubl
   const double* in[2] = {d->x, d->p};
   double* out[1 + P->n_jparts];
   int n[1 + P->n_jparts];
-  int i, k, bad = 0, g = P->fg ? 0 : 1;      /* outputs before the Jacobian's parts: g, or none */
+  int i, k, bad = 0, g = FG(P) ? 0 : 1;      /* outputs before the Jacobian's parts: g, or none */
   out[0] = d->gv; n[0] = P->ng;
   for (k = 0; k < P->n_jparts; ++k) { out[g + k] = d->a + P->jpart[k]; n[g + k] = P->jpart[k + 1] - P->jpart[k]; }
   read_primal(d, primal, s);
-  if (P->fg) eval_fg(d);
-  call(d, P->jac_g, in, 2, out, n, g + P->n_jparts);
+  if (FG(P)) eval_fg(d);
+  if (P->n_pieces) pieces_jac(d);
+  else call(d, P->jac_g, in, 2, out, n, g + P->n_jparts);
   #pragma omp parallel for schedule(static) private(i) reduction(|:bad)
   for (k = 0; k < P->K; ++k) {
     for (i = P->jstart[k]; i < P->jstart[k + 1]; ++i) {
@@ -200,7 +343,7 @@ static fatrop_int constr_viol(const double* primal, const double* sp, const doub
   double* out[1] = {d->gv};
   int k, i, c;
   read_primal(d, primal, s);
-  if (P->fg) eval_fg(d);
+  if (FG(P)) eval_fg(d);
   else call(d, P->g, in, 2, out, &P->ng, 1);
   for (k = 0; k < P->K; ++k) {
     c = 0;
@@ -223,7 +366,8 @@ static fatrop_int obj_grad(double scale, const double* primal, const double* sp,
   double* out[1] = {d->grad};
   int k, i;
   read_primal(d, primal, s);
-  call(d, P->grad_f, in, 2, out, &P->nv, 1);
+  if (P->n_pieces) pieces_grad_f(d);
+  else call(d, P->grad_f, in, 2, out, &P->nv, 1);
   for (k = 0; k < P->K; ++k) {
     for (i = 0; i < P->nu[k]; ++i) res[s->ux_offs[k] + i] = scale * d->grad[P->xoff[k] + P->nx[k] + i];
     for (i = 0; i < P->nx[k]; ++i) res[s->ux_offs[k] + P->nu[k] + i] = scale * d->grad[P->xoff[k] + i];
@@ -238,7 +382,7 @@ static fatrop_int obj(double scale, const double* primal, const double* sp, cons
   double* out[1] = {res};
   const int one = 1;
   read_primal(d, primal, s);
-  if (d->P->fg) {
+  if (FG(d->P)) {
     eval_fg(d);
     *res = d->fv;
   } else call(d, d->P->f, in, 2, out, &one, 1);
@@ -271,7 +415,8 @@ static fatrop_int lag_hess(double scale, const double* primal, const double* lam
     if (k < P->K - 1)
       for (i = 0; i < P->nx[k + 1]; ++i) d->lam[P->roff[k] + i] = -lam_data[s->dyn_eq_offs[k] + i];
   }
-  call(d, P->hess_l, in, 4, out, n, 1 + P->n_hparts);
+  if (P->n_pieces) pieces_hess(d, &scale);
+  else call(d, P->hess_l, in, 4, out, n, 1 + P->n_hparts);
   for (k = 0; k < P->K; ++k) {
     if (k < P->K - 1)
       for (i = 0; i < P->nx[k + 1]; ++i) d->grad[P->xoff[k + 1] + i] += lam_data[s->dyn_eq_offs[k] + i];
@@ -317,6 +462,11 @@ void rsf_close(rsf_session* S) {
   if (S->solver) fatrop_ocp_c_destroy(S->solver);
   free(d->x); free(d->gx); free(d->gv); free(d->a); free(d->h); free(d->lam); free(d->grad); free(d->jbuf); free(d->hbuf);
   free(d->arg); free(d->res); free(d->iw); free(d->w);
+  if (d->targ) {
+    int t;
+    for (t = 0; t < d->nthreads; ++t) { free(d->targ[t]); free(d->tres[t]); free(d->tiw[t]); free(d->tw[t]); }
+  }
+  free(d->targ); free(d->tres); free(d->tiw); free(d->tw); free(d->tbuf); free(d->pbuf); free(d->pf);
   free(S);
 }
 
@@ -332,6 +482,27 @@ rsf_session* rsf_open(const rsf_problem* P) {
   d->jbuf = calloc(P->n_jbuf + 1, sizeof(double)); d->hbuf = calloc(P->n_hbuf + 1, sizeof(double));
   d->arg = calloc(P->sz_arg + 4, sizeof(double*)); d->res = calloc(P->sz_res + 2, sizeof(double*));
   d->iw = calloc(P->sz_iw + 1, sizeof(casadi_int)); d->w = calloc(P->sz_w + 1, sizeof(double));
+  if (P->n_pieces) {                       /* each thread its own z, k, lam, outputs and work memory */
+    int q, t, most = 1, count = 1;
+    for (q = 0; q < P->n_pieces; ++q) {
+      const rsf_piece* Q = P->pieces + q;
+      int need = Q->nz + 1 + Q->nr + Q->nz + Q->nr + 2;
+      if (need > most) most = need;
+      if (Q->count * Q->nz > count) count = Q->count * Q->nz;
+      if (Q->count > count) count = Q->count;
+    }
+    d->tsize = most;
+    d->nthreads = PROCS;
+    d->tbuf = calloc((size_t)most * d->nthreads, sizeof(double));
+    d->pbuf = calloc((size_t)count, sizeof(double));
+    d->pf = calloc((size_t)count, sizeof(double));
+    d->targ = calloc(d->nthreads, sizeof(double*)); d->tres = calloc(d->nthreads, sizeof(double*));
+    d->tiw = calloc(d->nthreads, sizeof(casadi_int*)); d->tw = calloc(d->nthreads, sizeof(double*));
+    for (t = 0; t < d->nthreads; ++t) {
+      d->targ[t] = calloc(P->sz_arg + 4, sizeof(double*)); d->tres[t] = calloc(P->sz_res + 2, sizeof(double*));
+      d->tiw[t] = calloc(P->sz_iw + 1, sizeof(casadi_int)); d->tw[t] = calloc(P->sz_w + 1, sizeof(double));
+    }
+  }
   S->ocp.get_nx = get_nx; S->ocp.get_nu = get_nu; S->ocp.get_ng = get_ng; S->ocp.get_ng_ineq = get_ng_ineq;
   S->ocp.get_horizon_length = get_horizon; S->ocp.get_bounds = get_bounds;
   S->ocp.get_initial_xk = initial_xk; S->ocp.get_initial_uk = initial_uk;

@@ -14,6 +14,7 @@ and has `stats()` in the plugin's words.
 from __future__ import annotations
 
 import ctypes
+import hashlib
 import threading
 import weakref
 from collections import OrderedDict
@@ -50,6 +51,58 @@ def _close_sessions(driver, sessions: OrderedDict):
         driver.rsf_close(ctypes.c_void_p(sessions.popitem()[1][0]))
 
 
+class _Piece(ctypes.Structure):
+    _fields_ = ([(k, ctypes.c_int) for k in ("count", "nz", "nr", "n_args")]  # type: ignore[assignment]
+                + [(k, _I) for k in ("cols", "rows", "arg_off", "arg_len", "arg_step")]
+                + [(k, ctypes.c_void_p) for k in ("value", "first", "objective", "second")]
+                + [(k, _I) for k in ("rows_nz", "grad_f_nz", "grad_l_nz")]
+                + [(k, ctypes.c_int) for k in ("n_rows_nz", "n_f_nz", "n_grad_f_nz", "n_grad_l_nz", "nnz_j", "nnz_h")])
+
+
+class NativePieces:
+    """The NLP's pieces (assembly.Piece, each with its C `symbols` and `arg_places`) for the
+    driver to evaluate itself, stage by stage on its threads: no library of the whole NLP, so a
+    new mesh or number of intervals compiles nothing (the Panda's obstacle task: 7-18 s of
+    generated glue a refinement round otherwise).  n_x, n_g, n_p: the NLP's sizes."""
+
+    def __init__(self, pieces: list, n_x: int, n_g: int, n_p: int):
+        self.n_x, self.n_g, self.n_p = n_x, n_g, n_p
+        self.keep: list = []                          # the arrays and libraries the structs point into
+        self.array = (_Piece * len(pieces))()
+        work = np.zeros(4, int)
+        self.parts: list = [[], []]
+        for i, piece in enumerate(pieces):
+            if not piece.symbols or piece.arg_places is None:
+                raise InvalidArgument(f"piece {piece.fn.name()} has no C functions to call: compile it first")
+            lib = ctypes.CDLL(piece.library)
+            ext = {role: ca.external(name, piece.library) for role, name in piece.symbols.items()}
+            for f in ext.values():
+                work = np.maximum(work, [f.sz_arg(), f.sz_res(), f.sz_iw(), f.sz_w()])
+            places = np.array(piece.arg_places, dtype=int).reshape(-1, 3)
+            for a, (off, length, step) in enumerate(places):
+                if ext["value"].nnz_in(1 + a) != length or (step >= 0 and off + length + step * (piece.count - 1) > n_p):
+                    raise InvalidArgument(f"piece {piece.fn.name()}: parameter {a} ({ext['value'].name_in(1 + a)}) "
+                                          f"is not where its places say")
+            vector = lambda f, i: np.array(f.sparsity_out(i).row(), dtype=int)      # a column's nonzeros
+            arrays = {"cols": piece.cols, "rows": piece.rows, "arg_off": places[:, 0], "arg_len": places[:, 1],
+                      "arg_step": places[:, 2], "rows_nz": vector(ext["value"], 0),
+                      "grad_f_nz": vector(ext["objective"], 1), "grad_l_nz": vector(ext["second"], 0)}
+            arrays = {k: _ints(v) for k, v in arrays.items()}
+            P = self.array[i]
+            P.count, P.nz, P.nr, P.n_args = piece.count, piece.cols.shape[1], piece.rows.shape[1], len(places)
+            for k, v in arrays.items():
+                setattr(P, k, v.ctypes.data_as(_I))
+            for role in ("value", "first", "objective", "second"):
+                setattr(P, role, ctypes.cast(getattr(lib, piece.symbols[role]), ctypes.c_void_p).value)
+            P.n_rows_nz, P.n_f_nz = len(arrays["rows_nz"]), ext["value"].nnz_out(1)
+            P.n_grad_f_nz, P.n_grad_l_nz = len(arrays["grad_f_nz"]), len(arrays["grad_l_nz"])
+            P.nnz_j, P.nnz_h = ext["first"].nnz_out(1), ext["second"].nnz_out(1)
+            self.parts[0].append(piece.count * P.nnz_j)
+            self.parts[1].append(piece.count * P.nnz_h)
+            self.keep += [lib, ext, arrays]
+        self.work = [int(w) + 4 for w in work]           # + the parameters, lam and lam_f
+
+
 class _Problem(ctypes.Structure):
     _fields_ = ([(k, ctypes.c_int) for k in ("K", "nv", "ng")]  # type: ignore[assignment]  # typeshed: a union
                 + [(k, _I) for k in ("nx", "nu", "xoff", "roff", "a_eq", "a_eq_idx", "a_in", "a_in_idx",
@@ -59,7 +112,8 @@ class _Problem(ctypes.Structure):
                 + [(k, _I) for k in ("jorder", "jstart", "horder", "hstart", "hadd", "hadd_to", "hadd_start")]
                 + [(k, _I) for k in ("bab_off", "geq_off", "gin_off", "rsq_off")]
                 + [(k, ctypes.c_void_p) for k in ("f", "g", "grad_f", "jac_g", "hess_l", "fg")]
-                + [(k, ctypes.c_int) for k in ("sz_arg", "sz_res", "sz_iw", "sz_w")])
+                + [(k, ctypes.c_int) for k in ("sz_arg", "sz_res", "sz_iw", "sz_w")]
+                + [("n_pieces", ctypes.c_int), ("pieces", ctypes.POINTER(_Piece))])
 
 
 def casadi_dir() -> Path:
@@ -93,6 +147,16 @@ def _vec(v, n: int) -> np.ndarray:
 def _by_stage(stage: np.ndarray, K: int):
     """A stable order of entries by their stage, and where each stage's entries start in it (K + 1)."""
     return np.argsort(stage, kind="stable"), np.concatenate([[0], np.cumsum(np.bincount(stage, minlength=K))])
+
+
+def _repeats(a: np.ndarray) -> np.ndarray:
+    """The positions of the entries of `a` that repeat an earlier entry, in order (a sort: numpy's
+    hashing unique took 0.4 s a call on a Hessian's million places)."""
+    order = np.argsort(a, kind="stable")
+    ordered = a[order]
+    again = np.zeros(len(a), bool)
+    again[order[1:][ordered[1:] == ordered[:-1]]] = True
+    return np.flatnonzero(again)
 
 
 def _ints(v) -> np.ndarray:
@@ -129,11 +193,11 @@ class _Layout:
         rsq = np.concatenate([[0], np.cumsum(self.ld * (nx + nu))[:-1]])
         jt, self.js = self._jacobian_places(jac[1], jac[2], lists, nu)
         ht = self._hessian_places(hess[1], hess[2], rsq)
-        assert len(np.unique(jt[jt >= 0])) == np.count_nonzero(jt >= 0), "two Jacobian nonzeros share a block entry"
+        placed = np.sort(jt[jt >= 0])
+        assert not np.any(placed[1:] == placed[:-1]), "two Jacobian nonzeros share a block entry"
         # pieces overlap in the Hessian (e.g. the start piece and stage 0 at x_0): each place's first
         # nonzero is written, the others are added after it
-        _, first = np.unique(ht, return_index=True)
-        hadd = np.setdiff1d(np.arange(len(ht)), first)
+        hadd = _repeats(ht)
         hadd_to = ht[hadd]
         ht[hadd] = -1
         # each stage's nonzeros listed together: the driver places and packs a stage at once, on the
@@ -198,8 +262,8 @@ class DirectFatrop:
     the NLP's pieces) and the library's raw_jac_g and raw_hess_l, the derivatives come unscattered,
     one output per piece, and go to fatrop's blocks from there."""
 
-    def __init__(self, library: str, structure: dict, options: dict | None = None, log=print,
-                 places: tuple | None = None):
+    def __init__(self, library: str | None, structure: dict, options: dict | None = None, log=print,
+                 places: tuple | None = None, pieces: NativePieces | None = None):
         driver = driver_library(log)
         blasfeo.load(str(casadi_dir() / "libfatrop.so"), driver, lambda: tuned_kernels_library(log))
         self.driver = ctypes.CDLL(driver)
@@ -209,33 +273,48 @@ class DirectFatrop:
         self.driver.rsf_request_stop.restype = None
         self.driver.rsf_blasfeo_function.restype = ctypes.c_void_p
         self.blasfeo = blasfeo.in_use(self.driver.rsf_blasfeo_function())
-        self.library, self.nlp = library, ctypes.CDLL(library)
+        self.library, self.pieces, self.places = library, pieces, places
         self.structure = structure
         self.options = dict(options or {})
-        self.raw = places is not None and all(hasattr(self.nlp, name) for name in RAW_NAMES + ("nlp",))
-        names = _NAMES[:3] + (RAW_NAMES + ("nlp",) if self.raw else _NAMES[3:])
-        ext = {name: ca.external(name, library) for name in names}
-        self.n_x, self.n_p = ext["nlp_g"].size1_in(0), ext["nlp_g"].size1_in(1)
-        self.n_g = ext["nlp_g"].size1_out(0)
-        self.work = [max(getattr(f, "sz_" + k)() for f in ext.values()) for k in ("arg", "res", "iw", "w")]
         self.pointers = {}
-        for field, name in zip(("f", "g", "grad_f", "jac_g", "hess_l", "fg"), names):
-            getattr(self.nlp, name + "_incref", lambda: None)()
-            self.pointers[field] = ctypes.cast(getattr(self.nlp, name), ctypes.c_void_p).value
-        jac, hess = ext[names[3]], ext[names[4]]
-        # the parts after g (scattered Jacobian) or all of them (raw); the Hessian's after grad L
-        self.parts = [[f.sparsity_out(i).nnz() for i in range(first, f.n_out())]
-                      for f, first in ((jac, 0 if self.raw else 1), (hess, 1))]
+        if pieces is not None:                       # the driver evaluates the pieces itself
+            if places is None:
+                raise InvalidArgument("DirectFatrop: pieces need their places (assembly.places)")
+            self.raw = True
+            self.n_x, self.n_p, self.n_g = pieces.n_x, pieces.n_p, pieces.n_g
+            self.work = pieces.work
+            self.parts = pieces.parts
+        else:
+            self.nlp = ctypes.CDLL(library)
+            self.raw = places is not None and all(hasattr(self.nlp, name) for name in RAW_NAMES + ("nlp",))
+            names = _NAMES[:3] + (RAW_NAMES + ("nlp",) if self.raw else _NAMES[3:])
+            ext = {name: ca.external(name, library) for name in names}
+            self.n_x, self.n_p = ext["nlp_g"].size1_in(0), ext["nlp_g"].size1_in(1)
+            self.n_g = ext["nlp_g"].size1_out(0)
+            self.work = [max(getattr(f, "sz_" + k)() for f in ext.values()) for k in ("arg", "res", "iw", "w")]
+            for field, name in zip(("f", "g", "grad_f", "jac_g", "hess_l", "fg"), names):
+                getattr(self.nlp, name + "_incref", lambda: None)()
+                self.pointers[field] = ctypes.cast(getattr(self.nlp, name), ctypes.c_void_p).value
+            jac, hess = ext[names[3]], ext[names[4]]
+            # the parts after g (scattered Jacobian) or all of them (raw); the Hessian's after grad L
+            self.parts = [[f.sparsity_out(i).nnz() for i in range(first, f.n_out())]
+                          for f, first in ((jac, 0 if self.raw else 1), (hess, 1))]
         if self.raw:
             for kind, sizes, where in zip(("Jacobian", "Hessian"), self.parts, places):
                 if sizes != [len(r) for r, _ in where]:
-                    raise InvalidArgument(f"the {kind} parts of {library} ({sizes} nonzeros) do not match the pieces' places")
+                    raise InvalidArgument(f"the {kind} parts of {library or 'the pieces'} ({sizes} nonzeros) do not "
+                                          "match the pieces' places")
             shapes = ((self.n_g, self.n_x), (self.n_x, self.n_x))
             self._triplets = tuple((shape, np.concatenate([r for r, _ in where]), np.concatenate([c for _, c in where]))
                                    for shape, where in zip(shapes, places))
         else:
             self._triplets = tuple((sp.shape, np.array(sp.row()), np.repeat(np.arange(sp.size2()), np.diff(sp.colind())))
                                    for sp in (jac.sparsity_out(1), hess.sparsity_out(1)))
+        # what a layout depends on besides the bounds: the structure and every nonzero's place
+        digest = hashlib.sha256(repr(sorted(structure.items())).encode())
+        for (shape, r, c) in self._triplets:
+            digest.update(repr(shape).encode() + np.ascontiguousarray(r, np.int64).tobytes() + np.ascontiguousarray(c, np.int64).tobytes())
+        self._pattern = digest.hexdigest()
         self._offsets = [_ints(np.concatenate([[0], np.cumsum(sizes)])) for sizes in self.parts]
         self._stats: dict[str, Any] = {}
         # one fatrop solver per layout, built on first use (prepare, or the first solve) and reused
@@ -247,8 +326,10 @@ class DirectFatrop:
         eq_g, eq_x = lbg == ubg, lbx == ubx
         in_g = ~eq_g & ~(np.isneginf(lbg) & np.isposinf(ubg))
         in_x = ~eq_x & ~(np.isneginf(lbx) & np.isposinf(ubx))
-        key = (self.library, self.raw, np.packbits(np.concatenate([eq_g, in_g, eq_x, in_x])).tobytes())
+        key = (self._pattern, self.raw, np.packbits(np.concatenate([eq_g, in_g, eq_x, in_x])).tobytes())
         if key not in _LAYOUTS:                      # kept for the process: repeated solves, refinements, sweeps
+            while len(_LAYOUTS) >= 16:
+                _LAYOUTS.pop(next(iter(_LAYOUTS)))
             s = self.structure
             jac, hess = self._triplets
             _LAYOUTS[key] = _Layout(s["nx"], s["nu"], s["ng"], jac, hess, eq_g, in_g, eq_x, in_x)
@@ -264,6 +345,8 @@ class DirectFatrop:
             setattr(P, key, v.ctypes.data_as(_I))
         for field, pointer in self.pointers.items():
             setattr(P, field, pointer)
+        if self.pieces is not None:
+            P.n_pieces, P.pieces = len(self.pieces.array), self.pieces.array
         return P
 
     def _session(self, L: _Layout) -> int:
