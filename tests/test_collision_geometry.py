@@ -4,6 +4,7 @@ overrides or adds by frame, the payload has a sphere, and `info --collision` lis
 Coverage is checked against Pinocchio's own parse (coal shapes) of the same URDF, placed by its
 kinematics."""
 import re
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -220,3 +221,27 @@ def test_info_lists_every_capsule(stripped, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "l_gripper_l_finger_tip" in out and "payload (left_gripper)" in out and "| 0.0500 |" in out
     assert "never checked against obstacles" in out and "left_s0" in out.split("never checked")[1]
+
+
+def test_clear_path_goes_around_a_ball_the_straight_line_crosses():
+    """The first guess around obstacles (collision.clear_path), checked by the replay's exact
+    clearance (segments sampled every r / 8, no smoothing) along the polygon between its nodes."""
+    from rscasadi.dynamics.arm import Arm
+    from rscasadi.dynamics.collision import clear_path, exact_clearance
+    from rscasadi.model.modelfile import read
+    from rscasadi.task.objects import Obstacle
+    model = read(Path(__file__).resolve().parents[1] / "problems" / "panda_sea.toml")
+    start = np.array([-0.412, 0.157, -0.257, -2.085, 0.05, 2.236, 0.089])
+    end = np.array([0.412, 0.157, 0.257, -1.7, -0.05, 1.9, 0.089])
+    middle = np.array(Arm(model).frame_placement("panda_hand_tcp")((start + end) / 2)[1]).ravel()
+    # beside the hand's middle point (at it, the distance's gradient would be 0 / 0)
+    ball = Obstacle.from_dict({"kind": "sphere", "center": (middle + [0.0, 0.02, 0.0]).tolist(), "radius": 0.06})
+    gap = exact_clearance(model, [ball])
+    line = np.linspace(start, end, 41).T
+    assert float(np.min(np.array(gap.map(41)(line)))) < -0.05            # the straight line goes through it
+    path = clear_path(model, [ball], start, end)
+    assert path["success"] and path["min_clearance"] >= 0.01 - 1e-6
+    theta = path["theta"]
+    assert np.allclose(theta[:, 0], start) and np.allclose(theta[:, -1], end)
+    fine = np.hstack([np.linspace(a, b, 5, endpoint=False).T for a, b in zip(theta.T[:-1], theta.T[1:])] + [end[:, None]])
+    assert float(np.min(np.array(gap.map(fine.shape[1])(fine)))) > 0.0     # clear between the nodes too

@@ -18,6 +18,7 @@ import casadi as ca
 import numpy as np
 
 from rscasadi.dynamics.kinematics import body_poses
+from rscasadi.interrupt import raise_if_interrupted
 from rscasadi.model.collision import capsules, margin
 
 MIN_SPACING = 0.03           # m: the covering spheres' spacing on capsules thinner than that
@@ -90,3 +91,31 @@ def exact_clearance(model, obstacles) -> ca.Function:
         for point in np.linspace(capsule.a, capsule.b, k):
             gaps += [_exact_distance(o + R @ ca.DM(point), obstacle) - capsule.radius for obstacle in obstacles]
     return ca.Function("exact_clearance", [theta], [ca.mmin(ca.vertcat(*gaps)) - margin(model)])
+
+
+def clear_path(model, obstacles, theta_start, theta_end, nodes: int = 24, clearance: float = 0.01) -> dict:
+    """A joint-space path from theta_start to theta_end whose capsules keep `clearance` (m) from
+    the obstacles at `nodes` - 1 evenly spaced interior points: the shortest polygon (the sum of
+    squared segment lengths, which also spaces the points evenly) within the joint limits, solved
+    by IPOPT from the straight line.  Returns {theta (n, nodes + 1), success, status,
+    min_clearance}: the optimiser's first guess around the obstacles (a straight line through a
+    ball is a guess the collocation solver spends a hundred iterations leaving)."""
+    n = model.n
+    start, end = (np.asarray(v, float).ravel() for v in (theta_start, theta_end))
+    th = ca.SX.sym("theta", n)
+    clear = ca.Function("clear", [th], [clearances(model, obstacles, th)])
+    lo = np.array([jt.limits.get("theta", (-np.inf, np.inf))[0] for jt in model.joints], float)
+    hi = np.array([jt.limits.get("theta", (-np.inf, np.inf))[1] for jt in model.joints], float)
+    inner = ca.MX.sym("inner", n, nodes - 1)
+    polygon = ca.horzcat(ca.DM(start), inner, ca.DM(end))
+    nlp = {"x": ca.vec(inner), "f": ca.sumsqr(ca.diff(polygon, 1, 1)), "g": ca.vec(clear.map(nodes - 1)(inner))}
+    solver = ca.nlpsol("clear_path", "ipopt", nlp, {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
+                                                    "ipopt.max_iter": 300})
+    line = np.linspace(start, end, nodes + 1)[1:-1].T
+    res = solver(x0=line.ravel("F"), lbx=np.tile(lo, nodes - 1), ubx=np.tile(hi, nodes - 1),
+                 lbg=clearance, ubg=np.inf)
+    stats = solver.stats()
+    raise_if_interrupted(stats)
+    path = np.hstack([start[:, None], np.array(res["x"]).reshape(n, nodes - 1, order="F"), end[:, None]])
+    gap = float(np.min(np.array(clear.map(nodes - 1)(path[:, 1:-1])))) if nodes > 1 else np.inf
+    return {"theta": path, "success": bool(stats["success"]), "status": stats["return_status"], "min_clearance": gap}
