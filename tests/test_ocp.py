@@ -137,3 +137,21 @@ def test_tracking_ocp_follows_the_trajectory_between_nodes(pitch_arm):
     assert sol["status"].startswith("Solved_To_Acceptable_Level"), sol["status"]
     assert sol["success"] and sol["trajectory"].endswith("traj.toml")
     assert report["tracking_error"] < 1e-4                  # on the fine replay grid, not only at nodes
+
+
+def test_a_new_process_finds_the_kernel_without_building_its_derivatives(pitch_arm, monkeypatch):
+    """The condensing kernel is indexed by the stage's key in the cache: a process that has never
+    built it (this one, forgetting) solves without the symbolic derivatives, to the same iterates."""
+    import rscasadi.ocp.condensing as condensing
+    import rscasadi.ocp.transcription as transcription
+    path = problem(pitch_arm, "kernel_index.toml", transcription={"intervals": 20, "compiled": True})
+    a = solve(load_problem(path), print_level=0, log=lambda m: None)
+    monkeypatch.setattr(condensing, "_KERNELS", {})
+    monkeypatch.setattr(transcription, "_DERIVATIVES", {})
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the stage's derivatives were built again")
+    monkeypatch.setattr(transcription, "chain_rule_derivatives", refuse)
+    b = solve(load_problem(path), print_level=0, log=lambda m: None)
+    assert a["success"] and b["success"] and b["iterations"] == a["iterations"]
+    assert abs(b["objective"] - a["objective"]) <= 1e-12 * abs(a["objective"])

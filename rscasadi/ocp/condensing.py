@@ -96,7 +96,10 @@ def _sx_functions(prefix: str, d1: ca.Function, f1: ca.Function, d2: ca.Function
                             ca.densify(J_s[grows, [keep[i] for i in scols]])], opts),
         "residual": ca.Function(prefix + "residual", [z, *args], [ca.densify(rows[grows])], opts),
         "rows": ca.Function(prefix + "rows", [z, *args], [rows[rk], f], opts),
-        "first": ca.Function(prefix + "first", [z, *args, S], [rows[rk], ca.mtimes(J_r, Z)], opts),
+        # the rows' Jacobian on the kept and the eliminated variables, the call sites given: the
+        # kernel forms J_K + J_E S on the condensed pattern in sparse loops (as one SX product with
+        # S symbolic it was 101k instructions, the kernel's largest function, on the Panda's shelf)
+        "jac": ca.Function(prefix + "jac", [z, *args, F, Fy], [rows_s[rk], J_s[rk, keep], J_s[rk, elim]], opts),
         "objective": ca.Function(prefix + "objective", [z, *args, S], [f, ca.mtimes(Z.T, gf)], opts),
         # the gradient of lam' R + lam_f f on all of z: its y part is the adjoint equation's
         # right-hand side, its kept part (plus G_w' nu, in C) the condensed Lagrangian's gradient
@@ -159,6 +162,25 @@ def _condensed_pattern(sp_H: ca.Sparsity, keep, elim, scols) -> ca.Sparsity:
     return ca.mtimes([Z.T, ca.DM(sp_H, 1.0), Z]).sparsity()         # all entries positive: no cancellation
 
 
+def _condensed_jacobian_pattern(jk: ca.Sparsity, je: ca.Sparsity, scols) -> ca.Sparsity:
+    """The pattern of J_K + J_E S~ (S~ dense on the kept columns scols): J_K's, and every row of
+    J_E with a nonzero in each column of scols."""
+    rows = set(np.array(je.get_triplet()[0]).tolist())
+    r, c = (np.array(v).tolist() for v in jk.get_triplet())
+    extra = [(i, j) for i in sorted(rows) for j in scols]
+    pattern = ca.Sparsity.triplet(jk.size1(), jk.size2(), r + [i for i, _ in extra], c + [j for _, j in extra])
+    return pattern
+
+
+def _by_rows(sp: ca.Sparsity) -> list:
+    """C arrays of a pattern's nonzeros row by row: JE_START (rows + 1), and per entry its place
+    among the nonzeros (JE_ORDER) and its column (JE_OCOL)."""
+    r, c = (np.array(v, dtype=int) for v in sp.get_triplet())
+    order = np.argsort(r, kind="stable")
+    start = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=sp.size1()))])
+    return [_int_array("JE_START", start), _int_array("JE_ORDER", order), _int_array("JE_OCOL", c[order])]
+
+
 def _sparsity_c(name: str, sp: ca.Sparsity) -> str:
     return f"static const casadi_int {name}[] = {{{', '.join(str(v) for v in sp.compress())}}};\n"
 
@@ -177,6 +199,8 @@ def _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols, dcols, split
     arg_nnz = [a.nnz() for a in args]
     sz = {k: max(getattr(f, "sz_" + k)() for f in fns.values()) for k in ("arg", "res", "iw", "w")}
     hc = _condensed_pattern(sp_H, keep, elim, scols)                  # the Hessian's nonzeros, by position in D
+    jk, je = fns["jac"].sparsity_out(1), fns["jac"].sparsity_out(2)
+    jp = _condensed_jacobian_pattern(jk, je, scols)                   # J_K + J_E S~'s nonzeros
     hr, hcol = (np.array(v).tolist() for v in hc.get_triplet())
     lines = [f"/* condensed collocation kernel {prefix} (rscasadi/ocp/condensing.py) */\n",
              "#include <math.h>\n#include <stdlib.h>\n#include <string.h>\n",
@@ -190,6 +214,11 @@ def _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols, dcols, split
              _int_array("KEEP", keep), _int_array("ELIM", elim), _int_array("RKEEP", rk), _int_array("GROWS", grows),
              _int_array("ARGNNZ", arg_nnz), _int_array("SCOLS", scols),
              _int_array("DS", [scols.index(i) if i in scols else -1 for i in dcols]),
+             f"#define NJK {max(jk.nnz(), 1)}\n#define NJE {max(je.nnz(), 1)}\n#define NJP {jp.nnz()}\n"
+             f"#define JK_NNZ {jk.nnz()}\n#define JE_NNZ {je.nnz()}\n",
+             *_by_rows(je),
+             *[_int_array(name, v) for name, v in zip(("JK_ROW", "JK_COL", "JP_ROW", "JP_COL"),
+                                                      (*jk.get_triplet(), *jp.get_triplet()))],
              f"#define NHC {hc.nnz()}\n", _int_array("HROW", [dcols.index(i) for i in hr]),
              _int_array("HCOL", [dcols.index(j) for j in hcol]),
              _KERNEL_HEAD, _sites_c(split), _KERNEL]
@@ -197,7 +226,7 @@ def _kernel_source(prefix, fns, keep, elim, rk, grows, args, scols, dcols, split
     sp_w = ca.Sparsity.dense(nk, 1)
     ins = [sp_w, *[a.sparsity() for a in args], ca.Sparsity.dense(1, 1)]
     outs = {"ext_rows": [fns["rows"].sparsity_out(0), fns["rows"].sparsity_out(1)],
-            "ext_first": [fns["first"].sparsity_out(0), fns["first"].sparsity_out(1)],
+            "ext_first": [fns["jac"].sparsity_out(0), jp],
             "ext_objective": [fns["objective"].sparsity_out(0), fns["objective"].sparsity_out(1)],
             "ext_second": [ca.Sparsity.dense(nk, 1), hc],
             "ext_newton": [ca.Sparsity.dense(ny, 1)]}

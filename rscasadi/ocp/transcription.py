@@ -94,6 +94,7 @@ class Transcription:
         self.constraints = ([Clearance(problem.task.obstacles)] if problem.task.obstacles else []) + \
             [t for t in problem.task.terms if t.constraint]
         self.row_bounds = [t.bounds(self.arm) for t in self.constraints]
+        self.constraint_calls = [t.of_angles(self.arm) for t in self.constraints]     # None: inlined
         self.limits = Limits.of(arm.model).narrowed(problem.transcription.limit_margin)   # the NLP's reserve
         self.acc_scale = self._acceleration_scale()
         # a family's NLP takes the acceleration scale as parameters too (it is the arm's): p_fixed
@@ -109,6 +110,10 @@ class Transcription:
         f = getattr(self.arm, name)(parametric=pf is not None)
         args = [*args, *([] if pf is None else [pf])]
         return f(*args) if self.calls is None else self.calls(f, args)
+
+    def _called(self, f: ca.Function, args: list):
+        """f at args, recorded as a call while the stage's derivatives are built."""
+        return f(*args) if self.calls is None else self.calls(f, args)[0]
 
     def _f(self, x, u, pf):
         q = ca.vertsplit(x, self.n)
@@ -219,9 +224,10 @@ class Transcription:
         limits = [q[n:] - q[:n], self._geared_speeds(v[n:], pf)]               # psi (geared dphi) at x_k
         for j in self.interior:                                                 # theta, psi, dphi inside
             limits += [Q[j][:n], Q[j][n:] - Q[j][:n], speed * V[j][n:]]
-        for term in self.constraints:                          # the task's rows at x_k [and inside]
+        for term, angles in zip(self.constraints, self.constraint_calls):      # the task's rows at x_k [and inside]
             points = [ca.vertcat(q, v)] + ([ca.vertcat(Q[j], V[j]) for j in self.interior] if term.inside else [])
-            limits += [term.expression(self.arm, xj, tau, ca.SX(0, 1)) for xj in points]
+            limits += [term.expression(self.arm, xj, tau, ca.SX(0, 1)) if angles is None else self._called(angles, [xj[:n]])
+                       for xj in points]
         arc_end = arc + h * u[n:n + self.ns]                                   # s_{k+1} = s_k + h ds_k
         return [ca.vertcat(x_end, z, arc_end), ca.vertcat(*dynamics, *limits)]
 

@@ -257,9 +257,41 @@ static int with_sensitivities(int (*f)(const casadi_real**, casadi_real**, casad
   return call(f, arg + 1, extra, 1, res, 2);
 }
 
+/* J_r Z = J_K + J_E S~ on its pattern (out), column by column of a dense NR x NK block */
+DENSE static void condensed_jacobian(const casadi_real* JK, const casadi_real* JE, const casadi_real* S, casadi_real* out) {
+  static __thread casadi_real Jd[NR * NK], St[NY * NS];
+  int i, r, s;
+  for (i = 0; i < NY; ++i) for (s = 0; s < NS; ++s) St[s + i * NS] = S[i + s * NY];     /* S by rows */
+  memset(Jd, 0, sizeof Jd);
+  for (i = 0; i < JK_NNZ; ++i) Jd[JK_ROW[i] + JK_COL[i] * NR] = JK[i];
+  for (r = 0; r < NR; ++r) {              /* J_E by rows, all of S's columns at once (independent sums) */
+    casadi_real acc[NS];
+    if (JE_START[r] == JE_START[r + 1]) continue;
+    for (s = 0; s < NS; ++s) acc[s] = 0;
+    for (i = JE_START[r]; i < JE_START[r + 1]; ++i) {
+      const casadi_real v = JE[JE_ORDER[i]], *Si = St + JE_OCOL[i] * NS;
+      for (s = 0; s < NS; ++s) acc[s] += v * Si[s];
+    }
+    for (s = 0; s < NS; ++s) Jd[r + SCOLS[s] * NR] += acc[s];
+  }
+  for (i = 0; i < NJP; ++i) out[i] = Jd[JP_ROW[i] + JP_COL[i] * NR];
+}
+
+/* the rows and their condensed Jacobian: the rows' Jacobian at the solved point (the call sites'
+   values and Jacobians the entry's), then the sparse times dense product */
 EXTERNAL(ext_first) {
+  static __thread casadi_real JK[NJK], JE[NJE];
+  const casadi_real* extra[2];
+  casadi_real* out[3];
+  entry_t* e = derived(arg[0], arg + 1, index_of(arg));
   UNUSED_WORK;
-  return with_sensitivities(P(first), arg, res);
+  if (!e) return 1;
+  full_z(arg[0], e->y);
+  extra[0] = e->F; extra[1] = e->Fy;
+  out[0] = res[0]; out[1] = JK; out[2] = JE;
+  if (call(P(jac), arg + 1, extra, 2, out, 3)) return 1;
+  if (res[1]) condensed_jacobian(JK, JE, e->S, res[1]);
+  return 0;
 }
 
 EXTERNAL(ext_objective) {
