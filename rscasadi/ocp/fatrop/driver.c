@@ -175,26 +175,36 @@ static void pieces_fg(rsf_data* d) {
   if (bad) { d->failed = 1; d->fv = NAN; fail_all(d->gv, P->ng); }
 }
 
-/* the gradient of f (into d->grad), summed over the instances in order */
-static void pieces_grad_f(rsf_data* d) {
+/* a gradient into d->grad, each instance's written apart and summed in order (the same on any
+   number of threads): of f (lam_f 0: each piece's objective -> (f, grad f)) or of the Lagrangian
+   (its second -> (grad L, H), the Hessian's nonzeros to d->h); nonzero if an evaluation failed */
+static int pieces_gradient(rsf_data* d, const double* lam_f) {
   const rsf_problem* P = d->P;
   int q, k, i, bad = 0;
   memset(d->grad, 0, sizeof(double) * P->nv);
   for (q = 0; q < P->n_pieces; ++q) {
     const rsf_piece* Q = P->pieces + q;
+    const int* nz = lam_f ? Q->grad_l_nz : Q->grad_f_nz;
+    const int n_nz = lam_f ? Q->n_grad_l_nz : Q->n_grad_f_nz;
     #pragma omp parallel for schedule(static) private(i) reduction(|:bad) num_threads(TEAM(d))
     for (k = 0; k < Q->count; ++k) {
       double* v = d->pbuf + (size_t)k * Q->nz;
       double* r = piece_out(d, Q);
       double f;
-      if (piece_call(d, Q, k, Q->objective, 0, &f, r)) { bad = 1; continue; }
+      if (lam_f ? piece_call(d, Q, k, Q->second, lam_f, r, d->h + P->hpart[q] + (size_t)k * Q->nnz_h)
+                : piece_call(d, Q, k, Q->objective, 0, &f, r)) { bad = 1; continue; }
       memset(v, 0, sizeof(double) * Q->nz);
-      for (i = 0; i < Q->n_grad_f_nz; ++i) v[Q->grad_f_nz[i]] = r[i];
+      for (i = 0; i < n_nz; ++i) v[nz[i]] = r[i];
     }
     for (k = 0; k < Q->count; ++k)
       for (i = 0; i < Q->nz; ++i) d->grad[Q->cols[(size_t)k * Q->nz + i]] += d->pbuf[(size_t)k * Q->nz + i];
   }
-  if (bad) { d->failed = 1; fail_all(d->grad, P->nv); }
+  return bad;
+}
+
+/* the gradient of f (into d->grad) */
+static void pieces_grad_f(rsf_data* d) {
+  if (pieces_gradient(d, 0)) { d->failed = 1; fail_all(d->grad, d->P->nv); }
 }
 
 /* the Jacobian's nonzeros, piece after piece, instance after instance (d->a) */
@@ -212,23 +222,7 @@ static void pieces_jac(rsf_data* d) {
 
 /* the Lagrangian's gradient (d->grad) and Hessian nonzeros (d->h) at multipliers d->lam, lam_f */
 static void pieces_hess(rsf_data* d, const double* lam_f) {
-  const rsf_problem* P = d->P;
-  int q, k, i, bad = 0;
-  memset(d->grad, 0, sizeof(double) * P->nv);
-  for (q = 0; q < P->n_pieces; ++q) {
-    const rsf_piece* Q = P->pieces + q;
-    #pragma omp parallel for schedule(static) private(i) reduction(|:bad) num_threads(TEAM(d))
-    for (k = 0; k < Q->count; ++k) {
-      double* v = d->pbuf + (size_t)k * Q->nz;
-      double* r = piece_out(d, Q);
-      if (piece_call(d, Q, k, Q->second, lam_f, r, d->h + P->hpart[q] + (size_t)k * Q->nnz_h)) { bad = 1; continue; }
-      memset(v, 0, sizeof(double) * Q->nz);
-      for (i = 0; i < Q->n_grad_l_nz; ++i) v[Q->grad_l_nz[i]] = r[i];
-    }
-    for (k = 0; k < Q->count; ++k)
-      for (i = 0; i < Q->nz; ++i) d->grad[Q->cols[(size_t)k * Q->nz + i]] += d->pbuf[(size_t)k * Q->nz + i];
-  }
-  if (bad) { d->failed = 1; fail_all(d->grad, P->nv); fail_all(d->h, P->nnz_h); }
+  if (pieces_gradient(d, lam_f)) { d->failed = 1; fail_all(d->grad, d->P->nv); fail_all(d->h, d->P->nnz_h); }
 }
 
 /* f and g at d->x, evaluated together once per point: fatrop asks for g at a trial point, then f
