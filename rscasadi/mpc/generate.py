@@ -186,7 +186,7 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
     name = lambda what: function_name("mpc", prefix, what)
     kernel, step_jacobian = step_kernel(arm, flags, cc, log, name(KERNEL)) if p.integrator == "rk4" else (None, None)
     split = p.sqp_iterations == 1                  # the real-time iteration: prepare, then feedback
-    qp = qp_of(p)
+    qp = qp_of(p, arm.n)
     link: list = []
     qp_words, nr = 1, 1
     if qp == "riccati":

@@ -26,7 +26,11 @@ SOFT = 0.9                   # penalties start at this fraction of the psi and d
 AUTO = "auto"               # integrator and substeps chosen from the arm's spring modes (with_integrator)
 INTEGRATORS = ("auto", "rk4", "ros2")
 QPS = ("auto", "condensed", "riccati")
-RICCATI_FROM = 15           # qp = auto: the Riccati recursion from this horizon on (the condensed QP's C grows as N^2)
+# qp = auto: the Riccati recursion from this many torques in the horizon on (N n: 10 intervals of a
+# 7-joint arm). The condensed QP's C grows as (N n)^2: on the Panda at N = 10 it built in 90 s from
+# 5.1 MB and stepped in 2.5 ms, HPIPM's in 8 s from 0.7 MB and 1.5 ms; at N = 5 the condensed
+# one was the faster (0.9 against 1.1 ms)
+RICCATI_FROM = 70
 RK4_MOST = 4                # integrator = auto: RK4 where this many substeps hold every spring mode, else ROS2
 ROS2_STEP = 0.01            # s: the longest ROS2 substep substeps = auto takes (its error on the rigid motion)
 LINE_SEARCH = (1.0, 0.5, 0.25, 0.125)   # step sizes tried when sqp_iterations > 1
@@ -254,15 +258,16 @@ def problem_poses(p, n: int, count: int = 5) -> list[np.ndarray]:
     return [np.asarray(p.theta_start, float) if p.theta_start is not None else np.zeros(n)]
 
 
-def qp_of(p: MPCProblem) -> str:
-    """The QP the controller solves: "condensed" (onto the torques, a dense interior-point method
-    in straight-line C: fastest at short horizons, its C growing as N^2) or "riccati" (HPIPM's
-    interior-point method on the stage structure, its C the same size at any N and its step
-    growing far slower with N); "auto":
-    riccati from RICCATI_FROM intervals on, where the real-time iteration allows it."""
+def qp_of(p: MPCProblem, n: int) -> str:
+    """The QP the controller of an n-joint arm solves: "condensed" (onto the torques, a dense
+    interior-point method in straight-line C: fastest at short horizons, its C growing as
+    (N n)^2) or "riccati" (HPIPM's interior-point method on the stage structure, its C the same
+    size at any N and its step growing far slower with N); "auto": riccati from RICCATI_FROM
+    torques in the horizon (N n) on, where the real-time iteration allows it."""
     if p.qp != AUTO:
         return p.qp
-    return "riccati" if p.horizon >= RICCATI_FROM and p.sqp_iterations == 1 and p.angle_limits == "soft" else "condensed"
+    return ("riccati" if p.horizon * n >= RICCATI_FROM and p.sqp_iterations == 1 and p.angle_limits == "soft"
+            else "condensed")
 
 
 def with_integrator(p: MPCProblem, arm) -> MPCProblem:
