@@ -10,8 +10,9 @@ y, R the gap-closing and limit rows.  Condensed, y = y(w) by Newton's method and
     nu = -G_y^{-T} (R_y' lam + lam_f f_y),   H_c = Z' d2(lam' R + nu' G + lam_f f)/dz2 Z,
 
 (the implicit-function theorem; with nu so chosen the Lagrangian is stationary in y and the
-curvature of y(w) drops out).  The calculus (the lifted piece's own chain-rule derivatives
-composed with Z) is CasADi SX generated to C; the Newton loop, the 2nm x 2nm LU with partial
+curvature of y(w) drops out).  The calculus (the lifted piece's own chain-rule derivatives,
+its model calls and task terms of the link angles evaluated once per call site) is CasADi SX
+generated to C, composed with Z in C loops; the Newton loop, the 2nm x 2nm LU with partial
 pivoting and a per-interval cache live in a small C kernel (`_KERNEL`): the solver evaluates
 g, its Jacobian and the Hessian at the same point, and the cache (keyed on the exact inputs)
 solves the collocation equations once per point, warm-started from the last solution of the

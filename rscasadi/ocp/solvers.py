@@ -2,12 +2,13 @@
 IPOPT (general sparse, MUMPS), on the NLP's functions generated to C and compiled once
 (cached by the hash of the source), or in CasADi's virtual machine.
 
-Compiled, the NLP is two kinds of C: each piece's functions (a stage's rows, objective and
-their derivatives; the start's and the end's), which do not depend on the mesh, each compiled
-once into its own library cached by its own hash; and the NLP's glue (the maps over the
-intervals and the placement of the pieces' nonzeros), which does, small and quick to compile.
-A refinement round, another mesh or the other solver then compiles only the glue (arm3's
-minimum-time NLP, lifted: 1.2-3.3 s of glue a round, against 12-22 s for the whole NLP)."""
+Compiled, the NLP is made of each piece's functions (a stage's rows, objective and their
+derivatives, or its condensing kernel; the start's and the end's), which do not depend on the
+mesh, each compiled once into its own library cached by its own hash.  fatrop's direct driver
+evaluates the pieces itself, stage by stage (ocp/fatrop/driver.c): a refinement round or another
+number of intervals compiles nothing.  IPOPT and CasADi's fatrop plugin take a library of the
+whole NLP, the pieces' maps over the intervals and the placement of their nonzeros (its glue,
+compiled per number of intervals: arm3's minimum-time NLP, lifted, 1.2-3.3 s a round)."""
 from __future__ import annotations
 
 import dataclasses

@@ -9,7 +9,9 @@ per NLP layout (driver.c for the conventions).  Same algorithm, same options, sa
 iterates: the tests compare it with the plugin iteration for iteration.
 
 `DirectFatrop(library, structure)` is called like a CasADi nlpsol (x0, lbx, ubx, lbg, ubg, p)
-and has `stats()` in the plugin's words.
+and has `stats()` in the plugin's words.  Given the NLP's compiled pieces (`NativePieces`)
+instead of a library, the driver evaluates them itself, stage by stage: nothing is compiled
+for a new mesh or number of intervals.
 """
 from __future__ import annotations
 
