@@ -89,10 +89,10 @@ def guess(tr: Transcription, problem: Problem, arm: Arm, t, warm: dict | None):
 def _along_path(tr: Transcription, problem: Problem, arm: Arm, t, tc):
     """The guess along a path: the frame on it at every node and collocation point with the
     path's timing law over the guess's duration (inverse kinematics, each configuration the
-    closest to the one before), the speeds of that motion, the SEAs in their static deflection
-    and the torques holding each node still.  Returns Xs, Xc, U and the arc lengths at the nodes."""
+    closest to the one before), moving through those angles (_moving_through).  Returns Xs,
+    Xc, U and the arc lengths at the nodes."""
     from rscasadi.dynamics.inverse_kinematics import inverse_kinematics_along
-    n, path, T = tr.n, tr.tool_path, t[-1]
+    path, T = tr.tool_path, t[-1]
     law = dataclasses.replace(path, speed=path.length / T)              # the fixed timing over T
     times = np.union1d(t, tc)
     ik = inverse_kinematics_along(arm, path.frame, law(times), problem.task.theta_start, position_tol=path.tolerance / 4)
@@ -100,35 +100,31 @@ def _along_path(tr: Transcription, problem: Problem, arm: Arm, t, tc):
         raise ModelFileError(f"{problem.path}: field 'path': frame {path.frame!r} cannot reach the path's point "
                              f"{np.round(law(times[ik['index']:ik['index'] + 1])[0], 4).tolist()} (at "
                              f"{ik['index'] / (len(times) - 1):.0%} of it) within the joint limits")
-    theta = ik["theta"]
-    dtheta = np.gradient(theta, times, axis=1)
-    z = np.zeros(n)
-    X = np.array([rest_state(arm, th) for th in theta.T]).T
-    X[2 * n:3 * n], X[3 * n:] = dtheta, dtheta
-    at = lambda tt: X[:, np.searchsorted(times, tt)]
-    Xs, Xc = at(t), at(tc)
-    tau = arm.inverse_dynamics().map(len(t) - 1)
-    U = np.array(tau(Xs[:n, :-1], Xs[n:2 * n, :-1], z, z, z, z)[0])
-    return Xs, Xc, U, law.arc_length(t)
+    return (*_moving_through(arm, ik["theta"], times, t, tc), law.arc_length(t))
 
 
 def _around_obstacles(problem: Problem, arm: Arm, t, tc):
     """The guess along a path around the obstacles (collision.clear_path) at a constant speed
-    over the guess's duration: the SEAs in their static deflection, the speeds of that motion
-    and the torques holding each node still.  Returns Xs, Xc, U."""
+    over the guess's duration (_moving_through).  Returns Xs, Xc, U."""
     from rscasadi.dynamics.collision import clear_path
     path = clear_path(arm.model, problem.task.obstacles, problem.task.theta_start, problem.task.theta_end)["theta"]
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=1), axis=0))])
     arc = arc / arc[-1] if arc[-1] > 0 else np.linspace(0.0, 1.0, len(arc))
     times = np.union1d(t, tc)
-    theta = np.array([np.interp(times / t[-1], arc, row) for row in path])
+    return _moving_through(arm, np.array([np.interp(times / t[-1], arc, row) for row in path]), times, t, tc)
+
+
+def _moving_through(arm: Arm, theta, times, t, tc):
+    """A guess through link angles theta at `times` (the nodes t and collocation points tc): the
+    SEAs in their static deflection, the speeds of that motion and the torques holding each
+    node still.  Returns Xs, Xc, U."""
+    n, z = arm.n, np.zeros(arm.n)
     dtheta = np.gradient(theta, times, axis=1)
     X = np.array([rest_state(arm, th) for th in theta.T]).T
-    X[2 * arm.n:3 * arm.n], X[3 * arm.n:] = dtheta, dtheta
+    X[2 * n:3 * n], X[3 * n:] = dtheta, dtheta
     at = lambda tt: X[:, np.searchsorted(times, tt)]
     Xs, Xc = at(t), at(tc)
-    z = np.zeros(arm.n)
-    U = np.array(arm.inverse_dynamics().map(len(t) - 1)(Xs[:arm.n, :-1], Xs[arm.n:2 * arm.n, :-1], z, z, z, z)[0])
+    U = np.array(arm.inverse_dynamics().map(len(t) - 1)(Xs[:n, :-1], Xs[n:2 * n, :-1], z, z, z, z)[0])
     return Xs, Xc, U
 
 
