@@ -20,6 +20,7 @@ import numpy as np
 from rscasadi.dynamics.kinematics import body_poses
 from rscasadi.interrupt import raise_if_interrupted
 from rscasadi.model.collision import capsules, margin
+from rscasadi.model.limits import limit_arrays
 
 MIN_SPACING = 0.03           # m: the covering spheres' spacing on capsules thinner than that
 BETA_PER_M = 2000.0          # softplus sharpness (1/m): it overestimates max(x, 0) by at most 0.35 mm
@@ -104,8 +105,8 @@ def clear_path(model, obstacles, theta_start, theta_end, nodes: int = 24, cleara
     start, end = (np.asarray(v, float).ravel() for v in (theta_start, theta_end))
     th = ca.SX.sym("theta", n)
     clear = ca.Function("clear", [th], [clearances(model, obstacles, th)])
-    lo = np.array([jt.limits.get("theta", (-np.inf, np.inf))[0] for jt in model.joints], float)
-    hi = np.array([jt.limits.get("theta", (-np.inf, np.inf))[1] for jt in model.joints], float)
+    lim = limit_arrays(model)
+    lo, hi = lim["theta_lo"], lim["theta_hi"]
     inner = ca.MX.sym("inner", n, nodes - 1)
     polygon = ca.horzcat(ca.DM(start), inner, ca.DM(end))
     nlp = {"x": ca.vec(inner), "f": ca.sumsqr(ca.diff(polygon, 1, 1)), "g": ca.vec(clear.map(nodes - 1)(inner))}

@@ -155,8 +155,9 @@ def _compile(cc: list, flags, link, sources: dict, lib: Path):
 def indexed(key: str, build) -> tuple:
     """(lines, found): what `build()` returns (lines of text, the first a library's path) for a
     `key` made of everything that shapes that library, from the cache's index (found) if the
-    library it names is intact, else built now and indexed.  Why: the key (a serialised Function, source versions)
-    costs milliseconds where generating the C to hash it costs seconds."""
+    library it names is intact, else built now and indexed.  Why: the key (a serialised
+    Function, source versions) costs milliseconds where generating the C to hash it costs
+    seconds."""
     index = cache_dir() / "lib" / f"index_{hashlib.sha256(key.encode()).hexdigest()[:24]}"
     try:
         lines = index.read_text().split("\n")

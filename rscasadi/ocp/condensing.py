@@ -169,8 +169,7 @@ def _condensed_jacobian_pattern(jk: ca.Sparsity, je: ca.Sparsity, scols) -> ca.S
     rows = set(np.array(je.get_triplet()[0]).tolist())
     r, c = (np.array(v).tolist() for v in jk.get_triplet())
     extra = [(i, j) for i in sorted(rows) for j in scols]
-    pattern = ca.Sparsity.triplet(jk.size1(), jk.size2(), r + [i for i, _ in extra], c + [j for _, j in extra])
-    return pattern
+    return ca.Sparsity.triplet(jk.size1(), jk.size2(), r + [i for i, _ in extra], c + [j for _, j in extra])
 
 
 def _by_rows(sp: ca.Sparsity) -> list:
@@ -309,8 +308,6 @@ def cached_kernel(stage_key: str, build, log=print) -> Condensed:
             _KERNELS.pop(next(iter(_KERNELS)))
         _KERNELS[key] = loaded(library, prefix)
     return _KERNELS[key]
-
-
 
 
 def _declarations(fns: dict) -> str:

@@ -315,7 +315,8 @@ class DirectFatrop:
         # what a layout depends on besides the bounds: the structure and every nonzero's place
         digest = hashlib.sha256(repr(sorted(structure.items())).encode())
         for (shape, r, c) in self._triplets:
-            digest.update(repr(shape).encode() + np.ascontiguousarray(r, np.int64).tobytes() + np.ascontiguousarray(c, np.int64).tobytes())
+            digest.update(repr(shape).encode() + np.ascontiguousarray(r, np.int64).tobytes()
+                          + np.ascontiguousarray(c, np.int64).tobytes())
         self._pattern = digest.hexdigest()
         self._offsets = [_ints(np.concatenate([[0], np.cumsum(sizes)])) for sizes in self.parts]
         self._stats: dict[str, Any] = {}
