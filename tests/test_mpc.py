@@ -2,7 +2,10 @@
 independent QP solver (qpOASES), better than feedforward + PD on a plant with a heavier tip and
 on the true arm when built from the identified model (short runs; the full ones are
 benchmarks/bench_mpc.py), and its SQP mode reaching a target pose within the limits."""
+import json
 import re
+import subprocess
+import sys
 
 import casadi as ca
 import numpy as np
@@ -112,8 +115,9 @@ def test_the_riccati_qp_is_the_condensed_one_and_its_c_does_not_grow_with_the_ho
     """qp = "riccati" (HPIPM's interior-point method on the stage structure) solves the same QP
     as the condensed controller: the same torques to 1e-6 of the limit over 20 samples toward a
     reference within reach (prepare then feedback, the phases apart, each plan carried on); a NaN
-    measurement is refused as the condensed one refuses it.  At 40 intervals (auto: Riccati from
-    15) its C is the size it is at 10, where the condensed QP's grows as N^2, and it tracks."""
+    measurement is refused as the condensed one refuses it; HPIPM's BLASFEO calls reached the
+    vector kernels in the controller's library.  At 40 intervals (auto: Riccati from 70 torques)
+    its C is the size it is at 10, where the condensed QP's grows as N^2, and it tracks."""
     import dataclasses
     p = load_mpc_problem(PROBLEM)
     ric = tmp_path / "riccati"
@@ -131,6 +135,14 @@ def test_the_riccati_qp_is_the_condensed_one_and_its_c_does_not_grow_with_the_ho
         assert fa == fb == 0 and np.max(np.abs(a - b)) < 1e-6 * np.max(limit), (a, b)
         saturated += int(np.any(np.abs(b) > 0.999 * limit))
     assert saturated == 0                                    # the QP's solution, not only its bounds
+    child = ("import ctypes, sys, numpy as np\nfrom rscasadi.mpc import CompiledMPC\nc = CompiledMPC(sys.argv[1])\n"
+             "x, ref = np.load(sys.argv[2]), np.load(sys.argv[3])\nassert c.init(x) == 0 and c.step(x, ref)[2] == 0\n"
+             "print(ctypes.c_int.in_dll(c.lib, 'rsc_tuned_reached').value)")
+    np.save(tmp_path / "x.npy", x)
+    np.save(tmp_path / "ref.npy", ref)
+    run = subprocess.run([sys.executable, "-c", child, str(ric), str(tmp_path / "x.npy"), str(tmp_path / "ref.npy")],
+                         capture_output=True, text=True, timeout=120)    # a fresh process: BLASFEO binds once
+    assert run.returncode == 0 and run.stdout.split() == ["1"], run.stderr[-2000:]
     x_bad = x.copy()
     x_bad[2] = np.nan
     mine.prepare(ref)
@@ -144,6 +156,46 @@ def test_the_riccati_qp_is_the_condensed_one_and_its_c_does_not_grow_with_the_ho
     assert size(tmp_path / "long") < 1.05 * size(ric), (size(tmp_path / "long"), size(ric))
     res = closed_loop(long, tmp_path / "long", duration=0.3, log=lambda m: None)
     assert res["MPC (C)"]["max_error"] < res["feedforward + PD"]["max_error"]
+
+
+def test_the_riccati_controller_links_the_users_blasfeo_or_refuses_it(arm3, tmp_path, monkeypatch):
+    """RSCASADI_BLASFEO=/path (a BLASFEO built for the CPU): the Riccati controller's library
+    needs it ahead of the wheel's and leaves out the vector kernels; the torques are the default
+    controller's to rounding.  A file that is no BLASFEO is refused before anything is written,
+    naming the variable and the file.  The stand-in: the wheel's library under another soname (its
+    speed is the benchmark's: benchmarks/bench_mpc_horizon.py)."""
+    import dataclasses
+    from rscasadi.errors import Failed
+    from rscasadi.ocp.fatrop import blasfeo
+    p = dataclasses.replace(load_mpc_problem(PROBLEM), qp="riccati")
+    monkeypatch.delenv(blasfeo.ENV, raising=False)
+    M.generate_mpc(p, tmp_path / "default", opt="-O1", log=lambda m: None)
+    user = tmp_path / "libblasfeo.so.9"                 # found at run time by its soname in its directory
+    user.write_bytes(blasfeo.wheel_library().read_bytes().replace(b"libblasfeo.so.0\x00", b"libblasfeo.so.9\x00"))
+    monkeypatch.setenv(blasfeo.ENV, str(user))
+    M.generate_mpc(p, tmp_path / "user", opt="-O1", log=lambda m: None)
+    manifest = lambda d: json.loads((tmp_path / d / "manifest.json").read_text())
+    assert manifest("user")["blasfeo"] == str(user.resolve()) and "kernels" in manifest("default")["blasfeo"]
+    assert not any("blasfeo_kernels" in s for s in manifest("user")["sources"])
+    needed = subprocess.run(["readelf", "-d", str(tmp_path / "user" / "librscasadi_mpc.so")], capture_output=True,
+                            text=True).stdout
+    assert "[libblasfeo.so.9]" in needed and f"runpath: [{user.resolve().parent}:" in needed.lower()
+    loads = subprocess.run(["ldd", str(tmp_path / "user" / "librscasadi_mpc.so")], capture_output=True, text=True).stdout
+    order = [line.split()[0] for line in loads.splitlines() if "blasfeo" in line]
+    assert order[0] == "libblasfeo.so.9" and f"=> {user.resolve()}" in loads    # first in the lookup: its symbols bind
+    x = rest_state(arm3, [0.1, 0.4, -0.6])
+    ref = np.vstack([np.tile(x[:3, None] + 0.01, (1, p.horizon)), np.zeros((3, p.horizon))])
+    a, b = CompiledMPC(tmp_path / "default"), CompiledMPC(tmp_path / "user")
+    assert a.init(x) == b.init(x) == 0
+    for _ in range(5):
+        (ta, _, fa), (tb, _, fb) = a.step(x, ref), b.step(x, ref)
+        assert fa == fb == 0 and np.allclose(ta, tb, rtol=1e-9, atol=1e-9)
+    bad = tmp_path / "libnot.so"
+    bad.write_text("not ELF")
+    monkeypatch.setenv(blasfeo.ENV, str(bad))
+    with pytest.raises(Failed, match=rf"RSCASADI_BLASFEO={re.escape(str(bad))}: cannot be loaded"):
+        M.generate_mpc(p, tmp_path / "bad", opt="-O1", log=lambda m: None)
+    assert not (tmp_path / "bad").exists()
 
 
 def test_a_nan_measurement_keeps_the_plan_and_says_so(mpc_dir, arm3):

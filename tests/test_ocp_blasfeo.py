@@ -147,6 +147,28 @@ def test_the_tuned_kernel_computes_blasfeos_4x4_product():
         assert np.isnan(_dgemm_nt_4x4(f, 2, 1.0, A, B, 0.0, C)).all()
 
 
+
+def test_the_tuned_nn_kernel_computes_blasfeos_4x4_product_from_any_row_of_a_panel():
+    # D = beta C + alpha A B: B's kmax rows start offset rows into a panel of 4 rows and sdb columns
+    ours = ctypes.CDLL(tuned_kernels_library(lambda m: None)).kernel_dgemm_nn_4x4_lib4
+    theirs = ctypes.CDLL(str(blasfeo.wheel_library())).kernel_dgemm_nn_4x4_lib4
+    rng = np.random.default_rng(5)
+    for kmax in (0, 1, 3, 4, 5, 9, 16, 23):
+        for offset in range(4 if kmax else 1):          # from an offset, BLASFEO's own reads a row past kmax = 0
+            for sdb in (4, 8):
+                rows = kmax + offset
+                Bfull = rng.standard_normal((-(-rows // 4) * 4 + 4, sdb))      # a row-panelled matrix
+                panels = np.concatenate([Bfull[4 * q:4 * q + 4].ravel(order="F") for q in range(len(Bfull) // 4)])
+                A, C, alpha, beta = rng.standard_normal((kmax, 4)), rng.standard_normal((4, 4)), -0.7, 1.3
+                want = beta * C + alpha * A.T @ Bfull[offset:offset + kmax, :4]
+                for f in (ours, theirs):
+                    D = np.full(16, np.nan)
+                    f(kmax, np.array([alpha]).ctypes.data_as(_P), np.ascontiguousarray(A).ctypes.data_as(_P), offset,
+                      panels.ctypes.data_as(_P), sdb, np.array([beta]).ctypes.data_as(_P),
+                      np.asfortranarray(C).ravel(order="F").ctypes.data_as(_P), D.ctypes.data_as(_P))
+                    np.testing.assert_allclose(D.reshape(4, 4, order="F"), want, rtol=1e-13, atol=1e-13 * (1 + kmax))
+
+
 def test_a_tuned_kernel_that_differs_from_the_wheels_is_refused(tmp_path):
     src = tmp_path / "wrong.c"
     src.write_text("void kernel_dgemm_nt_4x4_lib4(int kmax, double *alpha, double *A, double *B, double *beta, "
@@ -159,6 +181,14 @@ def test_a_tuned_kernel_that_differs_from_the_wheels_is_refused(tmp_path):
                                            r"differs from the CasADi wheel's \(kmax 2.*RSCASADI_BLASFEO=wheel"):
         blasfeo._same_kernel(ctypes.CDLL(str(lib)).kernel_dgemm_nt_4x4_lib4, wheel.kernel_dgemm_nt_4x4_lib4,
                              "kernel_dgemm_nt_4x4_lib4", lib)
+    src.write_text("void kernel_dgemm_nn_4x4_lib4(int kmax, double *alpha, double *A, int offsetB, double *B, int sdb, "
+                   "double *beta, double *C, double *D) { int i, k; (void)offsetB; (void)sdb; for (i = 0; i < 16; ++i) {"
+                   " double s = 0; for (k = 0; k < kmax; ++k) s += A[4 * k + i % 4] * B[k + 4 * (i / 4)];"
+                   " D[i] = beta[0] * C[i] + alpha[0] * s; } }\n")      # the offset ignored, no next panel
+    subprocess.run([cc(), "-shared", "-fPIC", str(src), "-o", str(lib.with_name("libwrong_nn.so"))], check=True)
+    with pytest.raises(RuntimeError, match=r"kernel_dgemm_nn_4x4_lib4 compiled for this processor .* differs .*\(kmax 1, "):
+        blasfeo._same_kernel(ctypes.CDLL(str(lib.with_name("libwrong_nn.so"))).kernel_dgemm_nn_4x4_lib4,
+                             wheel.kernel_dgemm_nn_4x4_lib4, "kernel_dgemm_nn_4x4_lib4", lib)
 
 
 TUNED_CHILD = """

@@ -90,10 +90,12 @@ def interval_functions(arm: Arm, h: float, substeps: int, step_jacobian: ca.Func
     Ai, Bi = step_jac(z, tau, hs, *pm)
     opts = {"cse": True} if sym is ca.SX else {}
     substep = ca.Function("substep", [z, tau, m, A, B], [step(z, tau, hs, *pm), ca.mtimes(Ai, A), ca.mtimes(Ai, B) + Bi], opts)
+    first = ca.Function("first_substep", [z, tau, m], [step(z, tau, hs, *pm), Ai, Bi], opts)   # A_0 = I: no product
     substep_x = ca.Function("substep_x", [z, tau, m], [step(z, tau, hs, *pm)], opts)
     x, u, mm = ca.MX.sym("x", 4 * n), ca.MX.sym("tau", n), ca.MX.sym("m", m.shape[0])
-    zk, Ak, Bk, z_only = x, ca.MX.eye(4 * n), ca.MX.zeros(4 * n, n), x
-    for _ in range(substeps):
+    zk, Ak, Bk = first(x, u, mm)
+    z_only = substep_x(x, u, mm)
+    for _ in range(substeps - 1):
         zk, Ak, Bk = substep(zk, u, mm, Ak, Bk)
         z_only = substep_x(z_only, u, mm)
     return ca.Function("interval", [x, u, mm], [zk, Ak, Bk]), ca.Function("interval_x", [x, u, mm], [z_only])

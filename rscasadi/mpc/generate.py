@@ -16,7 +16,7 @@ from rscasadi.mpc.formulation import (PREPARED, controller_arm, feedback_functio
 from rscasadi.mpc.problem import (AUTO, ROS2_STEP, RK4_MOST, mpc_model, mpc_problem, problem_poses, qp_of,
                                   with_integrator)
 from rscasadi.model.limits import limit_arrays, measurement_bounds
-from rscasadi.native.build import cached_library, compiler, native_flags
+from rscasadi.native.build import blasfeo_kernels, cached_library, compiler, native_flags
 from rscasadi.native.controller import boxes, c_words, task_reference_bounds
 from rscasadi.native.generate import function_name, write_controller
 
@@ -100,6 +100,28 @@ def hpipm_flags() -> tuple[list, list]:
             raise InvalidArgument(f"qp = \"riccati\" needs HPIPM, which this CasADi ({ca.__version__}) does not install: "
                                   f"{need} missing (qp = \"condensed\" needs nothing)")
     return [f"-I{inc}"], [f"-L{lib}", "-lhpipm", "-lblasfeo", f"-Wl,-rpath,{lib}"]
+
+
+def riccati_blasfeo() -> tuple[list, dict, str]:
+    """The BLASFEO a Riccati controller's HPIPM calls, as rscasadi.ocp.fatrop.blasfeo chooses it
+    for fatrop: the link arguments that go first, the sources to add and what it is.  By default
+    the wheel's (GENERIC: plain C) with its two 4x4 product kernels in vector C in the controller's
+    own library (native.build.blasfeo_kernels): 0.45 of HPIPM's time on the Panda at N = 10.
+    RSCASADI_BLASFEO=wheel: the wheel's as shipped; =/path/to/libblasfeo.so: a BLASFEO built for
+    the CPU (e.g. X64_INTEL_HASWELL), checked as for fatrop and linked ahead of the wheel's."""
+    import os
+    from rscasadi.ocp.fatrop import blasfeo
+    from rscasadi.ocp.fatrop.driver import casadi_dir
+    path = os.environ.get(blasfeo.ENV, "")
+    if path == blasfeo.WHEEL:
+        return [], {}, "the CasADi wheel's as shipped"
+    if path:
+        blasfeo.check(path, str(casadi_dir() / "libhpipm.so"), user="HPIPM")
+        full = Path(path).resolve()
+        return ["-Wl,--no-as-needed", str(full), "-Wl,--as-needed", f"-Wl,-rpath,{full.parent}"], {}, str(full)
+    if not blasfeo.wheel_is_generic():
+        return [], {}, "the CasADi wheel's (built for this CPU)"
+    return [], blasfeo_kernels(), "the CasADi wheel's with its 4x4 product kernels in vector C"
 
 
 def riccati_blocks(horizon: int, nx: int, nu: int) -> int:
@@ -189,8 +211,11 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
     qp = qp_of(p, arm.n)
     link: list = []
     qp_words, nr = 1, 1
+    blas, kernels, which = [], {}, None
     if qp == "riccati":
         inc, link = hpipm_flags()
+        blas, kernels, which = riccati_blasfeo()
+        link = blas + link
         flags = flags + inc
         interval, residual = stage_functions(arm, p, step_jacobian, name(""))
         functions, prepared = [interval, residual], []
@@ -243,11 +268,13 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
                 "payload_mass": None if model.payload is None else model.payload.body.mass,
                 "obstacles": len(p.obstacles),
                 "horizon": p.horizon, "interval": p.interval, "substeps": p.substeps, "integrator": p.integrator, "qp": qp,
+                "blasfeo": which,
                 "guard": {k: v.tolist() for k, v in guard.items()},
                 "sample_time": p.sample_time, "sqp_iterations": p.sqp_iterations, "qp_iterations": p.qp_iterations,
                 "weights": p.weights,
                 "split": split, "prepared": {k: {"offset": o, "nnz": nnz, "shape": shape}
                                              for (k, nnz, shape), o in zip(prepared, offsets)}}
+    extra = {} if kernel is None else {f"{name(KERNEL)}.c": kernel}
+    extra.update({name(f): text for f, text in kernels.items()})   # BLASFEO's kernels, ahead of the wheel's
     return write_controller("mpc", prefix, functions, TEMPLATES, header, body, out, flags, manifest, log,
-                            extra_sources=None if kernel is None else {f"{name(KERNEL)}.c": kernel}, cc=cc,
-                            casadi_file=name("rti"), link=link)
+                            extra_sources=extra, cc=cc, casadi_file=name("rti"), link=link)

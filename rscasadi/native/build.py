@@ -56,6 +56,15 @@ def native_flags() -> list:
     return ["-march=native", "-ffp-contract=fast"] + wide
 
 
+BLASFEO_KERNELS = Path(__file__).with_name("templates") / "blasfeo_kernels.c"
+
+
+def blasfeo_kernels() -> dict:
+    """BLASFEO's two 4x4 product kernels in vector C (templates/blasfeo_kernels.c, in front of the
+    CasADi wheel's GENERIC BLASFEO), as a source for the one build step (file name -> text)."""
+    return {BLASFEO_KERNELS.name: BLASFEO_KERNELS.read_text()}
+
+
 def cache_dir() -> Path:
     """Where compiled libraries are kept: $RSCASADI_CACHE, else ~/.cache/rscasadi."""
     return Path(os.environ.get("RSCASADI_CACHE", Path.home() / ".cache" / "rscasadi"))

@@ -48,15 +48,28 @@ def function_name(kind: str, prefix: str, what: str) -> str:
     return f"{symbols(kind, prefix)['sym']}_{what}"
 
 
+# CasADi's dense product z += x y walks x along its rows in the innermost loop (a strided sum the
+# compiler cannot vectorise); the same sums with the rows innermost add the same terms to each z in
+# the same order (bitwise equal) and vectorise.  On the Panda's Riccati MPC (N = 10) the product
+# was a fifth of a step.
+_MTIMES_DENSE = ("      for (j=0; j<nrow_x; ++j) {\n        for (k=0; k<ncol_x; ++k) {\n"
+                 "          z[j + i*nrow_x] += x[j + k*nrow_x] * y[k + i*ncol_x];\n        }\n      }\n")
+_MTIMES_DENSE_ROWS_INNERMOST = ("      for (k=0; k<ncol_x; ++k) {\n        for (j=0; j<nrow_x; ++j) {\n"
+                                "          z[j + i*nrow_x] += x[j + k*nrow_x] * y[k + i*ncol_x];\n        }\n      }\n")
+
+
 def casadi_sources(functions: list[ca.Function], name: str | None = None) -> dict[str, str]:
-    """CasADi's C of `functions`, one file with its header, `name`.c (default: the first's name)."""
+    """CasADi's C of `functions`, one file with its header, `name`.c (default: the first's name),
+    its dense product's loops in the order that vectorises (`_MTIMES_DENSE`)."""
     name = functions[0].name() if name is None else name
     gen = ca.CodeGenerator(f"{name}.c", {"with_header": True})
     for f in functions:
         gen.add(f)
     with tempfile.TemporaryDirectory() as d:
         gen.generate(d + "/")
-        return {file: (Path(d) / file).read_text() for file in (f"{name}.c", f"{name}.h")}
+        sources = {file: (Path(d) / file).read_text() for file in (f"{name}.c", f"{name}.h")}
+    sources[f"{name}.c"] = sources[f"{name}.c"].replace(_MTIMES_DENSE, _MTIMES_DENSE_ROWS_INNERMOST, 1)
+    return sources
 
 
 def _largest(macros: list[str]) -> str:

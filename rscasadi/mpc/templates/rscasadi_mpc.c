@@ -191,16 +191,7 @@ static hpipm_t *qp_structures(${sym}_t *c) {
   return h;
 }
 
-/* C = op(A)' op(B) style products on column-major arrays: out (m x n) = A' B, A (r x m), B (r x n) */
-static void at_b(const double *A, const double *B, int r, int m, int n, double *out) {
-  for (int j = 0; j < n; ++j)
-    for (int i = 0; i < m; ++i) {
-      double s = 0.0;
-      for (int l = 0; l < r; ++l) s += A[l + r * i] * B[l + r * j];
-      out[i + m * j] = s;
-    }
-}
-
+/* products on column-major arrays, the rows innermost (they vectorise) */
 /* out (m x n) = A B, A (m x r), B (r x n) */
 static void a_b(const double *A, const double *B, int m, int r, int n, double *out) {
   for (int j = 0; j < n; ++j) {
@@ -212,11 +203,43 @@ static void a_b(const double *A, const double *B, int m, int r, int n, double *o
   }
 }
 
+/* out (m x n) = X Y', X (m x l), Y (n x l) */
+static void a_bt(const double *X, const double *Y, int m, int n, int l, double *out) {
+  for (int j = 0; j < m * n; ++j) out[j] = 0.0;
+  for (int i = 0; i < l; ++i)
+    for (int b = 0; b < n; ++b) {
+      const double y = Y[b + n * i];
+      for (int a = 0; a < m; ++a) out[a + m * b] += X[a + m * i] * y;
+    }
+}
+
+/* out (cols x rows) = M' for M (rows x cols) */
+static void transpose(const double *M, int rows, int cols, double *out) {
+  for (int j = 0; j < cols; ++j)
+    for (int i = 0; i < rows; ++i) out[j + cols * i] = M[i + rows * j];
+}
+
+/* out (m x NR) = (J M)' for a residual Jacobian J (NR x NX: each row a few states) and M (NX x m)
+ * given as Mt = M' (m x NX): column i the rows of M that row i of J picks, J's zeros skipped */
+static void residual_through(const double *J, const double *Mt, int m, double *out) {
+  for (int i = 0; i < NR; ++i) {
+    double *o = out + m * i;
+    for (int a = 0; a < m; ++a) o[a] = 0.0;
+    for (int l = 0; l < NX; ++l) {
+      const double j = J[i + NR * l];
+      if (j != 0.0)
+        for (int a = 0; a < m; ++a) o[a] += j * Mt[a + m * l];
+    }
+  }
+}
+
 /* one interval's QP into HPIPM: the Gauss-Newton residual at X_{k+1} + e_{k+1}, written in
- * (dx_k, du_k) through dx_{k+1} = A dx_k + B du_k + b (rscasadi.mpc.formulation.stage_functions) */
+ * (dx_k, du_k) through dx_{k+1} = A dx_k + B du_k + b (rscasadi.mpc.formulation.stage_functions):
+ * with Gx = Jx A and Gu = Jx B + Ju, Q = Gx' Gx, S = Gu' Gx, R = Gu' Gu + w I, q = Gx' r, r_u = Gu' r */
 static int riccati_interval(${sym}_t *c, hpipm_t *h, int k, const double *reference, double *e) {
-  double xn[NX], A[NX * NX], B[NX * NU], b[NX], Ae[NX], at[NX], r[NR], Jx[NR * NX], Ju[NR * NU];
-  double Jtx[NR * NX], Jtu[NR * NU], Q[NX * NX], S[NU * NX], R[NU * NU], q[NX], ru[NU], lo[NU], hi[NU];
+  double xn[NX], A[NX * NX], B[NX * NU], b[NX], Ae[NX], at[NX], r[NR], Jx[NR * NX], Ju[NR * NU], JxAe[NR];
+  double At[NX * NX], Bt[NU * NX], GxT[NX * NR], GuT[NU * NR], Q[NX * NX], S[NU * NX], R[NU * NU], q[NX], ru[NU];
+  double lo[NU], hi[NU];
   const double *X = c->X + NX * k, *U = c->U + NU * k;
   const casadi_real *arg[${sym}_interval_SZ_ARG + 1] = {X, U, c->params + NU};
   casadi_real *res[${sym}_interval_SZ_RES + 1] = {xn, A, B};
@@ -230,17 +253,19 @@ static int riccati_interval(${sym}_t *c, hpipm_t *h, int k, const double *refere
   const casadi_real *arg2[${sym}_residual_SZ_ARG + 1] = {at, U, reference + NROWS * k, c->params};
   casadi_real *res2[${sym}_residual_SZ_RES + 1] = {r, Jx, Ju};
   if (${sym}_residual(arg2, res2, (casadi_int *)c->iw, c->w, 0) != 0) return ${SYM}_FAILED;
-  double JxAe[NR];
   a_b(Jx, Ae, NR, NX, 1, JxAe);
-  a_b(Jx, A, NR, NX, NX, Jtx);
-  a_b(Jx, B, NR, NX, NU, Jtu);
-  for (int i = 0; i < NR * NU; ++i) Jtu[i] += Ju[i];
   for (int i = 0; i < NR; ++i) r[i] -= JxAe[i];     /* r + Jx (dx_{k+1} - e_{k+1}) = r - Jx A e_k + ... */
-  at_b(Jtx, Jtx, NR, NX, NX, Q);
-  at_b(Jtu, Jtx, NR, NU, NX, S);
-  at_b(Jtu, Jtu, NR, NU, NU, R);
-  at_b(Jtx, r, NR, NX, 1, q);
-  at_b(Jtu, r, NR, NU, 1, ru);
+  transpose(A, NX, NX, At);
+  transpose(B, NX, NU, Bt);
+  residual_through(Jx, At, NX, GxT);
+  residual_through(Jx, Bt, NU, GuT);
+  for (int i = 0; i < NR; ++i)
+    for (int a = 0; a < NU; ++a) GuT[a + NU * i] += Ju[i + NR * a];
+  a_bt(GxT, GxT, NX, NX, NR, Q);
+  a_bt(GuT, GxT, NU, NX, NR, S);
+  a_bt(GuT, GuT, NU, NU, NR, R);
+  a_bt(GxT, r, NX, 1, NR, q);
+  a_bt(GuT, r, NU, 1, NR, ru);
   for (int i = 0; i < NU; ++i) {
     R[i + NU * i] += W_TAU;
     ru[i] += W_TAU * U[i];

@@ -4,11 +4,12 @@ for this processor (the default), the wheel's as shipped (RSCASADI_BLASFEO=wheel
 
 The CasADi wheel ships BLASFEO built for its GENERIC target (plain C, no AVX); fatrop spends about
 a third of a solve in it (its Riccati factorisation, 4x4 C kernels), and one kernel, the 4x4
-product D = beta C + alpha A B', was 14 % of a solve of problem (b).  By default that kernel is
-compiled for this processor (blasfeo_tuned.c, GCC vector extensions, -march=native), checked
-against the wheel's own on random panels, and loaded into the process's global scope before the
-driver: the wheel's library calls its kernels through its procedure linkage table, so its calls
-bind to it (checked: a call into the wheel's library must reach it).
+product D = beta C + alpha A B', was 14 % of a solve of problem (b).  By default that kernel and
+its sibling D = beta C + alpha A B are compiled for this processor (native.build.blasfeo_kernels,
+GCC vector extensions, -march=native), checked against the wheel's own on random panels, and
+loaded into the process's global scope before the driver: the wheel's library calls its kernels
+through its procedure linkage table, so its calls bind to them (checked: a call into the wheel's
+library must reach them).
 
 A BLASFEO built for the CPU (e.g. acados' or BLASFEO's own build for X64_INTEL_HASWELL) can stand
 in for the whole library: set RSCASADI_BLASFEO=/path/to/libblasfeo.so before the first fatrop solve
@@ -33,7 +34,7 @@ from rscasadi.errors import Failed
 
 ENV = "RSCASADI_BLASFEO"
 WHEEL = "wheel"                             # RSCASADI_BLASFEO=wheel: the wheel's BLASFEO as shipped
-TUNED = ("kernel_dgemm_nt_4x4_lib4",)       # the kernels blasfeo_tuned.c replaces
+TUNED = ("kernel_dgemm_nt_4x4_lib4", "kernel_dgemm_nn_4x4_lib4")   # the kernels native.build.blasfeo_kernels replaces
 _SIZES = ((5, 3), (13, 16), (17, 9))        # odd sizes: a panel height or column padding would show
 _loaded: dict = {}                          # once per process: RSCASADI_BLASFEO (path), the user's lib or the tuned kernels
 
@@ -78,18 +79,19 @@ def _packed(lib, m: int, n: int):
     return size, (M.m, M.n, M.pm, M.cn, M.memsize), mem[first:first + M.pm * M.cn].copy()
 
 
-def check(path, fatrop: str, driver: str) -> ctypes.CDLL:
-    """The user's BLASFEO at `path`, loaded locally and checked against the wheel's (module docstring)."""
+def check(path, *binaries: str, user: str = "fatrop") -> ctypes.CDLL:
+    """The user's BLASFEO at `path`, loaded locally and checked against the wheel's (module
+    docstring) for `binaries` (the libraries that call it, e.g. libfatrop and the driver) of `user`."""
     if not Path(path).is_file():
         _refuse(path, "no such file")
     try:
         lib = ctypes.CDLL(str(path))
     except OSError as e:
         _refuse(path, f"cannot be loaded ({e})")
-    missing = sorted(s for s in _imports(fatrop, path) | _imports(driver, path) | {
+    missing = sorted(s for s in set().union(*(_imports(b, path) for b in binaries)) | {
         "blasfeo_processor_cpu_features", "blasfeo_processor_library_features"} if not hasattr(lib, s))
     if missing:
-        _refuse(path, f"it lacks BLASFEO functions that fatrop calls: {', '.join(missing[:8])}")
+        _refuse(path, f"it lacks BLASFEO functions that {user} calls: {', '.join(missing[:8])}")
     cpu, need = ctypes.c_int(0), ctypes.c_int(0)
     ok = lib.blasfeo_processor_cpu_features(ctypes.byref(cpu))
     lib.blasfeo_processor_library_features(ctypes.byref(need))
@@ -99,9 +101,9 @@ def check(path, fatrop: str, driver: str) -> ctypes.CDLL:
     for m, n in _SIZES:
         theirs, ours = _packed(lib, m, n), _packed(wheel, m, n)
         if theirs[0] is None:
-            _refuse(path, "its struct blasfeo_dmat is larger than the one fatrop was compiled with")
+            _refuse(path, f"its struct blasfeo_dmat is larger than the one {user} was compiled with")
         if theirs[:2] != ours[:2] or not np.array_equal(theirs[2], ours[2]):
-            _refuse(path, f"its matrix layout differs from the one fatrop was compiled with (a {m} x {n} matrix: "
+            _refuse(path, f"its matrix layout differs from the one {user} was compiled with (a {m} x {n} matrix: "
                           f"m, n, pm, cn, memsize {theirs[1]} against {ours[1]}; panel size or storage order)")
     return lib
 
@@ -143,17 +145,31 @@ def _lazily(path):
 
 
 def _same_kernel(ours, theirs, name: str, path) -> None:
-    """`ours` computes what the wheel's kernel `theirs` computes, up to rounding, on random panels."""
+    """`ours` computes what the wheel's kernel `theirs` computes, up to rounding, on random panels:
+    B' (nt) as kmax columns of a panel, B (nn) as kmax rows from an offset into panels of
+    stride sdb."""
     rng = np.random.default_rng(7)
     P = ctypes.POINTER(ctypes.c_double)
+    nn = name.startswith("kernel_dgemm_nn")
     for kmax in (0, 1, 2, 3, 4, 5, 7, 8, 13, 16, 33):
-        for alpha, beta in ((1.0, 1.0), (-1.0, 0.0), (0.7, -1.3)):
-            A, B, C = rng.standard_normal(4 * kmax + 1), rng.standard_normal(4 * kmax + 1), rng.standard_normal(16)
+        for (alpha, beta), offset in zip(((1.0, 1.0), (-1.0, 0.0), (0.7, -1.3)), (0, 1, 3)):
+            A, C, sdb = rng.standard_normal(4 * kmax + 1), rng.standard_normal(16), 6
+            offset = offset if kmax else 0          # BLASFEO's own kernel reads a row past kmax = 0 from an offset
+            if nn:                                   # row k of B at its panel's start + its row in it
+                B = rng.standard_normal((kmax + offset) // 4 * 4 * sdb + 4 * sdb)
+                rows = np.array([(offset + k) // 4 * 4 * sdb + (offset + k) % 4 for k in range(kmax)], int)
+                Bk = B[rows[:, None] + 4 * np.arange(4)]             # kmax x 4
+            else:
+                B = rng.standard_normal(4 * kmax + 1)
+                Bk = B[:4 * kmax].reshape(-1, 4)
             al, be, D = np.array([alpha]), np.array([beta]), [np.full(16, np.nan) for _ in range(2)]
             for f, out in zip((ours, theirs), D):
-                f(kmax, *(v.ctypes.data_as(P) for v in (al, A, B, be, C, out)))
-            scale = abs(alpha) * (np.abs(A[:4 * kmax]).reshape(-1, 4).T @ np.abs(B[:4 * kmax]).reshape(-1, 4)).ravel("F") \
-                + abs(beta) * np.abs(C)
+                if nn:
+                    f(kmax, al.ctypes.data_as(P), A.ctypes.data_as(P), offset, B.ctypes.data_as(P), sdb,
+                      *(v.ctypes.data_as(P) for v in (be, C, out)))
+                else:
+                    f(kmax, *(v.ctypes.data_as(P) for v in (al, A, B, be, C, out)))
+            scale = abs(alpha) * (np.abs(A[:4 * kmax]).reshape(-1, 4).T @ np.abs(Bk)).ravel("F") + abs(beta) * np.abs(C)
             if not np.all(np.abs(D[0] - D[1]) <= 1e-14 * (1 + scale)):
                 raise Failed(f"BLASFEO's {name} compiled for this processor ({path}) differs from the CasADi "
                                    f"wheel's (kmax {kmax}, alpha {alpha}, beta {beta}: largest difference "
@@ -173,6 +189,12 @@ def _load_tuned(path: str, wheel) -> dict:
     one, A, D = np.ones(1), np.ones(8), np.zeros(16)
     wheel.kernel_dgemm_nt_4x4_vs_lib4(2, *(v.ctypes.data_as(P) for v in (one, A, A, one, D, D)), 4, 4)
     return {"library": path, "kernels": list(TUNED), "reached": bool(flag.value)}
+
+
+def wheel_is_generic() -> bool:
+    """Whether the wheel's BLASFEO is its GENERIC build (loaded lazily: its calls still bind to
+    kernels loaded after it)."""
+    return not features(_lazily(wheel_library()))
 
 
 def features(lib) -> str:

@@ -26,14 +26,13 @@ import casadi as ca
 from typing import Any
 import numpy as np
 
-from rscasadi.native.build import cached_library, compiler, native_flags
+from rscasadi.native.build import blasfeo_kernels, cached_library, compiler, native_flags
 from rscasadi.native.parallel import openmp_flags
 from rscasadi.ocp.fatrop import blasfeo
 from rscasadi.ocp.assembly import RAW_NAMES
 from rscasadi.errors import Failed, InvalidArgument
 
 _SOURCE = Path(__file__).with_name("driver.c")
-_TUNED = Path(__file__).with_name("blasfeo_tuned.c")
 _NAMES = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l")
 _STATS = ("compute_sd_time", "duinf_time", "eval_hess_time", "eval_jac_time", "eval_cv_time", "eval_grad_time",
           "eval_obj_time", "initialization_time", "time_total", "eval_hess_count", "eval_jac_count",
@@ -137,9 +136,9 @@ def driver_library(log=print) -> str:
 
 
 def tuned_kernels_library(log=print) -> str:
-    """BLASFEO's hottest kernel for this processor (blasfeo_tuned.c; blasfeo.py loads it)."""
-    return str(cached_library({_TUNED.name: _TUNED.read_text()}, ["-O3", *native_flags()], name="blasfeo_tuned",
-                              what="BLASFEO's dgemm kernel for this processor", log=log))
+    """BLASFEO's hottest kernels for this processor (native.build.blasfeo_kernels; blasfeo.py loads them)."""
+    return str(cached_library(blasfeo_kernels(), ["-O3", *native_flags()], name="blasfeo_tuned",
+                              what="BLASFEO's dgemm kernels for this processor", log=log))
 
 
 def _vec(v, n: int) -> np.ndarray:
