@@ -6,14 +6,25 @@
    the median step and feedback (mpc_prepare before the sample, mpc_feedback from it: the
    latency) timed in C along the 1000 samples of the closed loop's own states, and the closed loop's
    tracking of problems/trajectory_panda.toml (1 s, 20 % heavier last link);
-2. the Panda with a last link 50 times lighter, problems/mpc_panda.toml's settings untouched:
+2. the task-space MPC of problems/mpc_panda_shelf.toml (N = 10, position and rotation, the ball
+   and the table), its phases timed along its closed loop on the shelf motion (as modelled);
+3. the Panda with a last link 50 times lighter, problems/mpc_panda.toml's settings untouched:
    integrator = auto takes ROS2 (RK4 would need more substeps than it allows), every step finite.
+
+With RSCASADI_BENCH_BLASFEO=/path/to/libblasfeo.so (a BLASFEO built for this CPU, e.g.
+`git clone https://github.com/giaf/blasfeo && make -C blasfeo shared_library TARGET=X64_INTEL_HASWELL`)
+the Riccati rows at N = 10 and 20 and the task-space row are also run linked to it
+(RSCASADI_BLASFEO, rscasadi.mpc.generate.riccati_blasfeo); without it, the CasADi wheel's BLASFEO
+with the controller's vector kernels only.
 
     python benchmarks/bench_mpc_horizon.py      # writes results/bench_mpc_horizon.md (about 20 min,
                                                 # every build from an empty cache)
 """
 import dataclasses
+import json
 import os
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -21,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from common import stamp, RESULTS, ROOT  # noqa: E402
-from rscasadi.mpc import CompiledMPC, closed_loop, generate_mpc, load_mpc_problem  # noqa: E402
+from rscasadi.mpc import closed_loop, generate_mpc, load_mpc_problem, task_closed_loop  # noqa: E402
 from rscasadi.mpc.problem import with_integrator  # noqa: E402
 from rscasadi.dynamics.arm import Arm, load  # noqa: E402
 from rscasadi.sim.loop import rk4_plant  # noqa: E402
@@ -32,34 +43,79 @@ CONDENSED_UP_TO = 20          # its C at 40 intervals would be ~4x that at 20
 LIGHT = 0.02                  # the light wrist: the last link's mass and inertia times this
 
 
+_PHASES = """
+import json, sys
+import numpy as np
+from rscasadi.mpc import CompiledMPC
+d = sys.argv[1]
+states, references = np.load(d + "/states.npy"), np.load(d + "/references.npy")
+c = CompiledMPC(d)
+c.init(states[0])
+step, feedback = [], []
+for x, ref in zip(states, references):
+    step.append(c.step(x, ref)[1])
+c.init(states[0])
+for x, ref in zip(states, references):
+    c.prepare(ref)
+    feedback.append(c.feedback(x)[1])
+q = lambda v, pct: float(np.percentile(v, pct)) * 1e6
+print(json.dumps({"step_us": q(step, 50), "step_p999_us": q(step, 99.9), "feedback_us": q(feedback, 50)}))
+"""
+
+
 def phases(directory: Path, states: np.ndarray, references: np.ndarray) -> dict:
-    """mpc_step, mpc_prepare + mpc_feedback timed in C along recorded states and references."""
-    c = CompiledMPC(directory)
-    c.init(states[0])
-    step, feedback = [], []
-    for x, ref in zip(states, references):
-        step.append(c.step(x, ref)[1])
-    c.init(states[0])
-    for x, ref in zip(states, references):
-        c.prepare(ref)
-        feedback.append(c.feedback(x)[1])
-    q = lambda v, pct: float(np.percentile(v, pct)) * 1e6
-    return {"step_us": q(step, 50), "step_p999_us": q(step, 99.9), "feedback_us": q(feedback, 50)}
+    """mpc_step, mpc_prepare + mpc_feedback timed in C along recorded states and references, in a
+    fresh process: the BLASFEO a controller links binds there (a process binds HPIPM's calls once,
+    to the first BLASFEO it loads), and nothing else of this run runs beside it."""
+    np.save(directory / "states.npy", states)
+    np.save(directory / "references.npy", references)
+    run = subprocess.run([sys.executable, "-c", _PHASES, str(directory)], capture_output=True, text=True, check=True,
+                         env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+    return json.loads(run.stdout.strip().splitlines()[-1])
 
 
-def case(p, work: Path, log=print) -> dict:
-    """Generate, run the closed loop (1 s, traced), then time the phases along its states."""
-    out = work / f"{p.qp}_{p.horizon}"
+def generated(p, out: Path, blasfeo: str = "") -> float:
+    """Generate and compile at -O3 for this CPU, linked to `blasfeo` ("" the default); seconds."""
+    os.environ.pop("RSCASADI_BLASFEO", None)
+    if blasfeo:
+        os.environ["RSCASADI_BLASFEO"] = blasfeo
     t0 = time.perf_counter()
-    generate_mpc(p, out, opt="-O3", native=True, log=lambda m: None)
-    built = time.perf_counter() - t0
+    try:
+        generate_mpc(p, out, opt="-O3", native=True, log=lambda m: None)
+    finally:
+        os.environ.pop("RSCASADI_BLASFEO", None)
+    return time.perf_counter() - t0
+
+
+def case(p, work: Path, log=print, blasfeo: str = "") -> dict:
+    """Generate, run the closed loop (1 s, traced), then time the phases along its states."""
+    out = work / f"{p.qp}_{p.horizon}{'_blasfeo' if blasfeo else ''}"
+    built = generated(p, out, blasfeo)
     traces: dict = {}
     res = closed_loop(p, out, duration=1.0, log=lambda m: None, traces=traces)["MPC (C)"]
     states, refs = traces["MPC (C)"]["x"], traces["MPC (C)"]["reference"]
     row = {"qp": p.qp, "N": p.horizon, "build_s": built, "c_mb": sum(f.stat().st_size for f in out.glob("*.c")) / 1e6,
-           "max_error": res["max_error"], **phases(out, states, refs)}
-    log(f"  {p.qp} N = {p.horizon}: built in {built:.0f} s ({row['c_mb']:.1f} MB of C), step {row['step_us']:.0f} us, "
-        f"feedback {row['feedback_us']:.0f} us, tracking {row['max_error']:.2e} rad")
+           "max_error": res["max_error"], "blasfeo": blasfeo, **phases(out, states, refs)}
+    log(f"  {p.qp} N = {p.horizon}{' (BLASFEO for this CPU)' if blasfeo else ''}: built in {built:.0f} s "
+        f"({row['c_mb']:.1f} MB of C), step {row['step_us']:.0f} us, feedback {row['feedback_us']:.0f} us, "
+        f"tracking {row['max_error']:.2e} rad")
+    return row
+
+
+def task_space(work: Path, log=print, blasfeo: str = "") -> dict:
+    """problems/mpc_panda_shelf.toml generated as the benchmark builds, its closed loop on the
+    shelf motion as modelled, then its phases timed along the loop's states and references."""
+    p = load_mpc_problem(ROOT / "problems" / "mpc_panda_shelf.toml")
+    if not Path(p.solution).exists():
+        raise SystemExit(f"{p.solution} missing: run `rscasadi reproduce` first (the shelf motion)")
+    out = work / f"task{'_blasfeo' if blasfeo else ''}"
+    built = generated(p, out, blasfeo)
+    traces: dict = {}
+    res = task_closed_loop(p, out, log=lambda m: None, traces=traces)
+    row = {"N": p.horizon, "build_s": built, "max_error": res["max_error"], "blasfeo": blasfeo,
+           "qp": json.loads((out / "manifest.json").read_text())["qp"], **phases(out, traces["x"], traces["reference"])}
+    log(f"  task space N = {p.horizon}{' (BLASFEO for this CPU)' if blasfeo else ''}: step {row['step_us']:.0f} us, "
+        f"feedback {row['feedback_us']:.0f} us, the hand within {row['max_error'] * 1e3:.1f} mm")
     return row
 
 
@@ -87,12 +143,17 @@ def main():
     os.environ["RSCASADI_CACHE"] = str(work / "cache")      # every build timed from an empty cache
     base = dataclasses.replace(load_mpc_problem(PROBLEM), interval=0.01, substeps=2)
     rows = []
+    tuned = os.environ.get("RSCASADI_BENCH_BLASFEO", "")
     for N in HORIZONS:
         for qp in ("condensed", "riccati"):
             if qp == "condensed" and N > CONDENSED_UP_TO:
                 continue
             print(f"N = {N}, {qp} ...", flush=True)
             rows.append(case(dataclasses.replace(base, horizon=N, qp=qp), work))
+            if qp == "riccati" and N in (10, 20) and tuned:
+                rows.append(case(dataclasses.replace(base, horizon=N, qp=qp), work, blasfeo=tuned))
+    print("task space ...", flush=True)
+    tasks = [task_space(work)] + ([task_space(work, blasfeo=tuned)] if tuned else [])
     light = light_wrist(work)
     md = ["# The Panda's MPC over the horizon", "", stamp(), "",
           "`python benchmarks/bench_mpc_horizon.py`: `problems/mpc_panda.toml` with N intervals of 10 ms (2 RK4 "
@@ -102,15 +163,33 @@ def main():
           "mpc_prepare: the measurement-to-torque latency).", "",
           "| QP | N | generate + compile, empty cache (s) | C (MB) | step median (us) | step 99.9 % (us) | feedback (us) | "
           "tracking (rad) |", "|---|---|---|---|---|---|---|---|"]
+    label = lambda r: r["qp"] + (", BLASFEO for this CPU" if r["blasfeo"] else "")
     for r in rows:
-        md.append(f"| {r['qp']} | {r['N']} | {r['build_s']:.0f} | {r['c_mb']:.1f} | {r['step_us']:.0f} | "
+        md.append(f"| {label(r)} | {r['N']} | {r['build_s']:.0f} | {r['c_mb']:.1f} | {r['step_us']:.0f} | "
                   f"{r['step_p999_us']:.0f} | {r['feedback_us']:.0f} | {r['max_error']:.2e} |")
-    by = {(r["qp"], r["N"]): r for r in rows}
+    by = {(r["qp"], r["N"]): r for r in rows if not r["blasfeo"]}
     ratio = lambda qp, a, b: by[(qp, b)]["step_us"] / by[(qp, a)]["step_us"]
     md += ["", f"Step growth from N = 10 to 20: condensed {ratio('condensed', 10, 20):.1f}x, Riccati "
                f"{ratio('riccati', 10, 20):.1f}x; Riccati from 20 to 40: {ratio('riccati', 20, 40):.1f}x. "
-               f"The condensed QP is not generated beyond N = {CONDENSED_UP_TO} (its C grows as N^2).", "",
-           "## A light wrist", "",
+               f"The condensed QP is not generated beyond N = {CONDENSED_UP_TO} (its C grows as N^2). The Riccati "
+               "controller's BLASFEO: the CasADi wheel's (its GENERIC target) with BLASFEO's two 4x4 product kernels "
+               "in vector C in the controller's library, or one built for this CPU where the row says so.", "",
+           "## Task space", "",
+           "`problems/mpc_panda_shelf.toml`: the hand's position, velocity and rotation along the shelf motion, the "
+           "ball and the table as soft constraints, N = 10 intervals of 10 ms; phases timed along its closed loop "
+           "(as modelled, 1 kHz, quantised encoders).", "",
+           "| QP | step median (us) | step 99.9 % (us) | feedback (us) | the hand within (mm) |", "|---|---|---|---|---|"]
+    md += [f"| {label(r)} | {r['step_us']:.0f} | {r['step_p999_us']:.0f} | {r['feedback_us']:.0f} | "
+           f"{r['max_error'] * 1e3:.1f} |" for r in tasks]
+    best = lambda key, N: min(r[key] for r in rows if r["qp"] == "riccati" and r["N"] == N)
+    targets = [("joint space, N = 10, step", best("step_us", 10), 400), ("joint space, N = 10, feedback",
+               best("feedback_us", 10), 100), ("joint space, N = 20, step", best("step_us", 20), 800),
+               ("task space, N = 10, step", min(r["step_us"] for r in tasks), 600)]
+    md += ["", "## Targets (medians, the best BLASFEO of this run)", "", "| | measured (us) | target (us) | |",
+           "|---|---|---|---|"]
+    md += [f"| {what} | {v:.0f} | < {goal} | {'met' if v < goal else f'missed by {v / goal:.1f}x'} |"
+           for what, v, goal in targets]
+    md += ["", "## A light wrist", "",
            f"The Panda with its last link {1 / LIGHT:g} times lighter, `problems/mpc_panda.toml`'s settings: the "
            f"integrator `auto` took {light['integrator']} with {light['substeps']} substeps per 20 ms interval; every "
            f"step finite, tracking to {light['max_error']:.2e} rad (feedforward + PD: {light['pd_error']:.2e}), "

@@ -8,8 +8,13 @@ import time
 import tomllib
 from pathlib import Path
 
-import casadi as ca
-import numpy as np
+# The benchmarks' Python loops make many small numpy calls; OpenBLAS's threads spin between them on
+# the other core and made the C step they time 1.4x slower (the Panda's MPC, 751 against 541 us;
+# 2026-11-27, 2-core Xeon VM).  Before numpy loads OpenBLAS.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import casadi as ca  # noqa: E402
+import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))

@@ -79,6 +79,27 @@ def run_date(*paths: Path) -> str:
     return dates[0] if len(dates) == 1 else f"from {dates[0]} to {dates[-1]}"
 
 
+def run_machine(*paths: Path) -> str:
+    """'AMD EPYC, 2 cores' (or 'A and B'): the machines in the files' 'Run of DATE on MACHINE,
+    OS; commit' lines."""
+    found = sorted({m.group(1) for p in paths
+                    for m in re.finditer(r"Run of \d{4}-\d\d-\d\d on (.+?), [^,;]+; commit", p.read_text())})
+    if not found:
+        raise FiguresError("no 'Run of DATE on MACHINE' line in " + ", ".join(str(p.relative_to(ROOT)) for p in paths))
+    return " and ".join(found)
+
+
+def runs(*paths: Path) -> str:
+    """Which file ran when and where: '`a.md`, `b.md`: 2026-11-24 on M1; `c.md`: 2026-11-27 on M2'."""
+    groups: dict = {}
+    for p in paths:
+        m = re.search(r"Run of (\d{4}-\d\d-\d\d) on (.+?), [^,;]+; commit", p.read_text())
+        if not m:
+            raise FiguresError(f"no 'Run of DATE on MACHINE' line in {p.relative_to(ROOT)}")
+        groups.setdefault((m.group(1), m.group(2)), []).append(f"`{p.relative_to(RESULTS)}`")
+    return "; ".join(f"{', '.join(files)}: {date} on {machine}" for (date, machine), files in sorted(groups.items()))
+
+
 def commit_date(path: Path) -> str:
     """The date of the commit that last wrote path (for results files without a 'Run of' line)."""
     import subprocess
@@ -136,13 +157,19 @@ def readme_speed() -> str:
     c = codegen_ns()
     arms = {r["arm"].split()[0]: r for r in csv.DictReader((RESULTS / "bench_ocp_arms.csv").open())}
     mpc3, mpc7 = paced_rt(RESULTS / "bench_mpc.md"), paced_rt(RESULTS / "bench_mpc_panda.md")
-    date = run_date(RESULTS / "bench_codegen.md", RESULTS / "bench_mpc_panda.md", RESULTS / "bench_ocp_arms.md")
+    files = (RESULTS / "bench_codegen.md", RESULTS / "bench_mpc_panda.md",
+             RESULTS / "bench_mpc_horizon.md", RESULTS / "bench_ocp_arms.md")
+    where = runs(*files)
+    head, *body = next(rows for rows in tables(RESULTS / "bench_mpc_horizon.md") if rows[0][:2] == ["QP", "N"])
+    col = {name: i for i, name in enumerate(head)}
+    ricc = [(r[0], r[col["step median (us)"]], r[col["feedback (us)"]]) for r in body
+            if r[1] == "10" and r[0].startswith("riccati")]
     ocp = {a: f"{float(r['setup_cold_s']):.1f} s; {float(r['solve_s']):.2f} s" for a, r in arms.items()}
 
     def row(label, function, column="c_ns", form=ns):
         return f"| {label} | " + " | ".join(form(c[(n, function)][column]) for n in (3, 6, 7, 12)) + " |"
     return "\n".join([
-        f"Run of {date} on a 2-core AMD EPYC VM (`results/bench_codegen.md`, `bench_mpc*.md`, `bench_ocp_arms.md`):",
+        f"In `results/`: {where}; `bench_mpc.md` (n = 3): {commit_date(RESULTS / 'bench_mpc.md')}.",
         "",
         "| | n = 3 | n = 6 | n = 7 (Panda) | n = 12 |",
         "|---|---|---|---|---|",
@@ -151,9 +178,11 @@ def readme_speed() -> str:
         row("Pinocchio's computeABADerivatives (tree, before projection)", "forward_dynamics_jacobian",
             "pinocchio_route_ns"),
         row("RK4 step Jacobian", "step_jacobian", form=lambda v: f"{v / 1000:.1f} us"),
-        f"| NMPC step, median (99.9 %, rt){'; its feedback phase' if mpc3[2] and mpc7[2] else ''} | "
+        f"| NMPC step, median (99.9 %, rt){'; its feedback phase' if mpc3[2] or mpc7[2] else ''} | "
         f"{mpc3[0]:.0f} us ({mpc3[1]:.0f} us; -O2){_feedback(mpc3)} | | "
         f"{mpc7[0]:.0f} us ({mpc7[1]:.0f} us; -O3, native){_feedback(mpc7)} | |",
+        "| NMPC step, N = 10 (Riccati), median; its feedback phase | | | "
+        + "; ".join(f"{s} us; {f} us{' (BLASFEO for this CPU)' if 'BLASFEO' in q else ''}" for q, s, f in ricc) + " | |",
         f"| minimum-time OCP, N = 150, both cores: first compile; solve | | {ocp['UR5']} (UR5) | {ocp['Panda']} | |",
     ]) + "\n"
 
@@ -238,7 +267,8 @@ def codegen_tutorial() -> str:
                "forward_dynamics_jacobian": "<= 2 us", "step_jacobian": "<= 2 us"}
     functions = ("forward_dynamics", "inverse_dynamics", "forward_dynamics_jacobian", "step", "step_jacobian",
                  "feedforward_step")
-    lines = [f"Run of {run_date(RESULTS / 'bench_codegen.md')} on a 2-core AMD EPYC VM, -O3 with `--native`:", "",
+    lines = [f"Run of {run_date(RESULTS / 'bench_codegen.md')} on {run_machine(RESULTS / 'bench_codegen.md')}, "
+             "-O3 with `--native`:", "",
              "| function (reference arm) | C | target |", "|---|---|---|"]
     lines += [f"| {f} | {ns(c[(3, f)]['c_ns'])} | {targets.get(f, '')} |" for f in functions]
     lines += [f"| generate + compile, all | {built[3]:.1f} s | < 30 s |", "",
@@ -255,9 +285,8 @@ def urdf_panda() -> str:
     cell = dict(zip(cell[""], next(v for k, v in cell.items() if k)))
     ocp = next(r for r in csv.DictReader((RESULTS / "bench_ocp_arms.csv").open()) if r["arm"].startswith("Panda"))
     fd, crba = float(cell["forward_dynamics (ns)"]), float(cell["Pinocchio crba + rnea (ns)"])
-    date = run_date(RESULTS / "bench_codegen.md", RESULTS / "bench_ocp_arms.md")
     return "\n".join([
-        f"Run of {date} on a 2-core AMD EPYC VM (`results/bench_codegen.md`, `results/bench_ocp_arms.md`):", "",
+        f"In `results/`: {runs(RESULTS / 'bench_codegen.md', RESULTS / 'bench_ocp_arms.md')}.", "",
         "| Panda (7 joints) | measured | target |", "|---|---|---|",
         f"| forward dynamics, generated C (-O3, native) | {ns(fd)} | 5x faster than Pinocchio: {crba / fd:.1f}x |",
         f"| Pinocchio crba + rnea on the same 21-body tree (C++, before projection and solve) | {ns(crba)} | |",

@@ -8,7 +8,6 @@ larger struct - must be refused before it is used, naming the variable and the f
 BLASFEO is installed here: the stand-in is a copy of the wheel's under another name, which is enough
 to see which one is called (the speed is the benchmark's: benchmarks/bench_ocp.py)."""
 import ctypes
-import dataclasses
 import json
 import os
 import re

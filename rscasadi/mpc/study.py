@@ -170,7 +170,7 @@ class FrameReference:
 
 
 def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bool = False, settle: float = 0.2,
-                     quantised: bool = True, log=print, label: str | None = None) -> dict:
+                     quantised: bool = True, log=print, label: str | None = None, traces: dict | None = None) -> dict:
     """The task-space MPC (its problem's `[path]` from rest at theta_start, or the frame's motion in
     its `solution`) on the arm holding a payload of `plant_mass` kg (None: the problem's), at the
     problem's sample rate with quantised encoders: `told`, the controller is given that mass
@@ -179,7 +179,8 @@ def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bo
     RMS distance from the reference point of its time, the largest distance from the reference
     curve, the final error, the largest limit violation, the smallest clearance to the obstacles
     (exact) and the time per step in C; `trace` every 10 ms (the error, the step time); `label`
-    names the case in the log line."""
+    names the case in the log line; `traces`, if given, receives the plant's state "x" and the
+    reference's columns "reference" at every sample (for the benchmarks)."""
     from rscasadi.dynamics.collision import exact_clearance
     from rscasadi.dynamics.statics import rest_state
     from rscasadi.model.frames import holding
@@ -212,6 +213,8 @@ def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bo
     controller = _MPC(mpc, lambda k: reference.columns(np.clip(clock(k) + offsets, 0.0, reference.duration)))
     run = run_loop(plant, rk4_plant(plant, dt), controller, rest_state(plant, reference.theta_start), K, dt,
                    sensors=Encoders(plant, dt, exact=not quantised), watch=watch, log=log)
+    if traces is not None:
+        traces.update(x=run.x[:, :K].T, reference=np.array([controller.reference(k) for k in range(K)]))
     every = max(1, int(round(0.01 / dt)))
     times, violation, thetas = run.seconds, limit_violation(plant, run), run.x[:n, ::every].T
     gap = min(gaps) if clearance is not None else np.inf

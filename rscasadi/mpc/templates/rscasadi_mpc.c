@@ -176,12 +176,7 @@ static hpipm_t *qp_structures(${sym}_t *c) {
   p = aligned(p + d_ocp_qp_ipm_arg_memsize(&h->bdim));
   d_ocp_qp_ipm_arg_set_default(SPEED, &h->arg);
   int iter_max = ${qp_iterations}, warm = 0;
-  double tol = 1e-10;
-  d_ocp_qp_ipm_arg_set_iter_max(&iter_max, &h->arg);
-  d_ocp_qp_ipm_arg_set_tol_stat(&tol, &h->arg);
-  d_ocp_qp_ipm_arg_set_tol_eq(&tol, &h->arg);
-  d_ocp_qp_ipm_arg_set_tol_ineq(&tol, &h->arg);
-  d_ocp_qp_ipm_arg_set_tol_comp(&tol, &h->arg);
+  d_ocp_qp_ipm_arg_set_iter_max(&iter_max, &h->arg);    /* SPEED's tolerances: stationarity 1e-6, the rest 1e-8 */
   d_ocp_qp_ipm_arg_set_warm_start(&warm, &h->arg);
   FITS(d_ocp_qp_ipm_ws_memsize(&h->bdim, &h->arg));
   d_ocp_qp_ipm_ws_create(&h->bdim, &h->arg, &h->ws, p);
