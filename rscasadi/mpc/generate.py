@@ -211,7 +211,9 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
     qp = qp_of(p, arm.n)
     link: list = []
     qp_words, nr = 1, 1
-    blas, kernels, which = [], {}, None
+    blas: list = []
+    kernels: dict = {}
+    which = None
     if qp == "riccati":
         inc, link = hpipm_flags()
         blas, kernels, which = riccati_blasfeo()
