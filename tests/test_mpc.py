@@ -369,6 +369,27 @@ def test_sqp_mode_reaches_a_far_target_pose_within_the_limits(tmp_path, arm3):
     assert np.all(np.abs(res["tau"]) <= M.limit_arrays(arm3)["tau"] + 1e-12)
 
 
+def test_the_real_time_iteration_keeps_the_speed_limits_one_sample_on(mpc_dir, arm3):
+    """mpc_step_to the same far pose with one SQP iteration per sample: the slow-side speed rows
+    one sample on (formulation.sample_ahead) keep every limit, where rows at the 10 ms intervals'
+    ends alone let each re-plan brake later (9.9 % over); the torques within their limits; the
+    C controller holds the rows (its CasADi twin is checked against it elsewhere), and they are
+    live: at the state reached at full speed they move the first torque."""
+    import casadi as ca
+    p = load_mpc_problem(PROBLEM)
+    res = M.reach_pose(p, mpc_dir, [0.6, 0.8, -0.9], seconds=1.0)
+    assert res["final_angle_error"] < 1e-4 and res["max_limit_violation"] == 0.0
+    assert np.all(np.abs(res["tau"]) <= M.limit_arrays(arm3)["tau"] + 1e-12)
+    ahead = M.formulation.sample_ahead(arm3, p)
+    dphi_max = M.limit_arrays(arm3)["dphi"]
+    x = rest_state(arm3, [0.1, 0.2, 0.3])
+    x[9:] = 0.95 * dphi_max                                  # the slow-side speeds past 90 % of their limits
+    r, Jx, Ju = (np.array(v) for v in ahead(x, np.zeros(3), ca.DM(0, 1)))
+    assert r.shape[0] == 3 and np.all(r > 0) and np.all(np.abs(np.diag(Ju)) > 0)
+    x[9:] = 0.5 * dphi_max
+    assert np.all(np.array(ahead(x, np.zeros(3), ca.DM(0, 1))[0]) == 0)
+
+
 def test_the_documented_problem_file_is_the_shipped_one(tmp_path):
     """docs/user-guide/mpc.md shows the MPC problem file: every field it names is read, and its
     values are those of problems/mpc_arm3.toml."""

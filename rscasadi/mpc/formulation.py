@@ -148,6 +148,34 @@ def stage_residual(arm: Arm, p: MPCProblem, limits: dict) -> ca.Function:
     return ca.Function("stage_residual", [x, u, ref, posture], [r, ca.jacobian(r, x), ca.jacobian(r, u)])
 
 
+def sample_ahead(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None = None,
+                 name: str = "mpc_ahead") -> ca.Function | None:
+    """(x, tau, m) -> (r, dr/dx, dr/dtau): the soft slow-side speed limits (`mpc_terms`' dphi
+    rows) at the state one sample after x under tau (the problem's integrator over `sample_time`,
+    in steps no longer than its substeps), through that step's sensitivities.  That is the state
+    the arm is in when the next torque is computed; the intervals' ends never see it (sample <
+    interval), and a plan re-made every sample could always brake later: on the shelf motion the
+    speed limits overshot by 31 %.  The speeds alone: the torque moves them within a sample,
+    while a deflection's or a link angle's excess barely moves in one, so its row would ask for
+    a torque step of its excess over that small change (the arm oscillated at rest).  None where
+    there is no such row, or where the sample is the interval (its end is the first node)."""
+    p = with_integrator(p, arm)
+    bounds = [t for t in mpc_terms(arm, p, limit_arrays(arm)) if isinstance(t, StateBound) and t.quantity == "dphi"]
+    if not bounds or p.sample_time >= p.interval:
+        return None
+    h = p.interval / int(p.substeps)
+    F, _ = interval_functions(arm, p.sample_time, int(np.ceil(p.sample_time / h - 1e-9)), step_jacobian, p.integrator)
+    n = arm.n
+    z, none = ca.SX.sym("z", 4 * n), ca.SX(0, 1)
+    rows = ca.vertcat(*[b.penalty_residual(arm, z, ca.SX.zeros(n), none) for b in bounds])
+    limit_rows = ca.Function("limit_rows", [z], [rows, ca.jacobian(rows, z)], {"cse": True})
+    x, u, m = ca.MX.sym("x", 4 * n), ca.MX.sym("tau", n), ca.MX.sym("m", F.size1_in(2))
+    xs, A, B = F(x, u, m)
+    r, Jz = limit_rows(xs)
+    return ca.Function(name, [x, u, m], [ca.densify(r), ca.densify(ca.mtimes(Jz, A)), ca.densify(ca.mtimes(Jz, B))],
+                       ["x", "tau", "m"], ["r", "Jx", "Ju"])
+
+
 class _Linearisation:
     """The Gauss-Newton QP of the multiple-shooting NLP at (X, U), condensed (Bock & Plitt):
     dx_{k+1} = A_k dx_k + B_k du_k + c_k with the gap c_k = F(X_k, U_k) - X_{k+1}; so
@@ -161,12 +189,18 @@ class _Linearisation:
     g + M dx_0: what the measurement changes is affine, and the feedback is that product and the
     QP alone."""
 
-    def __init__(self, F, residual, p: MPCProblem, xm, ref, X, U, posture, mass):
+    def __init__(self, F, residual, p: MPCProblem, xm, ref, X, U, posture, mass, ahead=None):
         n, N = U.shape[0], p.horizon
         nx, nU = X.shape[0], n * N
         self.H, self.g = p.weights["tau"] * ca.MX.eye(nU), p.weights["tau"] * ca.vec(U)
         E, G = (ca.MX(nx, 1) if xm is None else xm - X[:, 0]), ca.MX(nx, 0)
         Phi, self.M = (ca.MX.eye(nx), ca.MX(nU, nx)) if xm is None else (None, None)
+        if ahead is not None:                     # the limits one sample on (`sample_ahead`): tau_0 alone acts
+            r, Jx, Ju = ahead(X[:, 0] + E, U[:, 0], mass)
+            self.H += ca.diagcat(ca.mtimes(Ju.T, Ju), ca.MX(nU - n, nU - n))
+            self.g += ca.vertcat(ca.mtimes(Ju.T, r), ca.MX(nU - n, 1))
+            if self.M is not None:
+                self.M += ca.vertcat(ca.mtimes(Ju.T, Jx), ca.MX(nU - n, nx))
         self.E, self.G, self.Phi = [E], [G], [Phi]
         for k in range(N):
             xp, A, B = F(X[:, k], U[:, k], mass)
@@ -222,10 +256,12 @@ def hard_range(limits: dict):
             np.where(np.isfinite(limits["theta_hi"]), limits["theta_hi"], HARD_OPEN))
 
 
-def rollout(Fx, residual, p: MPCProblem, limits: dict, xm, ref, U, posture, mass):
+def rollout(Fx, residual, p: MPCProblem, limits: dict, xm, ref, U, posture, mass, ahead=None):
     """The NLP's cost along the plan's states simulated from the measured state, and those states:
     the measure of progress of the line search (a condensed, hence gap-free, merit function)."""
     xs, total = [xm], 0.5 * p.weights["tau"] * ca.sumsqr(U)
+    if ahead is not None:
+        total += 0.5 * ca.sumsqr(ahead(xm, U[:, 0], mass)[0])
     lo, hi = hard_range(limits) if p.angle_limits == "hard" else (None, None)
     n = U.shape[0]
     for k in range(p.horizon):
@@ -362,6 +398,7 @@ def rti_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None = No
     F, Fx = interval_functions(arm, p.interval, int(p.substeps), step_jacobian, p.integrator)
     limits = limit_arrays(arm)
     residual = stage_residual(arm, p, limits)
+    ahead = sample_ahead(arm, p, step_jacobian)
     xm, ref = ca.MX.sym("x", nx), ca.MX.sym("reference", reference_rows(n, p), N)
     params = ca.MX.sym("params", n_params(arm))
     posture, mass = params[:n], params[n:]
@@ -369,7 +406,7 @@ def rti_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None = No
     X, U, phi0 = X0, U0, None
     tau_max = np.tile(limits["tau"], N)
     for _ in range(p.sqp_iterations):
-        lin = _Linearisation(F, residual, p, xm, ref, X, U, posture, mass)
+        lin = _Linearisation(F, residual, p, xm, ref, X, U, posture, mass, ahead)
         rows = lin.angle_rows(X, limits) if p.angle_limits == "hard" else None
         dU = box_qp(lin.H, lin.g, -tau_max - ca.vec(U), tau_max - ca.vec(U), p.qp_iterations, rows, HARD_PRICE)
         dX = lin.step(dU)
@@ -380,12 +417,12 @@ def rti_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None = No
         # cost, else the shortest; the states become that rollout (the gaps close), and its cost
         # is the next iteration's reference
         if phi0 is None:
-            phi0 = rollout(Fx, residual, p, limits, xm, ref, U, posture, mass)[0]
+            phi0 = rollout(Fx, residual, p, limits, xm, ref, U, posture, mass, ahead)[0]
         dU = ca.reshape(dU, n, N)
         alpha = ca.MX(LINE_SEARCH[-1])
-        phi_new, X_new = rollout(Fx, residual, p, limits, xm, ref, U + alpha * dU, posture, mass)
+        phi_new, X_new = rollout(Fx, residual, p, limits, xm, ref, U + alpha * dU, posture, mass, ahead)
         for a in reversed(LINE_SEARCH[:-1]):
-            phi, Xa = rollout(Fx, residual, p, limits, xm, ref, U + a * dU, posture, mass)
+            phi, Xa = rollout(Fx, residual, p, limits, xm, ref, U + a * dU, posture, mass, ahead)
             better = phi < phi0
             alpha, phi_new, X_new = ca.if_else(better, a, alpha), ca.if_else(better, phi, phi_new), ca.if_else(better, Xa, X_new)
         X, U, phi0 = X_new, U + alpha * dU, phi_new
@@ -410,7 +447,8 @@ def prepare_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None 
     ref = ca.MX.sym("reference", reference_rows(n, p), N)
     params = ca.MX.sym("params", n_params(arm))
     X, U = ca.MX.sym("X", nx, N + 1), ca.MX.sym("U", n, N)
-    prep = _Linearisation(F, stage_residual(arm, p, limits), p, None, ref, X, U, params[:n], params[n:])
+    prep = _Linearisation(F, stage_residual(arm, p, limits), p, None, ref, X, U, params[:n], params[n:],
+                          sample_ahead(arm, p, step_jacobian))
     rows = prep.angle_rows(X, limits) if p.angle_limits == "hard" else None
     rows = rows if rows is not None else (ca.MX(0, n * N), ca.MX(0, 1), ca.MX(0, 1), ca.MX(0, nx))
     return ca.Function(name, [ref, X, U, params], [prep.H, prep.g, prep.M, *prep.maps(), *rows],

@@ -12,7 +12,7 @@ import numpy as np
 
 from rscasadi.files import safe_name
 from rscasadi.mpc.formulation import (PREPARED, controller_arm, feedback_function, hold_function, n_params, stage_functions,
-                                      prepare_function, reference_rows, rti_function)
+                                      prepare_function, reference_rows, rti_function, sample_ahead)
 from rscasadi.mpc.problem import (AUTO, ROS2_STEP, RK4_MOST, mpc_model, mpc_problem, problem_poses, qp_of,
                                   with_integrator)
 from rscasadi.model.limits import limit_arrays, measurement_bounds
@@ -210,7 +210,7 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
     split = p.sqp_iterations == 1                  # the real-time iteration: prepare, then feedback
     qp = qp_of(p, arm.n)
     link: list = []
-    qp_words, nr = 1, 1
+    qp_words, nr, na = 1, 1, 0
     blas: list = []
     kernels: dict = {}
     which = None
@@ -220,8 +220,9 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
         link = blas + link
         flags = flags + inc
         interval, residual = stage_functions(arm, p, step_jacobian, name(""))
-        functions, prepared = [interval, residual], []
-        nr = residual.size1_out(0)
+        ahead = sample_ahead(arm, p, step_jacobian, name("ahead"))
+        functions, prepared = [interval, residual] + ([ahead] if ahead is not None else []), []
+        nr, na = residual.size1_out(0), 0 if ahead is None else ahead.size1_out(0)
         qp_words = hpipm_words(p.horizon, 4 * arm.n, arm.n, p.qp_iterations, cc, log)
     elif split:
         prepare = prepare_function(arm, p, step_jacobian, name("rti_prepare"))
@@ -254,7 +255,7 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
     nominal = [float(dict(zip(parameter_names, values))[k]) for k in free]
     body = dict(nominal=", ".join(repr(v) for v in nominal) or "0.0",
                 mass_index=free.index("payload.mass") if "payload.mass" in free else -1, **boxes(guard),
-                nprepared=len(prepared), prep_offsets=", ".join(str(o) for o in offsets), nr=nr,
+                nprepared=len(prepared), prep_offsets=", ".join(str(o) for o in offsets), nr=nr, na=na,
                 w_tau=repr(float(p.weights["tau"])), shift=repr(p.sample_time / p.interval),
                 qp_iterations=p.qp_iterations, blocks=riccati_blocks(p.horizon, 4 * n, n))
     manifest = {"model": str(p.model), "problem": None if p.path is None else str(p.path),

@@ -201,8 +201,7 @@ def run(out, log=print) -> list:
                  ("identification", identification, ()),
                  ("mpc", mpc, ("identification",)),
                  ("mpc task space", mpc_task("mpc_tool", "mpc_arm3_tool.toml"), ()),
-                 # the minimum-time reference rides the speed limits, which the MPC penalises at its 10 ms
-                 # intervals' ends, never inside the first one the arm lives in: they overshoot
+                 # the minimum-time reference rides the speed limits: the soft limits give a few per cent
                  ("mpc panda shelf", mpc_task("mpc_panda_shelf", "mpc_panda_shelf.toml", limits_kept=False),
                   ("ocp panda_shelf",))]
     schedule += [(f"interaction {name}", functools.partial(interaction_study, name, out / "interaction", log), ())

@@ -205,9 +205,14 @@ class FrameTracking(Term):
         return ca.vertcat(*rows)
 
 
+POSTURE_DAMPING = 0.3      # s: the posture's speed rows, tau_d dtheta
+
+
 class Posture(Term):
-    """The link angles against a posture p (n): r = theta - theta_posture (a redundant arm's
-    null space)."""
+    """The link angles against a posture p (n), damped: r = (theta - theta_posture, tau_d
+    dtheta) with tau_d = POSTURE_DAMPING (a redundant arm's null space).  Undamped, nothing
+    priced the null space's speed: at the end of the Panda's shelf motion the joints swung back
+    toward the posture at 2-3 rad/s, at their speed limits, and the hand never settled."""
     name = "posture"
     parameter = "posture"
 
@@ -215,7 +220,8 @@ class Posture(Term):
         self.n_p, self.weight = n, weight
 
     def expression(self, arm, x, u, p):
-        return x[:arm.n] - p
+        n = arm.n
+        return ca.vertcat(x[:n] - p, POSTURE_DAMPING * x[2 * n:3 * n])
 
 
 class StateBound(Term):

@@ -110,6 +110,7 @@ static int reference_ok(const double *reference) {
 #define NU ${SYM}_NU
 #define NH ${SYM}_HORIZON
 #define NR ${nr}                              /* rows of an interval end's residual */
+#define NA ${na}                              /* rows of the soft state limits a sample on (0: none) */
 #define NB ${blocks}                          /* HPIPM's stages after partial condensing (NH: none) */
 static const double W_TAU = ${w_tau};       /* the torque's weight */
 static const double SHIFT = ${shift};       /* the sample, in intervals: how far the plan moves */
@@ -228,6 +229,27 @@ static void residual_through(const double *J, const double *Mt, int m, double *o
   }
 }
 
+#if NA > 0
+/* the soft state limits one sample after x_0 (rscasadi.mpc.formulation.sample_ahead: the state
+ * the arm is in at the next torque), linear in (dx_0, du_0) through r + Jx dx_0 + Ju du_0: only
+ * the first interval's R, S and r_u */
+static int ahead(${sym}_t *c, const double *U, double *R, double *S, double *ru) {
+  double r[NA], Jx[NA * NX], Ju[NA * NU], JuT[NU * NA], JxT[NX * NA], RA[NU * NU], SA[NU * NX], rA[NU];
+  const casadi_real *arg[${sym}_ahead_SZ_ARG + 1] = {c->X, U, c->params + NU};
+  casadi_real *res[${sym}_ahead_SZ_RES + 1] = {r, Jx, Ju};
+  if (${sym}_ahead(arg, res, (casadi_int *)c->iw, c->w, 0) != 0) return 1;
+  transpose(Ju, NA, NU, JuT);
+  transpose(Jx, NA, NX, JxT);
+  a_bt(JuT, JuT, NU, NU, NA, RA);
+  a_bt(JuT, JxT, NU, NX, NA, SA);
+  a_bt(JuT, r, NU, 1, NA, rA);
+  for (int i = 0; i < NU * NU; ++i) R[i] += RA[i];
+  for (int i = 0; i < NU * NX; ++i) S[i] += SA[i];
+  for (int i = 0; i < NU; ++i) ru[i] += rA[i];
+  return 0;
+}
+#endif
+
 /* one interval's QP into HPIPM: the Gauss-Newton residual at X_{k+1} + e_{k+1}, written in
  * (dx_k, du_k) through dx_{k+1} = A dx_k + B du_k + b (rscasadi.mpc.formulation.stage_functions):
  * with Gx = Jx A and Gu = Jx B + Ju, Q = Gx' Gx, S = Gu' Gx, R = Gu' Gu + w I, q = Gx' r, r_u = Gu' r */
@@ -268,6 +290,9 @@ static int riccati_interval(${sym}_t *c, hpipm_t *h, int k, const double *refere
     hi[i] = TAU_MAX[i] - U[i];
   }
   if (k == 0) {                           /* x_0 = X_0 + dx_0 enters only b_0 and r_0: kept for the feedback */
+#if NA > 0
+    if (ahead(c, U, R, S, ru)) return ${SYM}_FAILED;
+#endif
     double *first = c->first;
     for (int i = 0; i < NX * NX; ++i) first[i] = A[i];
     for (int i = 0; i < NU * NX; ++i) first[NX * NX + i] = S[i];
