@@ -212,15 +212,16 @@ def _interaction_cells(study: dict) -> dict[str, str]:
 def interaction_table(readme: bool) -> str:
     a, p = _interaction_cells(_interaction("arm3_tool")), _interaction_cells(_interaction("panda_sea"))
     date = run_date(*(RESULTS / "interaction").glob("*/study.md"))
+    machine = run_machine(*(RESULTS / "interaction").glob("*/study.md"))
     if readme:
-        head = f"At 1 kHz through quantised encoders (results of {date}, 2-core AMD EPYC):\n\n"
+        head = f"At 1 kHz through quantised encoders (results of {date}, {machine}):\n\n"
         rows = [("15 N push: F / K error at K = 200 / 1000 / 2000 N/m", "push", " %"),
                 ("5 mm into walls of 1e4 / 1e5 / 1e6 N/m: force error", "wall", " %"),
                 ("collision in an impedance / feedforward motion: flagged after; torque error", "collision", ""),
                 ("designed on the reduced (DLR) model instead", "reduced", ""),
                 ("`impedance_step` in C, median / worst", "step", "")]
     else:
-        head = f"Results of {date} on the 2-core AMD EPYC machine (`results/interaction/*/study.md`):\n\n"
+        head = f"Results of {date} on {machine} (`results/interaction/*/study.md`):\n\n"
         rows = [("(a) F / K error, K = 200 / 1000 / 2000 N/m", "push", " %"),
                 ("(b) force error, walls 1e4 / 1e5 / 1e6 N/m", "wall", " %"),
                 ("(b) after the touch, 1e6 N/m wall: separations, largest gap", "gap", ""),
