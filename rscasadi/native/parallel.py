@@ -65,6 +65,13 @@ if hasattr(os, "register_at_fork"):                # POSIX
     os.register_at_fork(after_in_child=_after_fork_in_child)
 
 
+def threads_now() -> int:
+    """The threads the calling thread's next OpenMP loops use (1 without an OpenMP runtime).  A
+    thread's setting is its own: work handed to another thread takes this number with it."""
+    omp = _runtime()
+    return 1 if omp is None else int(omp.omp_get_max_threads())
+
+
 def set_threads(n: int) -> int:
     """The threads (n >= 1) the calling thread's OpenMP loops use from now on; returns what the
     runtime will use (1 without an OpenMP runtime, or in a child forked after a threaded loop)."""

@@ -167,6 +167,9 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
     theta_start = _reference(problem, t_guess[:1])[:, 0] if tr.tracking else problem.task.theta_start
     P = tr.parameters(theta_start, None if goal is not None else problem.task.theta_end, problem.task.duration, problem.task.effort_weight, w, ref,
                       list(problem.task.parameters.values()))
+    # the loops are parallel only in a library compiled with OpenMP (solvers.compiled_nlp); set
+    # before the solver is built (the direct fatrop sizes its per-thread memory then)
+    threads = set_threads(problem.solver.threads or available_cores()) if problem.transcription.compiled and openmp_flags(tuple(compiler())) else 1
     t0 = time.perf_counter()                       # setup: the NLP, its kernel and library (cached)
     nlp, lbg, ubg = tr.nlp(log)
     lbx, ubx = tr.bounds(problem.task.max_duration)
@@ -184,8 +187,6 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
         # no state from earlier solves, nor from f0 (in this thread only): the solve starts
         # alike on any number of threads
         tr.kernel.reset()
-    # the loops are parallel only in a library compiled with OpenMP (solvers.compiled_nlp)
-    threads = set_threads(problem.solver.threads or available_cores()) if problem.transcription.compiled and openmp_flags(tuple(compiler())) else 1
     t0 = time.perf_counter()
     res = solver(x0=w0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, p=scaled)
     solve_time = time.perf_counter() - t0
@@ -206,7 +207,7 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
             "blasfeo": stats.get("blasfeo"),          # fatrop's linear algebra library (direct interface)
             # where fatrop's time went (s): its evaluations of the NLP's functions and its own algebra
             "solver_times": {k: v for k, v in stats.get("fatrop", {}).items() if k.endswith("_time")} or None,
-            "threads": threads, "status": _status(stats),
+            "threads": stats.get("threads", threads), "status": _status(stats),   # the direct fatrop's: what ran
             "success": solved, "solver_success": solved, "solve_time_s": solve_time, "setup_time_s": setup,
             "iterations": int(stats["iter_count"]), "objective": float(objective(res["x"], P)),
             "intervals": len(w), "mesh": (np.asarray(w) / np.sum(w)).tolist(), "t": t.tolist(),

@@ -80,6 +80,7 @@ typedef struct {
   casadi_int** tiw;
   double** tw;
   int tsize, nthreads;                     /* pieces mode: the threads it has memory for */
+  int team;                                /* the threads of this solve's last loop over the stages */
 } rsf_data;
 
 #define D ((rsf_data*)user_data)
@@ -119,10 +120,12 @@ static void call(rsf_data* d, fn_t f, const double** in, int n_in, double** out,
 #ifdef _OPENMP
 #include <omp.h>
 #define THREAD omp_get_thread_num()
+#define TEAM_NOW omp_get_num_threads()
 #define PROCS (omp_get_num_procs() > omp_get_max_threads() ? omp_get_num_procs() : omp_get_max_threads())
 #define TEAM(d) (omp_get_max_threads() < (d)->nthreads ? omp_get_max_threads() : (d)->nthreads)
 #else
 #define THREAD 0
+#define TEAM_NOW 1
 #define PROCS 1
 #define TEAM(d) 1
 #endif
@@ -318,6 +321,7 @@ static fatrop_int constr_jac(const double* primal, const double* sp, const doubl
   else call(d, P->jac_g, in, 2, out, n, g + P->n_jparts);
   #pragma omp parallel for schedule(static) private(i) reduction(|:bad)
   for (k = 0; k < P->K; ++k) {
+    if (k == 0) d->team = TEAM_NOW;
     for (i = P->jstart[k]; i < P->jstart[k + 1]; ++i) {
       int e = P->jorder[i];
       if (P->jt[e] >= 0) d->jbuf[P->jt[e]] = P->js[e] * d->a[e];
@@ -526,11 +530,11 @@ int rsf_options(rsf_session* S, int n_opt, const char** names, const double* val
 /* One solve of the session's problem from x0 with parameters p and these bounds (their
    classification into equalities, inequalities and free is the session's layout).
    Returns 0 on success, 1 otherwise, -1 on an exception inside fatrop (then close the session);
-   stats[18]: FatropOcpCStats in order, whether an evaluation failed, whether a gap row's
-   x_{k+1} coefficient was not 1. */
+   `threads`: its loops' threads.  stats[19]: FatropOcpCStats in order, whether an evaluation
+   failed, whether a gap row's x_{k+1} coefficient was not 1, the threads its loops ran on. */
 int rsf_run(rsf_session* S, const double* x0, const double* p, const double* lbx, const double* ubx,
-            const double* lbg, const double* ubg, int verbose, double* x_out, double* lam_g, double* lam_x,
-            double* stats) {
+            const double* lbg, const double* ubg, int verbose, int threads, double* x_out, double* lam_g,
+            double* lam_x, double* stats) {
   rsf_data* d = &S->d;
   const rsf_problem* P = d->P;
   const struct FatropOcpCDims* s;
@@ -538,7 +542,14 @@ int rsf_run(rsf_session* S, const double* x0, const double* p, const double* lbx
   const double *primal, *dual;
   int i, k, c, ret;
   d->p = p; d->lbx = lbx; d->ubx = ubx; d->lbg = lbg; d->ubg = ubg; d->x0 = x0;
-  d->failed = d->bad_gap = d->g_valid = 0;
+  d->failed = d->bad_gap = d->g_valid = d->team = 0;
+#ifdef _OPENMP
+  /* the threads of this solve's loops (the library's own too): set on the thread that runs the
+     solve, since a thread's OpenMP setting is its own and a new thread starts from the default */
+  omp_set_num_threads(threads > 0 ? threads : 1);
+#else
+  (void)threads;
+#endif
   rsf_stop = 0;
   rsf_verbose = verbose;
   ret = fatrop_ocp_c_solve(S->solver);
@@ -567,6 +578,7 @@ int rsf_run(rsf_session* S, const double* x0, const double* p, const double* lbx
   stats[9] = st->eval_hess_count; stats[10] = st->eval_jac_count; stats[11] = st->eval_cv_count;
   stats[12] = st->eval_grad_count; stats[13] = st->eval_obj_count; stats[14] = st->iterations_count;
   stats[15] = st->return_flag; stats[16] = d->failed; stats[17] = d->bad_gap;
+  stats[18] = d->team;
   d->p = d->lbx = d->ubx = d->lbg = d->ubg = d->x0 = 0;      /* the caller's arrays: this solve's only */
   return ret;
 }

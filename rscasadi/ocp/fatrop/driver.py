@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from rscasadi.native.build import blasfeo_kernels, cached_library, compiler, native_flags
-from rscasadi.native.parallel import openmp_flags
+from rscasadi.native.parallel import openmp_flags, threads_now
 from rscasadi.ocp.fatrop import blasfeo
 from rscasadi.ocp.assembly import RAW_NAMES
 from rscasadi.errors import Failed, InvalidArgument
@@ -386,13 +386,14 @@ class DirectFatrop:
         lbg, ubg, p = _vec(lbg, self.n_g), _vec(ubg, self.n_g), _vec(p, self.n_p)
         L = self._layout(lbx, ubx, lbg, ubg)
         verbose = int(bool(self.options.get("print_level", 0)))
-        x, lam_g, lam_x, stats = np.zeros(self.n_x), np.zeros(self.n_g), np.zeros(self.n_x), np.zeros(18)
+        x, lam_g, lam_x, stats = np.zeros(self.n_x), np.zeros(self.n_g), np.zeros(self.n_x), np.zeros(19)
+        threads = threads_now()            # the caller's; the solve runs on a thread of its own
         ptr = lambda a: a.ctypes.data_as(_Dp)  # noqa: E731
         with _ONE_AT_A_TIME:
             session = self._session(L)
             try:
                 ret = self._interruptible(lambda: self.driver.rsf_run(
-                    ctypes.c_void_p(session), ptr(x0), ptr(p), ptr(lbx), ptr(ubx), ptr(lbg), ptr(ubg), verbose, ptr(x),
+                    ctypes.c_void_p(session), ptr(x0), ptr(p), ptr(lbx), ptr(ubx), ptr(lbg), ptr(ubg), verbose, threads, ptr(x),
                     ptr(lam_g), ptr(lam_x), ptr(stats)))
             except KeyboardInterrupt:                    # a solver stopped midway is not reused, nor destroyed
                 _STOPPED.append(self._sessions.pop(id(L)))   # (fatrop's teardown of it crashes): it and the
@@ -407,7 +408,7 @@ class DirectFatrop:
                        "unified_return_status": {0: "SOLVER_RET_SUCCESS", -1: "SOLVER_RET_EXCEPTION"}.get(ret, "SOLVER_RET_UNKNOWN"),
                        "iter_count": fat["iterations_count"], "fatrop": fat, "evaluation_failed": bool(stats[16]),
                        "interface": "direct", "blasfeo": dict(self.blasfeo),
-                       "raw_derivatives": self.raw}
+                       "raw_derivatives": self.raw, "threads": int(stats[18]) or 1}
         return {"x": x, "lam_g": lam_g, "lam_x": lam_x}
 
     def _interruptible(self, solve):
