@@ -8,6 +8,8 @@
    tracking of problems/trajectory_panda.toml (1 s, 20 % heavier last link);
 2. the task-space MPC of problems/mpc_panda_shelf.toml (N = 10, position and rotation, the ball
    and the table), its phases timed along its closed loop on the shelf motion (as modelled);
+   At N = 10 and 20 and in task space the Riccati controller is also run with threads = 2 (its
+   preparation's loops over the intervals on both cores, OpenMP);
 3. the Panda with a last link 50 times lighter, problems/mpc_panda.toml's settings untouched:
    integrator = auto takes ROS2 (RK4 would need more substeps than it allows), every step finite.
 
@@ -89,32 +91,32 @@ def generated(p, out: Path, blasfeo: str = "") -> float:
 
 def case(p, work: Path, log=print, blasfeo: str = "") -> dict:
     """Generate, run the closed loop (1 s, traced), then time the phases along its states."""
-    out = work / f"{p.qp}_{p.horizon}{'_blasfeo' if blasfeo else ''}"
+    out = work / f"{p.qp}_{p.horizon}_t{p.threads}{'_blasfeo' if blasfeo else ''}"
     built = generated(p, out, blasfeo)
     traces: dict = {}
     res = closed_loop(p, out, duration=1.0, log=lambda m: None, traces=traces)["MPC (C)"]
     states, refs = traces["MPC (C)"]["x"], traces["MPC (C)"]["reference"]
-    row = {"qp": p.qp, "N": p.horizon, "build_s": built, "c_mb": sum(f.stat().st_size for f in out.glob("*.c")) / 1e6,
+    row = {"qp": p.qp, "N": p.horizon, "threads": p.threads, "build_s": built, "c_mb": sum(f.stat().st_size for f in out.glob("*.c")) / 1e6,
            "max_error": res["max_error"], "blasfeo": blasfeo, **phases(out, states, refs)}
-    log(f"  {p.qp} N = {p.horizon}{' (BLASFEO for this CPU)' if blasfeo else ''}: built in {built:.0f} s "
+    log(f"  {p.qp} N = {p.horizon}, {p.threads} thread(s){' (BLASFEO for this CPU)' if blasfeo else ''}: built in {built:.0f} s "
         f"({row['c_mb']:.1f} MB of C), step {row['step_us']:.0f} us, feedback {row['feedback_us']:.0f} us, "
         f"tracking {row['max_error']:.2e} rad")
     return row
 
 
-def task_space(work: Path, log=print, blasfeo: str = "") -> dict:
+def task_space(work: Path, log=print, blasfeo: str = "", threads: int = 1) -> dict:
     """problems/mpc_panda_shelf.toml generated as the benchmark builds, its closed loop on the
     shelf motion as modelled, then its phases timed along the loop's states and references."""
-    p = load_mpc_problem(ROOT / "problems" / "mpc_panda_shelf.toml")
+    p = dataclasses.replace(load_mpc_problem(ROOT / "problems" / "mpc_panda_shelf.toml"), threads=threads)
     if not Path(p.solution).exists():
         raise SystemExit(f"{p.solution} missing: run `rscasadi reproduce` first (the shelf motion)")
-    out = work / f"task{'_blasfeo' if blasfeo else ''}"
+    out = work / f"task_t{threads}{'_blasfeo' if blasfeo else ''}"
     built = generated(p, out, blasfeo)
     traces: dict = {}
     res = task_closed_loop(p, out, log=lambda m: None, traces=traces)
-    row = {"N": p.horizon, "build_s": built, "max_error": res["max_error"], "blasfeo": blasfeo,
+    row = {"N": p.horizon, "threads": threads, "build_s": built, "max_error": res["max_error"], "blasfeo": blasfeo,
            "qp": json.loads((out / "manifest.json").read_text())["qp"], **phases(out, traces["x"], traces["reference"])}
-    log(f"  task space N = {p.horizon}{' (BLASFEO for this CPU)' if blasfeo else ''}: step {row['step_us']:.0f} us, "
+    log(f"  task space N = {p.horizon}, {threads} thread(s){' (BLASFEO for this CPU)' if blasfeo else ''}: step {row['step_us']:.0f} us, "
         f"feedback {row['feedback_us']:.0f} us, the hand within {row['max_error'] * 1e3:.1f} mm")
     return row
 
@@ -150,10 +152,13 @@ def main():
                 continue
             print(f"N = {N}, {qp} ...", flush=True)
             rows.append(case(dataclasses.replace(base, horizon=N, qp=qp), work))
-            if qp == "riccati" and N in (10, 20) and tuned:
-                rows.append(case(dataclasses.replace(base, horizon=N, qp=qp), work, blasfeo=tuned))
+            if qp == "riccati" and N in (10, 20):
+                rows.append(case(dataclasses.replace(base, horizon=N, qp=qp, threads=2), work))
+                if tuned:
+                    rows += [case(dataclasses.replace(base, horizon=N, qp=qp, threads=t), work, blasfeo=tuned)
+                             for t in (1, 2)]
     print("task space ...", flush=True)
-    tasks = [task_space(work)] + ([task_space(work, blasfeo=tuned)] if tuned else [])
+    tasks = [task_space(work, blasfeo=b, threads=t) for b in [""] + ([tuned] if tuned else []) for t in (1, 2)]
     light = light_wrist(work)
     md = ["# The Panda's MPC over the horizon", "", stamp(), "",
           "`python benchmarks/bench_mpc_horizon.py`: `problems/mpc_panda.toml` with N intervals of 10 ms (2 RK4 "
@@ -163,11 +168,12 @@ def main():
           "mpc_prepare: the measurement-to-torque latency).", "",
           "| QP | N | generate + compile, empty cache (s) | C (MB) | step median (us) | step 99.9 % (us) | feedback (us) | "
           "tracking (rad) |", "|---|---|---|---|---|---|---|---|"]
-    label = lambda r: r["qp"] + (", BLASFEO for this CPU" if r["blasfeo"] else "")
+    label = lambda r: (r["qp"] + (f", {r['threads']} threads" if r["threads"] > 1 else "")
+                       + (", BLASFEO for this CPU" if r["blasfeo"] else ""))
     for r in rows:
         md.append(f"| {label(r)} | {r['N']} | {r['build_s']:.0f} | {r['c_mb']:.1f} | {r['step_us']:.0f} | "
                   f"{r['step_p999_us']:.0f} | {r['feedback_us']:.0f} | {r['max_error']:.2e} |")
-    by = {(r["qp"], r["N"]): r for r in rows if not r["blasfeo"]}
+    by = {(r["qp"], r["N"]): r for r in rows if not r["blasfeo"] and r["threads"] == 1}
     ratio = lambda qp, a, b: by[(qp, b)]["step_us"] / by[(qp, a)]["step_us"]
     md += ["", f"Step growth from N = 10 to 20: condensed {ratio('condensed', 10, 20):.1f}x, Riccati "
                f"{ratio('riccati', 10, 20):.1f}x; Riccati from 20 to 40: {ratio('riccati', 20, 40):.1f}x. "
@@ -185,7 +191,7 @@ def main():
     targets = [("joint space, N = 10, step", best("step_us", 10), 400), ("joint space, N = 10, feedback",
                best("feedback_us", 10), 100), ("joint space, N = 20, step", best("step_us", 20), 800),
                ("task space, N = 10, step", min(r["step_us"] for r in tasks), 600)]
-    md += ["", "## Targets (medians, the best BLASFEO of this run)", "", "| | measured (us) | target (us) | |",
+    md += ["", "## Targets (medians, the best row of this run: BLASFEO, threads)", "", "| | measured (us) | target (us) | |",
            "|---|---|---|---|"]
     md += [f"| {what} | {v:.0f} | < {goal} | {'met' if v < goal else f'missed by {v / goal:.1f}x'} |"
            for what, v, goal in targets]

@@ -158,6 +158,35 @@ def test_the_riccati_qp_is_the_condensed_one_and_its_c_does_not_grow_with_the_ho
     assert res["MPC (C)"]["max_error"] < res["feedforward + PD"]["max_error"]
 
 
+def test_the_riccati_preparation_on_threads_changes_no_torque(arm3, tmp_path):
+    """threads = 3: the Riccati preparation's loops over the intervals run on OpenMP threads, each
+    with its own part of the work arrays. The intervals are independent but for the gaps (a
+    sequential pass), so the torques must be those of one thread, bitwise, over a closed loop
+    (a race on the work arrays shows as other torques); the library must really be threaded.
+    threads > 1 with the condensed QP is refused, naming the field, before anything is written."""
+    import dataclasses
+    p = dataclasses.replace(load_mpc_problem(PROBLEM), qp="riccati", horizon=7)       # 7: uneven splits
+    for t in (1, 3):
+        M.generate_mpc(dataclasses.replace(p, threads=t), tmp_path / f"t{t}", opt="-O1", log=lambda m: None)
+    assert json.loads((tmp_path / "t3" / "manifest.json").read_text())["threads"] == 3
+    assert b"GOMP_parallel" in (tmp_path / "t3" / "librscasadi_mpc.so").read_bytes()
+    assert b"GOMP_parallel" not in (tmp_path / "t1" / "librscasadi_mpc.so").read_bytes()
+    from rscasadi.ocp.fatrop.driver import casadi_dir
+    strict = subprocess.run(["cc", "-std=c99", "-fopenmp", "-Wall", "-Wextra", "-Werror", "-pedantic", "-c",
+                             str(tmp_path / "t3" / "rscasadi_mpc.c"), f"-I{tmp_path / 't3'}", f"-I{casadi_dir() / 'include'}",
+                             "-o", str(tmp_path / "x.o")], capture_output=True, text=True)
+    assert strict.returncode == 0, strict.stderr[-2000:]                 # the threaded template, without a warning
+    one = closed_loop(dataclasses.replace(p, threads=1), tmp_path / "t1", duration=0.2, log=lambda m: None,
+                      traces=(a := {}))
+    three = closed_loop(dataclasses.replace(p, threads=3), tmp_path / "t3", duration=0.2, log=lambda m: None,
+                        traces=(b := {}))
+    assert one["MPC (C)"]["max_error"] == three["MPC (C)"]["max_error"]
+    assert np.array_equal(a["MPC (C)"]["x"], b["MPC (C)"]["x"])              # the torques, through the plant
+    with pytest.raises(ModelFileError, match=r"field 'threads': 2 threads need the Riccati QP"):
+        M.generate_mpc(dataclasses.replace(p, qp="condensed", threads=2), tmp_path / "no", log=lambda m: None)
+    assert not (tmp_path / "no").exists()
+
+
 def test_the_riccati_controller_links_the_users_blasfeo_or_refuses_it(arm3, tmp_path, monkeypatch):
     """RSCASADI_BLASFEO=/path (a BLASFEO built for the CPU): the Riccati controller's library
     needs it ahead of the wheel's and leaves out the vector kernels; the torques are the default

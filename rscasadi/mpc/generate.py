@@ -16,7 +16,9 @@ from rscasadi.mpc.formulation import (PREPARED, controller_arm, feedback_functio
 from rscasadi.mpc.problem import (AUTO, ROS2_STEP, RK4_MOST, mpc_model, mpc_problem, problem_poses, qp_of,
                                   with_integrator)
 from rscasadi.model.limits import limit_arrays, measurement_bounds
+from rscasadi.model.types import ModelFileError
 from rscasadi.native.build import blasfeo_kernels, cached_library, compiler, native_flags
+from rscasadi.native.parallel import openmp_flags
 from rscasadi.native.controller import boxes, c_words, task_reference_bounds
 from rscasadi.native.generate import function_name, write_controller
 
@@ -209,6 +211,9 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
     kernel, step_jacobian = step_kernel(arm, flags, cc, log, name(KERNEL)) if p.integrator == "rk4" else (None, None)
     split = p.sqp_iterations == 1                  # the real-time iteration: prepare, then feedback
     qp = qp_of(p, arm.n)
+    if p.threads > 1 and qp != "riccati":
+        raise ModelFileError(f"{p.path or 'MPC problem'}: field 'threads': {p.threads} threads need the Riccati QP (qp = "
+                             f"\"riccati\"; this problem's is {qp}, whose preparation is one function)")
     link: list = []
     qp_words, nr, na = 1, 1, 0
     blas: list = []
@@ -219,6 +224,9 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
         blas, kernels, which = riccati_blasfeo()
         link = blas + link
         flags = flags + inc
+        if p.threads > 1:                        # the preparation's loops over the intervals
+            omp = list(openmp_flags(tuple(cc)))
+            flags, link = flags + omp, link + omp
         interval, residual = stage_functions(arm, p, step_jacobian, name(""))
         ahead = sample_ahead(arm, p, step_jacobian, name("ahead"))
         functions, prepared = [interval, residual] + ([ahead] if ahead is not None else []), []
@@ -248,8 +256,9 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
                   nparams=n_params(arm), np=n_params(arm) - n, task=int(p.task_space), split=int(split),
                   nprep=max(offsets[-1], 1), **boxes(guard, words=True), tau_limits=c_words(guard["tau_max"]),
                   qp=("Riccati recursion (HPIPM)" if qp == "riccati" else "condensed onto the torques"),
-                  riccati=int(qp == "riccati"), qp_words=qp_words,
-                  nfirst=(16 * n * n + 4 * n * n + 4 * n + n) if qp == "riccati" else 1)
+                  riccati=int(qp == "riccati"), qp_words=qp_words, threads=p.threads,
+                  nfirst=(16 * n * n + 4 * n * n + 4 * n + n) if qp == "riccati" else 1,
+                  nlin=p.horizon * (20 * n * n + 4 * n) + 4 * n * (p.horizon + 1) if qp == "riccati" else 1)
     parameter_names, values = arm.parameters()
     free = arm.free or []
     nominal = [float(dict(zip(parameter_names, values))[k]) for k in free]
@@ -271,7 +280,7 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
                 "payload_mass": None if model.payload is None else model.payload.body.mass,
                 "obstacles": len(p.obstacles),
                 "horizon": p.horizon, "interval": p.interval, "substeps": p.substeps, "integrator": p.integrator, "qp": qp,
-                "blasfeo": which,
+                "blasfeo": which, "threads": p.threads,
                 "guard": {k: v.tolist() for k, v in guard.items()},
                 "sample_time": p.sample_time, "sqp_iterations": p.sqp_iterations, "qp_iterations": p.qp_iterations,
                 "weights": p.weights,

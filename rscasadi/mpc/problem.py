@@ -16,7 +16,7 @@ from rscasadi.task.read import read_obstacles, read_path, read_payload
 from rscasadi.task.toolpath import ToolPath
 
 TOP = {"model", "trajectory", "sample_time", "horizon", "interval", "substeps", "integrator", "qp", "sqp_iterations",
-       "qp_iterations", "weights", "frame", "orientation", "path", "obstacles", "payload", "theta_start", "solution", "parametric", "angle_limits"}
+       "qp_iterations", "threads", "weights", "frame", "orientation", "path", "obstacles", "payload", "theta_start", "solution", "parametric", "angle_limits"}
 ANGLE_LIMITS = ("soft", "hard")
 WEIGHTS = {"theta": 1e5, "dtheta": 1.0, "tau": 1e-3, "limits": 1e5, "angle_limits": 1e8,
            "position": 1e6, "velocity": 10.0, "orientation": 1e3, "posture": 1.0, "obstacles": 1e8}
@@ -39,7 +39,8 @@ LINE_SEARCH = (1.0, 0.5, 0.25, 0.125)   # step sizes tried when sqp_iterations >
 MAX_SIZES = {"horizon": (50, "the condensed QP's C grows as horizon^2: 20 intervals on 7 joints are 30 MB of C"),
              "substeps": (20, "each substep is unrolled into the C"),
              "sqp_iterations": (10, "each SQP iteration is unrolled into the C"),
-             "qp_iterations": (100, "each interior-point iteration is unrolled into the C")}
+             "qp_iterations": (100, "each interior-point iteration is unrolled into the C"),
+             "threads": (64, "each thread's work arrays are in the controller's struct")}
 
 
 @dataclass
@@ -49,7 +50,8 @@ class MPCProblem:
     or "ros2"; "auto", the default for both: RK4 with the fewest substeps that amplify none of the
     arm's spring modes where RK4_MOST do, else the L-stable ROS2, `with_integrator`), the QP
     (`qp_of`: "condensed", "riccati" or "auto"), the SQP iterations per sample (1: the real-time
-    iteration) and the QP's interior-point iterations, and the cost `weights` (theta, dtheta, tau,
+    iteration) and the QP's interior-point iterations, the threads the Riccati QP's preparation
+    runs its loops over the intervals on (`threads`, OpenMP), and the cost `weights` (theta, dtheta, tau,
     limits, angle_limits; in task space position, velocity, orientation, posture; obstacles).  Task space: `frame` (its position, and its rotation if
     `orientation`, is the reference), `tool_path` (a `ToolPath` at a speed: the study's
     reference, from rest at `theta_start`) or `solution` (an optimal-control solution.json: the
@@ -70,6 +72,7 @@ class MPCProblem:
     qp: str = AUTO
     sqp_iterations: int = 1
     qp_iterations: int = 16
+    threads: int = 1
     weights: dict = field(default_factory=lambda: dict(WEIGHTS))
     path: Path | None = None
     frame: str | None = None
@@ -121,7 +124,7 @@ class MPCProblem:
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v <= 0:
                 fail(key, f"must be a positive number, got {v!r}")
-        for key in ("horizon", "substeps", "sqp_iterations", "qp_iterations"):
+        for key in ("horizon", "substeps", "sqp_iterations", "qp_iterations", "threads"):
             v = getattr(self, key)
             if key == "substeps" and v == AUTO:
                 continue

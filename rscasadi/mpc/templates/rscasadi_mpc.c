@@ -12,6 +12,17 @@
 #include "hpipm_d_ocp_qp_sol.h"
 #include "hpipm_d_part_cond.h"
 #endif
+#if ${SYM}_THREADS > 1 && defined(_OPENMP)
+#include <omp.h>
+#define THREAD omp_get_thread_num()
+#define PARALLEL_FOR _Pragma("omp parallel for schedule(static) num_threads(${SYM}_THREADS) reduction(|:bad)")
+#else
+#define THREAD 0
+#define PARALLEL_FOR
+#endif
+/* this thread's part of CasADi's work arrays */
+#define W(c) ((c)->w + sizeof((c)->w) / sizeof(double) / ${SYM}_THREADS * THREAD)
+#define IW(c) ((casadi_int *)(c)->iw + sizeof((c)->iw) / sizeof(long long) / ${SYM}_THREADS * THREAD)
 
 #define NXP (${SYM}_NX * (${SYM}_HORIZON + 1))
 #define NUP (${SYM}_NU * ${SYM}_HORIZON)
@@ -22,8 +33,8 @@ static const double TAU_MAX[${SYM}_NU] = {${tau_max}};          /* INFINITY: no 
 static const double X_LO[${SYM}_NX] = {${x_lo}}, X_HI[${SYM}_NX] = {${x_hi}};      /* a plausible measurement */
 static const double REF_LO[NROWS] = {${ref_lo}}, REF_HI[NROWS] = {${ref_hi}};  /* a reference column */
 typedef char casadi_int_is_long_long[sizeof(casadi_int) == sizeof(long long) ? 1 : -1];
-typedef char work_fits[sizeof(((${sym}_t *)0)->w) >= sizeof(casadi_real) * (${sz_w_check}) ? 1 : -1];
-typedef char iwork_fits[sizeof(((${sym}_t *)0)->iw) >= sizeof(casadi_int) * (${sz_iw_check}) ? 1 : -1];
+typedef char work_fits[sizeof(((${sym}_t *)0)->w) >= ${SYM}_THREADS * sizeof(casadi_real) * (${sz_w_check}) ? 1 : -1];
+typedef char iwork_fits[sizeof(((${sym}_t *)0)->iw) >= ${SYM}_THREADS * sizeof(casadi_int) * (${sz_iw_check}) ? 1 : -1];
 #define NPREPARED ${nprepared}
 #if ${SYM}_SPLIT && !${SYM}_RICCATI
 static const int PREP_OFF[NPREPARED + 1] = {${prep_offsets}};   /* each prepared output in c->prep */
@@ -65,7 +76,7 @@ int ${sym}_set_posture(${sym}_t *c, const double *theta) {
 static int hold(${sym}_t *c, const double *x, double *X, double *U) {
   const casadi_real *arg[${sym}_hold_SZ_ARG + 1] = {x, c->params};
   casadi_real *res[${sym}_hold_SZ_RES + 1] = {X, U};
-  if (${sym}_hold(arg, res, (casadi_int *)c->iw, c->w, 0) != 0) return ${SYM}_FAILED;
+  if (${sym}_hold(arg, res, IW(c), W(c), 0) != 0) return ${SYM}_FAILED;
   return finite_all(X, NXP) && finite_all(U, NUP) ? 0 : ${SYM}_NOT_FINITE;
 }
 
@@ -237,7 +248,7 @@ static int ahead(${sym}_t *c, const double *U, double *R, double *S, double *ru)
   double r[NA], Jx[NA * NX], Ju[NA * NU], JuT[NU * NA], JxT[NX * NA], RA[NU * NU], SA[NU * NX], rA[NU];
   const casadi_real *arg[${sym}_ahead_SZ_ARG + 1] = {c->X, U, c->params + NU};
   casadi_real *res[${sym}_ahead_SZ_RES + 1] = {r, Jx, Ju};
-  if (${sym}_ahead(arg, res, (casadi_int *)c->iw, c->w, 0) != 0) return 1;
+  if (${sym}_ahead(arg, res, IW(c), W(c), 0) != 0) return 1;
   transpose(Ju, NA, NU, JuT);
   transpose(Jx, NA, NX, JxT);
   a_bt(JuT, JuT, NU, NU, NA, RA);
@@ -250,26 +261,46 @@ static int ahead(${sym}_t *c, const double *U, double *R, double *S, double *ru)
 }
 #endif
 
+/* each interval's step from the plan and its Jacobians (x_{k+1} ~ xn + A dx_k + B du_k), then
+ * the gaps e_k the plan's nodes leave, propagated: e_0 = 0, e_{k+1} = A_k e_k + xn_k - X_{k+1} */
+#define LIN(c, k) ((c)->lin + (size_t)(k) * (NX + NX * NX + NX * NU))
+#define GAP(c, k) ((c)->lin + (size_t)NH * (NX + NX * NX + NX * NU) + (size_t)(k) * NX)
+
+static int linearise(${sym}_t *c, int k) {
+  double *xn = LIN(c, k);
+  const casadi_real *arg[${sym}_interval_SZ_ARG + 1] = {c->X + NX * k, c->U + NU * k, c->params + NU};
+  casadi_real *res[${sym}_interval_SZ_RES + 1] = {xn, xn + NX, xn + NX + NX * NX};
+  return ${sym}_interval(arg, res, IW(c), W(c), 0) != 0;
+}
+
+static void propagate_gaps(${sym}_t *c) {
+  double *e = GAP(c, 0);
+  for (int i = 0; i < NX; ++i) e[i] = 0.0;
+  for (int k = 0; k < NH; ++k) {
+    const double *xn = LIN(c, k);
+    double *next = GAP(c, k + 1);
+    a_b(xn + NX, GAP(c, k), NX, NX, 1, next);
+    for (int i = 0; i < NX; ++i) next[i] += xn[i] - c->X[NX * (k + 1) + i];
+  }
+}
+
 /* one interval's QP into HPIPM: the Gauss-Newton residual at X_{k+1} + e_{k+1}, written in
  * (dx_k, du_k) through dx_{k+1} = A dx_k + B du_k + b (rscasadi.mpc.formulation.stage_functions):
  * with Gx = Jx A and Gu = Jx B + Ju, Q = Gx' Gx, S = Gu' Gx, R = Gu' Gu + w I, q = Gx' r, r_u = Gu' r */
-static int riccati_interval(${sym}_t *c, hpipm_t *h, int k, const double *reference, double *e) {
-  double xn[NX], A[NX * NX], B[NX * NU], b[NX], Ae[NX], at[NX], r[NR], Jx[NR * NX], Ju[NR * NU], JxAe[NR];
+static int riccati_interval(${sym}_t *c, hpipm_t *h, int k, const double *reference) {
+  const double *xn = LIN(c, k), *A = xn + NX, *B = A + NX * NX, *at_gap = GAP(c, k + 1);
+  double b[NX], Ae[NX], at[NX], r[NR], Jx[NR * NX], Ju[NR * NU], JxAe[NR];
   double At[NX * NX], Bt[NU * NX], GxT[NX * NR], GuT[NU * NR], Q[NX * NX], S[NU * NX], R[NU * NU], q[NX], ru[NU];
   double lo[NU], hi[NU];
   const double *X = c->X + NX * k, *U = c->U + NU * k;
-  const casadi_real *arg[${sym}_interval_SZ_ARG + 1] = {X, U, c->params + NU};
-  casadi_real *res[${sym}_interval_SZ_RES + 1] = {xn, A, B};
-  if (${sym}_interval(arg, res, (casadi_int *)c->iw, c->w, 0) != 0) return ${SYM}_FAILED;
-  a_b(A, e, NX, NX, 1, Ae);
+  a_b(A, GAP(c, k), NX, NX, 1, Ae);
   for (int i = 0; i < NX; ++i) {
     b[i] = xn[i] - X[NX + i];             /* the gap to the next node */
-    e[i] = Ae[i] + b[i];                  /* the gaps propagated: e_{k+1} */
-    at[i] = X[NX + i] + e[i];
+    at[i] = X[NX + i] + at_gap[i];
   }
   const casadi_real *arg2[${sym}_residual_SZ_ARG + 1] = {at, U, reference + NROWS * k, c->params};
   casadi_real *res2[${sym}_residual_SZ_RES + 1] = {r, Jx, Ju};
-  if (${sym}_residual(arg2, res2, (casadi_int *)c->iw, c->w, 0) != 0) return ${SYM}_FAILED;
+  if (${sym}_residual(arg2, res2, IW(c), W(c), 0) != 0) return ${SYM}_FAILED;
   a_b(Jx, Ae, NR, NX, 1, JxAe);
   for (int i = 0; i < NR; ++i) r[i] -= JxAe[i];     /* r + Jx (dx_{k+1} - e_{k+1}) = r - Jx A e_k + ... */
   transpose(A, NX, NX, At);
@@ -299,12 +330,12 @@ static int riccati_interval(${sym}_t *c, hpipm_t *h, int k, const double *refere
     for (int i = 0; i < NX; ++i) first[NX * NX + NU * NX + i] = b[i];
     for (int i = 0; i < NU; ++i) first[NX * NX + NU * NX + NX + i] = ru[i];
   } else {
-    d_ocp_qp_set_A(k, A, &h->qp);
+    d_ocp_qp_set_A(k, (double *)A, &h->qp);
     d_ocp_qp_set_Q(k, Q, &h->qp);
     d_ocp_qp_set_S(k, S, &h->qp);
     d_ocp_qp_set_q(k, q, &h->qp);
   }
-  d_ocp_qp_set_B(k, B, &h->qp);
+  d_ocp_qp_set_B(k, (double *)B, &h->qp);
   d_ocp_qp_set_b(k, b, &h->qp);
   d_ocp_qp_set_R(k, R, &h->qp);
   d_ocp_qp_set_r(k, ru, &h->qp);
@@ -313,14 +344,19 @@ static int riccati_interval(${sym}_t *c, hpipm_t *h, int k, const double *refere
   return 0;
 }
 
+/* the intervals are independent but for the gaps, a cheap sequential pass between the two loops */
 static int riccati_prepare(${sym}_t *c, const double *reference) {
   hpipm_t *h = qp_structures(c);
   if (!h) return ${SYM}_FAILED;
-  double e[NX] = {0.0}, zero[NX * NX] = {0.0};
-  for (int k = 0; k < NH; ++k) {
-    const int code = riccati_interval(c, h, k, reference, e);
-    if (code) return code;
-  }
+  double zero[NX * NX] = {0.0};
+  int bad = 0;
+  PARALLEL_FOR
+  for (int k = 0; k < NH; ++k) bad |= linearise(c, k);
+  if (bad) return ${SYM}_FAILED;
+  propagate_gaps(c);
+  PARALLEL_FOR
+  for (int k = 0; k < NH; ++k) bad |= riccati_interval(c, h, k, reference) != 0;
+  if (bad) return ${SYM}_FAILED;
   d_ocp_qp_set_Q(NH, zero, &h->qp);       /* the last node's cost is the last interval's */
   d_ocp_qp_set_q(NH, zero, &h->qp);
   d_part_cond_qp_cond(&h->qp, &h->bqp, &h->carg, &h->cws);   /* at dx_0 = 0; the feedback moves b_0, r_0 */
@@ -379,7 +415,7 @@ int ${sym}_prepare(${sym}_t *c, const double *reference) {
     const casadi_real *arg[${sym}_rti_prepare_SZ_ARG + 1] = {reference, c->X, c->U, c->params};
     casadi_real *res[${sym}_rti_prepare_SZ_RES + 1];
     for (int i = 0; i < NPREPARED; ++i) res[i] = c->prep + PREP_OFF[i];
-    if (${sym}_rti_prepare(arg, res, (casadi_int *)c->iw, c->w, 0) != 0) code = ${SYM}_FAILED;
+    if (${sym}_rti_prepare(arg, res, IW(c), W(c), 0) != 0) code = ${SYM}_FAILED;
     else if (!finite_all(c->prep, PREP_OFF[NPREPARED])) code = ${SYM}_NOT_FINITE;
   }
 #else
@@ -407,11 +443,11 @@ static int feedback(${sym}_t *c, const double *x_measured, double *tau_out) {
     const casadi_real *arg[${sym}_rti_feedback_SZ_ARG + 1] = {x_measured, c->X, c->U};
     for (int i = 0; i < NPREPARED; ++i) arg[3 + i] = c->prep + PREP_OFF[i];
     casadi_real *res[${sym}_rti_feedback_SZ_RES + 1] = {tau_out, c->X_next, c->U_next};
-    code = ${sym}_rti_feedback(arg, res, (casadi_int *)c->iw, c->w, 0) != 0 ? ${SYM}_FAILED : 0;
+    code = ${sym}_rti_feedback(arg, res, IW(c), W(c), 0) != 0 ? ${SYM}_FAILED : 0;
 #else
     const casadi_real *arg[${sym}_rti_SZ_ARG + 1] = {x_measured, c->reference, c->X, c->U, c->params};
     casadi_real *res[${sym}_rti_SZ_RES + 1] = {tau_out, c->X_next, c->U_next};
-    code = ${sym}_rti(arg, res, (casadi_int *)c->iw, c->w, 0) != 0 ? ${SYM}_FAILED : 0;
+    code = ${sym}_rti(arg, res, IW(c), W(c), 0) != 0 ? ${SYM}_FAILED : 0;
 #endif
   }
   if (!code && !(finite_all(c->X_next, NXP) && finite_all(c->U_next, NUP) && finite_all(tau_out, ${SYM}_NU)))

@@ -65,6 +65,8 @@
 #define ${SYM}_NOT_PREPARED 9
 #define ${SYM}_SPLIT ${split}              /* 1: prepare does the linearisation (real-time iteration) */
 #define ${SYM}_RICCATI ${riccati}            /* 1: the QP by HPIPM's Riccati recursion on the stages */
+#define ${SYM}_THREADS ${threads}            /* the Riccati preparation's loops over the intervals on this
+                                           many threads (OpenMP, when compiled with it) */
 typedef struct ${sym}_s {
   double X[${SYM}_NX * (${SYM}_HORIZON + 1)], U[${SYM}_NU * ${SYM}_HORIZON];
   double X_next[${SYM}_NX * (${SYM}_HORIZON + 1)], U_next[${SYM}_NU * ${SYM}_HORIZON];
@@ -75,9 +77,10 @@ typedef struct ${sym}_s {
   double reference[${SYM}_NREF];           /* the prepared reference (more than one SQP iteration) */
   long long qp_memory[${qp_words}];        /* HPIPM's structures and work (${SYM}_RICCATI) */
   double first[${nfirst}];                /* the first interval's A, S, b, r (${SYM}_RICCATI) */
+  double lin[${nlin}];                    /* each interval's step x_{k+1}, A, B, then the gaps e_k (${SYM}_RICCATI) */
   const void *qp_owner;                   /* the controller they were placed for */
-  double w[${sz_w}];
-  long long iw[${sz_iw}];
+  double w[${SYM}_THREADS * ${sz_w}];     /* CasADi's work arrays, one part per thread */
+  long long iw[${SYM}_THREADS * ${sz_iw}];
   double last_step_seconds, last_feedback_seconds;
   int prepared;                           /* RSCASADI_READY: prepared; else 0 or the prepare's code */
   int ready;                              /* RSCASADI_READY after a successful init */
