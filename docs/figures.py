@@ -100,16 +100,6 @@ def runs(*paths: Path) -> str:
     return "; ".join(f"{', '.join(files)}: {date} on {machine}" for (date, machine), files in sorted(groups.items()))
 
 
-def commit_date(path: Path) -> str:
-    """The date of the commit that last wrote path (for results files without a 'Run of' line)."""
-    import subprocess
-    run = subprocess.run(["git", "log", "-1", "--format=%cs", "--", str(path.relative_to(ROOT))], cwd=ROOT,
-                         capture_output=True, text=True)
-    if run.returncode != 0 or not run.stdout.strip():
-        raise FiguresError(f"{path.relative_to(ROOT)} is not committed: no date to quote")
-    return run.stdout.strip()
-
-
 def paced_rt(path: Path) -> tuple[float, float, float | None]:
     """(median, 99.9th percentile) in us of the paced example's step under SCHED_FIFO in a
     bench_mpc file, and its feedback phase's median (None where the file predates the split)."""
@@ -169,7 +159,7 @@ def readme_speed() -> str:
     def row(label, function, column="c_ns", form=ns):
         return f"| {label} | " + " | ".join(form(c[(n, function)][column]) for n in (3, 6, 7, 12)) + " |"
     return "\n".join([
-        f"In `results/`: {where}; `bench_mpc.md` (n = 3): {commit_date(RESULTS / 'bench_mpc.md')}.",
+        f"In `results/`: {where}; `bench_mpc.md` (n = 3): {runs(RESULTS / 'bench_mpc.md').split(': ', 1)[1]}.",
         "",
         "| | n = 3 | n = 6 | n = 7 (Panda) | n = 12 |",
         "|---|---|---|---|---|",
@@ -182,9 +172,15 @@ def readme_speed() -> str:
         f"{mpc3[0]:.0f} us ({mpc3[1]:.0f} us; -O2){_feedback(mpc3)} | | "
         f"{mpc7[0]:.0f} us ({mpc7[1]:.0f} us; -O3, native){_feedback(mpc7)} | |",
         "| NMPC step, N = 10 (Riccati), median; its feedback phase | | | "
-        + "; ".join(f"{s} us; {f} us{' (BLASFEO for this CPU)' if 'BLASFEO' in q else ''}" for q, s, f in ricc) + " | |",
+        + "; ".join(f"{s} us; {f} us{_variant(q)}" for q, s, f in ricc) + " | |",
         f"| minimum-time OCP, N = 150, both cores: first compile; solve | | {ocp['UR5']} (UR5) | {ocp['Panda']} | |",
     ]) + "\n"
+
+
+def _variant(label: str) -> str:
+    """' (2 threads, BLASFEO for this CPU)' from a Riccati row's label in bench_mpc_horizon.md."""
+    parts = label.split(", ")[1:]
+    return f" ({', '.join(parts)})" if parts else ""
 
 
 def _interaction(arm: str) -> dict:
@@ -330,7 +326,8 @@ def mpc_steps() -> str:
     if len(found) != 2:
         raise FiguresError("results/bench_mpc.md: want the paced runs under normal and rt scheduling")
     split = all(f[5] for f in found)
-    lines = [f"Written {commit_date(RESULTS / 'bench_mpc.md')} (`results/bench_mpc.md`), reference arm:", "",
+    lines = [f"Run of {run_date(RESULTS / 'bench_mpc.md')} on {run_machine(RESULTS / 'bench_mpc.md')} "
+             "(`results/bench_mpc.md`), reference arm:", "",
              "| `examples/mpc.c`, paced at 1 kHz, 10 s | median | 99.9 % | worst | steps over 1 ms |"
              + (" feedback phase, median |" if split else ""),
              "|---|---|---|---|---|" + ("---|" if split else "")]
