@@ -158,11 +158,18 @@ def test_the_riccati_qp_is_the_condensed_one_and_its_c_does_not_grow_with_the_ho
     assert res["MPC (C)"]["max_error"] < res["feedforward + PD"]["max_error"]
 
 
+def _steps(directory, x, ref):
+    c = CompiledMPC(directory)
+    assert c.init(x) == 0
+    return np.array([c.step(x, ref)[0] for _ in range(5)])
+
+
 def test_the_riccati_preparation_on_threads_changes_no_torque(arm3, tmp_path):
     """threads = 3: the Riccati preparation's loops over the intervals run on OpenMP threads, each
     with its own part of the work arrays. The intervals are independent but for the gaps (a
     sequential pass), so the torques must be those of one thread, bitwise, over a closed loop
-    (a race on the work arrays shows as other torques); the library must really be threaded.
+    (a race on the work arrays shows as other torques); the library must really be threaded, and
+    a process forked after a threaded prepare must still step.
     threads > 1 with the condensed QP is refused, naming the field, before anything is written."""
     import dataclasses
     p = dataclasses.replace(load_mpc_problem(PROBLEM), qp="riccati", horizon=7)       # 7: uneven splits
@@ -182,6 +189,14 @@ def test_the_riccati_preparation_on_threads_changes_no_torque(arm3, tmp_path):
                         traces=(b := {}))
     assert one["MPC (C)"]["max_error"] == three["MPC (C)"]["max_error"]
     assert np.array_equal(a["MPC (C)"]["x"], b["MPC (C)"]["x"])              # the torques, through the plant
+    # GNU OpenMP's threads do not survive fork(): a child of this process (which prepared on 3
+    # threads) steps on one, the same torques, instead of waiting forever
+    import multiprocessing
+    x = rest_state(arm3, [0.1, 0.4, -0.6])
+    ref = np.vstack([np.tile(x[:3, None] + 0.01, (1, p.horizon)), np.zeros((3, p.horizon))])
+    here = _steps(tmp_path / "t3", x, ref)
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        assert np.array_equal(pool.apply_async(_steps, (tmp_path / "t3", x, ref)).get(timeout=60), here)
     with pytest.raises(ModelFileError, match=r"field 'threads': 2 threads need the Riccati QP"):
         M.generate_mpc(dataclasses.replace(p, qp="condensed", threads=2), tmp_path / "no", log=lambda m: None)
     assert not (tmp_path / "no").exists()

@@ -1,4 +1,4 @@
-#define _POSIX_C_SOURCE 199309L
+#define _POSIX_C_SOURCE 200112L
 #include <math.h>
 #include <time.h>
 #include "${header}"
@@ -14,10 +14,21 @@
 #endif
 #if ${SYM}_THREADS > 1 && defined(_OPENMP)
 #include <omp.h>
+#include <pthread.h>
 #define THREAD omp_get_thread_num()
-#define PARALLEL_FOR _Pragma("omp parallel for schedule(static) num_threads(${SYM}_THREADS) reduction(|:bad)")
+/* GNU OpenMP's threads do not survive fork(): the child of a process that prepared on threads
+ * would wait for them forever, so after a fork the loops run on the calling thread alone (the
+ * one process-wide flag this library keeps) */
+static volatile int forked_child = 0;
+static void in_child(void) { forked_child = 1; }
+static pthread_once_t watching = PTHREAD_ONCE_INIT;
+static void watch_forks(void) { pthread_atfork(NULL, NULL, in_child); }
+#define TEAM (forked_child ? 1 : ${SYM}_THREADS)
+#define WATCH_FORKS() pthread_once(&watching, watch_forks)
+#define PARALLEL_FOR _Pragma("omp parallel for schedule(static) num_threads(TEAM) reduction(|:bad)")
 #else
 #define THREAD 0
+#define WATCH_FORKS() ((void)0)
 #define PARALLEL_FOR
 #endif
 /* this thread's part of CasADi's work arrays */
@@ -350,6 +361,7 @@ static int riccati_prepare(${sym}_t *c, const double *reference) {
   if (!h) return ${SYM}_FAILED;
   double zero[NX * NX] = {0.0};
   int bad = 0;
+  WATCH_FORKS();
   PARALLEL_FOR
   for (int k = 0; k < NH; ++k) bad |= linearise(c, k);
   if (bad) return ${SYM}_FAILED;
