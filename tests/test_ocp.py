@@ -6,9 +6,9 @@ import pytest
 
 from rscasadi.cli import main
 from rscasadi.model.modelfile import ModelFileError
-from rscasadi.ocp import load_problem, solve, verify
+from rscasadi.ocp import load_problem, rest_state, solve, verify
 
-from conftest import problem
+from conftest import problem, to_toml
 
 
 @pytest.mark.parametrize("over,field", [
@@ -70,6 +70,31 @@ def test_infeasible_limits_fail_loudly(pitch_arm, capsys):
     assert code == 1 and "FAILED" in text
     sol = json.loads((out / "solution.json").read_text())
     assert sol["success"] is False and sol["status"] != "Solve_Succeeded"
+
+
+def test_a_pose_the_arm_cannot_rest_in_is_named_before_the_solve(pitch_arm):
+    """A rest-to-rest task whose end (or start) needs more motor torque to hold than the joint has
+    (here its limit between the holding torques at 0.9 and 0.2 rad): refused
+    before anything is built, naming the file, the field, the joint and both torques."""
+    import tomllib
+    from rscasadi.dynamics.arm import Arm
+    from rscasadi.dynamics.statics import holding_torque
+    from rscasadi.model.modelfile import read
+    arm = Arm(read(pitch_arm / "pitch.toml"))
+    hold = lambda th: abs(float(holding_torque(arm)(*np.split(rest_state(arm, [th])[:2], 2))))   # noqa: E731
+    assert hold(0.9) < hold(0.2)
+    with open(pitch_arm / "pitch.toml", "rb") as fh:
+        doc = tomllib.load(fh)
+    doc["joints"][0]["limits"]["tau"] = (hold(0.2) + hold(0.9)) / 2
+    (pitch_arm / "weak.toml").write_text(to_toml(doc))
+    name = doc["joints"][0]["name"]
+    path = problem(pitch_arm, "weak_end.toml", model="weak.toml", theta_start=[0.9], theta_end=[0.2])
+    with pytest.raises(ModelFileError, match=rf"weak_end.toml: field 'theta_end': the arm cannot rest there: joint "
+                                             rf"'{name}' needs {hold(0.2):.3g} N m at its motor to hold it"):
+        solve(load_problem(path), log=lambda m: None)
+    path = problem(pitch_arm, "weak_start.toml", model="weak.toml")
+    with pytest.raises(ModelFileError, match=r"weak_start.toml: field 'theta_start': the arm cannot rest there"):
+        solve(load_problem(path), log=lambda m: None)
 
 
 def test_ocp_command_writes_solution_and_plots(pitch_arm, capsys):

@@ -24,7 +24,7 @@ from rscasadi.model.collision import with_collision
 from rscasadi.task.objects import holding_payload
 from rscasadi.model.modelfile import ModelFileError, document, read, to_toml
 from rscasadi.model.parameters import family, value, with_values
-from rscasadi.dynamics.statics import rest_state  # noqa: F401  (exported by rscasadi.ocp)
+from rscasadi.dynamics.statics import holding_torque, rest_state  # noqa: F401  (rest_state: exported by rscasadi.ocp)
 from rscasadi.sim.simulation import held_interval
 from rscasadi.sim.trajectory import load_trajectory
 from rscasadi.ocp.problem import Goal, Problem, check_against_model, load_problem
@@ -158,10 +158,19 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
         if np.linalg.norm(on - path.first) > path.tolerance:
             raise ModelFileError(f"{problem.path}: field 'path.points[0]': theta_start puts {path.frame!r} at "
                                  f"{np.round(on, 4).tolist()}, {np.linalg.norm(on - path.first):.3g} m from it")
+    if not problem.task.design:             # (a design may change the gears and springs that hold it)
+        for key in ("theta_start", "theta_end"):
+            theta = getattr(problem.task, key)
+            why = None if theta is None else unheld(arm, theta)
+            if why:
+                raise ModelFileError(f"{problem.path}: field '{key}': the arm cannot rest there: {why}")
     tr = Transcription(problem, Arm(base), N=len(w))
     goal = problem.task.goal if path is None else Goal(path.frame, path.end, position_tol=path.tolerance)
     if goal is not None and problem.task.theta_end is None:        # the guess's end: inverse kinematics
         problem = problem.replace(theta_end=goal_configuration(arm, goal, problem.task.theta_start, problem.path))
+        why = None if problem.task.design else unheld(arm, problem.task.theta_end)
+        if why:                                  # the solver may find another configuration at the goal
+            log(f"note: the arm cannot rest at the goal in the first configuration found for it: {why}")
     t_guess = (warm["t"][-1] if warm else problem.task.duration) * np.concatenate([[0.0], np.cumsum(w)])
     ref = _reference(problem, t_guess)[:, 1:] if tr.tracking else None
     theta_start = _reference(problem, t_guess[:1])[:, 0] if tr.tracking else problem.task.theta_start
@@ -245,6 +254,21 @@ def _success(stats: dict) -> bool:
     """The solver's success: fatrop's acceptable point counts as IPOPT's does (CasADi calls IPOPT's
     Solved_To_Acceptable_Level a success, fatrop's through its plugin not); the replay decides."""
     return bool(stats["success"]) or ("fatrop" in stats and stats["fatrop"]["return_flag"] == 2)
+
+
+def unheld(arm: Arm, theta) -> str | None:
+    """Why the arm cannot rest at theta (a motor torque or a spring deflection beyond its limit,
+    the task's payload included), or None if it can."""
+    x = rest_state(arm, theta)
+    n = arm.n
+    tau = np.array(holding_torque(arm)(x[:n], x[n:2 * n])).ravel()
+    for j, jt in enumerate(arm.model.joints):
+        tau_max, psi_max, psi = jt.limits.get("tau", np.inf), jt.limits.get("psi", np.inf), x[n + j] - x[j]
+        if abs(tau[j]) > tau_max * (1 + 1e-9):
+            return f"joint {jt.name!r} needs {abs(tau[j]):.3g} N m at its motor to hold it (limit {tau_max:g})"
+        if abs(psi) > psi_max * (1 + 1e-9):
+            return f"joint {jt.name!r}'s spring deflects {abs(psi):.3g} rad to hold it (limit {psi_max:g})"
+    return None
 
 
 def goal_configuration(arm: Arm, goal, theta_guess, where) -> np.ndarray:
