@@ -52,7 +52,8 @@ PROBLEMS = {name: ROOT / "problems" / f"{name}.toml" for name in ("mpc_arm3", "m
 @pytest.fixture(scope="module")
 def mpc_dirs(tmp_path_factory):
     """The shipped MPC problems' controllers, mpc_arm3's with hard link-angle limits (its C
-    symbols prefixed `hard_`: hard_mpc_init, ...) and with the Riccati QP (HPIPM)."""
+    symbols prefixed `hard_`: hard_mpc_init, ...) and with the Riccati QP (HPIPM), on one thread
+    and on two."""
     from rscasadi.mpc import generate_mpc
     hard = tmp_path_factory.mktemp("hard") / "mpc_arm3_hard.toml"
     text = PROBLEMS["mpc_arm3"].read_text().replace('model = "', f'model = "{ROOT / "problems"}/').replace(
@@ -62,6 +63,9 @@ def mpc_dirs(tmp_path_factory):
     riccati = hard.with_name("mpc_arm3_riccati.toml")
     riccati.write_text(text.replace("[weights]", 'qp = "riccati"\n[weights]', 1))
     PROBLEMS["mpc_arm3_riccati"] = riccati
+    threaded = hard.with_name("mpc_arm3_riccati_threads.toml")       # its preparation on OpenMP threads
+    threaded.write_text(text.replace("[weights]", 'qp = "riccati"\nthreads = 2\n[weights]', 1))
+    PROBLEMS["mpc_arm3_riccati_threads"] = threaded
     out = {}
     for name, problem in PROBLEMS.items():
         out[name] = tmp_path_factory.mktemp(name) / "mpc"
@@ -79,12 +83,13 @@ def interaction_dirs(tmp_path_factory, arm):
     return d
 
 
-@pytest.mark.parametrize("name", ["mpc_arm3", "mpc_arm3_tool", "mpc_arm3_hard", "mpc_arm3_riccati"])
+@pytest.mark.parametrize("name", ["mpc_arm3", "mpc_arm3_tool", "mpc_arm3_hard", "mpc_arm3_riccati",
+                                  "mpc_arm3_riccati_threads"])
 def test_the_mpc_fuzzed_gives_safe_torques_and_recovers(mpc_dirs, name):
     """200 samples, 40 % of them with a bad entry in the measurement, the reference or the target:
     MPC_BAD_MEASUREMENT (6) or MPC_BAD_REFERENCE (7), the holding torque of the last good state;
     every good sample's torque equals a clean twin's to the last bit.  Also with hard link-angle
-    limits (QP rows) and with the Riccati QP."""
+    limits (QP rows) and with the Riccati QP, its preparation on one thread and on two."""
     from rscasadi.mpc import CompiledMPC
     from rscasadi.mpc.problem import load_mpc_problem
     p = load_mpc_problem(PROBLEMS[name])
@@ -348,7 +353,7 @@ def test_the_template_c_compiles_without_a_warning(mpc_dirs, interaction_dirs, b
     dirs = [*mpc_dirs.values(), *(d for d in interaction_dirs.iterdir() if d.is_dir())]
     sources = [d / json.loads((d / "manifest.json").read_text())["header"].replace(".h", ".c") for d in dirs]
     sources.append(built[0] / "rscasadi_feedforward.c")
-    assert len(sources) == 8 and all(f.exists() for f in sources), sources
+    assert len(sources) == 9 and all(f.exists() for f in sources), sources
     for f in sources:
         run = subprocess.run([cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-c", str(f), f"-I{f.parent}",
                               f"-I{casadi_dir() / 'include'}", "-o", str(tmp_path / "x.o")], capture_output=True, text=True)
