@@ -168,8 +168,8 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
     goal = problem.task.goal if path is None else Goal(path.frame, path.end, position_tol=path.tolerance)
     if goal is not None and problem.task.theta_end is None:        # the guess's end: inverse kinematics
         problem = problem.replace(theta_end=goal_configuration(arm, goal, problem.task.theta_start, problem.path))
-        why = None if problem.task.design else unheld(arm, problem.task.theta_end)
-        if why:                                  # the solver may find another configuration at the goal
+        why = None if problem.task.design or warm else unheld(arm, problem.task.theta_end)
+        if why:                                  # the solver may find another configuration at the goal (said once)
             log(f"note: the arm cannot rest at the goal in the first configuration found for it: {why}")
     t_guess = (warm["t"][-1] if warm else problem.task.duration) * np.concatenate([[0.0], np.cumsum(w)])
     ref = _reference(problem, t_guess)[:, 1:] if tr.tracking else None
