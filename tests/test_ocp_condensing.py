@@ -3,7 +3,9 @@ functions by a C kernel.  Checked against a second derivation that shares no cod
 kernel: CasADi's own Newton rootfinder on the *explicit* lifted stage (the kernel solves the
 inverse-dynamics form) and CasADi's AD through that rootfinder for the Jacobians and Hessians;
 and whole solves against the lifted NLP with the other solver."""
+import ctypes
 import dataclasses
+import platform
 
 import casadi as ca
 import numpy as np
@@ -78,15 +80,13 @@ def test_a_kernel_left_warm_by_another_problem_still_solves_right():
     _kernel_equals_reference("ocp_min_time", {})
 
 
-def _kernel_equals_reference(name, over):
+def _points(name, over):
+    """The lifted and condensed transcriptions of a problem, and two instances (the first and the
+    last interval) near its first guess: (lifted, condensed, [(k, w, y0, args)])."""
     base, arm, lifted, (nlp_l, *_), cond, (nlp_c, *_) = _pair(name, **over)
     n, nx, nul, na = lifted.n, lifted.nx, lifted.nu_lifted, 2 * lifted.n * lifted.m
     keep = list(np.r_[np.arange(nx + n), nx + nul + np.arange(nx)])
-    elim, grows = list(nx + n + np.arange(na)), list(nx + np.arange(na))
-    rk = [i for i in range(lifted.pieces[0].rows.shape[1]) if i not in grows]
-    ref = _reference(lifted, keep, elim, grows, rk)
-    kernel, piece = cond.kernel, cond.pieces[0]
-    first, objective, second = piece.derivatives
+    elim = list(nx + n + np.arange(na))
     N = lifted.N
     t = base.task.duration * np.linspace(0, 1, N + 1)
     w0 = guess(lifted, base, arm, t, None)
@@ -97,12 +97,26 @@ def _kernel_equals_reference(name, over):
         P = lifted.parameters(reference_of(base, t[:1])[:, 0], None, base.task.duration, base.task.effort_weight,
                               np.full(N, 1 / N), reference_of(base, t)[:, 1:], list(base.task.parameters.values()))
     rng = np.random.default_rng(11)
+    points = []
     for k in (0, N - 1):
         z = w0[lifted.pieces[0].cols[k]]
         w = z[keep] + 0.01 * rng.standard_normal(len(keep)) * (1 + np.abs(z[keep]))
-        args = _instance_args(piece, P, nlp_c["p"], k)
+        points.append((k, w, z[elim], _instance_args(cond.pieces[0], P, nlp_c["p"], k)))
+    return lifted, cond, keep, elim, points
+
+
+def _kernel_equals_reference(name, over):
+    lifted, cond, keep, elim, points = _points(name, over)
+    nx, na = lifted.nx, 2 * lifted.n * lifted.m
+    grows = list(nx + np.arange(na))
+    rk = [i for i in range(lifted.pieces[0].rows.shape[1]) if i not in grows]
+    ref = _reference(lifted, keep, elim, grows, rk)
+    kernel, piece = cond.kernel, cond.pieces[0]
+    first, objective, second = piece.derivatives
+    rng = np.random.default_rng(11)
+    for k, w, y0, args in points:
         lam, lam_f = rng.standard_normal(len(rk)), 0.7
-        y_ref, R, f, J, gf, gL, H = ref(w, z[elim], *args[:-1], lam, lam_f)
+        y_ref, R, f, J, gf, gL, H = ref(w, y0, *args[:-1], lam, lam_f)
         scale = lambda a: max(1.0, float(ca.norm_inf(a)))
         y = kernel.newton(w, *args)
         assert float(ca.norm_inf(y - y_ref)) <= 1e-10 * scale(y_ref)
@@ -114,6 +128,44 @@ def _kernel_equals_reference(name, over):
         assert float(ca.norm_inf(gL_k - gL)) <= 1e-9 * scale(gL)
         assert float(ca.norm_inf(ca.densify(H_k) - ca.densify(H))) <= 1e-8 * scale(H)
         assert np.allclose(np.array(ca.densify(H_k)), np.array(ca.densify(H_k)).T, rtol=0, atol=1e-12 * scale(H))
+
+
+XINUSE = r"""
+#include <cpuid.h>
+/* 1 if the upper halves of the AVX registers are in use (XGETBV(1), bit 2), -1 if this
+   processor cannot tell; compiled without AVX, so that it changes nothing it reads */
+int upper_in_use(void) {
+  unsigned a, b, c, d;
+  if (!__get_cpuid(1, &a, &b, &c, &d) || !(c & (1u << 27)) || __get_cpuid_max(0, 0) < 0xD) return -1;
+  __cpuid_count(0xD, 1, a, b, c, d);
+  if (!(a & 4)) return -1;
+  __asm__ volatile("xgetbv" : "=a"(a), "=d"(d) : "c"(1));
+  return (int)((a >> 2) & 1);
+}
+"""
+
+
+@pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="x86's AVX state")
+def test_the_kernel_returns_with_the_vector_registers_clean():
+    """Every function of a condensing kernel (built for this processor) returns with the upper
+    halves of the AVX registers unused.  Its callers (fatrop, IPOPT, CASADI's own code) are SSE
+    code, which runs many times slower while they are in use: libm's log 25x on this VM, a
+    quarter of the Panda's minimum-time solve went to fatrop's barrier value through it."""
+    from rscasadi.native.build import cached_library
+    probe = ctypes.CDLL(str(cached_library({"xinuse.c": XINUSE}, ["-O1"], name="xinuse")))
+    if probe.upper_in_use() < 0:
+        pytest.skip("this processor does not report the AVX state in use")
+    lifted, cond, keep, elim, points = _points("ocp_reach_around", {})
+    piece = cond.pieces[0]
+    first, objective, second = piece.derivatives
+    rk = piece.fn.size1_out(0)
+    for k, w, y0, args in points:
+        calls = {"newton": lambda: cond.kernel.newton(w, *args), "rows": lambda: piece.fn(w, *args),
+                 "first": lambda: first(w, *args), "objective": lambda: objective(w, *args),
+                 "second": lambda: second(w, *args, np.ones(rk), 0.7)}
+        for name, call in calls.items():
+            call()
+            assert probe.upper_in_use() == 0, f"the kernel's {name} left the AVX registers' upper halves in use"
 
 
 def test_kernel_reports_a_failed_solve_instead_of_returning_garbage():
