@@ -192,3 +192,25 @@ def test_commands_take_the_urdf_form(tmp_path, capsys):
     assert main(["paper", "--trajectory", str(traj), "--out", str(tmp_path / "paper"), "--no-sweep", "--ocp", ""]) == 0
     tracking = json.loads((tmp_path / "paper" / "tracking.json").read_text())
     assert max(tracking["methods"]["rotor_separated"]["max_error"]) < 1e-5         # the feedforward tracks on the UR5 too
+
+
+def test_a_model_file_read_again_is_parsed_again_only_when_it_or_its_urdf_changed(arm3, urdf_dir):
+    """read() keeps a parsed model while its file and its URDF are unchanged, byte for byte: an
+    edit of either (here of the same length, right after the read, within the clock's tick) is
+    read; each call returns its own copy."""
+    from rscasadi.model.modelfile import read
+    path, urdf = urdf_dir / "arm3_urdf.toml", urdf_dir / "arm3.urdf"
+    first = read(path)
+    again = read(path)
+    again.extra["locked"]["x"] = 1.0
+    assert again is not first and "x" not in read(path).extra["locked"]
+    mass = lambda m: m.joints[0].link.mass
+    text = urdf.read_text()
+    heavier = text.replace('<mass value="2.5"/>', '<mass value="3.5"/>', 1)
+    assert heavier != text and len(heavier) == len(text)
+    urdf.write_text(heavier)
+    assert mass(read(path)) != mass(first)                               # the URDF's edit
+    doc = path.read_text()
+    assert "gear_ratio = 100.0" in doc
+    path.write_text(doc.replace("gear_ratio = 100.0", "gear_ratio = 900.0", 1))
+    assert read(path).joints[0].gear_ratio == 900.0                       # the model file's edit

@@ -5,7 +5,9 @@ Every rule is enforced with a `ModelFileError` that names the file, the joint an
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
+import hashlib
 import re
 from pathlib import Path
 
@@ -53,9 +55,34 @@ def parse(data: dict, path: str = "<memory>") -> ArmModel:
                                collision=collision(ctx, data.get("collision"), model.joints, frames, None))
 
 
+_READ: dict = {}       # (path, resolved) -> (the files' stamps, the model): read once while unchanged
+
+
+def _stamps(files) -> tuple:
+    """What says a file is unchanged: a digest of its bytes (None: unreadable).  Not its time:
+    a file rewritten within the clock's tick keeps it."""
+    def one(f):
+        try:
+            return hashlib.sha256(Path(f).read_bytes()).hexdigest()
+        except OSError:
+            return None
+    return tuple((str(f), one(f)) for f in files)
+
+
 def read(path) -> ArmModel:
-    """Read and validate a model file."""
-    return parse(read_toml(path), str(Path(path)))
+    """Read and validate a model file.  A file read again unchanged (and its URDF, for the URDF
+    form) is not parsed again: every round of an OCP's refinement reads it, and the Panda's URDF
+    form takes 0.3 s to parse.  Each call returns its own copy."""
+    key = (str(Path(path)), str(Path(path).resolve()))      # the model names the file as it was given
+    hit = _READ.get(key)
+    if hit is not None and _stamps(f for f, _ in hit[0]) == hit[0]:
+        return copy.deepcopy(hit[1])
+    before = _stamps([key[1]])                               # the file as parsed, not as changed since
+    model = parse(read_toml(path), str(Path(path)))
+    while len(_READ) >= 16:
+        _READ.pop(next(iter(_READ)))
+    _READ[key] = (before + (_stamps([model.extra["urdf"]]) if "urdf" in model.extra else ()), model)
+    return copy.deepcopy(model)
 
 
 # ----------------------------------------------------------------------------- writing
