@@ -4,7 +4,6 @@ kernel: CasADi's own Newton rootfinder on the *explicit* lifted stage (the kerne
 inverse-dynamics form) and CasADi's AD through that rootfinder for the Jacobians and Hessians;
 and whole solves against the lifted NLP with the other solver."""
 import ctypes
-import dataclasses
 import platform
 
 import casadi as ca
