@@ -105,6 +105,10 @@ def _stand_in(nlp: dict, pieces: list) -> dict:
     return {"x": x, "p": P, "f": ca.sumsqr(x) + ca.sum1(P), "g": ca.densify(ca.mtimes(ca.DM(pattern, 1.0), x))}
 
 
+# what generates a piece's library: a change to either file is a new library
+_PIECE_GENERATOR = hashlib.sha256("".join(Path(m).read_text() for m in (__file__, casadi_units.__code__.co_filename))
+                                  .encode()).hexdigest()
+
 # the compiled pieces of this process, with the functions they stand for (a refinement round's
 # stage has the same Function objects: transcription._DERIVATIVES); kept, so their ids stay theirs
 _PIECES: dict[tuple, tuple] = {}
@@ -126,9 +130,12 @@ def compiled_piece(piece: Piece, opt: str, log=print) -> Piece:
            "value": ca.Function("value", [z, *args], [r, f]),
            "first": originals[1], "objective": originals[2], "second": originals[3]}
     prefix = "rsp" + hashlib.sha256("".join(fn.serialize() for fn in fns.values()).encode()).hexdigest()[:16] + "_"
-    named = [_renamed(fn, prefix + k) for k, fn in fns.items()]
-    lib = str(cached_library(casadi_units(named, prefix, units=4), [opt], name="piece",
-                             what=f"the {piece.fn.name()}'s functions (for any mesh)", log=log))
+    # indexed by the functions' serialisation: a new process finds the library without generating
+    # its C to hash it (0.25 s for the Panda's pieces)
+    key = "\n".join(["piece", prefix, opt, *compiler(), ca.__version__, _PIECE_GENERATOR])
+    (lib, *_), _ = indexed(key, lambda: [cached_library(
+        casadi_units([_renamed(fn, prefix + k) for k, fn in fns.items()], prefix, units=4), [opt], name="piece",
+        what=f"the {piece.fn.name()}'s functions (for any mesh)", log=log)])
     ext = {k: ca.external(prefix + k, lib) for k in fns}
     zm, am = symbols(ext["rows"])
     fn = ca.Function(piece.fn.name(), [zm, *am], [ext["rows"](zm, *am), ext["f"](zm, *am)],
