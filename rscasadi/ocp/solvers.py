@@ -132,8 +132,8 @@ def compiled_piece(piece: Piece, opt: str, log=print) -> Piece:
     prefix = "rsp" + hashlib.sha256("".join(fn.serialize() for fn in fns.values()).encode()).hexdigest()[:16] + "_"
     # indexed by the functions' serialisation: a new process finds the library without generating
     # its C to hash it (0.25 s for the Panda's pieces)
-    key = "\n".join(["piece", prefix, opt, *compiler(), ca.__version__, _PIECE_GENERATOR])
-    (lib, *_), _ = indexed(key, lambda: [cached_library(
+    index_key = "\n".join(["piece", prefix, opt, *compiler(), ca.__version__, _PIECE_GENERATOR])
+    (lib, *_), _ = indexed(index_key, lambda: [cached_library(
         casadi_units([_renamed(fn, prefix + k) for k, fn in fns.items()], prefix, units=4), [opt], name="piece",
         what=f"the {piece.fn.name()}'s functions (for any mesh)", log=log)])
     ext = {k: ca.external(prefix + k, lib) for k in fns}
