@@ -51,16 +51,8 @@ def compiler() -> list:
 
 def native_flags() -> list:
     """This processor's instructions, fused multiply-adds, and on x86 full-width vectors (gcc
-    tunes Zen 1 to 128-bit ones): the step-Jacobian kernel 20-25 % faster at n = 12.
-
-    On x86 without AVX-512: with it, gcc 12 leaves some functions without the `vzeroupper`
-    that must end AVX code (e.g. a struct copy it expands into 512-bit moves).  The upper halves
-    of the vector registers then stay in use after the library returns, and every SSE
-    instruction of the caller pays for it (libm's log 9 -> 230 ns on the Xeon VM of 2026-11-27).
-    The callers are SSE code: fatrop, the CasADi wheel's BLASFEO, IPOPT, CVODES.  fatrop's
-    barrier value was 27 % of the Panda's minimum-time solve through this alone.  AVX2 at
-    256 bits is what the kernels use anyway (the MPC's step within noise of an AVX-512 build)."""
-    wide = ["-mprefer-vector-width=256", "-mno-avx512f"] if platform.machine().lower() in ("x86_64", "amd64") else []
+    tunes Zen 1 to 128-bit ones): the step-Jacobian kernel 20-25 % faster at n = 12."""
+    wide = ["-mprefer-vector-width=256"] if platform.machine().lower() in ("x86_64", "amd64") else []
     return ["-march=native", "-ffp-contract=fast"] + wide
 
 

@@ -224,8 +224,24 @@ static entry_t* derived(const casadi_real* w, const casadi_real** args, long k) 
    of earlier solves in the process */
 CASADI_SYMBOL_EXPORT void P(reset)(void) { __atomic_add_fetch(&generation, 1, __ATOMIC_RELAXED); }
 
-#define EXTERNAL(name) CASADI_SYMBOL_EXPORT int P(name)(const casadi_real** arg, casadi_real** res, \
-                                                             casadi_int* iw, casadi_real* w, int mem)
+/* Each external returns with the upper halves of the AVX registers clear.  Its callers (fatrop,
+   IPOPT, CasADi) are SSE code, which runs many times slower while they are in use, and gcc 12
+   with AVX-512 leaves some of this file's functions without the vzeroupper that must end AVX
+   code (solved()'s key copied by 512-bit moves). */
+#if defined(__AVX__) && defined(__GNUC__)
+#define CLEAR_UPPER() __builtin_ia32_vzeroupper()
+#else
+#define CLEAR_UPPER() ((void)0)
+#endif
+#define EXTERNAL(name) \
+  static int name##_body(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem); \
+  CASADI_SYMBOL_EXPORT int P(name)(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, \
+                                   int mem) { \
+    int r = name##_body(arg, res, iw, w, mem); \
+    CLEAR_UPPER(); \
+    return r; \
+  } \
+  static int name##_body(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem)
 static long index_of(const casadi_real** arg) { return arg[1 + NA] ? (long)arg[1 + NA][0] : 0; }
 /* the externals take CasADi's work arrays and memory, and use their own */
 #define UNUSED_WORK (void)iw; (void)w; (void)mem
