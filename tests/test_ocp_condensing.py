@@ -147,7 +147,7 @@ int upper_in_use(void) {
 @pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="x86's AVX state")
 def test_the_kernel_returns_with_the_vector_registers_clean():
     """Every function of a condensing kernel (built for this processor) returns with the upper
-    halves of the AVX registers unused.  Its callers (fatrop, IPOPT, CASADI's own code) are SSE
+    halves of the AVX registers unused.  Its callers (fatrop, IPOPT, CasADi's own code) are SSE
     code, which runs many times slower while they are in use: libm's log 25x on this VM, a
     quarter of the Panda's minimum-time solve went to fatrop's barrier value through it."""
     from rscasadi.native.build import cached_library
