@@ -125,3 +125,32 @@ def test_tilted_variant_file_is_the_sweeps_point(arm3):
     M_sweep = np.array(_variant(arm3, "t", tilt=0.4).mass_matrix()(q, q))
     assert np.allclose(M_file, M_sweep, rtol=0, atol=1e-15)
     assert abs(M_file[0, 5]) > 1e-5 and np.isclose(M_file[1, 5], -1.03e-3 * np.cos(0.4))
+
+
+def test_the_compiled_replay_equals_the_interpreted_one_on_seven_joints(monkeypatch):
+    """From COMPILED_FROM_JOINTS joints on, CVODES integrates the arm family's compiled dynamics
+    with the model's numbers as an input: the same motion as CasADi's virtual machine on the
+    constant arm's SX (a different build of the equations), a payload included, and one library
+    for the arm with a payload of either mass."""
+    from rscasadi.dynamics.arm import Arm
+    from rscasadi.dynamics.statics import holding_torque, rest_state
+    from rscasadi.model.modelfile import read
+    from rscasadi.sim import simulation
+    from rscasadi.task.objects import holding_payload
+    model = read(ROOT / "problems" / "panda_sea.toml")
+    part = {"frame": "panda_hand_tcp", "com": [0.0, 0.0, 0.04], "inertia": [3e-3, 3e-3, 2e-3, 0.0, 0.0, 0.0]}
+    monkeypatch.setattr(simulation, "_ODES", {})
+    ends = []
+    for m in (holding_payload(model, {**part, "mass": 1.0}), holding_payload(model, {**part, "mass": 2.0})):
+        arm = Arm(m)
+        x0 = rest_state(arm, np.array([0.3, -0.5, 0.2, -2.0, 0.1, 1.6, 0.7]))
+        tau = np.array(holding_torque(arm)(x0[:7], x0[7:14])).ravel() + np.linspace(-2.0, 2.0, 7)
+        p = np.concatenate([tau, [0.05]])
+        compiled = np.array(simulation.held_interval(arm, 1e-11)(x0, p)).ravel()
+        monkeypatch.setattr(simulation, "COMPILED_FROM_JOINTS", 100)
+        interpreted = np.array(simulation.held_interval(arm, 1e-11)(x0, p)).ravel()
+        monkeypatch.setattr(simulation, "COMPILED_FROM_JOINTS", 6)
+        assert np.max(np.abs(compiled - interpreted)) < 1e-8 * max(1.0, np.max(np.abs(interpreted - x0)))
+        ends.append(compiled)
+    assert np.max(np.abs(ends[0] - ends[1])) > 1e-3, "the payload's numbers reach the compiled dynamics"
+    assert len(simulation._ODES) == 1, "the arm with either payload shares one library"

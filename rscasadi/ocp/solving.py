@@ -25,7 +25,7 @@ from rscasadi.task.objects import holding_payload
 from rscasadi.model.modelfile import ModelFileError, document, read, to_toml
 from rscasadi.model.parameters import family, value, with_values
 from rscasadi.dynamics.statics import holding_torque, rest_state  # noqa: F401  (rest_state: exported by rscasadi.ocp)
-from rscasadi.sim.simulation import held_interval
+from rscasadi.sim.simulation import held_interval, held_ode
 from rscasadi.sim.trajectory import load_trajectory
 from rscasadi.ocp.problem import Goal, Problem, check_against_model, load_problem
 from rscasadi.ocp.solvers import direct, make_solver
@@ -186,6 +186,7 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
     solver, objective = make_solver(problem, tr, nlp, log, print_level, options)
     if hasattr(solver, "prepare"):                 # the direct fatrop's solver, built for these bounds
         solver.prepare(lbx, ubx, lbg, ubg)
+    held_ode(arm, log)                             # the replay's dynamics: compiled (if at all) now, in the log
     setup = time.perf_counter() - t0
     # the objective is scaled to about 1 at the guess: an effort of 1e-2 otherwise leaves the
     # solver crawling with a tiny dual infeasibility (seen: 1000+ iterations instead of 20)

@@ -6,6 +6,9 @@ States are x = (theta, phi, dtheta, dphi) stacked (4n).
 """
 from __future__ import annotations
 
+import hashlib
+from pathlib import Path
+
 import casadi as ca
 import numpy as np
 
@@ -80,13 +83,64 @@ def simulate_held(arm: Arm, x0, t, tau, substeps: int, tol: float = 1e-10) -> di
     return trajectory_record(arm, fine, np.hstack([np.asarray(x0, float).reshape(-1, 1), np.array(X)]))
 
 
+# from this many joints on, the replay's right-hand side and its Jacobian are compiled: CVODES
+# then spends 6x less (the Panda's 100 intervals: 0.50 -> 0.085 s) for a compile of about 7 s at
+# -O1, once per arm structure; on 3 joints CasADi's virtual machine costs milliseconds
+COMPILED_FROM_JOINTS = 6
+_ODES: dict = {}
+_GENERATOR = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()     # part of the library's index key
+
+
+def held_ode(arm: Arm, log=None) -> ca.Function:
+    """(x, [tau; h]) -> h dx/dt of the complete model under the held torque tau: CVODES' right-hand
+    side for `held_interval`.  SX (CasADi's virtual machine) below COMPILED_FROM_JOINTS joints;
+    from there on, the arm family's dynamics (Arm.family: the model's numbers as an input, so a
+    payload or a swept parameter shares the library) and their Jacobian, compiled once into a
+    cached library (`log` says so when it compiles)."""
+    n = arm.n
+    x, p = ca.SX.sym("x", 4 * n), ca.SX.sym("p", n + 1)
+    if n < COMPILED_FROM_JOINTS:
+        return ca.Function("held_ode", [x, p], [p[n] * _xdot(arm, False)(x, p[:n])], ["x", "p"], ["ode"])
+    from rscasadi.native.build import cached_library, casadi_c, compiler, indexed
+    family = Arm.family(arm.model)
+    q = ca.SX.sym("q", family.n_p)
+    xs = ca.vertsplit(x, n)
+    rhs = p[n] * ca.vertcat(xs[2], xs[3], *family.forward_dynamics(parametric=True)(*xs, p[:n], q))
+    name = "rsode" + hashlib.sha256(ca.Function("ode", [x, p, q], [rhs]).serialize().encode()).hexdigest()[:16]
+    if name not in _ODES:
+        f = ca.Function(name, [x, p, q], [rhs], ["x", "p", "q"], ["ode"])
+        # casadi.external's Jacobian, jac_<name>: with respect to x and p only (q always enters as
+        # the model's numbers, a constant; its block is structurally zero): 27k instructions for
+        # the Panda where the full Jacobian has 72k
+        out = ca.SX.sym("out_ode", 4 * n)
+        J = ca.jacobian(rhs, ca.vertcat(x, p))
+        jac = ca.Function("jac_" + name, [x, p, q, out],
+                          [J[:, :4 * n], J[:, 4 * n:], ca.SX(ca.Sparsity(4 * n, family.n_p))],
+                          ["x", "p", "q", "out_ode"], ["jac_ode_x", "jac_ode_p", "jac_ode_q"])
+        key = "\n".join(["replay ode", name, *compiler(), ca.__version__, _GENERATOR])
+        # no -march=native: CVODES is SSE code, and AVX code that returns with the vector
+        # registers' upper halves in use slows every SSE instruction after it (docs/design/kernels.md)
+        (lib, *_), _ = indexed(key, lambda: [cached_library(
+            {f"{name}.c": casadi_c([f, jac], f"{name}.c")}, ["-O1"], name="ode",
+            what=f"the replay's dynamics of {arm.model.name!r} ({n} joints)", log=log or (lambda m: None))])
+        _ODES[name] = ca.external(name, lib)
+        while len(_ODES) > 16:
+            _ODES.pop(next(iter(_ODES)))
+    values = dict(zip(*Arm(arm.model).parameters()))
+    xm, pm = ca.MX.sym("x", 4 * n), ca.MX.sym("p", n + 1)
+    return ca.Function("held_ode", [xm, pm], [_ODES[name](xm, pm, [float(values[k]) for k in family.free])],
+                       ["x", "p"], ["ode"])
+
+
 def held_interval(arm: Arm, tol: float = 1e-10, substeps: int | None = None) -> ca.Function:
     """(x, [tau; h]) -> x after h seconds of the complete model under the held torque tau (CVODES,
     time scaled to [0, 1] so that one Function serves every interval length); with `substeps`,
     (x, [tau; h]) -> (x at h, x at h/substeps, 2 h/substeps, ..., h as columns), one run."""
     n = arm.n
-    x, p = ca.SX.sym("x", 4 * n), ca.SX.sym("p", n + 1)
-    ode = {"x": x, "p": p, "ode": p[n] * _xdot(arm, False)(x, p[:n])}
+    rhs = held_ode(arm)
+    sym = ca.SX.sym if rhs.is_a("SXFunction") else ca.MX.sym
+    x, p = sym("x", 4 * n), sym("p", n + 1)
+    ode = {"x": x, "p": p, "ode": rhs(x, p)}
     grid = [1.0] if substeps is None else (np.arange(1, substeps + 1) / substeps).tolist()
     F = ca.integrator("F", "cvodes", ode, 0.0, grid, {"abstol": tol, "reltol": tol, "max_num_steps": 100000})
     xs, ps = ca.MX.sym("x", 4 * n), ca.MX.sym("p", n + 1)
