@@ -1,5 +1,5 @@
 """Output directories: checked before the work, written whole or not at all, and never losing a
-file that rscasadi did not write."""
+file that rscasadi did not write; and the cache directory."""
 from __future__ import annotations
 
 import contextlib
@@ -17,6 +17,12 @@ class OutputError(Error, RuntimeError):
 
 class CheckError(Error, RuntimeError):
     """A result failed its own check (a designed trajectory, a fit, a study): nothing is written."""
+
+
+def cache_dir() -> Path:
+    """Where rscasadi keeps what it built (compiled libraries, parsed model files):
+    $RSCASADI_CACHE, else ~/.cache/rscasadi."""
+    return Path(os.environ.get("RSCASADI_CACHE", Path.home() / ".cache" / "rscasadi"))
 
 
 def _existing_ancestor(path: Path) -> Path:

@@ -214,3 +214,25 @@ def test_a_model_file_read_again_is_parsed_again_only_when_it_or_its_urdf_change
     assert "gear_ratio = 100.0" in doc
     path.write_text(doc.replace("gear_ratio = 100.0", "gear_ratio = 900.0", 1))
     assert read(path).joints[0].gear_ratio == 900.0                       # the model file's edit
+
+
+def test_a_new_process_finds_the_parsed_model_until_a_file_changes(urdf_dir, monkeypatch):
+    """The cache directory keeps a parsed model for the next process: found without parsing while
+    the model file and its URDF hash the same; an edit of the URDF (same length) or a damaged
+    entry is parsed again."""
+    from rscasadi.model import modelfile
+    path, urdf = urdf_dir / "arm3_urdf.toml", urdf_dir / "arm3.urdf"
+    first = modelfile.read(path)
+    parse = modelfile.parse
+    monkeypatch.setattr(modelfile, "_READ", {})                          # a new process
+    monkeypatch.setattr(modelfile, "parse", lambda *a: pytest.fail("parsed although unchanged"))
+    found = modelfile.read(path)
+    assert found.joints[0].link.mass == first.joints[0].link.mass and found.path == first.path
+    text = urdf.read_text()
+    urdf.write_text(text.replace('<mass value="2.5"/>', '<mass value="3.5"/>', 1))
+    monkeypatch.setattr(modelfile, "_READ", {})
+    monkeypatch.setattr(modelfile, "parse", parse)
+    assert modelfile.read(path).joints[0].link.mass == 3.5
+    modelfile._entry((str(path), str(path.resolve())), modelfile._stamps([path.resolve()])).write_bytes(b"damaged")
+    monkeypatch.setattr(modelfile, "_READ", {})
+    assert modelfile.read(path).joints[0].link.mass == 3.5

@@ -8,6 +8,8 @@ from __future__ import annotations
 import copy
 import dataclasses
 import hashlib
+import os
+import pickle
 import re
 from pathlib import Path
 
@@ -71,18 +73,69 @@ def _stamps(files) -> tuple:
 
 def read(path) -> ArmModel:
     """Read and validate a model file.  A file read again unchanged (and its URDF, for the URDF
-    form) is not parsed again: every round of an OCP's refinement reads it, and the Panda's URDF
-    form takes 0.3 s to parse.  Each call returns its own copy."""
+    form) is not parsed again, in this process nor in the next (the cache directory keeps the
+    parsed model): every round of an OCP's refinement and every command reads it, and the
+    Panda's URDF form takes 0.8 s to parse in a new process (yourdfpy, scipy and the tree).
+    Each call returns its own copy."""
     key = (str(Path(path)), str(Path(path).resolve()))      # the model names the file as it was given
     hit = _READ.get(key)
     if hit is not None and _stamps(f for f, _ in hit[0]) == hit[0]:
         return copy.deepcopy(hit[1])
     before = _stamps([key[1]])                               # the file as parsed, not as changed since
-    model = parse(read_toml(path), str(Path(path)))
+    kept = _cached(key, before)
+    if kept is None:
+        model = parse(read_toml(path), str(Path(path)))
+        kept = (before + (_stamps([model.extra["urdf"]]) if "urdf" in model.extra else ()), model)
+        _keep(key, kept)
     while len(_READ) >= 16:
         _READ.pop(next(iter(_READ)))
-    _READ[key] = (before + (_stamps([model.extra["urdf"]]) if "urdf" in model.extra else ()), model)
-    return copy.deepcopy(model)
+    _READ[key] = kept
+    return copy.deepcopy(kept[1])
+
+
+def _parser() -> str:
+    """A digest of this package's sources: a parsed model is kept only for the parser that made it."""
+    if not _PARSER:
+        _PARSER.append(hashlib.sha256(b"".join(f.read_bytes() for f in sorted(Path(__file__).parent.glob("*.py"))))
+                       .hexdigest())
+    return _PARSER[0]
+
+
+_PARSER: list = []
+
+
+def _entry(key, before) -> Path:
+    from rscasadi.files import cache_dir
+    name = hashlib.sha256(repr((key, before, _parser())).encode()).hexdigest()[:24]
+    return cache_dir() / "models" / f"{name}.pickle"
+
+
+def _cached(key, before):
+    """(stamps, model) kept by an earlier process for this file as it is now (and its URDF, whose
+    digest is checked here), or None."""
+    if before[0][1] is None:
+        return None
+    try:
+        with open(_entry(key, before), "rb") as fh:
+            stamps, model = pickle.load(fh)
+    except Exception:                    # none, or unreadable (truncated, another Python's): parse
+        return None
+    return (stamps, model) if _stamps(f for f, _ in stamps) == stamps and isinstance(model, ArmModel) else None
+
+
+def _keep(key, kept):
+    """Keep a parsed model for the next process (whole or not at all; a cache that cannot be
+    written only costs the next process the parse)."""
+    if kept[0][0][1] is None:
+        return
+    entry = _entry(key, kept[0][:1])
+    try:
+        entry.parent.mkdir(parents=True, exist_ok=True)
+        tmp = entry.with_name(f"{entry.name}.{os.getpid()}.tmp")
+        tmp.write_bytes(pickle.dumps(kept))
+        os.replace(tmp, entry)
+    except OSError:
+        pass
 
 
 # ----------------------------------------------------------------------------- writing

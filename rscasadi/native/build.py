@@ -32,7 +32,7 @@ from pathlib import Path
 import casadi as ca
 
 from rscasadi.errors import Error
-from rscasadi.files import remove_stale
+from rscasadi.files import cache_dir, remove_stale
 
 OPT_LEVELS = ("-O0", "-O1", "-O2", "-O3", "-Os")
 
@@ -63,11 +63,6 @@ def blasfeo_kernels() -> dict:
     """BLASFEO's two 4x4 product kernels in vector C (templates/blasfeo_kernels.c, in front of the
     CasADi wheel's GENERIC BLASFEO), as a source for the one build step (file name -> text)."""
     return {BLASFEO_KERNELS.name: BLASFEO_KERNELS.read_text()}
-
-
-def cache_dir() -> Path:
-    """Where compiled libraries are kept: $RSCASADI_CACHE, else ~/.cache/rscasadi."""
-    return Path(os.environ.get("RSCASADI_CACHE", Path.home() / ".cache" / "rscasadi"))
 
 
 @contextmanager
