@@ -46,8 +46,13 @@ LIGHT = 0.02                  # the light wrist: the last link's mass and inerti
 
 
 _PHASES = """
-import json, sys
+import ctypes, json, os, sys
 import numpy as np
+try:                       # a real-time loop's scheduling where this user may set it: FIFO, memory locked
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))
+    rt = ctypes.CDLL(None).mlockall(3) == 0          # MCL_CURRENT | MCL_FUTURE
+except (OSError, AttributeError):
+    rt = False
 from rscasadi.mpc import CompiledMPC
 d = sys.argv[1]
 states, references = np.load(d + "/states.npy"), np.load(d + "/references.npy")
@@ -61,7 +66,7 @@ for x, ref in zip(states, references):
     c.prepare(ref)
     feedback.append(c.feedback(x)[1])
 q = lambda v, pct: float(np.percentile(v, pct)) * 1e6
-print(json.dumps({"step_us": q(step, 50), "step_p999_us": q(step, 99.9), "feedback_us": q(feedback, 50)}))
+print(json.dumps({"step_us": q(step, 50), "step_p999_us": q(step, 99.9), "feedback_us": q(feedback, 50), "rt": rt}))
 """
 
 
@@ -72,13 +77,14 @@ def phases(directory: Path, states: np.ndarray, references: np.ndarray) -> dict:
     """mpc_step, mpc_prepare + mpc_feedback timed in C along recorded states and references, in a
     fresh process: the BLASFEO a controller links binds there (a process binds HPIPM's calls once,
     to the first BLASFEO it loads), and nothing else of this run runs beside it.  The best of
-    RUNS such processes (this VM's neighbours moved single medians by up to 40 %)."""
+    RUNS such processes (this VM's neighbours moved single medians by up to 40 %), each under
+    SCHED_FIFO with its memory locked where permitted (rt: whether all were)."""
     np.save(directory / "states.npy", states)
     np.save(directory / "references.npy", references)
     runs = [json.loads(subprocess.run([sys.executable, "-c", _PHASES, str(directory)], capture_output=True, text=True,
                                       check=True, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"}
                                       ).stdout.strip().splitlines()[-1]) for _ in range(RUNS)]
-    return {key: min(r[key] for r in runs) for key in runs[0]}
+    return {**{key: min(r[key] for r in runs) for key in runs[0] if key != "rt"}, "rt": all(r["rt"] for r in runs)}
 
 
 def generated(p, out: Path, blasfeo: str = "") -> float:
@@ -170,7 +176,9 @@ def main():
           "steps each), the real-time iteration, 10 interior-point iterations of either QP, `--opt=-O3 --native`; "
           "times in C, medians over the 1000 samples of a 1 s closed loop's states (quantised encoders, a 20 % "
           "heavier last link), each the best of 3 fresh processes' medians, the step's 99.9th percentile, and the feedback alone (mpc_feedback after "
-          "mpc_prepare: the measurement-to-torque latency).", "",
+          "mpc_prepare: the measurement-to-torque latency). The timing processes ran "
+          + ("under SCHED_FIFO (priority 50) with their memory locked" if all(r["rt"] for r in rows + tasks) else
+             "under the default scheduler (SCHED_FIFO and mlockall not permitted here)") + ".", "",
           "| QP | N | generate + compile, empty cache (s) | C (MB) | step median (us) | step 99.9 % (us) | feedback (us) | "
           "tracking (rad) |", "|---|---|---|---|---|---|---|---|"]
     label = lambda r: (r["qp"] + (f", {r['threads']} threads" if r["threads"] > 1 else "")
