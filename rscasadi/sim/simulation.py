@@ -7,6 +7,7 @@ States are x = (theta, phi, dtheta, dphi) stacked (4n).
 from __future__ import annotations
 
 import hashlib
+import pickle
 from pathlib import Path
 
 import casadi as ca
@@ -87,7 +88,7 @@ def simulate_held(arm: Arm, x0, t, tau, substeps: int, tol: float = 1e-10) -> di
 # then spends 6x less (the Panda's 100 intervals: 0.50 -> 0.085 s) for a compile of about 7 s at
 # -O1, once per arm structure; on 3 joints CasADi's virtual machine costs milliseconds
 COMPILED_FROM_JOINTS = 6
-_ODES: dict = {}
+_ODES: dict = {}          # a model's digest -> its family's compiled right-hand side and free parameters
 _GENERATOR = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()     # part of the library's index key
 
 
@@ -98,38 +99,44 @@ def held_ode(arm: Arm, log=None) -> ca.Function:
     payload or a swept parameter shares the library) and their Jacobian, compiled once into a
     cached library (`log` says so when it compiles)."""
     n = arm.n
-    x, p = ca.SX.sym("x", 4 * n), ca.SX.sym("p", n + 1)
     if n < COMPILED_FROM_JOINTS:
+        x, p = ca.SX.sym("x", 4 * n), ca.SX.sym("p", n + 1)
         return ca.Function("held_ode", [x, p], [p[n] * _xdot(arm, False)(x, p[:n])], ["x", "p"], ["ode"])
+    digest = hashlib.sha256(pickle.dumps(arm.model)).hexdigest()
+    if digest not in _ODES:
+        _ODES[digest] = _compiled_rhs(arm, log)
+        while len(_ODES) > 16:
+            _ODES.pop(next(iter(_ODES)))
+    rhs, free = _ODES[digest]
+    values = dict(zip(*Arm(arm.model).parameters()))
+    x, p = ca.MX.sym("x", 4 * n), ca.MX.sym("p", n + 1)
+    return ca.Function("held_ode", [x, p], [rhs(x, p, [float(values[k]) for k in free])], ["x", "p"], ["ode"])
+
+
+def _compiled_rhs(arm: Arm, log) -> tuple:
+    """(the external (x, p, q) -> h dx/dt, q's parameter names) of the arm's family, from the
+    cache's index or compiled now."""
     from rscasadi.native.build import cached_library, casadi_c, compiler, indexed
-    family = Arm.family(arm.model)
-    q = ca.SX.sym("q", family.n_p)
+    n, family = arm.n, Arm.family(arm.model)
+    x, p, q = ca.SX.sym("x", 4 * n), ca.SX.sym("p", n + 1), ca.SX.sym("q", family.n_p)
     xs = ca.vertsplit(x, n)
     rhs = p[n] * ca.vertcat(xs[2], xs[3], *family.forward_dynamics(parametric=True)(*xs, p[:n], q))
     name = "rsode" + hashlib.sha256(ca.Function("ode", [x, p, q], [rhs]).serialize().encode()).hexdigest()[:16]
-    if name not in _ODES:
-        f = ca.Function(name, [x, p, q], [rhs], ["x", "p", "q"], ["ode"])
-        # casadi.external's Jacobian, jac_<name>: with respect to x and p only (q always enters as
-        # the model's numbers, a constant; its block is structurally zero): 27k instructions for
-        # the Panda where the full Jacobian has 72k
-        out = ca.SX.sym("out_ode", 4 * n)
-        J = ca.jacobian(rhs, ca.vertcat(x, p))
-        jac = ca.Function("jac_" + name, [x, p, q, out],
-                          [J[:, :4 * n], J[:, 4 * n:], ca.SX(ca.Sparsity(4 * n, family.n_p))],
-                          ["x", "p", "q", "out_ode"], ["jac_ode_x", "jac_ode_p", "jac_ode_q"])
-        key = "\n".join(["replay ode", name, *compiler(), ca.__version__, _GENERATOR])
-        # no -march=native: CVODES is SSE code, and AVX code that returns with the vector
-        # registers' upper halves in use slows every SSE instruction after it (docs/design/kernels.md)
-        (lib, *_), _ = indexed(key, lambda: [cached_library(
-            {f"{name}.c": casadi_c([f, jac], f"{name}.c")}, ["-O1"], name="ode",
-            what=f"the replay's dynamics of {arm.model.name!r} ({n} joints)", log=log or (lambda m: None))])
-        _ODES[name] = ca.external(name, lib)
-        while len(_ODES) > 16:
-            _ODES.pop(next(iter(_ODES)))
-    values = dict(zip(*Arm(arm.model).parameters()))
-    xm, pm = ca.MX.sym("x", 4 * n), ca.MX.sym("p", n + 1)
-    return ca.Function("held_ode", [xm, pm], [_ODES[name](xm, pm, [float(values[k]) for k in family.free])],
-                       ["x", "p"], ["ode"])
+    f = ca.Function(name, [x, p, q], [rhs], ["x", "p", "q"], ["ode"])
+    # casadi.external's Jacobian, jac_<name>: with respect to x and p only (q always enters as the
+    # model's numbers, a constant; its block is structurally zero): 27k instructions for the Panda
+    # where the full Jacobian has 72k
+    out = ca.SX.sym("out_ode", 4 * n)
+    J = ca.jacobian(rhs, ca.vertcat(x, p))
+    jac = ca.Function("jac_" + name, [x, p, q, out], [J[:, :4 * n], J[:, 4 * n:], ca.SX(ca.Sparsity(4 * n, family.n_p))],
+                      ["x", "p", "q", "out_ode"], ["jac_ode_x", "jac_ode_p", "jac_ode_q"])
+    key = "\n".join(["replay ode", name, *compiler(), ca.__version__, _GENERATOR])
+    # no -march=native: CVODES is SSE code, and AVX code that returns with the vector registers'
+    # upper halves in use slows every SSE instruction after it (docs/design/kernels.md)
+    (lib, *_), _ = indexed(key, lambda: [cached_library(
+        {f"{name}.c": casadi_c([f, jac], f"{name}.c")}, ["-O1"], name="ode",
+        what=f"the replay's dynamics of {arm.model.name!r} ({n} joints)", log=log or (lambda m: None))])
+    return ca.external(name, lib), list(family.free)
 
 
 def held_interval(arm: Arm, tol: float = 1e-10, substeps: int | None = None) -> ca.Function:
