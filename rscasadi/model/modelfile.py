@@ -93,15 +93,18 @@ def read(path) -> ArmModel:
     return copy.deepcopy(kept[1])
 
 
-def _parser() -> str:
-    """A digest of this package's sources: a parsed model is kept only for the parser that made it."""
-    if not _PARSER:
-        _PARSER.append(hashlib.sha256(b"".join(f.read_bytes() for f in sorted(Path(__file__).parent.glob("*.py"))))
-                       .hexdigest())
-    return _PARSER[0]
-
-
 _PARSER: list = []
+
+
+def _parser() -> str:
+    """A digest of this package's sources and of the versions of the libraries a parsed model
+    depends on: a model is kept only for the parser that made it."""
+    if not _PARSER:
+        from importlib.metadata import version
+        digest = hashlib.sha256(b"".join(f.read_bytes() for f in sorted(Path(__file__).parent.glob("*.py"))))
+        digest.update(" ".join(version(lib) for lib in ("yourdfpy", "numpy")).encode())
+        _PARSER.append(digest.hexdigest())
+    return _PARSER[0]
 
 
 def _entry(key, before) -> Path:
