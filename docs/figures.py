@@ -148,13 +148,19 @@ def readme_speed() -> str:
     arms = {r["arm"].split()[0]: r for r in csv.DictReader((RESULTS / "bench_ocp_arms.csv").open())}
     mpc3, mpc7 = paced_rt(RESULTS / "bench_mpc.md"), paced_rt(RESULTS / "bench_mpc_panda.md")
     files = (RESULTS / "bench_codegen.md", RESULTS / "bench_mpc_panda.md",
-             RESULTS / "bench_mpc_horizon.md", RESULTS / "bench_ocp_arms.md")
+             RESULTS / "bench_mpc_horizon.md", RESULTS / "bench_ocp_arms.md", RESULTS / "bench_tasks.md")
     where = runs(*files)
-    head, *body = next(rows for rows in tables(RESULTS / "bench_mpc_horizon.md") if rows[0][:2] == ["QP", "N"])
+    horizon = tables(RESULTS / "bench_mpc_horizon.md")
+    head, *body = next(rows for rows in horizon if rows[0][:2] == ["QP", "N"])
     col = {name: i for i, name in enumerate(head)}
-    ricc = [(r[0], r[col["step median (us)"]], r[col["feedback (us)"]]) for r in body
-            if r[1] == "10" and r[0].startswith("riccati")]
+    fastest = {N: min((r for r in body if r[1] == N and r[0].startswith("riccati")),
+                      key=lambda r: float(r[col["step median (us)"]])) for N in ("10", "20")}
+    task = min(next(rows for rows in horizon if rows[0][:2] == ["QP", "step median (us)"])[1:], key=lambda r: float(r[1]))
     ocp = {a: f"{float(r['setup_cold_s']):.1f} s; {float(r['solve_s']):.2f} s" for a, r in arms.items()}
+    head_t, *body_t = tables(RESULTS / "bench_tasks.md")[0]
+    tasks = {r[0]: float(r[head_t.index("wall (s)")]) for r in body_t}
+    task_ocp = ", ".join(f"{arm} {tasks[f'{name}, cold cache']:.0f} s; {tasks[f'{name}, warm cache']:.0f} s"
+                         for arm, name in (("Panda", "Panda shelf task"), ("Baxter", "Baxter left arm task")))
 
     def row(label, function, column="c_ns", form=ns):
         return f"| {label} | " + " | ".join(form(c[(n, function)][column]) for n in (3, 6, 7, 12)) + " |"
@@ -171,16 +177,12 @@ def readme_speed() -> str:
         f"| NMPC step, median (99.9 %, rt){'; its feedback phase' if mpc3[2] or mpc7[2] else ''} | "
         f"{mpc3[0]:.0f} us ({mpc3[1]:.0f} us; -O2){_feedback(mpc3)} | | "
         f"{mpc7[0]:.0f} us ({mpc7[1]:.0f} us; -O3, native){_feedback(mpc7)} | |",
-        "| NMPC step, N = 10 (Riccati), median; its feedback phase | | | "
-        + "; ".join(f"{s} us; {f} us{_variant(q)}" for q, s, f in ricc) + " | |",
+        "| NMPC step (Riccati, the fastest build), median: N = 10 (its feedback phase); N = 20; task space, "
+        f"N = 10 | | | {fastest['10'][col['step median (us)']]} us ({fastest['10'][col['feedback (us)']]} us); "
+        f"{fastest['20'][col['step median (us)']]} us; {task[1]} us | |",
         f"| minimum-time OCP, N = 150, both cores: first compile; solve | | {ocp['UR5']} (UR5) | {ocp['Panda']} | |",
+        f"| task OCP (a tool goal, obstacles, a payload), verified: empty cache; filled | | | {task_ocp} | |",
     ]) + "\n"
-
-
-def _variant(label: str) -> str:
-    """' (2 threads, BLASFEO for this CPU)' from a Riccati row's label in bench_mpc_horizon.md."""
-    parts = label.split(", ")[1:]
-    return f" ({', '.join(parts)})" if parts else ""
 
 
 def _interaction(arm: str) -> dict:
