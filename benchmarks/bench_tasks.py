@@ -118,7 +118,7 @@ def main():
         md.append(f"| {name} | {r['T']:.4f} | {'yes' if r['success'] else 'NO'} | {r['setup_first_s']:.1f} | "
                   f"{r['solve_first_s']:.2f} | {r['iterations_first']} | {r['rounds']} | {r['setup_all_s']:.1f} | "
                   f"{r['solve_all_s']:.2f} | {r['wall_s']:.0f} |")
-        csv.append(f"{name},{r['T']},{r['success']},{r['setup_first_s']},{r['solve_first_s']},{r['iterations_first']},"
+        csv.append(f"\"{name}\",{r['T']},{r['success']},{r['setup_first_s']},{r['solve_first_s']},{r['iterations_first']},"
                    f"{r['rounds']},{r['setup_all_s']},{r['solve_all_s']},{r['wall_s']}")
     verdict = lambda v, goal: "met" if v < goal else f"missed by {v / goal:.1f}x"      # noqa: E731
     md += ["", "Targets for the 7-joint obstacle tasks: the verified answer from an empty cache in under 90 s and "
