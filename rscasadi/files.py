@@ -3,6 +3,7 @@ file that rscasadi did not write; and the cache directory."""
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import shutil
 import tempfile
@@ -23,6 +24,15 @@ def cache_dir() -> Path:
     """Where rscasadi keeps what it built (compiled libraries, parsed model files):
     $RSCASADI_CACHE, else ~/.cache/rscasadi."""
     return Path(os.environ.get("RSCASADI_CACHE", Path.home() / ".cache" / "rscasadi"))
+
+
+def sources_digest(*paths) -> str:
+    """A digest of source files' bytes: part of a cache entry's key, so that what a changed
+    generator or parser would make differently is made again."""
+    digest = hashlib.sha256()
+    for path in paths:
+        digest.update(Path(path).read_bytes())
+    return digest.hexdigest()
 
 
 def _existing_ancestor(path: Path) -> Path:

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rscasadi.files import cache_dir, sources_digest
 from rscasadi.model.checks import (ACTUATOR_KEYS, _body, _Ctx, _number, _table, _vector,  # noqa: F401
                                    actuator, field_checker, joint_context, orientation, read_toml)
 from rscasadi.model.collision import collision, collision_document
@@ -101,14 +102,12 @@ def _parser() -> str:
     depends on: a model is kept only for the parser that made it."""
     if not _PARSER:
         from importlib.metadata import version
-        digest = hashlib.sha256(b"".join(f.read_bytes() for f in sorted(Path(__file__).parent.glob("*.py"))))
-        digest.update(" ".join(version(lib) for lib in ("yourdfpy", "numpy")).encode())
-        _PARSER.append(digest.hexdigest())
+        versions = " ".join(version(lib) for lib in ("yourdfpy", "numpy"))
+        _PARSER.append(sources_digest(*sorted(Path(__file__).parent.glob("*.py"))) + versions)
     return _PARSER[0]
 
 
 def _entry(key, before) -> Path:
-    from rscasadi.files import cache_dir
     name = hashlib.sha256(repr((key, before, _parser())).encode()).hexdigest()[:24]
     return cache_dir() / "models" / f"{name}.pickle"
 

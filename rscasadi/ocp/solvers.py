@@ -18,6 +18,7 @@ from pathlib import Path
 
 import casadi as ca
 
+from rscasadi.files import sources_digest
 from rscasadi.native import build
 from rscasadi.native.build import cached_library, casadi_c, casadi_units, compiler, indexed
 from rscasadi.native.parallel import openmp_flags
@@ -107,7 +108,7 @@ def _stand_in(nlp: dict, pieces: list) -> dict:
 
 
 # what generates a piece's library: a change to either file is a new library
-_PIECE_GENERATOR = hashlib.sha256("".join(Path(m).read_text() for m in (__file__, build.__file__)).encode()).hexdigest()
+_PIECE_GENERATOR = sources_digest(__file__, build.__file__)
 
 # the compiled pieces of this process, with the functions they stand for (a refinement round's
 # stage has the same Function objects: transcription._DERIVATIVES); kept, so their ids stay theirs

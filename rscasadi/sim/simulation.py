@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import hashlib
 import pickle
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -16,6 +15,7 @@ import numpy as np
 from rscasadi.dynamics.arm import Arm
 from rscasadi.dynamics.statics import spring_deflection  # noqa: F401  (part of this module's API)
 from rscasadi.errors import InvalidArgument
+from rscasadi.files import sources_digest
 
 
 def _uniform_step(t):
@@ -89,7 +89,7 @@ def simulate_held(arm: Arm, x0, t, tau, substeps: int, tol: float = 1e-10) -> di
 # -O1, once per arm structure; on 3 joints CasADi's virtual machine costs milliseconds
 COMPILED_FROM_JOINTS = 6
 _ODES: dict = {}          # a model's digest -> its family's compiled right-hand side and free parameters
-_GENERATOR = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()     # part of the library's index key
+_GENERATOR = sources_digest(__file__)         # part of the library's index key
 
 
 def held_ode(arm: Arm, log=None) -> ca.Function:
