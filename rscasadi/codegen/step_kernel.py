@@ -77,24 +77,29 @@ def point_functions(arm, name: str, parametric: bool):
     return fd, jr, [int(i) for i in perm]
 
 
-def kernel_source(arm, name: str, parametric: bool) -> Kernel:
+def kernel_source(arm, name: str, parametric: bool, chained: bool = False) -> Kernel:
     """The step-Jacobian kernel for the public symbol `name`: CasADi generates fd into the file,
-    then the kernel's C follows (jr in vector lanes, the stages, the CasADi-style interface)."""
+    then the kernel's C follows (jr in vector lanes, the stages, the CasADi-style interface).
+    chained: the kernel of one substep within an interval, (x, tau, h[, p], A0, B0) -> (A A0,
+    A B0 + B, x_next): the interval's sensitivities so far carried through this step (A0 = I and
+    B0 = 0 at the first substep, where no product is formed) and the step itself, from the
+    stage points the Jacobian needs anyway (RK4's x + h/6 (k1 + 2 k2 + 2 k3 + k4))."""
     n = arm.n
     fd, jr, perm = point_functions(arm, name, parametric)
     JrT, LT, L = jr.sparsity_out(0), fd.sparsity_out(2), fd.sparsity_out(3)
     nq = [int(np.searchsorted(JrT.row()[JrT.colind()[r]:JrT.colind()[r + 1]], 2 * n)) + JrT.colind()[r]
           for r in range(2 * n)]                                     # where a row's speed columns start
-    n_in = 4 if parametric else 3
+    n_in, n_out = (4 if parametric else 3) + 2 * chained, 2 + chained
     stride = -(-5 * n // 4) * 4                                      # 5n columns padded to whole vectors
     njr, nlt = max(JrT.nnz(), 1), max(LT.nnz(), 1)
-    sizes = {"SZ_ARG": n_in + fd.sz_arg(), "SZ_RES": 2 + fd.sz_res(), "SZ_IW": fd.sz_iw(),
+    sizes = {"SZ_ARG": n_in + fd.sz_arg(), "SZ_RES": n_out + fd.sz_res(), "SZ_IW": fd.sz_iw(),
              "SZ_W": (fd.sz_w() + 6 * 4 * n + 9 * 2 * n + 8 * nlt + n + LANES * njr + 8
-                      + 4 * 2 * n * stride)}                         # as @NAME@_work below
+                      + 4 * 2 * n * stride + chained * (4 * n + 4 * n * 5 * n))}     # as @NAME@_work below
     consts = "".join([
         f"#define RSK_N {n}\n#define RSK_NV {2 * n}\n#define RSK_NX {4 * n}\n#define RSK_NC {5 * n}\n",
         f"#define RSK_BK {BLOCK}\n#define RSK_NP {stride}\n",
         f"#define RSK_NJR {njr}\n#define RSK_NLT {nlt}\n#define RSK_NIN {n_in}\n",
+        f"#define RSK_NOUT {n_out}\n#define RSK_CHAIN {int(chained)}\n",
         f"#define RSK_PT_ARG {fd.sz_arg()}\n#define RSK_PT_RES {fd.sz_res()}\n",
         f"#define RSK_PT_IW {fd.sz_iw()}\n#define RSK_PT_W {fd.sz_w()}\n",
         f"#define RSK_NPAR {arm.n_p if parametric else 0}\n#define RSK_FD {fd.name()}\n"])

@@ -75,12 +75,15 @@ def interval_functions(arm: Arm, h: float, substeps: int, step_jacobian: ca.Func
     the step Jacobian is SX (small arms), called `substeps` times: its C is generated once, so
     the controller compiles in a fifth of the time of one straight-line interval, as fast.
     step_jacobian: a Function to use in place of step_functions' RK4 one (the generated
-    controller's structured C kernel, `generate.step_kernel`)."""
+    controller's structured C kernel, `generate.step_kernel`); when it is the chained kernel
+    (three outputs) it also steps and chains, `_chained_interval`."""
     from rscasadi.codegen.generate import step_functions
     from rscasadi.codegen.rosenbrock import ros2_functions
     n, hs, parametric = arm.n, h / substeps, bool(arm.free)
     step, step_jac = (ros2_functions if integrator == "ros2" else step_functions)(arm, parametric=parametric)
     step_jac = step_jacobian if step_jacobian is not None and integrator == "rk4" else step_jac
+    if step_jac.n_out() == 3:
+        return _chained_interval(step, step_jac, arm, hs, substeps)
     sym = ca.SX if step_jac.is_a("SXFunction") else ca.MX
     if sym is ca.SX:
         step = step.expand()
@@ -99,6 +102,21 @@ def interval_functions(arm: Arm, h: float, substeps: int, step_jacobian: ca.Func
         zk, Ak, Bk = substep(zk, u, mm, Ak, Bk)
         z_only = substep_x(z_only, u, mm)
     return ca.Function("interval", [x, u, mm], [zk, Ak, Bk]), ca.Function("interval_x", [x, u, mm], [z_only])
+
+
+def _chained_interval(step, kernel, arm: Arm, hs: float, substeps: int):
+    """interval_functions' F and Fx with the chained kernel (codegen.step_kernel, chained=True):
+    each substep's call returns the step and carries the interval's A and B through it, so
+    neither a separate step nor CasADi's products remain."""
+    n, nx = arm.n, 4 * arm.n
+    x, u, mm = ca.MX.sym("x", nx), ca.MX.sym("tau", n), ca.MX.sym("m", arm.n_p if arm.free else 0)
+    pm = [mm] if arm.free else []
+    z, A, B = x, ca.MX(ca.DM.eye(nx)), ca.MX(ca.DM.zeros(nx, n))
+    z_only = x
+    for _ in range(substeps):
+        A, B, z = kernel(z, u, hs, *pm, A, B)
+        z_only = step(z_only, u, hs, *pm)
+    return ca.Function("interval", [x, u, mm], [z, A, B]), ca.Function("interval_x", [x, u, mm], [z_only])
 
 
 def limit_arrays(arm: Arm) -> dict:

@@ -28,11 +28,43 @@ static void rsk_stage(const casadi_real *jr, const casadi_real *d, const casadi_
 @BLOCKS@
 }
 
+#if RSK_CHAIN
+/* out (RSK_NX x m) = M P (+ add), M (RSK_NX x RSK_NX), P (RSK_NX x m), column-major: a column of
+   out accumulates in RSK_N vectors (RSK_NX = 4 RSK_N) over M's columns */
+static void rsk_chain(const casadi_real *M, const casadi_real *P, const casadi_real *add, int m, casadi_real *out) {
+  int j, l, v;
+  for (j = 0; j < m; ++j) {
+    rsk_v t[RSK_N], mv, pv;
+    for (v = 0; v < RSK_N; ++v)
+      if (add) RSK_VLD(t[v], add + j * RSK_NX + 4 * v); else RSK_VBC(t[v], 0.0)
+    for (l = 0; l < RSK_NX; ++l) {
+      RSK_VBC(pv, P[j * RSK_NX + l])
+      for (v = 0; v < RSK_N; ++v) {
+        RSK_VLD(mv, M + l * RSK_NX + 4 * v);
+        t[v] = RSK_ADD(t[v], RSK_MUL(mv, pv));
+      }
+    }
+    for (v = 0; v < RSK_N; ++v) RSK_VST(out + j * RSK_NX + 4 * v, t[v]);
+  }
+}
+
+/* whether A0 = I and B0 = 0: the first substep of an interval, nothing to chain onto */
+static int rsk_start(const casadi_real *A0, const casadi_real *B0) {
+  int i, j;
+  for (j = 0; j < RSK_NX; ++j)
+    for (i = 0; i < RSK_NX; ++i)
+      if (A0[j * RSK_NX + i] != (i == j)) return 0;
+  for (i = 0; i < RSK_NX * RSK_N; ++i)
+    if (B0[i] != 0.0) return 0;
+  return 1;
+}
+#endif
+
 int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   static const casadi_real c[4] = {0.0, 0.5, 0.5, 1.0};
   const casadi_real *x = arg[0], *tau = arg[1], h = arg[2] ? arg[2][0] : 0.0;
   const casadi_real **parg = arg + RSK_NIN, *jarg[3];
-  casadi_real **pres = res + 2, *jres[1];
+  casadi_real **pres = res + RSK_NOUT, *jres[1];
   /* stage point i: xi and a (the current one), X4 and A4 (all four, interleaved for the lanes:
      [4 r + i]), the factors D, LT, L (all four); JR4 dr/dx' at the four points, interleaved */
   casadi_real *xi = w + RSK_PT_W, *X4 = xi + RSK_NX, *A4 = X4 + 4 * RSK_NX, *kp = A4 + 4 * RSK_NV;
@@ -41,8 +73,18 @@ int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_re
   /* the row-stored matrices on a cache line: their rows (RSK_NP apart) then start on whole vectors
      (n = 12: the offset the point's work size left ran 6 % slower, interleaved A/B) */
   casadi_real *Bs = (casadi_real *)(((uintptr_t)(JR4 + 4 * RSK_NJR) + 63) & ~(uintptr_t)63);
+  casadi_real *Ao = res[0], *Bo = res[1];
   int i, r, cc;
   (void)mem;
+#if RSK_CHAIN
+  /* RK4's sum of the stage derivatives k1 + 2 k2 + 2 k3 + k4; A and B of this step */
+  static const casadi_real weight[4] = {1.0, 2.0, 2.0, 1.0};
+  casadi_real *ks = Bs + 4 * RSK_NV * RSK_NP, *Ak = ks + RSK_NX, *Bk = Ak + RSK_NX * RSK_NX;
+  const casadi_real *A0 = arg[RSK_NIN - 2], *B0 = arg[RSK_NIN - 1];
+  const int chained = A0 && B0 && !rsk_start(A0, B0);
+  if (chained) Ao = Ak, Bo = Bk;
+  for (r = 0; r < RSK_NX; ++r) ks[r] = 0.0;
+#endif
   for (i = 0; i < 4; ++i) {                 /* the stage points: forward dynamics and M's factors */
     for (r = 0; r < RSK_NX; ++r) xi[r] = (x ? x[r] : 0.0) + (i ? c[i] * h * kp[r] : 0.0);
     parg[0] = xi; parg[1] = tau;
@@ -50,6 +92,9 @@ int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_re
     pres[0] = a; pres[1] = D + i * RSK_NV; pres[2] = LT + i * RSK_NLT; pres[3] = L + i * RSK_NLT; pres[4] = mu;
     if (RSK_FD(parg, pres, iw, w, 0)) return 1;
     for (r = 0; r < RSK_NV; ++r) { kp[r] = xi[RSK_NV + r]; kp[RSK_NV + r] = a[r]; }
+#if RSK_CHAIN
+    for (r = 0; r < RSK_NX; ++r) ks[r] += weight[i] * kp[r];
+#endif
     for (r = 0; r < RSK_NX; ++r) X4[4 * r + i] = xi[r];
     for (r = 0; r < RSK_NV; ++r) A4[4 * r + i] = a[r];
   }
@@ -66,24 +111,32 @@ int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_re
     const casadi_real h2 = h * h / 6, h6 = h / 6;
     for (r = 0; r < RSK_NV; ++r) {
       const casadi_real *b1 = B1 + r * RSK_NP, *b2 = B2 + r * RSK_NP, *b3 = B3 + r * RSK_NP, *b4 = B4 + r * RSK_NP;
-      if (res[0])
+      if (Ao)
         for (cc = 0; cc < RSK_NX; ++cc) {
           const casadi_real b23 = b2[cc] + b3[cc];
-          res[0][cc * RSK_NX + r] = h2 * (b1[cc] + b23);
-          res[0][cc * RSK_NX + RSK_NV + r] = h6 * (b1[cc] + 2 * b23 + b4[cc]);
+          Ao[cc * RSK_NX + r] = h2 * (b1[cc] + b23);
+          Ao[cc * RSK_NX + RSK_NV + r] = h6 * (b1[cc] + 2 * b23 + b4[cc]);
         }
-      if (res[1])
+      if (Bo)
         for (cc = RSK_NX; cc < RSK_NC; ++cc) {
           const casadi_real b23 = b2[cc] + b3[cc];
-          res[1][(cc - RSK_NX) * RSK_NX + r] = h2 * (b1[cc] + b23);
-          res[1][(cc - RSK_NX) * RSK_NX + RSK_NV + r] = h6 * (b1[cc] + 2 * b23 + b4[cc]);
+          Bo[(cc - RSK_NX) * RSK_NX + r] = h2 * (b1[cc] + b23);
+          Bo[(cc - RSK_NX) * RSK_NX + RSK_NV + r] = h6 * (b1[cc] + 2 * b23 + b4[cc]);
         }
     }
-    if (res[0])
+    if (Ao)
       for (r = 0; r < RSK_NV; ++r) {        /* [1 0] + h [0 1; 0 0] */
-        res[0][r * RSK_NX + r] += 1; res[0][(RSK_NV + r) * RSK_NX + r] += h; res[0][(RSK_NV + r) * RSK_NX + RSK_NV + r] += 1;
+        Ao[r * RSK_NX + r] += 1; Ao[(RSK_NV + r) * RSK_NX + r] += h; Ao[(RSK_NV + r) * RSK_NX + RSK_NV + r] += 1;
       }
   }
+#if RSK_CHAIN
+  if (chained) {                   /* A = A_k A0, B = A_k B0 + B_k */
+    if (res[0]) rsk_chain(Ak, A0, 0, RSK_NX, res[0]);
+    if (res[1]) rsk_chain(Ak, B0, Bk, RSK_N, res[1]);
+  }
+  if (res[2])
+    for (r = 0; r < RSK_NX; ++r) res[2][r] = (x ? x[r] : 0.0) + h / 6 * ks[r];
+#endif
   return 0;
 }
 
@@ -95,22 +148,30 @@ void @NAME@_release(int mem) { (void)mem; }
 void @NAME@_incref(void) {}
 void @NAME@_decref(void) {}
 casadi_int @NAME@_n_in(void) { return RSK_NIN; }
-casadi_int @NAME@_n_out(void) { return 2; }
+casadi_int @NAME@_n_out(void) { return RSK_NOUT; }
 casadi_real @NAME@_default_in(casadi_int i) { (void)i; return 0.0; }
 const char* @NAME@_name_in(casadi_int i) {
+  if (RSK_CHAIN && i == RSK_NIN - 2) return "A0";
+  if (RSK_CHAIN && i == RSK_NIN - 1) return "B0";
   switch (i) { case 0: return "x"; case 1: return "tau"; case 2: return "h"; case 3: return RSK_NPAR ? "p" : 0; default: return 0; }
 }
-const char* @NAME@_name_out(casadi_int i) { switch (i) { case 0: return "A"; case 1: return "B"; default: return 0; } }
+const char* @NAME@_name_out(casadi_int i) {
+  switch (i) { case 0: return "A"; case 1: return "B"; case 2: return RSK_CHAIN ? "x_next" : 0; default: return 0; }
+}
 const casadi_int* @NAME@_sparsity_in(casadi_int i) {
+  if (RSK_CHAIN && i == RSK_NIN - 2) return rsk_sp_A;
+  if (RSK_CHAIN && i == RSK_NIN - 1) return rsk_sp_B;
   switch (i) { case 0: return rsk_sp_x; case 1: return rsk_sp_tau; case 2: return rsk_sp_h; case 3: return RSK_NPAR ? rsk_sp_p : 0; default: return 0; }
 }
-const casadi_int* @NAME@_sparsity_out(casadi_int i) { switch (i) { case 0: return rsk_sp_A; case 1: return rsk_sp_B; default: return 0; } }
+const casadi_int* @NAME@_sparsity_out(casadi_int i) {
+  switch (i) { case 0: return rsk_sp_A; case 1: return rsk_sp_B; case 2: return RSK_CHAIN ? rsk_sp_x : 0; default: return 0; }
+}
 int @NAME@_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = RSK_NIN + RSK_PT_ARG;
-  if (sz_res) *sz_res = 2 + RSK_PT_RES;
+  if (sz_res) *sz_res = RSK_NOUT + RSK_PT_RES;
   if (sz_iw) *sz_iw = RSK_PT_IW;
   if (sz_w) *sz_w = RSK_PT_W + 6 * RSK_NX + 9 * RSK_NV + 8 * RSK_NLT + RSK_N + 4 * RSK_NJR + 8
-                   + 4 * RSK_NV * RSK_NP;
+                   + 4 * RSK_NV * RSK_NP + RSK_CHAIN * (RSK_NX + RSK_NX * RSK_NC);
   return 0;
 }
 int @NAME@_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
