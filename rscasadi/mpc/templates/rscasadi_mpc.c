@@ -11,6 +11,8 @@
 #include "hpipm_d_ocp_qp.h"
 #include "hpipm_d_ocp_qp_sol.h"
 #include "hpipm_d_part_cond.h"
+#include "hpipm_d_cond.h"
+#include "hpipm_d_cond_aux.h"
 #endif
 #if ${SYM}_THREADS > 1 && defined(_OPENMP)
 #include <omp.h>
@@ -355,6 +357,42 @@ static int riccati_interval(${sym}_t *c, hpipm_t *h, int k, const double *refere
   return 0;
 }
 
+/* the blocks' dense QPs from the intervals' (d_part_cond_qp_cond's loop): each block condensed
+ * on its own, with its own workspace, so the blocks share the threads.  Block b sees the stages
+ * from its first interval on, as HPIPM's loop shows them to d_cond_*; on one thread, HPIPM's */
+static void condense(hpipm_t *h) {
+#if ${SYM}_THREADS > 1 && defined(_OPENMP)
+  struct d_ocp_qp *q = &h->qp, *out = &h->bqp;
+  int first[NB + 1], s = 0, bad = 0;
+  for (int b = 0; b <= NB; ++b) {
+    first[b] = s;
+    s += h->cws.cond_workspace[b].bs;
+  }
+  PARALLEL_FOR
+  for (int b = 0; b <= NB; ++b) {
+    const int o = first[b];
+    struct d_ocp_qp_dim dim = *q->dim;
+    struct d_ocp_qp stages = *q;
+    struct d_cond_qp_arg *arg = h->carg.cond_arg + b;
+    struct d_cond_qp_ws *ws = h->cws.cond_workspace + b;
+    dim.N = ws->bs;
+    dim.nx += o, dim.nu += o, dim.nbx += o, dim.nbu += o, dim.nb += o, dim.ng += o, dim.ns += o;
+    dim.nbxe += o, dim.nbue += o, dim.nge += o;
+    stages.dim = &dim;
+    stages.idxb += o, stages.BAbt += o, stages.b += o, stages.RSQrq += o, stages.rqz += o, stages.DCt += o;
+    stages.d += o, stages.d_mask += o, stages.m += o, stages.Z += o, stages.idxs_rev += o, stages.idxe += o;
+    stages.diag_H_flag += o;
+    d_cond_BAbt(&stages, out->BAbt + b, out->b + b, arg, ws);
+    d_cond_RSQrq(&stages, out->RSQrq + b, out->rqz + b, arg, ws);
+    d_cond_DCtd(&stages, out->idxb[b], out->DCt + b, out->d + b, out->d_mask + b, out->idxs_rev[b], out->Z + b,
+                out->rqz + b, arg, ws);
+  }
+  (void)bad;
+#else
+  d_part_cond_qp_cond(&h->qp, &h->bqp, &h->carg, &h->cws);
+#endif
+}
+
 /* the intervals are independent but for the gaps, a cheap sequential pass between the two loops */
 static int riccati_prepare(${sym}_t *c, const double *reference) {
   hpipm_t *h = qp_structures(c);
@@ -371,7 +409,7 @@ static int riccati_prepare(${sym}_t *c, const double *reference) {
   if (bad) return ${SYM}_FAILED;
   d_ocp_qp_set_Q(NH, zero, &h->qp);       /* the last node's cost is the last interval's */
   d_ocp_qp_set_q(NH, zero, &h->qp);
-  d_part_cond_qp_cond(&h->qp, &h->bqp, &h->carg, &h->cws);   /* at dx_0 = 0; the feedback moves b_0, r_0 */
+  condense(h);                            /* at dx_0 = 0; the feedback moves b_0, r_0 */
   return 0;
 }
 
