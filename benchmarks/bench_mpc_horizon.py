@@ -70,21 +70,39 @@ print(json.dumps({"step_us": q(step, 50), "step_p999_us": q(step, 99.9), "feedba
 """
 
 
-RUNS = 3                      # fresh processes per controller; the best of their medians is reported
+RUNS = 3                      # rounds of timing processes; each controller's best median is reported
 
 
-def phases(directory: Path, states: np.ndarray, references: np.ndarray) -> dict:
-    """mpc_step, mpc_prepare + mpc_feedback timed in C along recorded states and references, in a
-    fresh process: the BLASFEO a controller links binds there (a process binds HPIPM's calls once,
-    to the first BLASFEO it loads), and nothing else of this run runs beside it.  The best of
-    RUNS such processes (this VM's neighbours moved single medians by up to 40 %), each under
-    SCHED_FIFO with its memory locked where permitted (rt: whether all were)."""
+def phases_once(directory: Path) -> dict:
+    """mpc_step, mpc_prepare + mpc_feedback timed in C along the states and references saved in
+    `directory`, in a fresh process: the BLASFEO a controller links binds there (a process binds
+    HPIPM's calls once, to the first BLASFEO it loads), and nothing else of this run runs beside
+    it; under SCHED_FIFO with its memory locked where permitted (rt: whether it was)."""
+    return json.loads(subprocess.run([sys.executable, "-c", _PHASES, str(directory)], capture_output=True, text=True,
+                                     check=True, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"}
+                                     ).stdout.strip().splitlines()[-1])
+
+
+def timed(rows: list, log=print) -> list:
+    """Each row's phases: RUNS rounds over all rows, so a controller's processes fall minutes
+    apart (this VM's neighbours slow it for minutes at a time: single medians moved by up to
+    40 %, the unchanged feedback by 1.75x within one run), and the best of its medians."""
+    runs: list = [[] for _ in rows]
+    for k in range(RUNS):
+        log(f"timing, round {k + 1} of {RUNS} ({len(rows)} controllers) ...")
+        for row, got in zip(rows, runs):
+            got.append(phases_once(Path(row["_dir"])))
+    for row, got in zip(rows, runs):
+        row.pop("_dir", None)
+        row.update({key: min(r[key] for r in got) for key in got[0] if key != "rt"}, rt=all(r["rt"] for r in got))
+    return rows
+
+
+def recorded(directory: Path, states: np.ndarray, references: np.ndarray) -> dict:
+    """The closed loop's states and references kept beside the controller, for `timed`."""
     np.save(directory / "states.npy", states)
     np.save(directory / "references.npy", references)
-    runs = [json.loads(subprocess.run([sys.executable, "-c", _PHASES, str(directory)], capture_output=True, text=True,
-                                      check=True, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"}
-                                      ).stdout.strip().splitlines()[-1]) for _ in range(RUNS)]
-    return {**{key: min(r[key] for r in runs) for key in runs[0] if key != "rt"}, "rt": all(r["rt"] for r in runs)}
+    return {"_dir": str(directory)}
 
 
 def generated(p, out: Path, blasfeo: str = "") -> float:
@@ -108,10 +126,9 @@ def case(p, work: Path, log=print, blasfeo: str = "") -> dict:
     res = closed_loop(p, out, duration=1.0, log=lambda m: None, traces=traces)["MPC (C)"]
     states, refs = traces["MPC (C)"]["x"], traces["MPC (C)"]["reference"]
     row = {"qp": p.qp, "N": p.horizon, "threads": p.threads, "build_s": built, "c_mb": sum(f.stat().st_size for f in out.glob("*.c")) / 1e6,
-           "max_error": res["max_error"], "blasfeo": blasfeo, **phases(out, states, refs)}
+           "max_error": res["max_error"], "blasfeo": blasfeo, **recorded(out, states, refs)}
     log(f"  {p.qp} N = {p.horizon}, {p.threads} thread(s){' (BLASFEO for this CPU)' if blasfeo else ''}: built in {built:.0f} s "
-        f"({row['c_mb']:.1f} MB of C), step {row['step_us']:.0f} us, feedback {row['feedback_us']:.0f} us, "
-        f"tracking {row['max_error']:.2e} rad")
+        f"({row['c_mb']:.1f} MB of C), tracking {row['max_error']:.2e} rad")
     return row
 
 
@@ -126,9 +143,9 @@ def task_space(work: Path, log=print, blasfeo: str = "", threads: int = 1) -> di
     traces: dict = {}
     res = task_closed_loop(p, out, log=lambda m: None, traces=traces)
     row = {"N": p.horizon, "threads": threads, "build_s": built, "max_error": res["max_error"], "blasfeo": blasfeo,
-           "qp": json.loads((out / "manifest.json").read_text())["qp"], **phases(out, traces["x"], traces["reference"])}
-    log(f"  task space N = {p.horizon}, {threads} thread(s){' (BLASFEO for this CPU)' if blasfeo else ''}: step {row['step_us']:.0f} us, "
-        f"feedback {row['feedback_us']:.0f} us, the hand within {row['max_error'] * 1e3:.1f} mm")
+           "qp": json.loads((out / "manifest.json").read_text())["qp"], **recorded(out, traces["x"], traces["reference"])}
+    log(f"  task space N = {p.horizon}, {threads} thread(s){' (BLASFEO for this CPU)' if blasfeo else ''}: "
+        f"the hand within {row['max_error'] * 1e3:.1f} mm")
     return row
 
 
@@ -171,18 +188,22 @@ def main():
     print("task space ...", flush=True)
     tasks = [task_space(work, blasfeo=b, threads=t) for b in [""] + ([tuned] if tuned else []) for t in (1, 2)]
     light = light_wrist(work)
+    label = lambda r: (r["qp"] + (f", {r['threads']} threads" if r["threads"] > 1 else "")
+                       + (", BLASFEO for this CPU" if r["blasfeo"] else ""))
+    timed(rows + tasks)
+    for r in rows + tasks:
+        print(f"  {label(r)}{'' if r in rows else ', task space'}, N = {r['N']}: step {r['step_us']:.0f} us, "
+              f"feedback {r['feedback_us']:.0f} us", flush=True)
     md = ["# The Panda's MPC over the horizon", "", stamp(), "",
           "`python benchmarks/bench_mpc_horizon.py`: `problems/mpc_panda.toml` with N intervals of 10 ms (2 RK4 "
           "steps each), the real-time iteration, 10 interior-point iterations of either QP, `--opt=-O3 --native`; "
           "times in C, medians over the 1000 samples of a 1 s closed loop's states (quantised encoders, a 20 % "
-          "heavier last link), each the best of 3 fresh processes' medians, the step's 99.9th percentile, and the feedback alone (mpc_feedback after "
+          "heavier last link), each the best of 3 fresh processes' medians (three rounds over all the controllers, minutes apart), the step's 99.9th percentile, and the feedback alone (mpc_feedback after "
           "mpc_prepare: the measurement-to-torque latency). The timing processes ran "
           + ("under SCHED_FIFO (priority 50) with their memory locked" if all(r["rt"] for r in rows + tasks) else
              "under the default scheduler (SCHED_FIFO and mlockall not permitted here)") + ".", "",
           "| QP | N | generate + compile, empty cache (s) | C (MB) | step median (us) | step 99.9 % (us) | feedback (us) | "
           "tracking (rad) |", "|---|---|---|---|---|---|---|---|"]
-    label = lambda r: (r["qp"] + (f", {r['threads']} threads" if r["threads"] > 1 else "")
-                       + (", BLASFEO for this CPU" if r["blasfeo"] else ""))
     for r in rows:
         md.append(f"| {label(r)} | {r['N']} | {r['build_s']:.0f} | {r['c_mb']:.1f} | {r['step_us']:.0f} | "
                   f"{r['step_p999_us']:.0f} | {r['feedback_us']:.0f} | {r['max_error']:.2e} |")
