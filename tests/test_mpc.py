@@ -178,6 +178,7 @@ def test_the_riccati_preparation_on_threads_changes_no_torque(arm3, tmp_path):
     assert json.loads((tmp_path / "t3" / "manifest.json").read_text())["threads"] == 3
     assert b"GOMP_parallel" in (tmp_path / "t3" / "librscasadi_mpc.so").read_bytes()
     assert b"GOMP_parallel" not in (tmp_path / "t1" / "librscasadi_mpc.so").read_bytes()
+    assert "#define BLOCKS_APART 1" in (tmp_path / "t3" / "rscasadi_mpc.c").read_text()   # the blocks on threads too
     from rscasadi.ocp.fatrop.driver import casadi_dir
     strict = subprocess.run(["cc", "-std=c99", "-fopenmp", "-Wall", "-Wextra", "-Werror", "-pedantic", "-c",
                              str(tmp_path / "t3" / "rscasadi_mpc.c"), f"-I{tmp_path / 't3'}", f"-I{casadi_dir() / 'include'}",
@@ -200,6 +201,27 @@ def test_the_riccati_preparation_on_threads_changes_no_torque(arm3, tmp_path):
     with pytest.raises(ModelFileError, match=r"field 'threads': 2 threads need the Riccati QP"):
         M.generate_mpc(dataclasses.replace(p, qp="condensed", threads=2), tmp_path / "no", log=lambda m: None)
     assert not (tmp_path / "no").exists()
+
+
+def test_the_blocks_share_the_threads_only_with_the_hpipm_they_were_written_for(tmp_path, monkeypatch):
+    """rscasadi_mpc.c's `condense` calls HPIPM's per-block routines as CasADi's HPIPM declares
+    them; a header that declares them otherwise (a later HPIPM's d_cond_DCtd takes an m2) or
+    none leaves the blocks to HPIPM's own loop (BLOCKS_APART 0) instead of a build failure."""
+    import shutil
+    from rscasadi.mpc import generate as G
+    from rscasadi.ocp.fatrop import driver
+    real = driver.casadi_dir()
+    assert G.hpipm_blocks_apart()
+    (tmp_path / "include").mkdir()
+    header = (real / "include" / "hpipm_d_cond_aux.h").read_text()
+    later = header.replace("struct blasfeo_dvec *d_mask2, int *idxs_rev2", "struct blasfeo_dvec *d_mask2, struct blasfeo_dvec *m2, int *idxs_rev2")
+    assert later != header
+    (tmp_path / "include" / "hpipm_d_cond_aux.h").write_text(later)
+    monkeypatch.setattr(driver, "casadi_dir", lambda: tmp_path)
+    assert not G.hpipm_blocks_apart()
+    (tmp_path / "include" / "hpipm_d_cond_aux.h").unlink()
+    assert not G.hpipm_blocks_apart()
+    shutil.rmtree(tmp_path / "include")
 
 
 def test_the_riccati_controller_links_the_users_blasfeo_or_refuses_it(arm3, tmp_path, monkeypatch):

@@ -105,6 +105,30 @@ def hpipm_flags() -> tuple[list, list]:
     return [f"-I{inc}"], [f"-L{lib}", "-lhpipm", "-lblasfeo", f"-Wl,-rpath,{lib}"]
 
 
+# HPIPM's per-block condensing as rscasadi_mpc.c's `condense` calls it (the HPIPM CasADi 3.6-3.7
+# installs; a later HPIPM added an argument): anything else, and the blocks are condensed by
+# HPIPM's own loop on the calling thread
+_BLOCK_ROUTINES = (
+    "void d_cond_BAbt(struct d_ocp_qp *ocp_qp, struct blasfeo_dmat *BAbt2, struct blasfeo_dvec *b, "
+    "struct d_cond_qp_arg *cond_arg, struct d_cond_qp_ws *cond_ws);",
+    "void d_cond_RSQrq(struct d_ocp_qp *ocp_qp, struct blasfeo_dmat *RSQrq2, struct blasfeo_dvec *rq, "
+    "struct d_cond_qp_arg *cond_arg, struct d_cond_qp_ws *cond_ws);",
+    "void d_cond_DCtd(struct d_ocp_qp *ocp_qp, int *idxb2, struct blasfeo_dmat *DCt2, struct blasfeo_dvec *d2, "
+    "struct blasfeo_dvec *d_mask2, int *idxs_rev2, struct blasfeo_dvec *Z2, struct blasfeo_dvec *z, "
+    "struct d_cond_qp_arg *cond_arg, struct d_cond_qp_ws *cond_ws);")
+
+
+def hpipm_blocks_apart() -> bool:
+    """Whether this CasADi's HPIPM declares the per-block condensing routines as the controller
+    calls them (its header, whitespace aside), so the threads can share the blocks."""
+    from rscasadi.ocp.fatrop.driver import casadi_dir
+    try:
+        text = " ".join((casadi_dir() / "include" / "hpipm_d_cond_aux.h").read_text().split())
+    except OSError:
+        return False
+    return all(" ".join(r.split()) in text for r in _BLOCK_ROUTINES)
+
+
 def riccati_blasfeo() -> tuple[list, dict, str]:
     """The BLASFEO a Riccati controller's HPIPM calls, as rscasadi.ocp.fatrop.blasfeo chooses it
     for fatrop: the link arguments that go first, the sources to add and what it is.  By default
@@ -267,7 +291,8 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
                 mass_index=free.index("payload.mass") if "payload.mass" in free else -1, **boxes(guard),
                 nprepared=len(prepared), prep_offsets=", ".join(str(o) for o in offsets), nr=nr, na=na,
                 w_tau=repr(float(p.weights["tau"])), shift=repr(p.sample_time / p.interval),
-                qp_iterations=p.qp_iterations, blocks=riccati_blocks(p.horizon, 4 * n, n))
+                qp_iterations=p.qp_iterations, blocks=riccati_blocks(p.horizon, 4 * n, n),
+                blocks_apart=int(qp == "riccati" and p.threads > 1 and hpipm_blocks_apart()))
     manifest = {"model": str(p.model), "problem": None if p.path is None else str(p.path),
                 "api": {"sizeof": [], "init": ["c", "x_measured"], "init_parameters": ["c", "x_measured", "p"],
                         "step": ["c", "x_measured", "reference", "tau_out"],

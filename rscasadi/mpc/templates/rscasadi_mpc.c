@@ -359,9 +359,11 @@ static int riccati_interval(${sym}_t *c, hpipm_t *h, int k, const double *refere
 
 /* the blocks' dense QPs from the intervals' (d_part_cond_qp_cond's loop): each block condensed
  * on its own, with its own workspace, so the blocks share the threads.  Block b sees the stages
- * from its first interval on, as HPIPM's loop shows them to d_cond_*; on one thread, HPIPM's */
+ * from its first interval on, as HPIPM's loop shows them to d_cond_*; on one thread, or where
+ * this HPIPM's routines are not the ones called here (BLOCKS_APART 0), HPIPM's own loop */
+#define BLOCKS_APART ${blocks_apart}
 static void condense(hpipm_t *h) {
-#if ${SYM}_THREADS > 1 && defined(_OPENMP)
+#if ${SYM}_THREADS > 1 && defined(_OPENMP) && BLOCKS_APART
   struct d_ocp_qp *q = &h->qp, *out = &h->bqp;
   int first[NB + 1], s = 0, bad = 0;
   for (int b = 0; b <= NB; ++b) {
