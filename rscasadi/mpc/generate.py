@@ -105,7 +105,7 @@ def hpipm_flags() -> tuple[list, list]:
     return [f"-I{inc}"], [f"-L{lib}", "-lhpipm", "-lblasfeo", f"-Wl,-rpath,{lib}"]
 
 
-# HPIPM's per-block condensing as rscasadi_mpc.c's `condense` calls it (the HPIPM CasADi 3.6-3.7
+# HPIPM's per-block condensing as rscasadi_mpc.c's `condense` calls it (the HPIPM CasADi 3.8.2
 # installs; a later HPIPM added an argument): anything else, and the blocks are condensed by
 # HPIPM's own loop on the calling thread
 _BLOCK_ROUTINES = (
