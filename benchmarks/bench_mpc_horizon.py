@@ -10,12 +10,16 @@
    and the table), its phases timed along its closed loop on the shelf motion (as modelled);
    At N = 10 and 20 and in task space the Riccati controller is also run with threads = 2 (its
    preparation's loops over the intervals on both cores, OpenMP);
-3. the Panda with a last link 50 times lighter, problems/mpc_panda.toml's settings untouched:
+3. a second 7-joint arm, Baxter's left arm from its whole-robot URDF (common.baxter_model), on a
+   motion of the Panda's form within its ranges (common.baxter_trajectory): problems/mpc_panda.toml's
+   settings with N = 10 and 20 intervals of 10 ms and substeps = auto, the Riccati QP, timed as
+   the Panda's;
+4. the Panda with a last link 50 times lighter, problems/mpc_panda.toml's settings untouched:
    integrator = auto takes ROS2 (RK4 would need more substeps than it allows), every step finite.
 
 With RSCASADI_BENCH_BLASFEO=/path/to/libblasfeo.so (a BLASFEO built for this CPU, e.g.
 `git clone https://github.com/giaf/blasfeo && make -C blasfeo shared_library TARGET=X64_INTEL_HASWELL`)
-the Riccati rows at N = 10 and 20 and the task-space row are also run linked to it
+the Riccati rows at N = 10 and 20 (both arms) and the task-space row are also run linked to it
 (RSCASADI_BLASFEO, rscasadi.mpc.generate.riccati_blasfeo); without it, the CasADi wheel's BLASFEO
 with the controller's vector kernels only.
 
@@ -33,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common import stamp, RESULTS, ROOT  # noqa: E402
+from common import baxter_trajectory, stamp, RESULTS, ROOT  # noqa: E402
 from rscasadi.mpc import closed_loop, generate_mpc, load_mpc_problem, task_closed_loop  # noqa: E402
 from rscasadi.mpc.problem import with_integrator  # noqa: E402
 from rscasadi.dynamics.arm import Arm, load  # noqa: E402
@@ -118,16 +122,16 @@ def generated(p, out: Path, blasfeo: str = "") -> float:
     return time.perf_counter() - t0
 
 
-def case(p, work: Path, log=print, blasfeo: str = "") -> dict:
+def case(p, work: Path, log=print, blasfeo: str = "", arm: str = "panda") -> dict:
     """Generate, run the closed loop (1 s, traced), then time the phases along its states."""
-    out = work / f"{p.qp}_{p.horizon}_t{p.threads}{'_blasfeo' if blasfeo else ''}"
+    out = work / f"{arm}_{p.qp}_{p.horizon}_t{p.threads}{'_blasfeo' if blasfeo else ''}"
     built = generated(p, out, blasfeo)
     traces: dict = {}
     res = closed_loop(p, out, duration=1.0, log=lambda m: None, traces=traces)["MPC (C)"]
     states, refs = traces["MPC (C)"]["x"], traces["MPC (C)"]["reference"]
     row = {"qp": p.qp, "N": p.horizon, "threads": p.threads, "build_s": built, "c_mb": sum(f.stat().st_size for f in out.glob("*.c")) / 1e6,
            "max_error": res["max_error"], "blasfeo": blasfeo, **recorded(out, states, refs)}
-    log(f"  {p.qp} N = {p.horizon}, {p.threads} thread(s){' (BLASFEO for this CPU)' if blasfeo else ''}: built in {built:.0f} s "
+    log(f"  {arm}: {p.qp} N = {p.horizon}, {p.threads} thread(s){' (BLASFEO for this CPU)' if blasfeo else ''}: built in {built:.0f} s "
         f"({row['c_mb']:.1f} MB of C), tracking {row['max_error']:.2e} rad")
     return row
 
@@ -147,6 +151,22 @@ def task_space(work: Path, log=print, blasfeo: str = "", threads: int = 1) -> di
     log(f"  task space N = {p.horizon}, {threads} thread(s){' (BLASFEO for this CPU)' if blasfeo else ''}: "
         f"the hand within {row['max_error'] * 1e3:.1f} mm")
     return row
+
+
+def second_arm(work: Path, tuned: str, log=print) -> tuple[list, object]:
+    """Baxter's left arm (module docstring, 3.): the Riccati controller at N = 10 and 20 on one
+    thread, and on two linked to the CPU's BLASFEO where given; the rows and the settled problem."""
+    model = baxter_trajectory(work)
+    p = dataclasses.replace(load_mpc_problem(PROBLEM), model=model.with_name("baxter_sea.toml"), trajectory=model,
+                            interval=0.01, substeps="auto", qp="riccati")
+    settled = with_integrator(p, Arm(load(p.model).model))
+    rows = []
+    for N in (10, 20):
+        log(f"Baxter's left arm, N = {N} ...")
+        rows.append(case(dataclasses.replace(p, horizon=N), work, log, arm="baxter"))
+        if tuned:
+            rows.append(case(dataclasses.replace(p, horizon=N, threads=2), work, log, blasfeo=tuned, arm="baxter"))
+    return rows, settled
 
 
 def light_wrist(work: Path, log=print) -> dict:
@@ -187,11 +207,12 @@ def main():
                              for t in (1, 2)]
     print("task space ...", flush=True)
     tasks = [task_space(work, blasfeo=b, threads=t) for b in [""] + ([tuned] if tuned else []) for t in (1, 2)]
+    baxter, settled = second_arm(work, tuned)
     light = light_wrist(work)
     label = lambda r: (r["qp"] + (f", {r['threads']} threads" if r["threads"] > 1 else "")
                        + (", BLASFEO for this CPU" if r["blasfeo"] else ""))
-    timed(rows + tasks)
-    for r in rows + tasks:
+    timed(rows + tasks + baxter)
+    for r in rows + tasks + baxter:
         print(f"  {label(r)}{'' if r in rows else ', task space'}, N = {r['N']}: step {r['step_us']:.0f} us, "
               f"feedback {r['feedback_us']:.0f} us", flush=True)
     md = ["# The Panda's MPC over the horizon", "", stamp(), "",
@@ -200,7 +221,7 @@ def main():
           "times in C, medians over the 1000 samples of a 1 s closed loop's states (quantised encoders, a 20 % "
           "heavier last link), each the best of 3 fresh processes' medians (three rounds over all the controllers, minutes apart), the step's 99.9th percentile, and the feedback alone (mpc_feedback after "
           "mpc_prepare: the measurement-to-torque latency). The timing processes ran "
-          + ("under SCHED_FIFO (priority 50) with their memory locked" if all(r["rt"] for r in rows + tasks) else
+          + ("under SCHED_FIFO (priority 50) with their memory locked" if all(r["rt"] for r in rows + tasks + baxter) else
              "under the default scheduler (SCHED_FIFO and mlockall not permitted here)") + ".", "",
           "| QP | N | generate + compile, empty cache (s) | C (MB) | step median (us) | step 99.9 % (us) | feedback (us) | "
           "tracking (rad) |", "|---|---|---|---|---|---|---|---|"]
@@ -225,10 +246,26 @@ def main():
     targets = [("joint space, N = 10, step", best("step_us", 10), 400), ("joint space, N = 10, feedback",
                best("feedback_us", 10), 100), ("joint space, N = 20, step", best("step_us", 20), 800),
                ("task space, N = 10, step", min(r["step_us"] for r in tasks), 600)]
+    fastest = lambda N: min((r for r in baxter if r["N"] == N), key=lambda r: r["step_us"])
+    targets += [("Baxter's left arm, joint space, N = 10, step", fastest(10)["step_us"], 400),
+                ("Baxter's left arm, joint space, N = 10, feedback", fastest(10)["feedback_us"], 100),
+                ("Baxter's left arm, joint space, N = 20, step", fastest(20)["step_us"], 800)]
     md += ["", "## Targets (medians, the best row of this run: BLASFEO, threads)", "", "| | measured (us) | target (us) | |",
            "|---|---|---|---|"]
     md += [f"| {what} | {v:.0f} | < {goal} | {'met' if v < goal else f'missed by {v / goal:.1f}x'} |"
            for what, v, goal in targets]
+    md[md.index("## Targets (medians, the best row of this run: BLASFEO, threads)"):
+       md.index("## Targets (medians, the best row of this run: BLASFEO, threads)")] = [
+        "## A second 7-joint arm: Baxter's left arm", "",
+        "Baxter's left arm from its whole-robot URDF (`tests/data/baxter_description`) with an FS-SEA in every "
+        "joint (`benchmarks/common.py`, as in `bench_tasks.md`), `problems/mpc_panda.toml`'s settings with N "
+        f"intervals of 10 ms and substeps = auto ({settled.integrator} x {settled.substeps} per interval), on a motion "
+        "of the Panda's form from Baxter's neutral pose (the hand sweeps about 0.4 m; a 20 % heavier last link), "
+        "timed as above.", "",
+        "| arm | QP | N | generate + compile, empty cache (s) | step median (us) | step 99.9 % (us) | feedback (us) | "
+        "tracking (rad) |", "|---|---|---|---|---|---|---|---|",
+        *[f"| Baxter's left arm | {label(r)} | {r['N']} | {r['build_s']:.0f} | {r['step_us']:.0f} | "
+          f"{r['step_p999_us']:.0f} | {r['feedback_us']:.0f} | {r['max_error']:.2e} |" for r in baxter], ""]
     md += ["", "## A light wrist", "",
            f"The Panda with its last link {1 / LIGHT:g} times lighter, `problems/mpc_panda.toml`'s settings: the "
            f"integrator `auto` took {light['integrator']} with {light['substeps']} substeps per 20 ms interval; every "

@@ -24,31 +24,14 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from common import stamp, ROOT, solve_in_child, write_results  # noqa: E402
-from rscasadi.model.modelfile import to_toml  # noqa: E402
-
-BAXTER_URDF = ROOT / "tests" / "data" / "baxter_description" / "urdf" / "baxter.urdf"
-LEFT = ["left_s0", "left_s1", "left_e0", "left_e1", "left_w0", "left_w1", "left_w2"]
+from common import baxter_model, stamp, ROOT, solve_in_child, write_results  # noqa: E402
 
 
 def baxter_task(directory: Path) -> Path:
-    """Baxter's left arm with an FS-SEA in every joint (100 / 30 N m at the link; the rest of the
-    robot held still) moving a 1 kg part from its neutral pose to a pose 0.4 m away, the gripper
-    pointing down, over a ball and above a table: the model and problem files, written into
-    `directory`; the problem's path."""
-    joints = []
-    for k, name in enumerate(LEFT):
-        big = k < 4
-        rotor = lambda m, i: {"mass": m, "com": [0.0, 0.0, 0.0], "inertia": [i, i, 1.6 * i, 0.0, 0.0, 0.0]}  # noqa: E731
-        joints.append({"name": name, "gear_ratio": 100.0, "sea": {"k1": 3000.0 if big else 800.0, "d": 3.0 if big else 0.8},
-                       "gear_loss": {"b": 1.0}, "limits": {"tau": 1.0 if big else 0.3, "dphi": 2.0, "psi": 0.1},
-                       "slow_rotor": rotor(0.3, 2e-4), "fast_rotor": rotor(0.2, 1.5e-5)})
-    model = {"name": "baxter-left-sea", "urdf": str(BAXTER_URDF), "tip": "left_gripper",
-             "collision": {"margin": 0.02, "tip": "left_gripper",
-                           "links": {"left_lower_shoulder": 0.08, "left_lower_elbow": 0.07, "left_lower_forearm": 0.06,
-                                     "left_wrist": 0.05}},
-             "joints": joints}
-    (directory / "baxter_sea.toml").write_text(to_toml(model))
+    """Baxter's left arm (common.baxter_model) moving a 1 kg part from its neutral pose to a pose
+    0.4 m away, the gripper pointing down, over a ball and above a table: the model and problem
+    files, written into `directory`; the problem's path."""
+    baxter_model(directory)
     (directory / "ocp_baxter_shelf.toml").write_text(BAXTER_TASK)
     return directory / "ocp_baxter_shelf.toml"
 

@@ -21,7 +21,7 @@ sys.path.insert(0, str(ROOT))
 
 import rscasadi  # noqa: E402
 from rscasadi.files import run_stamp  # noqa: E402
-from rscasadi.model.modelfile import parse  # noqa: E402
+from rscasadi.model.modelfile import parse, to_toml  # noqa: E402
 
 RESULTS = ROOT / "results"
 
@@ -120,3 +120,40 @@ def solve_in_child(problem: Path, cache=None) -> dict:
     if run.returncode != 0:
         raise RuntimeError(f"{problem.name}: {run.stderr[-2000:]}")
     return json.loads(run.stdout.strip().splitlines()[-1])
+
+
+BAXTER_URDF = ROOT / "tests" / "data" / "baxter_description" / "urdf" / "baxter.urdf"
+LEFT = ["left_s0", "left_s1", "left_e0", "left_e1", "left_w0", "left_w1", "left_w2"]
+BAXTER_NEUTRAL = [0.0, -0.55, 0.0, 0.75, 0.0, 1.26, 0.0]
+
+
+def baxter_model(directory: Path) -> Path:
+    """Baxter's left arm from its whole-robot URDF (tests/data/baxter_description, as
+    example-robot-data ships it) with an FS-SEA in every joint (100 / 30 N m at the link; the rest
+    of the robot held still) and capsules round its forearm and wrist: baxter_sea.toml written
+    into `directory`; its path.  The second 7-joint arm of the benchmarks."""
+    joints = []
+    for k, name in enumerate(LEFT):
+        big = k < 4
+        rotor = lambda m, i: {"mass": m, "com": [0.0, 0.0, 0.0], "inertia": [i, i, 1.6 * i, 0.0, 0.0, 0.0]}  # noqa: E731
+        joints.append({"name": name, "gear_ratio": 100.0, "sea": {"k1": 3000.0 if big else 800.0, "d": 3.0 if big else 0.8},
+                       "gear_loss": {"b": 1.0}, "limits": {"tau": 1.0 if big else 0.3, "dphi": 2.0, "psi": 0.1},
+                       "slow_rotor": rotor(0.3, 2e-4), "fast_rotor": rotor(0.2, 1.5e-5)})
+    model = {"name": "baxter-left-sea", "urdf": str(BAXTER_URDF), "tip": "left_gripper",
+             "collision": {"margin": 0.02, "tip": "left_gripper",
+                           "links": {"left_lower_shoulder": 0.08, "left_lower_elbow": 0.07, "left_lower_forearm": 0.06,
+                                     "left_wrist": 0.05}},
+             "joints": joints}
+    (directory / "baxter_sea.toml").write_text(to_toml(model))
+    return directory / "baxter_sea.toml"
+
+
+def baxter_trajectory(directory: Path) -> Path:
+    """A motion of Baxter's left arm of the form of problems/trajectory_panda.toml, from its neutral
+    pose and back within its joint ranges (the hand sweeps about 0.4 m), with baxter_model's file:
+    trajectory_baxter.toml written into `directory`; its path."""
+    baxter_model(directory)
+    (directory / "trajectory_baxter.toml").write_text(to_toml({
+        "model": "baxter_sea.toml", "period": 2.0, "duration": 2.0, "start": BAXTER_NEUTRAL,
+        "amplitude": [0.4, 0.2, 0.0, 0.3, 0.0, -0.3, 0.0]}))
+    return directory / "trajectory_baxter.toml"
