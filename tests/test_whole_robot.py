@@ -235,3 +235,29 @@ name = "ipopt"
                  "--rate", "200", "--perturb", "3"]) in (0, None)
     assert main(["identify", str(model), str(tmp_path / "log.csv"), "--out", str(tmp_path / "ident")]) in (0, None)
     assert rscasadi.load(tmp_path / "ident" / "model.toml").n == 7
+
+
+def test_the_mpc_runs_a_whole_robots_arm_with_its_default_settings(tmp_path):
+    """`rscasadi mpc` on Baxter's left arm from its whole-robot URDF (the actuator table alone) with
+    a problem file that names only the model, the motion and the horizon (10 intervals of 10 ms:
+    the Riccati QP, the integrator and substeps from the arm's spring modes): on the plant with a
+    20 % heavier last link, through quantised encoders, every step finite and within the limits,
+    and at least 10x closer than feedforward + motor PD."""
+    from rscasadi.cli import main
+    from rscasadi.mpc import closed_loop
+    doc = sidecar()
+    for k, jt in enumerate(doc["joints"]):
+        jt["limits"]["tau"] = 1.0 if k < 4 else 0.3
+    write(tmp_path, doc, "baxter_sea.toml")
+    (tmp_path / "motion.toml").write_text('model = "baxter_sea.toml"\nperiod = 2.0\nduration = 2.0\n'
+                                          'start = [0.0, -0.55, 0.0, 0.75, 0.0, 1.26, 0.0]\n'
+                                          'amplitude = [0.4, 0.2, 0.0, 0.3, 0.0, -0.3, 0.0]\n')
+    problem = tmp_path / "mpc.toml"
+    problem.write_text('model = "baxter_sea.toml"\ntrajectory = "motion.toml"\nhorizon = 10\ninterval = 0.01\n')
+    assert main(["mpc", str(problem), "--out", str(tmp_path / "c"), "--opt=-O1"]) in (0, None)
+    manifest = (tmp_path / "c" / "manifest.json").read_text()
+    assert '"qp": "riccati"' in manifest, manifest
+    res = closed_loop(problem, tmp_path / "c", duration=0.3, log=lambda m: None)
+    mpc, pd = res["MPC (C)"], res["feedforward + PD"]
+    assert mpc["max_limit_violation"] == 0.0 and np.isfinite(mpc["max_error"])
+    assert mpc["max_error"] < pd["max_error"] / 10, (mpc["max_error"], pd["max_error"])
