@@ -9,6 +9,16 @@ ignored and the loops run serially: same results, one core.
 GNU OpenMP's thread pool does not survive fork(): a child forked after a loop on more than one
 thread hangs in its own next loop on more than one (measured; on one thread it runs).  So such a
 child runs its loops on one thread, whatever it asks for (with a warning).
+
+Between loops GNU OpenMP's idle threads spin GOMP_SPINCOUNT times before they sleep: 300 000 by
+default, milliseconds of a core, and a thread that waits at a loop's end for a thread the system
+has descheduled spins as long.  A solver's loops come every few milliseconds with serial work
+between them, so on a machine with one core busy elsewhere the Panda's minimum-time solve on two
+threads took 3.8-4.0 s against 2.0-2.3 s with 10 000 spins (and 2.0-2.2 s on one thread); on a
+quiet machine 1.3-1.5 s either way (2026-11-27, 2-core Xeon VM).  So where this process loads
+GNU OpenMP (`set_threads`), it does so with SPIN_COUNT spins unless the user set GOMP_SPINCOUNT or
+OMP_WAIT_POLICY; the variable is read once, at the load, and is not left in the environment.  A
+process that loaded GNU OpenMP before (a threaded MPC controller's library) keeps its setting.
 """
 from __future__ import annotations
 
@@ -43,15 +53,25 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
+SPIN_COUNT = "10000"        # GOMP_SPINCOUNT at the load: tens of microseconds, then the threads sleep
+
+
 @functools.lru_cache(maxsize=None)
 def _runtime():
     name = ctypes.util.find_library("gomp")
-    for candidate in ([name] if name else []) + ["libgomp.so.1"]:
-        try:
-            return ctypes.CDLL(candidate)
-        except OSError:
-            continue
-    return None
+    ours = not ({"GOMP_SPINCOUNT", "OMP_WAIT_POLICY"} & set(os.environ))
+    if ours:
+        os.environ["GOMP_SPINCOUNT"] = SPIN_COUNT
+    try:
+        for candidate in ([name] if name else []) + ["libgomp.so.1"]:
+            try:
+                return ctypes.CDLL(candidate)
+            except OSError:
+                continue
+        return None
+    finally:
+        if ours:
+            os.environ.pop("GOMP_SPINCOUNT", None)
 
 
 _state = {"pool": False, "forked": False}     # this process asked for > 1 thread; forked after that
