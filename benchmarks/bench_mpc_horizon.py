@@ -23,7 +23,7 @@ the Riccati rows at N = 10 and 20 (both arms) and the task-space row are also ru
 (RSCASADI_BLASFEO, rscasadi.mpc.generate.riccati_blasfeo); without it, the CasADi wheel's BLASFEO
 with the controller's vector kernels only.
 
-    python benchmarks/bench_mpc_horizon.py      # writes results/bench_mpc_horizon.md (about 20 min,
+    python benchmarks/bench_mpc_horizon.py      # writes results/bench_mpc_horizon.md (about 35 min,
                                                 # every build from an empty cache)
 """
 import dataclasses
