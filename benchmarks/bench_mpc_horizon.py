@@ -262,7 +262,7 @@ def main():
                 ("Baxter's left arm, joint space, N = 20, step", fastest(20)["step_us"], 800)]
     md += ["", "## Targets (medians, the best row of this run: BLASFEO, threads)", "", "| | measured (us) | target (us) | |",
            "|---|---|---|---|"]
-    md += [f"| {what} | {v:.0f} | < {goal} | {'met' if v < goal else f'missed by {v / goal:.1f}x'} |"
+    md += [f"| {what} | {v:.0f} | < {goal} | {'met' if v < goal else f'missed by {v / goal:.2f}x'} |"
            for what, v, goal in targets]
     md += ["", "## A light wrist", "",
            f"The Panda with its last link {1 / LIGHT:g} times lighter, `problems/mpc_panda.toml`'s settings: the "
