@@ -243,6 +243,8 @@ def test_the_mpc_runs_a_whole_robots_arm_with_its_default_settings(tmp_path):
     the Riccati QP, the integrator and substeps from the arm's spring modes): on the plant with a
     20 % heavier last link, through quantised encoders, every step finite and within the limits,
     and at least 10x closer than feedforward + motor PD."""
+    import json
+
     from rscasadi.cli import main
     from rscasadi.mpc import closed_loop
     doc = sidecar()
@@ -255,8 +257,8 @@ def test_the_mpc_runs_a_whole_robots_arm_with_its_default_settings(tmp_path):
     problem = tmp_path / "mpc.toml"
     problem.write_text('model = "baxter_sea.toml"\ntrajectory = "motion.toml"\nhorizon = 10\ninterval = 0.01\n')
     assert main(["mpc", str(problem), "--out", str(tmp_path / "c"), "--opt=-O1"]) in (0, None)
-    manifest = (tmp_path / "c" / "manifest.json").read_text()
-    assert '"qp": "riccati"' in manifest, manifest
+    manifest = json.loads((tmp_path / "c" / "manifest.json").read_text())
+    assert manifest["qp"] == "riccati", manifest["qp"]
     res = closed_loop(problem, tmp_path / "c", duration=0.3, log=lambda m: None)
     mpc, pd = res["MPC (C)"], res["feedforward + PD"]
     assert mpc["max_limit_violation"] == 0.0 and np.isfinite(mpc["max_error"])
