@@ -125,6 +125,26 @@ def test_minimum_time_around_an_obstacle_keeps_its_margin(capsule_arm, tmp_path)
     assert all(float(gap(th)) >= -1e-9 for th in sol.theta.T)         # at the nodes too, exactly
 
 
+def test_the_guess_around_an_obstacle_moves_from_rest_to_rest(capsule_arm):
+    """The first guess around an obstacle follows the clear path from the start pose to the end
+    pose at rest at both ends, as the start and end rows ask: no speed at the first and last
+    nodes, the fastest between them."""
+    from rscasadi.ocp.problem import Obstacle
+    from rscasadi.ocp.solving import _around_obstacles
+    arm = rscasadi.load(capsule_arm)
+    th0, th1 = np.array([0.0, 0.3, -0.5]), np.array([0.8, 0.9, -1.2])
+    obstacle = Obstacle("sphere", np.array(arm.frame_placement("tool")((th0 + th1) / 2)[1]).ravel(), 0.05)
+    task = Problem(Task(capsule_arm, "min_time", duration=1.0, theta_start=th0, theta_end=th1, obstacles=(obstacle,)),
+                   TranscriptionOptions(intervals=40))
+    t = np.linspace(0.0, 1.0, 41)
+    Xs, _, U = _around_obstacles(task, arm, t, (t[:-1] + t[1:]) / 2)
+    n = arm.n
+    assert np.allclose(Xs[:n, 0], th0) and np.allclose(Xs[:n, -1], th1)
+    speed = np.abs(Xs[2 * n:]).max(axis=0)
+    assert speed.max() > 0.5 and speed[0] < 0.01 * speed.max() and speed[-1] < 0.01 * speed.max()
+    assert speed.argmax() not in (0, len(t) - 1) and U.shape == (n, 40) and np.all(np.isfinite(U))
+
+
 def test_the_box_distance_is_conservative_and_close():
     """The optimiser's smooth distance to a box never exceeds the exact one outside the box and
     is <= 0 inside (so a positive clearance for the optimiser is a true one), and is within a
