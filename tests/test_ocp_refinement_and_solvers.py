@@ -67,6 +67,28 @@ def test_rest_to_rest_default_tolerances_are_tight():
     assert p.verification.final_angle_tol == 1e-4 and p.verification.final_speed_tol == 1e-3
 
 
+def test_a_miss_the_replay_places_is_refined_there_and_beside_it_only(pitch_arm):
+    """When the replay fails only a check it places in intervals (a limit between two nodes, an
+    obstacle's margin), the refinement halves those intervals and their neighbours, not the
+    intervals that carry the local error (that mesh was accurate enough: its end state passed)."""
+    from rscasadi.ocp.solving import refined_mesh
+    p = load_problem(problem(pitch_arm, "located.toml", transcription={"intervals": 10}))
+    w = np.full(10, 0.1)
+    violation = np.zeros(10)
+    violation[4] = 3 * p.verification.limit_tol
+    report = {"max_limit_violation": float(violation.max()), "interval_violation": violation.tolist(),
+              "min_clearance": 0.1, "interval_clearance": np.full(10, 0.1).tolist()}
+    mesh = refined_mesh(p, {"mesh": w}, report)
+    assert np.isclose(mesh.sum(), 1.0) and len(mesh) == 13
+    assert np.allclose(mesh[:3], 0.1) and np.allclose(mesh[3:9], 0.05) and np.allclose(mesh[9:], 0.1)
+    gap = np.full(10, 0.1)
+    gap[0] = -10 * p.verification.clearance_tol                       # into the margin in the first interval
+    report = {"max_limit_violation": 0.0, "interval_violation": np.zeros(10).tolist(),
+              "min_clearance": float(gap.min()), "interval_clearance": gap.tolist()}
+    mesh = refined_mesh(p, {"mesh": w}, report)
+    assert len(mesh) == 12 and np.allclose(mesh[:4], 0.05) and np.allclose(mesh[4:], 0.1)
+
+
 def test_min_effort_reference_problem_passes_after_refinement():
     """Problem (b) at 100 intervals ended with 6e-3 rad/s of SEA ringing; refined, it is at rest."""
     p = load_problem(REFERENCE.parent / "ocp_min_effort.toml").replace(compiled=False, condense=False)

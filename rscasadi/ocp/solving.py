@@ -291,8 +291,8 @@ def goal_configuration(arm: Arm, goal, theta_guess, where) -> np.ndarray:
     return res["theta"]
 
 
-def checks(problem: Problem, report: dict) -> list:
-    """The verification's failures, as readable strings (empty: passed)."""
+def failures(problem: Problem, report: dict) -> dict:
+    """The verification's failures: {check: readable string} (empty: passed)."""
     tols = {"final_angle_error": problem.verification.final_angle_tol, "final_speed_error": problem.verification.final_speed_tol,
             "tracking_error": problem.verification.tracking_tol, "max_limit_violation": problem.verification.limit_tol}
     if problem.task.goal is not None:
@@ -300,10 +300,15 @@ def checks(problem: Problem, report: dict) -> list:
     if problem.task.path is not None:
         tols.update(path_error=problem.task.path.tolerance)
     tols.update({f"term.{t.name}": t.tolerance for t in problem.task.terms if t.constraint})
-    failed = [f"{k} {report[k]:.2e} > {tol:g}" for k, tol in tols.items() if k in report and report[k] > tol]
+    failed = {k: f"{k} {report[k]:.2e} > {tol:g}" for k, tol in tols.items() if k in report and report[k] > tol}
     if report.get("min_clearance", np.inf) < -problem.verification.clearance_tol:
-        failed.append(f"min_clearance {report['min_clearance']:.2e} m < -{problem.verification.clearance_tol:g}")
+        failed["min_clearance"] = f"min_clearance {report['min_clearance']:.2e} m < -{problem.verification.clearance_tol:g}"
     return failed
+
+
+def checks(problem: Problem, report: dict) -> list:
+    """The verification's failures, as readable strings (empty: passed)."""
+    return list(failures(problem, report).values())
 
 
 def local_errors(problem: Problem, solution: dict) -> np.ndarray:
@@ -321,21 +326,37 @@ def local_errors(problem: Problem, solution: dict) -> np.ndarray:
     return np.maximum(err[:2 * n].max(axis=0) / angle_tol, err[2 * n:].max(axis=0) / problem.verification.final_speed_tol)
 
 
-def refined_mesh(problem: Problem, solution: dict, report: dict) -> np.ndarray:
-    """Halve the intervals that carry most of the local error (the largest, until the others sum
-    to at most a quarter of the tolerance) and those where a limit is violated between nodes."""
+# failures the replay places in intervals (a limit, an obstacle's margin, the path), by the
+# report's per-interval list; any other (an end state, the goal, a task term) is the mesh's accuracy
+LOCATED = {"max_limit_violation": "interval_violation", "min_clearance": "interval_clearance",
+           "term.clearance": "interval_clearance", "path_error": "interval_path_error"}
+
+
+def refined_mesh(problem: Problem, solution: dict, report: dict, failed=None) -> np.ndarray:
+    """Halve the intervals where the replay fails a located check (a limit, an obstacle's
+    margin, the path between nodes) and their neighbours; and, if another check failed (the end
+    state, the goal, a task term; or none did), those that carry most of the local error (the
+    largest, until the others sum to at most a quarter of the tolerance).  `failed`: the checks
+    that failed (by default from the report).  Refining for accuracy when only a limit
+    failed spends intervals where nothing failed (Baxter's obstacle task: 168 intervals and 52
+    iterations instead of 109 and 45, T 0.03 % shorter)."""
     w = np.asarray(solution["mesh"])
-    e = local_errors(problem, solution)
-    order = np.argsort(e)[::-1]
-    rest = np.cumsum(e[order][::-1])[::-1]                 # rest[i] = sum of e[order[i:]]
-    count = int(np.searchsorted(-rest, -0.25))              # first i with rest[i] <= 0.25
-    split = np.zeros(len(w), bool)
-    split[order[:max(count, 1)]] = True
-    split |= np.asarray(report["interval_violation"]) > problem.verification.limit_tol
+    failed = set(failures(problem, report) if failed is None else failed)
+    located = np.zeros(len(w), bool)
+    located |= np.asarray(report["interval_violation"]) > problem.verification.limit_tol
     if "interval_clearance" in report:
-        split |= np.asarray(report["interval_clearance"]) < -problem.verification.clearance_tol
+        located |= np.asarray(report["interval_clearance"]) < -problem.verification.clearance_tol
     if "interval_path_error" in report:
-        split |= np.asarray(report["interval_path_error"]) > problem.task.path.tolerance
+        located |= np.asarray(report["interval_path_error"]) > problem.task.path.tolerance
+    split = located.copy()
+    split[1:] |= located[:-1]
+    split[:-1] |= located[1:]
+    if not failed or failed - set(LOCATED) or not located.any():
+        e = local_errors(problem, solution)
+        order = np.argsort(e)[::-1]
+        rest = np.cumsum(e[order][::-1])[::-1]                 # rest[i] = sum of e[order[i:]]
+        count = int(np.searchsorted(-rest, -0.25))              # first i with rest[i] <= 0.25
+        split[order[:max(count, 1)]] = True
     return np.concatenate([[wk / 2, wk / 2] if s else [wk] for wk, s in zip(w, split)])
 
 
@@ -370,7 +391,7 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
         if fallback:
             sol["fallback_from"] = fallback                    # kept through the later rounds (IPOPT's)
         report = verify(sol, terms=problem.task.terms)
-        failed = checks(problem, report)
+        failed = list(failures(problem, report))
         rounds.append({"round": r, "intervals": sol["intervals"], "solver": sol["solver"], "status": sol["status"],
                        "iterations": sol["iterations"], "solve_time_s": sol["solve_time_s"],
                        "setup_time_s": sol["setup_time_s"], "objective": sol["objective"],
@@ -378,11 +399,12 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
         log(f"round {r}: {sol['intervals']} intervals, {sol['solver']} {sol['status']} after {sol['iterations']} "
             f"iterations, {sol['solve_time_s']:.2f} s; replay: "
             + ", ".join(f"{k} {v:.1e}" for k, v in report.items() if isinstance(v, float))
-            + ("" if not failed else " -- misses " + "; ".join(failed)))
+            + ("" if not failed else " -- misses " + "; ".join(failures(problem, report).values())))
         if not failed or not sol["success"] or r == problem.verification.rounds:
             break
-        w, warm = refined_mesh(problem, sol, report), sol
-        log(f"refining: {sol['intervals']} -> {len(w)} intervals where the local error is largest")
+        w, warm = refined_mesh(problem, sol, report, failed), sol
+        where = "where the replay misses" if set(failed) <= set(LOCATED) else "where the local error is largest or the replay misses"
+        log(f"refining: {sol['intervals']} -> {len(w)} intervals {where}")
     report["passed"] = not failed
     report.pop("interval_violation")
     report.pop("interval_clearance", None)
