@@ -103,7 +103,7 @@ def main():
                   f"{r['solve_all_s']:.2f} | {r['wall_s']:.0f} |")
         csv.append(f"\"{name}\",{r['T']},{r['success']},{r['setup_first_s']},{r['solve_first_s']},{r['iterations_first']},"
                    f"{r['rounds']},{r['setup_all_s']},{r['solve_all_s']},{r['wall_s']}")
-    verdict = lambda v, goal: "met" if v < goal else f"missed by {v / goal:.1f}x"      # noqa: E731
+    verdict = lambda v, goal: "met" if v < goal else f"missed by {v / goal:.2f}x"     # noqa: E731
     md += ["", "Targets for the 7-joint obstacle tasks: the verified answer from an empty cache in under 90 s and "
            "from a filled one in under 10 s.", ""]
     for arm, (cold, warm) in (("Panda", (rows[0][1], rows[1][1])), ("Baxter", (rows[2][1], rows[3][1]))):
