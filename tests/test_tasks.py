@@ -67,6 +67,36 @@ def test_a_pose_on_a_six_joint_arm(tmp_path):
     assert sol["verification"]["goal_position_error"] < 5e-3 and sol["verification"]["goal_angle_error"] < 5e-3
 
 
+def test_no_goal_row_meets_its_bound_at_the_goal_with_a_zero_gradient():
+    """At rest at a pose goal, every end row that meets a bound has a gradient: an active row
+    without one (trace(R_goal^T R) <= 3 is met at the goal with a zero gradient) leaves its
+    multiplier unbounded, and the interior point follows it away (Baxter's obstacle task: the
+    trace row's multiplier at 906 after 20 iterations, five restorations, 122 iterations
+    instead of 53)."""
+    import casadi as ca
+    from rscasadi.dynamics.arm import Arm
+    from rscasadi.dynamics.statics import rest_state
+    from rscasadi.ocp.transcription import Transcription
+    arm = rscasadi.load(ROOT / "problems" / "ur5_sea.toml")
+    th0 = np.array([0.0, -1.2, 1.2, -1.5, -1.5, 0.0])
+    th_goal = th0 + [0.4, 0.2, -0.2, 0.3, 0.2, 0.4]
+    R, p = (np.array(v) for v in arm.frame_placement("tool0")(th_goal))
+    problem = Problem(Task(ROOT / "problems" / "ur5_sea.toml", "min_time", duration=1.0, theta_start=th0,
+                           goal=Goal("tool0", p.ravel(), R)), TranscriptionOptions(intervals=4, compiled=False, condense=False))
+    tr = Transcription(problem, Arm(arm.model), N=4)
+    end = tr._boundary_piece(end=True)
+    x = ca.SX.sym("x", tr.nx)
+    goal = ca.DM(np.r_[p.ravel(), R.ravel(order="F")])
+    rows = end(x, goal, ca.DM.zeros(tr.n_pfix), 1.0)[0]
+    at = np.r_[rest_state(arm, th_goal), 0.5]                          # at rest at the goal, T = 0.5 s
+    value = np.array(ca.Function("r", [x], [rows])(at)).ravel()
+    gradient = np.array(ca.Function("J", [x], [ca.jacobian(rows, x)])(at))
+    lo, hi = tr._end_bounds()
+    meets = (np.isfinite(lo) & (np.abs(value - lo) < 1e-9)) | (np.isfinite(hi) & (np.abs(value - hi) < 1e-9))
+    assert meets.sum() >= 4 * arm.n                                    # the rest and pose rows at least
+    assert np.all(np.linalg.norm(gradient[meets], axis=1) > 1e-6), np.nonzero(meets & (np.linalg.norm(gradient, axis=1) <= 1e-6))
+
+
 @pytest.mark.parametrize("goal,field,words", [
     ({"position": "[0.3, 0.2, 0.4]"}, "goal.frame", "missing"),
     ({"frame": '"tool"'}, "goal.position", "missing"),

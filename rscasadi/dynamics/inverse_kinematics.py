@@ -49,7 +49,7 @@ def inverse_kinematics(arm, frame: str, *, position, R=None, theta_guess=None, p
         E = R_t.T @ R_f                                              # the rotation error
         g += [_vee(E - E.T) / 2, ca.trace(E)]
         lbg += [0.0] * 3 + [1.0]
-        ubg += [0.0] * 3 + [3.0]
+        ubg += [0.0] * 3 + [np.inf]         # not 3: met with a zero gradient at the pose, a degenerate row
     if len(lbg) - (1 if R is not None else 0) > n:
         # fewer joints than pose conditions: the pose, where reachable, is isolated; the least
         # squares of its error finds it (and says how far it stays where it is not)
