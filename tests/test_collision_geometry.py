@@ -245,3 +245,30 @@ def test_clear_path_goes_around_a_ball_the_straight_line_crosses():
     assert np.allclose(theta[:, 0], start) and np.allclose(theta[:, -1], end)
     fine = np.hstack([np.linspace(a, b, 5, endpoint=False).T for a, b in zip(theta.T[:-1], theta.T[1:])] + [end[:, None]])
     assert float(np.min(np.array(gap.map(fine.shape[1])(fine)))) > 0.0     # clear between the nodes too
+
+
+def test_clearance_functions_are_shared_only_by_the_same_geometry():
+    """The clearance Functions are built once per geometry and shared (refinement rounds, the
+    guess, the replay): the same geometry read again gets the same Function; a moved obstacle, a
+    fatter capsule or another margin gets its own, with the value it implies."""
+    import dataclasses
+    from rscasadi.dynamics.collision import clearance_function, exact_clearance
+    from rscasadi.model.modelfile import read
+    from rscasadi.task.objects import Obstacle
+    path = Path(__file__).resolve().parents[1] / "problems" / "panda_sea.toml"
+    model = read(path)
+    theta = np.array([-0.412, 0.157, -0.257, -2.085, 0.05, 2.236, 0.089])
+    ball = Obstacle.from_dict({"kind": "sphere", "center": [0.45, 0.0, 0.33], "radius": 0.1})
+    gap = float(exact_clearance(model, [ball])(theta))
+    assert exact_clearance(read(path), [ball]) is exact_clearance(model, [ball])
+    assert clearance_function(read(path), [ball]) is clearance_function(model, [ball])
+    moved = Obstacle.from_dict({"kind": "sphere", "center": [0.45, 0.0, 0.43], "radius": 0.1})
+    assert abs(float(exact_clearance(model, [moved])(theta)) - gap) > 1e-3
+    wider = dataclasses.replace(model, collision=dataclasses.replace(model.collision, margin=model.collision.margin + 0.01))
+    assert np.isclose(float(exact_clearance(wider, [ball])(theta)), gap - 0.01)
+    smooth = np.array(clearance_function(model, [ball])(theta)).ravel()
+    assert np.allclose(np.array(clearance_function(wider, [ball])(theta)).ravel(), smooth - 0.01)
+    caps = model.collision.capsules
+    fatter = dataclasses.replace(model, collision=dataclasses.replace(
+        model.collision, capsules=tuple(dataclasses.replace(c, radius=c.radius + 0.005) for c in caps)))
+    assert float(exact_clearance(fatter, [ball])(theta)) < gap - 1e-3

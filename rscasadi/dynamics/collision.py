@@ -78,9 +78,45 @@ def _exact_distance(point, obstacle):
     return ca.norm_2(ca.fmax(q, 0)) + ca.fmin(ca.mmax(q), 0)
 
 
+_EXACT: dict = {}          # (kind, the geometry's key) -> its clearance Function (refinement rounds reuse it)
+_EXACT_KEPT = 16
+
+
+def _geometry_key(model, obstacles) -> tuple:
+    """What exact_clearance depends on: the chain's joint frames, the capsules, the margin and
+    the obstacles."""
+    return (tuple((tuple(np.ravel(jt.origin_xyz)), tuple(np.ravel(jt.R))) for jt in model.joints),
+            tuple((c.body, tuple(np.ravel(c.a)), tuple(np.ravel(c.b)), float(c.radius)) for c in capsules(model)),
+            margin(model), tuple((o.kind, tuple(np.ravel(o.center)), float(o.radius),
+                                  None if o.size is None else tuple(np.ravel(o.size))) for o in obstacles))
+
+
+def _once(kind: str, model, obstacles, build) -> ca.Function:
+    key = (kind, _geometry_key(model, obstacles))
+    if key not in _EXACT:
+        while len(_EXACT) >= _EXACT_KEPT:
+            _EXACT.pop(next(iter(_EXACT)))
+        _EXACT[key] = build()
+    return _EXACT[key]
+
+
+def clearance_function(model, obstacles) -> ca.Function:
+    """theta -> clearances(model, obstacles, theta) as the Function `clearance`, built once per
+    geometry (the task's transcription, its first guess and every refinement round share it)."""
+    def build():
+        theta = ca.SX.sym("theta", model.n)
+        return ca.Function("clearance", [theta], [clearances(model, obstacles, theta)])
+    return _once("smooth", model, obstacles, build)
+
+
 def exact_clearance(model, obstacles) -> ca.Function:
     """theta -> the smallest distance between the capsules and the obstacles, less the margin
-    (each segment sampled every r / 8): what the verification checks at every replay sample."""
+    (each segment sampled every r / 8): what the verification checks at every replay sample.
+    Built once per geometry (the Panda's: 0.1 s)."""
+    return _once("exact", model, obstacles, lambda: _exact_clearance(model, obstacles))
+
+
+def _exact_clearance(model, obstacles) -> ca.Function:
     theta = ca.SX.sym("theta", model.n)
     if not capsules(model) or not obstacles:
         return ca.Function("exact_clearance", [theta], [ca.SX(np.inf)])
@@ -103,8 +139,7 @@ def clear_path(model, obstacles, theta_start, theta_end, nodes: int = 24, cleara
     ball is a guess the collocation solver spends a hundred iterations leaving)."""
     n = model.n
     start, end = (np.asarray(v, float).ravel() for v in (theta_start, theta_end))
-    th = ca.SX.sym("theta", n)
-    clear = ca.Function("clear", [th], [clearances(model, obstacles, th)])
+    clear = clearance_function(model, obstacles)
     lim = limit_arrays(model)
     lo, hi = lim["theta_lo"], lim["theta_hi"]
     inner = ca.MX.sym("inner", n, nodes - 1)

@@ -70,18 +70,19 @@ def simulate(arm: Arm, x0, t, tau, method: str = "cvodes", tol: float = 1e-10, s
     return trajectory_record(arm, t, X)
 
 
-def simulate_held(arm: Arm, x0, t, tau, substeps: int, tol: float = 1e-10) -> dict:
+def simulate_held(arm: Arm, x0, t, tau, substeps: int, tol: float = 1e-10, energy: bool = True) -> dict:
     """Torque samples tau[:, k] held on [t_k, t_k+1) (tau_interpolation "constant"; t may be
     non-uniform), simulated with CVODES and reported `substeps` times finer than t.  One CVODES
     run per interval, reporting on its grid without restarting (a restart per fine sample, from
-    order 1 and a tiny step, was 11x slower and 30x less accurate at the same tolerance)."""
+    order 1 and a tiny step, was 11x slower and 30x less accurate at the same tolerance).
+    `energy`: the record has the energy at each sample (False: not computed)."""
     t = np.asarray(t, float)
     N = len(t) - 1
     F = held_interval(arm, tol, substeps)
     _, X = F.mapaccum(N)(x0, np.vstack([np.asarray(tau, float)[:, :N], np.diff(t)]))
     h = np.diff(t) / substeps
     fine = np.concatenate([[t[0]], (t[:-1, None] + h[:, None] * np.arange(1, substeps + 1)).ravel()])
-    return trajectory_record(arm, fine, np.hstack([np.asarray(x0, float).reshape(-1, 1), np.array(X)]))
+    return trajectory_record(arm, fine, np.hstack([np.asarray(x0, float).reshape(-1, 1), np.array(X)]), energy)
 
 
 # from this many joints on, the replay's right-hand side and its Jacobian are compiled: CVODES
@@ -157,13 +158,16 @@ def held_interval(arm: Arm, tol: float = 1e-10, substeps: int | None = None) -> 
     return ca.Function("held_grid", [xs, ps], [X[:, -1], X])
 
 
-def trajectory_record(arm: Arm, t, X) -> dict:
-    """A simulated run as a record: t, theta, phi, dtheta, dphi, psi and the energy at each sample."""
+def trajectory_record(arm: Arm, t, X, energy: bool = True) -> dict:
+    """A simulated run as a record: t, theta, phi, dtheta, dphi, psi and (`energy`) the energy at
+    each sample."""
     n = arm.n
     theta, phi, dtheta, dphi = (X[i * n:(i + 1) * n] for i in range(4))
-    E = np.array(arm.energy().map(X.shape[1])(theta, phi, dtheta, dphi)).ravel()
-    return {"t": np.asarray(t, float), "theta": theta, "phi": phi, "dtheta": dtheta, "dphi": dphi,
-            "psi": phi - theta, "energy": E, "x": X}
+    record = {"t": np.asarray(t, float), "theta": theta, "phi": phi, "dtheta": dtheta, "dphi": dphi,
+              "psi": phi - theta, "x": X}
+    if energy:
+        record["energy"] = np.array(arm.energy().map(X.shape[1])(theta, phi, dtheta, dphi)).ravel()
+    return record
 
 
 # ------------------------------------------------------------------ feedforward along a trajectory

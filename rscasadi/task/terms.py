@@ -27,7 +27,7 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
-from rscasadi.dynamics.collision import clearances, exact_clearance
+from rscasadi.dynamics.collision import clearance_function, clearances, exact_clearance
 from rscasadi.errors import InvalidArgument
 
 PENALTY = 1e8       # a constraint's penalty weight in the MPC, unless the term gives its own
@@ -261,11 +261,10 @@ class Clearance(Term):
     def of_angles(self, arm) -> ca.Function:
         # inlined at a stage's three points, the Panda's clearances to two obstacles were 7 of
         # the condensing kernel's 10 MB of C
-        theta = ca.SX.sym("theta", arm.n)
-        return ca.Function("clearance", [theta], [clearances(arm.model, self.obstacles, theta)])
+        return clearance_function(arm.model, self.obstacles)
 
     def bounds(self, arm):
-        rows = self.expression(arm, ca.SX.sym("x", 4 * arm.n), None, None).shape[0]
+        rows = clearance_function(arm.model, self.obstacles).size1_out(0)
         return np.zeros(rows), np.full(rows, np.inf)
 
     def replay_metric(self, arm, X, U) -> float:
