@@ -78,13 +78,13 @@ def _exact_distance(point, obstacle):
     return ca.norm_2(ca.fmax(q, 0)) + ca.fmin(ca.mmax(q), 0)
 
 
-_EXACT: dict = {}          # (kind, the geometry's key) -> its clearance Function (refinement rounds reuse it)
-_EXACT_KEPT = 16
+_BUILT: dict = {}          # (kind, the geometry's key) -> its clearance Function (refinement rounds reuse it)
+_KEPT = 16
 
 
 def _geometry_key(model, obstacles) -> tuple:
-    """What exact_clearance depends on: the chain's joint frames, the capsules, the margin and
-    the obstacles."""
+    """What the clearance Functions depend on: the chain's joint frames, the capsules, the margin
+    and the obstacles."""
     return (tuple((tuple(np.ravel(jt.origin_xyz)), tuple(np.ravel(jt.R))) for jt in model.joints),
             tuple((c.body, tuple(np.ravel(c.a)), tuple(np.ravel(c.b)), float(c.radius)) for c in capsules(model)),
             margin(model), tuple((o.kind, tuple(np.ravel(o.center)), float(o.radius),
@@ -93,11 +93,11 @@ def _geometry_key(model, obstacles) -> tuple:
 
 def _once(kind: str, model, obstacles, build) -> ca.Function:
     key = (kind, _geometry_key(model, obstacles))
-    if key not in _EXACT:
-        while len(_EXACT) >= _EXACT_KEPT:
-            _EXACT.pop(next(iter(_EXACT)))
-        _EXACT[key] = build()
-    return _EXACT[key]
+    if key not in _BUILT:
+        while len(_BUILT) >= _KEPT:
+            _BUILT.pop(next(iter(_BUILT)))
+        _BUILT[key] = build()
+    return _BUILT[key]
 
 
 def clearance_function(model, obstacles) -> ca.Function:

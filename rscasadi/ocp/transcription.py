@@ -159,10 +159,9 @@ class Transcription:
             rest_lo = rest_hi = np.zeros(4 * n)
         else:
             rest_lo = np.r_[np.zeros(3 * n + 3), [0.0, 0.0, 0.0, 1.0] if self.goal.R is not None else []]
-            # the trace's upper end left open: trace(E) <= 3 holds for every rotation, with equality
-            # exactly at the goal, where its gradient is zero; as a bound it is a degenerate active
-            # row whose multiplier ran away (Baxter's task: 906 after 20 iterations, five
-            # restorations, 122 iterations against 53)
+            # the trace's upper end open: trace(E) <= 3 holds for every rotation, with equality
+            # exactly at the goal, where its gradient is zero; as a bound it is an active row
+            # without a gradient, whose multiplier the interior point follows away
             rest_hi = np.r_[np.zeros(3 * n + 3), [0.0, 0.0, 0.0, np.inf] if self.goal.R is not None else []]
         ends = [b for t, b in zip(self.constraints, self.row_bounds) if t.at_end]
         s = np.zeros(self.ns)                                              # at the path's end: s_N = L
