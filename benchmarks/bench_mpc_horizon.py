@@ -233,8 +233,8 @@ def main():
     md += ["", f"Step growth from N = 10 to 20: condensed {ratio('condensed', 10, 20):.1f}x, Riccati "
                f"{ratio('riccati', 10, 20):.1f}x; Riccati from 20 to 40: {ratio('riccati', 20, 40):.1f}x. "
                f"The condensed QP is not generated beyond N = {CONDENSED_UP_TO} (its C grows as N^2). The Riccati "
-               "controller's BLASFEO: the CasADi wheel's (its GENERIC target) with BLASFEO's two 4x4 product kernels "
-               "in vector C in the controller's library, or one built for this CPU where the row says so.", "",
+               "controller's BLASFEO: the CasADi wheel's (its GENERIC target) with BLASFEO's 4x4 product and matrix-vector "
+               "kernels in vector C in the controller's library, or one built for this CPU where the row says so.", "",
            "## Task space", "",
            "`problems/mpc_panda_shelf.toml`: the hand's position, velocity and rotation along the shelf motion, the "
            "ball and the table as soft constraints, N = 10 intervals of 10 ms; phases timed along its closed loop "

@@ -168,6 +168,44 @@ def test_the_tuned_nn_kernel_computes_blasfeos_4x4_product_from_any_row_of_a_pan
                     np.testing.assert_allclose(D.reshape(4, 4, order="F"), want, rtol=1e-13, atol=1e-13 * (1 + kmax))
 
 
+def _dgemv(f, kmax, alpha, A, x, beta, y, transposed, offset=0, sda=0):
+    z = np.full(4, np.nan)
+    al, be = np.array([alpha]), np.array([beta])
+    if transposed:
+        f(kmax, al.ctypes.data_as(_P), offset, ctypes.cast(A.ctypes.data + 8 * offset, _P), sda,
+          *(v.ctypes.data_as(_P) for v in (x, be, y, z)))
+    else:
+        f(kmax, *(v.ctypes.data_as(_P) for v in (al, A, x, be, y, z)))
+    return z
+
+
+def test_the_tuned_matrix_vector_kernels_compute_blasfeos_from_any_row_of_a_panel():
+    # z = beta y + alpha A x (n: A a 4-row panel) or alpha A' x (t: A's kmax rows from a row offset
+    # into panels of 4 rows and sda columns); y is not read for beta = 0
+    tuned = ctypes.CDLL(tuned_kernels_library(lambda m: None))
+    wheel = ctypes.CDLL(str(blasfeo.wheel_library()))
+    rng = np.random.default_rng(9)
+    for name in ("kernel_dgemv_n_4_lib4", "kernel_dgemv_t_4_lib4"):
+        transposed = "_t_" in name
+        for kmax in (0, 1, 2, 3, 4, 5, 6, 9, 16, 31):
+            for offset in range(4) if transposed else (0,):
+                for alpha, beta in ((1.0, 1.0), (-0.6, 0.0), (1.7, -2.0)):
+                    x = rng.standard_normal(kmax)
+                    y = np.full(4, np.nan) if beta == 0 else rng.standard_normal(4)
+                    if transposed:
+                        sda = 5
+                        M = rng.standard_normal((-(-(kmax + offset) // 4) * 4 + 4, sda))   # a row-panelled matrix
+                        A = np.concatenate([M[4 * q:4 * q + 4].ravel(order="F") for q in range(len(M) // 4)])
+                        want = alpha * M[offset:offset + kmax, :4].T @ x
+                    else:
+                        sda, M = 0, rng.standard_normal((4, kmax))
+                        A, want = M.ravel(order="F"), alpha * M @ x
+                    want = want + (beta * y if beta else 0)
+                    for f in (getattr(tuned, name), getattr(wheel, name)):
+                        got = _dgemv(f, kmax, alpha, A, x, beta, y, transposed, offset, sda)
+                        np.testing.assert_allclose(got, want, rtol=1e-13, atol=1e-13 * (1 + kmax))
+
+
 def test_a_tuned_kernel_that_differs_from_the_wheels_is_refused(tmp_path):
     src = tmp_path / "wrong.c"
     src.write_text("void kernel_dgemm_nt_4x4_lib4(int kmax, double *alpha, double *A, double *B, double *beta, "
@@ -188,6 +226,14 @@ def test_a_tuned_kernel_that_differs_from_the_wheels_is_refused(tmp_path):
     with pytest.raises(RuntimeError, match=r"kernel_dgemm_nn_4x4_lib4 compiled for this processor .* differs .*\(kmax 1, "):
         blasfeo._same_kernel(ctypes.CDLL(str(lib.with_name("libwrong_nn.so"))).kernel_dgemm_nn_4x4_lib4,
                              wheel.kernel_dgemm_nn_4x4_lib4, "kernel_dgemm_nn_4x4_lib4", lib)
+    src.write_text("void kernel_dgemv_t_4_lib4(int kmax, double *alpha, int offA, double *A, int sda, double *x, "
+                   "double *beta, double *y, double *z) { int j, k; (void)offA; for (j = 0; j < 4; ++j) {"
+                   " double s = 0; for (k = 0; k < kmax; ++k) s += A[k % 4 + 4 * j + 4 * sda * (k / 4)] * x[k];"
+                   " z[j] = alpha[0] * s + (beta[0] == 0 ? 0 : beta[0] * y[j]); } }\n")    # panels crossed as from row 0
+    subprocess.run([cc(), "-shared", "-fPIC", str(src), "-o", str(lib.with_name("libwrong_t.so"))], check=True)
+    with pytest.raises(RuntimeError, match=r"kernel_dgemv_t_4_lib4 compiled for this processor .* differs .*\(kmax 2, offset 3"):
+        blasfeo._same_kernel(ctypes.CDLL(str(lib.with_name("libwrong_t.so"))).kernel_dgemv_t_4_lib4,
+                             wheel.kernel_dgemv_t_4_lib4, "kernel_dgemv_t_4_lib4", lib)
 
 
 TUNED_CHILD = """

@@ -132,8 +132,9 @@ def hpipm_blocks_apart() -> bool:
 def riccati_blasfeo() -> tuple[list, dict, str]:
     """The BLASFEO a Riccati controller's HPIPM calls, as rscasadi.ocp.fatrop.blasfeo chooses it
     for fatrop: the link arguments that go first, the sources to add and what it is.  By default
-    the wheel's (GENERIC: plain C) with its two 4x4 product kernels in vector C in the controller's
-    own library (native.build.blasfeo_kernels): 0.45 of HPIPM's time on the Panda at N = 10.
+    the wheel's (GENERIC: plain C) with its 4x4 product and 4-row matrix-vector kernels in vector C
+    in the controller's own library (native.build.blasfeo_kernels): the products alone were 0.45 of
+    HPIPM's time on the Panda at N = 10.
     RSCASADI_BLASFEO=wheel: the wheel's as shipped; =/path/to/libblasfeo.so: a BLASFEO built for
     the CPU (e.g. X64_INTEL_HASWELL), checked as for fatrop and linked ahead of the wheel's."""
     import os
@@ -148,7 +149,7 @@ def riccati_blasfeo() -> tuple[list, dict, str]:
         return ["-Wl,--no-as-needed", str(full), "-Wl,--as-needed", f"-Wl,-rpath,{full.parent}"], {}, str(full)
     if not blasfeo.wheel_is_generic():
         return [], {}, "the CasADi wheel's (built for this CPU)"
-    return [], blasfeo_kernels(), "the CasADi wheel's with its 4x4 product kernels in vector C"
+    return [], blasfeo_kernels(), "the CasADi wheel's with its 4x4 product and matrix-vector kernels in vector C"
 
 
 def riccati_blocks(horizon: int, nx: int, nu: int) -> int:

@@ -60,8 +60,9 @@ BLASFEO_KERNELS = Path(__file__).with_name("templates") / "blasfeo_kernels.c"
 
 
 def blasfeo_kernels() -> dict:
-    """BLASFEO's two 4x4 product kernels in vector C (templates/blasfeo_kernels.c, in front of the
-    CasADi wheel's GENERIC BLASFEO), as a source for the one build step (file name -> text)."""
+    """BLASFEO's 4x4 product and 4-row matrix-vector kernels in vector C
+    (templates/blasfeo_kernels.c, in front of the CasADi wheel's GENERIC BLASFEO), as a source
+    for the one build step (file name -> text)."""
     return {BLASFEO_KERNELS.name: BLASFEO_KERNELS.read_text()}
 
 

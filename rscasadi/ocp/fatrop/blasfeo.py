@@ -1,15 +1,15 @@
-"""Which BLASFEO fatrop's linear algebra runs on: the CasADi wheel's with its hottest kernel compiled
+"""Which BLASFEO fatrop's linear algebra runs on: the CasADi wheel's with its hottest kernels compiled
 for this processor (the default), the wheel's as shipped (RSCASADI_BLASFEO=wheel), or the user's
 (RSCASADI_BLASFEO=/path/to/libblasfeo.so).
 
 The CasADi wheel ships BLASFEO built for its GENERIC target (plain C, no AVX); fatrop spends about
 a third of a solve in it (its Riccati factorisation, 4x4 C kernels), and one kernel, the 4x4
-product D = beta C + alpha A B', was 14 % of a solve of problem (b).  By default that kernel and
-its sibling D = beta C + alpha A B are compiled for this processor (native.build.blasfeo_kernels,
-GCC vector extensions, -march=native), checked against the wheel's own on random panels, and
-loaded into the process's global scope before the driver: the wheel's library calls its kernels
-through its procedure linkage table, so its calls bind to them (checked: a call into the wheel's
-library must reach them).
+product D = beta C + alpha A B', was 14 % of a solve of problem (b).  By default that kernel, its
+sibling D = beta C + alpha A B and the 4-row matrix-vector kernels (A x, A' x) are compiled for
+this processor (native.build.blasfeo_kernels, GCC vector extensions, -march=native), checked
+against the wheel's own on random panels, and loaded into the process's global scope before the
+driver: the wheel's library calls its kernels through its procedure linkage table, so its calls
+bind to them (checked: a call into the wheel's library must reach them).
 
 A BLASFEO built for the CPU (e.g. acados' or BLASFEO's own build for X64_INTEL_HASWELL) can stand
 in for the whole library: set RSCASADI_BLASFEO=/path/to/libblasfeo.so before the first fatrop solve
@@ -34,7 +34,8 @@ from rscasadi.errors import Failed
 
 ENV = "RSCASADI_BLASFEO"
 WHEEL = "wheel"                             # RSCASADI_BLASFEO=wheel: the wheel's BLASFEO as shipped
-TUNED = ("kernel_dgemm_nt_4x4_lib4", "kernel_dgemm_nn_4x4_lib4")   # the kernels native.build.blasfeo_kernels replaces
+TUNED = ("kernel_dgemm_nt_4x4_lib4", "kernel_dgemm_nn_4x4_lib4",    # the kernels native.build.blasfeo_kernels replaces
+         "kernel_dgemv_n_4_lib4", "kernel_dgemv_t_4_lib4")
 _SIZES = ((5, 3), (13, 16), (17, 9))        # odd sizes: a panel height or column padding would show
 _loaded: dict = {}                          # once per process: RSCASADI_BLASFEO (path), the user's lib or the tuned kernels
 
@@ -147,7 +148,9 @@ def _lazily(path):
 def _same_kernel(ours, theirs, name: str, path) -> None:
     """`ours` computes what the wheel's kernel `theirs` computes, up to rounding, on random panels:
     B' (nt) as kmax columns of a panel, B (nn) as kmax rows from an offset into panels of
-    stride sdb."""
+    stride sdb; the matrix-vector kernels by _same_gemv."""
+    if name.startswith("kernel_dgemv"):
+        return _same_gemv(ours, theirs, name, path)
     rng = np.random.default_rng(7)
     P = ctypes.POINTER(ctypes.c_double)
     nn = name.startswith("kernel_dgemm_nn")
@@ -171,9 +174,37 @@ def _same_kernel(ours, theirs, name: str, path) -> None:
                     f(kmax, *(v.ctypes.data_as(P) for v in (al, A, B, be, C, out)))
             scale = abs(alpha) * (np.abs(A[:4 * kmax]).reshape(-1, 4).T @ np.abs(Bk)).ravel("F") + abs(beta) * np.abs(C)
             if not np.all(np.abs(D[0] - D[1]) <= 1e-14 * (1 + scale)):
-                raise Failed(f"BLASFEO's {name} compiled for this processor ({path}) differs from the CasADi "
-                                   f"wheel's (kmax {kmax}, alpha {alpha}, beta {beta}: largest difference "
-                                   f"{np.nanmax(np.abs(D[0] - D[1])):.3g}); set {ENV}={WHEEL} to run on the wheel's kernels")
+                raise _differs(name, path, f"kmax {kmax}, alpha {alpha}, beta {beta}", D)
+
+
+def _differs(name, path, detail: str, D) -> Failed:
+    return Failed(f"BLASFEO's {name} compiled for this processor ({path}) differs from the CasADi wheel's ({detail}: "
+                  f"largest difference {np.nanmax(np.abs(D[0] - D[1])):.3g}); set {ENV}={WHEEL} to run on the "
+                  "wheel's kernels")
+
+
+def _same_gemv(ours, theirs, name: str, path) -> None:
+    """The 4-row matrix-vector kernels (z = beta y + alpha A x, n; alpha A' x, t) against the
+    wheel's on random panels: A' from a row offset into panels of stride sda; y NaN for beta = 0
+    (the wheel's does not read it)."""
+    rng = np.random.default_rng(11)
+    P = ctypes.POINTER(ctypes.c_double)
+    transposed = name.startswith("kernel_dgemv_t")
+    for kmax in (0, 1, 2, 3, 4, 5, 7, 8, 13, 16, 33):
+        for (alpha, beta), offset in zip(((1.0, 1.0), (-1.0, 0.0), (0.7, -1.3), (2.0, 0.0)), (0, 1, 3, 2)):
+            offset = offset if transposed else 0
+            sda, x = 6, rng.standard_normal(kmax + 1)
+            A = rng.standard_normal(((offset + kmax) // 4 + 1) * 4 * sda if transposed else 4 * kmax + 1)
+            y = np.full(4, np.nan) if beta == 0 else rng.standard_normal(4)
+            al, be, D = np.array([alpha]), np.array([beta]), [np.full(4, np.nan) for _ in range(2)]
+            for f, out in zip((ours, theirs), D):
+                if transposed:
+                    f(kmax, al.ctypes.data_as(P), offset, ctypes.cast(A.ctypes.data + 8 * offset, P), sda,
+                      *(v.ctypes.data_as(P) for v in (x, be, y, out)))
+                else:
+                    f(kmax, *(v.ctypes.data_as(P) for v in (al, A, x, be, y, out)))
+            if not np.all(np.abs(D[0] - D[1]) <= 1e-14 * (1 + np.abs(D[1]) + np.abs(A).sum())):
+                raise _differs(name, path, f"kmax {kmax}, offset {offset}, alpha {alpha}, beta {beta}", D)
 
 
 def _load_tuned(path: str, wheel) -> dict:

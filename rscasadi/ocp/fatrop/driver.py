@@ -138,7 +138,7 @@ def driver_library(log=print) -> str:
 def tuned_kernels_library(log=print) -> str:
     """BLASFEO's hottest kernels for this processor (native.build.blasfeo_kernels; blasfeo.py loads them)."""
     return str(cached_library(blasfeo_kernels(), ["-O3", *native_flags()], name="blasfeo_tuned",
-                              what="BLASFEO's dgemm kernels for this processor", log=log))
+                              what="BLASFEO's product kernels for this processor", log=log))
 
 
 def _vec(v, n: int) -> np.ndarray:
