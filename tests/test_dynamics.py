@@ -4,7 +4,7 @@ import pytest
 
 from rscasadi.reference.numeric import Numeric, ReducedNumeric
 
-from conftest import dm, random_state
+from conftest import REFERENCE, dm, random_state
 from lagrange import Lagrange
 
 
@@ -174,3 +174,21 @@ def test_forward_dynamics_jacobian_against_finite_differences(request):
         J_fd = np.column_stack([(fd(z + eps * e) - fd(z - eps * e)) / (2 * eps) for e in np.eye(5 * n)])
         J = np.array(arm.forward_dynamics_jacobian()(*x, tau))
         assert rel([J], [J_fd]) < 1e-6
+
+
+def test_arms_of_equal_models_share_their_functions_and_only_they():
+    # an OCP's rounds, guesses and replays make many Arms of one model: its Functions are built once
+    from rscasadi.dynamics.arm import Arm
+    from rscasadi.model.modelfile import read
+    from rscasadi.model.parameters import with_values
+    first, again = Arm(read(REFERENCE)), Arm(read(REFERENCE))          # read twice: equal, not the same object
+    assert first.inverse_dynamics() is again.inverse_dynamics()
+    heavier = Arm(with_values(read(REFERENCE), {"elbow_pitch.link.mass": 3.0}))
+    assert heavier.inverse_dynamics() is not first.inverse_dynamics()
+    assert Arm(read(REFERENCE), free=["elbow_pitch.link.mass"]).inverse_dynamics(parametric=True) \
+        is not first.inverse_dynamics(parametric=True)
+    # the heavier elbow link: a larger holding torque at the shoulder pitch, by its weight times its lever
+    x = [np.array([0.0, 0.4, -0.3])] * 2 + [np.zeros(3)] * 4
+    light, heavy = (np.array(a.inverse_dynamics()(*x)[1]).ravel() for a in (first, heavier))
+    assert abs(heavy[1]) > abs(light[1]) + 1e-3
+    np.testing.assert_array_equal(light, np.array(again.inverse_dynamics()(*x)[1]).ravel())

@@ -1,6 +1,11 @@
 """The arm object: a model file's constants and its dynamics as named casadi.Functions."""
 from __future__ import annotations
 
+import hashlib
+import pickle
+import threading
+from collections import OrderedDict
+
 import casadi as ca
 import numpy as np
 
@@ -13,6 +18,25 @@ from rscasadi.errors import InvalidArgument
 
 STATE = ["theta", "phi", "dtheta", "dphi"]
 ABS_SMOOTH = 1e-3    # N m: |T| in the load-dependent gear loss is sqrt(T^2 + ABS_SMOOTH^2) - ABS_SMOOTH
+SHARED_ARMS = 8      # the arms (model contents, parameter choice) whose Functions this process keeps
+_SHARED: OrderedDict = OrderedDict()
+_SHARED_LOCK = threading.Lock()
+
+
+def _shared_functions(model: ArmModel, free, tie_balanced: bool) -> dict:
+    """The Functions built so far for arms of this model (by content: its pickle's digest) and
+    choice of parameters, shared by every Arm of them in this process: an OCP's refinement rounds,
+    guesses and replays build each once (symbolic builds of 0.05-0.3 s each on 7 joints).  The
+    SHARED_ARMS most recently used are kept."""
+    key = (hashlib.sha256(pickle.dumps(model)).hexdigest(), None if free is None else tuple(free), tie_balanced)
+    with _SHARED_LOCK:
+        if key in _SHARED:
+            _SHARED.move_to_end(key)
+        else:
+            _SHARED[key] = {}
+            while len(_SHARED) > SHARED_ARMS:
+                _SHARED.popitem(last=False)
+        return _SHARED[key]
 
 
 class Arm:
@@ -31,7 +55,7 @@ class Arm:
         self.n = model.n
         self.free = None if free is None else list(free)
         self.tie_balanced = tie_balanced          # Physics.partial: balanced rotors stay balanced
-        self._functions: dict = {}
+        self._functions = _shared_functions(model, free, tie_balanced)
         self.physics = Physics.constant(model)
 
     @staticmethod
