@@ -16,11 +16,16 @@ typedef struct { long generation; int seen, valid, factored, derived; casadi_rea
 static long generation = 1;            /* reset() starts a new one: every thread's entries go stale */
 static __thread entry_t* cache = 0;
 static __thread long cache_size = 0;
-static __thread const casadi_real* w_arg[SZ_ARG];
-static __thread casadi_real* w_res[SZ_RES];
-static __thread casadi_int w_iw[SZ_IW];
-static __thread casadi_real w_w[SZ_W];
-static __thread casadi_real zf[NZ];
+/* the thread's arrays are read through local pointers taken once (OPAQUE): in a shared library
+   each access to a __thread variable is a call (__tls_get_addr), which gcc otherwise repeats in
+   every pass of a loop (2.5 % of the Panda's minimum-time solve) */
+static inline void* opaque_(void* p) { __asm__("" : "+r"(p)); return p; }
+#define OPAQUE(p) opaque_((void*)(p))
+static __thread const casadi_real* tls_w_arg[SZ_ARG];
+static __thread casadi_real* tls_w_res[SZ_RES];
+static __thread casadi_int tls_w_iw[SZ_IW];
+static __thread casadi_real tls_w_w[SZ_W];
+static __thread casadi_real tls_zf[NZ];
 
 static entry_t* entry(long k) {
   if (k < 0) return 0;
@@ -92,6 +97,7 @@ DENSE static void sensitivities(const casadi_real* a, const int* piv, const casa
 
 /* the full variables z from the kept w and the entry's y */
 static void full_z(const casadi_real* w, const casadi_real* y) {
+  casadi_real* zf = OPAQUE(tls_zf);
   int i;
   for (i = 0; i < NK; ++i) zf[KEEP[i]] = w ? w[i] : 0;
   for (i = 0; i < NY; ++i) zf[ELIM[i]] = y[i];
@@ -100,21 +106,25 @@ static void full_z(const casadi_real* w, const casadi_real* y) {
 /* call an SX function: z, the piece's arguments, then `extra` inputs */
 static int call(int (*f)(const casadi_real**, casadi_real**, casadi_int*, casadi_real*, int),
                 const casadi_real** args, const casadi_real** extra, int n_extra, casadi_real** res, int n_res) {
+  const casadi_real** w_arg = OPAQUE(tls_w_arg);
+  casadi_real** w_res = OPAQUE(tls_w_res);
   int i;
-  w_arg[0] = zf;
+  w_arg[0] = OPAQUE(tls_zf);
   for (i = 0; i < NA; ++i) w_arg[1 + i] = args[i];
   for (i = 0; i < n_extra; ++i) w_arg[1 + NA + i] = extra[i];
   for (i = 0; i < SZ_RES; ++i) w_res[i] = i < n_res ? res[i] : 0;          /* outputs not asked for: none */
-  return f(w_arg, w_res, w_iw, w_w, 0);
+  return f(w_arg, w_res, tls_w_iw, tls_w_w, 0);
 }
 
 /* call a model Function (value or curvature at a call site): two inputs, two outputs */
 static int raw(int (*f)(const casadi_real**, casadi_real**, casadi_int*, casadi_real*, int),
                const casadi_real* a0, const casadi_real* a1, casadi_real* r0, casadi_real* r1) {
+  const casadi_real** w_arg = OPAQUE(tls_w_arg);
+  casadi_real** w_res = OPAQUE(tls_w_res);
   int i;
   for (i = 0; i < SZ_RES; ++i) w_res[i] = 0;
   w_arg[0] = a0; w_arg[1] = a1; w_res[0] = r0; w_res[1] = r1;
-  return f(w_arg, w_res, w_iw, w_w, 0);
+  return f(w_arg, w_res, tls_w_iw, tls_w_w, 0);
 }
 @SITES@
 
@@ -275,10 +285,11 @@ static int with_sensitivities(int (*f)(const casadi_real**, casadi_real**, casad
 
 /* J_r Z = J_K + J_E S~ on its pattern (out), column by column of a dense NR x NK block */
 DENSE static void condensed_jacobian(const casadi_real* JK, const casadi_real* JE, const casadi_real* S, casadi_real* out) {
-  static __thread casadi_real Jd[NR * NK], St[NY * NS];
+  static __thread casadi_real tls_Jd[NR * NK], tls_St[NY * NS];
+  casadi_real *Jd = OPAQUE(tls_Jd), *St = OPAQUE(tls_St);
   int i, r, s;
   for (i = 0; i < NY; ++i) for (s = 0; s < NS; ++s) St[s + i * NS] = S[i + s * NY];     /* S by rows */
-  memset(Jd, 0, sizeof Jd);
+  memset(Jd, 0, sizeof tls_Jd);
   for (i = 0; i < JK_NNZ; ++i) Jd[JK_ROW[i] + JK_COL[i] * NR] = JK[i];
   for (r = 0; r < NR; ++r) {              /* J_E by rows, all of S's columns at once (independent sums) */
     casadi_real acc[NS];
@@ -335,7 +346,8 @@ static int split_hessian(const entry_t* e, const casadi_real** args, const casad
    independent outputs (they vectorise without reassociation) */
 DENSE static void condensed_hessian(const casadi_real* Hdd, const casadi_real* Hyd, const casadi_real* Hyy,
                               const casadi_real* S, casadi_real* Hc) {
-  static __thread casadi_real V[NY * ND], St[ND * NY], M[ND * ND];
+  static __thread casadi_real tls_V[NY * ND], tls_St[ND * NY], tls_M[ND * ND];
+  casadi_real *V = OPAQUE(tls_V), *St = OPAQUE(tls_St), *M = OPAQUE(tls_M);
   int i, j, a, b, k;
   for (b = 0; b < ND; ++b) {                                   /* V = H_YY S~ / 2 + H_YD */
     casadi_real* v = V + b * NY;
@@ -347,7 +359,7 @@ DENSE static void condensed_hessian(const casadi_real* Hdd, const casadi_real* H
     }
   }
   for (i = 0; i < NY; ++i) for (a = 0; a < ND; ++a) St[a + i * ND] = DS[a] < 0 ? 0 : S[i + DS[a] * NY];
-  memset(M, 0, sizeof M);                                      /* M = S~' V */
+  memset(M, 0, sizeof tls_M);                                      /* M = S~' V */
   for (b = 0; b < ND; ++b) for (i = 0; i < NY; ++i) {
     casadi_real v = V[i + b * NY];
     for (a = 0; a < ND; ++a) M[a + b * ND] += St[a + i * ND] * v;
