@@ -59,6 +59,60 @@ DENSE static int lu_factor(casadi_real* a, int* piv, int n) {
   return 0;
 }
 
+/* C += alpha A B, column-major (A m x k, B k x n): blocks of 12 x 4 and 4 x 4 held in registers
+   as 4-wide vectors (three loads and four broadcasts per twelve multiply-adds), scalar at the
+   edges.  The loops of one output at a time waited on loads and stores: Z' H Z on the Panda's
+   sizes took 12.9 us that way, 7.4 us blocked. */
+#if defined(__GNUC__)
+typedef casadi_real v4_t __attribute__((vector_size(32)));
+typedef casadi_real v4u_t __attribute__((vector_size(32), aligned(sizeof(casadi_real))));
+#define V4(p) (*(const v4u_t*)(p))
+#define V4_ADD(p, v) (*(v4u_t*)(p) = V4(p) + (v))
+#define BCAST(x) ((v4_t){(x), (x), (x), (x)})
+#endif
+DENSE static void gemm_nn(int m, int n, int k, casadi_real alpha, const casadi_real* A, int lda,
+                          const casadi_real* B, int ldb, casadi_real* C, int ldc) {
+  int i = 0, j = 0, p, jj;
+#if defined(__GNUC__)
+  for (j = 0; j + 4 <= n; j += 4) {
+    const casadi_real *b0 = B + j * ldb, *b1 = b0 + ldb, *b2 = b1 + ldb, *b3 = b2 + ldb;
+    for (i = 0; i + 12 <= m; i += 12) {
+      v4_t c[4][3] = {{{0}}};
+      casadi_real* o = C + i + j * ldc;
+      for (p = 0; p < k; ++p) {
+        const casadi_real* a = A + i + p * lda;
+        const v4_t a0 = V4(a), a1 = V4(a + 4), a2 = V4(a + 8);
+        v4_t b = BCAST(b0[p]);
+        c[0][0] += a0 * b; c[0][1] += a1 * b; c[0][2] += a2 * b;
+        b = BCAST(b1[p]); c[1][0] += a0 * b; c[1][1] += a1 * b; c[1][2] += a2 * b;
+        b = BCAST(b2[p]); c[2][0] += a0 * b; c[2][1] += a1 * b; c[2][2] += a2 * b;
+        b = BCAST(b3[p]); c[3][0] += a0 * b; c[3][1] += a1 * b; c[3][2] += a2 * b;
+      }
+      for (jj = 0; jj < 4; ++jj, o += ldc) { V4_ADD(o, alpha * c[jj][0]); V4_ADD(o + 4, alpha * c[jj][1]); V4_ADD(o + 8, alpha * c[jj][2]); }
+    }
+    for (; i + 4 <= m; i += 4) {
+      v4_t c[4] = {{0}};
+      casadi_real* o = C + i + j * ldc;
+      for (p = 0; p < k; ++p) {
+        const v4_t a0 = V4(A + i + p * lda);
+        c[0] += a0 * BCAST(b0[p]); c[1] += a0 * BCAST(b1[p]); c[2] += a0 * BCAST(b2[p]); c[3] += a0 * BCAST(b3[p]);
+      }
+      for (jj = 0; jj < 4; ++jj, o += ldc) V4_ADD(o, alpha * c[jj]);
+    }
+    for (; i < m; ++i) for (jj = j; jj < j + 4; ++jj) {
+      casadi_real s = 0;
+      for (p = 0; p < k; ++p) s += A[i + p * lda] * B[p + jj * ldb];
+      C[i + jj * ldc] += alpha * s;
+    }
+  }
+#endif
+  for (; j < n; ++j) for (i = 0; i < m; ++i) {
+    casadi_real s = 0;
+    for (p = 0; p < k; ++p) s += A[i + p * lda] * B[p + j * ldb];
+    C[i + j * ldc] += alpha * s;
+  }
+}
+
 /* x := A^{-1} x (trans = 0) or A^{-T} x (trans = 1) with the factors of lu_factor. */
 DENSE static void lu_solve(const casadi_real* a, const int* piv, int n, casadi_real* x, int trans) {
   int i, j;
@@ -342,28 +396,19 @@ static int split_hessian(const entry_t* e, const casadi_real** args, const casad
 }
 
 /* Hc = H_DD + M + M' on the curved columns D, M = S~' (H_YY S~ / 2 + H_YD): Z' H Z with Z = [I; S~],
-   S~ = S on D (zero where y does not depend on the column); dense loops, the inner one over
-   independent outputs (they vectorise without reassociation) */
+   S~ = S on D (zero where y does not depend on the column); two dense products */
 DENSE static void condensed_hessian(const casadi_real* Hdd, const casadi_real* Hyd, const casadi_real* Hyy,
                               const casadi_real* S, casadi_real* Hc) {
-  static __thread casadi_real tls_V[NY * ND], tls_St[ND * NY], tls_M[ND * ND];
-  casadi_real *V = OPAQUE(tls_V), *St = OPAQUE(tls_St), *M = OPAQUE(tls_M);
-  int i, j, a, b, k;
-  for (b = 0; b < ND; ++b) {                                   /* V = H_YY S~ / 2 + H_YD */
-    casadi_real* v = V + b * NY;
-    for (i = 0; i < NY; ++i) v[i] = Hyd[i + b * NY];
-    if (DS[b] < 0) continue;
-    for (j = 0; j < NY; ++j) {
-      casadi_real s = 0.5 * S[j + DS[b] * NY];
-      for (i = 0; i < NY; ++i) v[i] += Hyy[i + j * NY] * s;
-    }
-  }
-  for (i = 0; i < NY; ++i) for (a = 0; a < ND; ++a) St[a + i * ND] = DS[a] < 0 ? 0 : S[i + DS[a] * NY];
-  memset(M, 0, sizeof tls_M);                                      /* M = S~' V */
-  for (b = 0; b < ND; ++b) for (i = 0; i < NY; ++i) {
-    casadi_real v = V[i + b * NY];
-    for (a = 0; a < ND; ++a) M[a + b * ND] += St[a + i * ND] * v;
-  }
+  static __thread casadi_real tls_V[NY * ND], tls_Sd[NY * ND], tls_St[ND * NY], tls_M[ND * ND];
+  casadi_real *V = OPAQUE(tls_V), *Sd = OPAQUE(tls_Sd), *St = OPAQUE(tls_St), *M = OPAQUE(tls_M);
+  int i, a, b, k;
+  for (b = 0; b < ND; ++b)                                     /* S~ */
+    for (i = 0; i < NY; ++i) Sd[i + b * NY] = DS[b] < 0 ? 0 : S[i + DS[b] * NY];
+  memcpy(V, Hyd, sizeof tls_V);                                /* V = H_YD + H_YY S~ / 2 */
+  gemm_nn(NY, ND, NY, 0.5, Hyy, NY, Sd, NY, V, NY);
+  for (i = 0; i < NY; ++i) for (a = 0; a < ND; ++a) St[a + i * ND] = Sd[i + a * NY];
+  memset(M, 0, sizeof tls_M);                                  /* M = S~' V */
+  gemm_nn(ND, ND, NY, 1, St, ND, V, NY, M, ND);
   for (k = 0; k < NHC; ++k) {                                   /* the pattern's entries, in order */
     a = HROW[k]; b = HCOL[k];
     Hc[k] = (a <= b ? Hdd[a + b * ND] : Hdd[b + a * ND]) + M[a + b * ND] + M[b + a * ND];
