@@ -241,7 +241,7 @@ class _DlInfo(ctypes.Structure):
 
 
 def in_use(address: int) -> dict:
-    """The BLASFEO that a function address (blasfeo_pack_dmat as the driver bound it) lies in, and
+    """The BLASFEO that a function address (blasfeo_dgese as the driver bound it) lies in, and
     what it was built for, and the tuned kernels in front of it (None: none); an error if
     RSCASADI_BLASFEO asked for another one."""
     dladdr = _libc("dladdr")

@@ -7,8 +7,10 @@
    per stage data (u first, then x; its dynamics x_{k+1} = F_k):
      BAbt_k = [B' ; A' ; b'] with b = F_k - x_{k+1},  Ggt_k = [G' ; g'] for equalities (g - lb),
      Ggt_ineq_k = [G' ; g'] for inequalities,  RSQrqt_k = [H ; grad L'] (u first).
-   The Jacobian's and Hessian's nonzeros go to these blocks by index maps made once in Python;
-   the blocks' other entries are zero from the start and every call writes the same places.
+   The Jacobian's and Hessian's nonzeros go to these blocks by index maps made once in Python
+   (places in column-major blocks) and turned here, once per solver, into places in fatrop's
+   panel-major memory (BLASFEO_DMATEL): each call writes them there directly.  The blocks' other
+   entries are zeroed then and stay zero (fatrop itself writes only their last rows).
    The full_eval callbacks return 1: done, no per-stage callbacks, and (unlike 2) fatrop still
    subtracts the slacks from the inequality rows of the constraint violation. */
 #include <stdlib.h>
@@ -42,7 +44,7 @@ typedef struct {
   const int *nx, *nu, *xoff, *roff;        /* per stage: sizes, first variable, first row */
   const int *a_eq, *a_eq_idx, *a_in, *a_in_idx;    /* path rows: equalities, inequalities */
   const int *x_eq, *x_eq_idx, *x_in, *x_in_idx;    /* bounded variables, likewise */
-  int nnz_j, nnz_h, n_jbuf, n_hbuf;
+  int nnz_j, nnz_h;
   int n_jparts, n_hparts;                  /* the derivative functions' outputs of nonzeros */
   const int *jt, *ht;                      /* block index of each Jacobian / Hessian nonzero
                                               (-1: none, -2: x_{k+1} in a gap row, must be 1;
@@ -65,7 +67,10 @@ typedef struct {
 typedef struct {
   const rsf_problem* P;
   const double *p, *lbx, *ubx, *lbg, *ubg, *x0;
-  double *x, *gv, *a, *h, *lam, *grad, *jbuf, *hbuf;
+  double *x, *gv, *a, *h, *lam, *grad;
+  int *jpm, *hpm, *hapm;                   /* the places in fatrop's blocks (panel_places) */
+  double **jseen, **hseen;                 /* the blocks' memory seen (seen_before) */
+  int n_jblocks, jnext, hnext;
   double *gx, fv;                          /* with fg: f and g (gv) are those at gx */
   int g_valid;
   const double** arg;
@@ -274,34 +279,91 @@ static fatrop_int initial_uk(double* uk, fatrop_int k, void* user_data) {
   return 0;
 }
 
-/* the last row of stage k's block, column c */
-#define LAST(buf, k, c) (buf)[(P->nx[k] + P->nu[k]) + (c) * (P->nx[k] + P->nu[k] + 1)]
+/* element (r, c) of fatrop's block A: BLASFEO's panel-major place */
+#define EL(A, r, c) BLASFEO_DMATEL(A, r, c)
+#define AT(A, r, c) ((int)(&BLASFEO_DMATEL(A, r, c) - (A)->pA))
 
-/* stage k's blocks of the Jacobian: the gap rows' constants, the identity rows of bounded
-   variables, packed for fatrop (each stage its own blocks: the stages run on threads) */
-static void jac_stage(rsf_data* d, int k, struct blasfeo_dmat* BAbt, struct blasfeo_dmat* Ggt,
-                      struct blasfeo_dmat* Ggt_ineq) {
+/* fatrop keeps two sets of Jacobian blocks and alternates between them (the last iterate's and the
+   new one): every set of block memory it has passed is remembered, up to SEEN sets */
+#define SEEN 4
+
+/* Whether fatrop's blocks (A[b] + k with n[3k + b] columns) are memory seen before; if not, it is
+   remembered (over the oldest set) and 0 returned.  seen: SEEN sets of the n_blocks blocks' pA */
+static int seen_before(double** seen, int n_blocks, struct blasfeo_dmat* const* A, const int* n, int K, int* next) {
+  int set, k, b, i;
+  for (set = 0; set < SEEN; ++set) {
+    double** s = seen + (size_t)set * n_blocks;
+    int same = 1;
+    for (k = 0, i = 0; k < K && same; ++k)
+      for (b = 0; b < 3; ++b) if (A[b] && n[3 * k + b] && s[i++] != A[b][k].pA) { same = 0; break; }
+    if (same) return 1;
+  }
+  seen += (size_t)*next * n_blocks;
+  *next = (*next + 1) % SEEN;
+  for (k = 0, i = 0; k < K; ++k)
+    for (b = 0; b < 3; ++b) if (A[b] && n[3 * k + b]) seen[i++] = A[b][k].pA;
+  return 0;
+}
+
+/* a block-buffer place (driver.py: stage k's blocks column-major, ld rows, at off[] in turn)
+   as a place in fatrop's block: (its place << 3) | (block << 1) | negated */
+static int panel_place(struct blasfeo_dmat* const* A, const int* off, int k, int ld, int place, int neg) {
+  int b = place < off[1] ? 0 : place < off[2] ? 1 : 2, local = place - off[b];
+  return (AT(A[b] + k, local % ld, local / ld) << 3) | (b << 1) | (neg ? 1 : 0);
+}
+
+/* The Jacobian's places in fatrop's blocks, made when its blocks are memory not seen before: the
+   blocks zeroed, each nonzero's place, in the order the stages write them (jorder) */
+static void jac_places(rsf_data* d, struct blasfeo_dmat* const* A, const int* n) {
   const rsf_problem* P = d->P;
-  int i, c, ld = P->nx[k] + P->nu[k] + 1;
-  double *B = d->jbuf + P->bab_off[k], *G = d->jbuf + P->geq_off[k], *I = d->jbuf + P->gin_off[k];
-  if (k < P->K - 1) {
-    for (i = 0; i < P->nx[k + 1]; ++i) LAST(B, k, i) = d->lbg[P->roff[k] + i] - d->gv[P->roff[k] + i];
-    blasfeo_pack_dmat(ld, P->nx[k + 1], B, ld, BAbt + k, 0, 0);
+  int k, b, i;
+  if (seen_before(d->jseen, d->n_jblocks, A, n, P->K, &d->jnext)) return;
+  for (k = 0; k < P->K; ++k) {
+    int off[3] = {P->bab_off[k], P->geq_off[k], P->gin_off[k]}, ld = P->nx[k] + P->nu[k] + 1;
+    for (b = 0; b < 3; ++b) if (n[3 * k + b]) { blasfeo_dgese(ld, n[3 * k + b], 0.0, A[b] + k, 0, 0); A[b][k].use_dA = 0; }
+    for (i = P->jstart[k]; i < P->jstart[k + 1]; ++i) {
+      int e = P->jorder[i];
+      d->jpm[i] = P->jt[e] >= 0 ? panel_place(A, off, k, ld, P->jt[e], P->js[e] < 0) : P->jt[e];
+    }
   }
+}
+
+/* stage k's blocks of the Jacobian in fatrop's memory: the nonzeros, the gap rows' constants, the
+   identity rows of bounded variables (each stage its own blocks: the stages run on threads);
+   nonzero if a gap row's x_{k+1} coefficient is not 1 */
+static int jac_stage(rsf_data* d, int k, struct blasfeo_dmat* const* A) {
+  const rsf_problem* P = d->P;
+  struct blasfeo_dmat *B = A[0] + k, *G = A[1] + k, *I = A[2] + k;
+  double* pA[3] = {k < P->K - 1 ? B->pA : 0, G->pA, I->pA};
+  int i, c, bad = 0, last = P->nx[k] + P->nu[k];
+  for (i = P->jstart[k]; i < P->jstart[k + 1]; ++i) {
+    int m = d->jpm[i];
+    double v = d->a[P->jorder[i]];
+    if (m >= 0) pA[(m >> 1) & 3][m >> 3] = m & 1 ? -v : v;
+    else if (m == -2 && v != 1) bad = 1;                              /* x_{k+1}'s coefficient */
+  }
+  if (k < P->K - 1)
+    for (i = 0; i < P->nx[k + 1]; ++i) EL(B, last, i) = d->lbg[P->roff[k] + i] - d->gv[P->roff[k] + i];
   c = 0;
-  for (i = P->a_eq_idx[k]; i < P->a_eq_idx[k + 1]; ++i, ++c) LAST(G, k, c) = d->gv[P->a_eq[i]] - d->lbg[P->a_eq[i]];
+  for (i = P->a_eq_idx[k]; i < P->a_eq_idx[k + 1]; ++i, ++c) EL(G, last, c) = d->gv[P->a_eq[i]] - d->lbg[P->a_eq[i]];
   for (i = P->x_eq_idx[k]; i < P->x_eq_idx[k + 1]; ++i, ++c) {
-    G[pos(P, k, P->x_eq[i]) + c * ld] = 1;
-    LAST(G, k, c) = d->x[P->x_eq[i]] - d->lbx[P->x_eq[i]];
+    EL(G, pos(P, k, P->x_eq[i]), c) = 1;
+    EL(G, last, c) = d->x[P->x_eq[i]] - d->lbx[P->x_eq[i]];
   }
-  if (c) blasfeo_pack_dmat(ld, c, G, ld, Ggt + k, 0, 0);
   c = 0;
-  for (i = P->a_in_idx[k]; i < P->a_in_idx[k + 1]; ++i, ++c) LAST(I, k, c) = d->gv[P->a_in[i]];
+  for (i = P->a_in_idx[k]; i < P->a_in_idx[k + 1]; ++i, ++c) EL(I, last, c) = d->gv[P->a_in[i]];
   for (i = P->x_in_idx[k]; i < P->x_in_idx[k + 1]; ++i, ++c) {
-    I[pos(P, k, P->x_in[i]) + c * ld] = 1;
-    LAST(I, k, c) = d->x[P->x_in[i]];
+    EL(I, pos(P, k, P->x_in[i]), c) = 1;
+    EL(I, last, c) = d->x[P->x_in[i]];
   }
-  if (c) blasfeo_pack_dmat(ld, c, I, ld, Ggt_ineq + k, 0, 0);
+  return bad;
+}
+
+/* the columns of stage k's Jacobian blocks (BAbt, Ggt, Ggt_ineq) */
+static void jac_columns(const rsf_problem* P, int k, int* n) {
+  n[0] = k < P->K - 1 ? P->nx[k + 1] : 0;
+  n[1] = P->a_eq_idx[k + 1] - P->a_eq_idx[k] + P->x_eq_idx[k + 1] - P->x_eq_idx[k];
+  n[2] = P->a_in_idx[k + 1] - P->a_in_idx[k] + P->x_in_idx[k + 1] - P->x_in_idx[k];
 }
 
 static fatrop_int constr_jac(const double* primal, const double* sp, const double* gp, struct blasfeo_dmat* BAbt,
@@ -312,22 +374,21 @@ static fatrop_int constr_jac(const double* primal, const double* sp, const doubl
   const double* in[2] = {d->x, d->p};
   double* out[1 + P->n_jparts];
   int n[1 + P->n_jparts];
-  int i, k, bad = 0, g = FG(P) ? 0 : 1;      /* outputs before the Jacobian's parts: g, or none */
+  struct blasfeo_dmat* A[3] = {BAbt, Ggt, Ggt_ineq};
+  int cols[3 * P->K];
+  int k, bad = 0, g = FG(P) ? 0 : 1;         /* outputs before the Jacobian's parts: g, or none */
   out[0] = d->gv; n[0] = P->ng;
   for (k = 0; k < P->n_jparts; ++k) { out[g + k] = d->a + P->jpart[k]; n[g + k] = P->jpart[k + 1] - P->jpart[k]; }
+  for (k = 0; k < P->K; ++k) jac_columns(P, k, cols + 3 * k);
+  jac_places(d, A, cols);
   read_primal(d, primal, s);
   if (FG(P)) eval_fg(d);
   if (P->n_pieces) pieces_jac(d);
   else call(d, P->jac_g, in, 2, out, n, g + P->n_jparts);
-  #pragma omp parallel for schedule(static) private(i) reduction(|:bad)
+  #pragma omp parallel for schedule(static) reduction(|:bad)
   for (k = 0; k < P->K; ++k) {
     if (k == 0) d->team = TEAM_NOW;
-    for (i = P->jstart[k]; i < P->jstart[k + 1]; ++i) {
-      int e = P->jorder[i];
-      if (P->jt[e] >= 0) d->jbuf[P->jt[e]] = P->js[e] * d->a[e];
-      else if (P->jt[e] == -2 && d->a[e] != 1) bad = 1;             /* x_{k+1}'s coefficient */
-    }
-    jac_stage(d, k, BAbt, Ggt, Ggt_ineq);
+    bad |= jac_stage(d, k, A);
   }
   if (bad) d->bad_gap = 1;
   return 1;
@@ -388,6 +449,29 @@ static fatrop_int obj(double scale, const double* primal, const double* sp, cons
   return 1;
 }
 
+/* The Hessian's places in fatrop's blocks (as jac_places): the written nonzeros', then the added ones' */
+static void hess_places(rsf_data* d, struct blasfeo_dmat* RSQrqt) {
+  const rsf_problem* P = d->P;
+  struct blasfeo_dmat* const A[3] = {RSQrqt, 0, 0};
+  int k, i, n[3 * P->K];
+  for (k = 0; k < P->K; ++k) { n[3 * k] = P->nx[k] + P->nu[k]; n[3 * k + 1] = n[3 * k + 2] = 0; }
+  if (seen_before(d->hseen, P->K, A, n, P->K, &d->hnext)) return;
+  for (k = 0; k < P->K; ++k) {
+    int ld = P->nx[k] + P->nu[k] + 1;
+    struct blasfeo_dmat* R = RSQrqt + k;
+    blasfeo_dgese(ld, ld - 1, 0.0, R, 0, 0);
+    R->use_dA = 0;
+    for (i = P->hstart[k]; i < P->hstart[k + 1]; ++i) {
+      int local = P->ht[P->horder[i]] - P->rsq_off[k];
+      d->hpm[i] = AT(R, local % ld, local / ld);
+    }
+    for (i = P->hadd_start[k]; i < P->hadd_start[k + 1]; ++i) {
+      int local = P->hadd_to[i] - P->rsq_off[k];
+      d->hapm[i] = AT(R, local % ld, local / ld);
+    }
+  }
+}
+
 /* fatrop's Lagrangian: scale f + lam_dyn' F_k + lam_eq' g_eq + lam_ineq' g_ineq (+ bound rows);
    the NLP's gap rows are x_{k+1} - F_k, so they take -lam_dyn and x_{k+1} gets lam_dyn back.
    The last row (the Lagrangian's gradient) is written as CasADi's plugin writes it; fatrop 1.1.8
@@ -423,20 +507,20 @@ static fatrop_int lag_hess(double scale, const double* primal, const double* lam
     c = P->a_eq_idx[k + 1] - P->a_eq_idx[k];
     for (i = P->x_eq_idx[k]; i < P->x_eq_idx[k + 1]; ++i) d->grad[P->x_eq[i]] += lam_data[s->g_offs[k] + c++];
   }
+  hess_places(d, RSQrqt);
   #pragma omp parallel for schedule(static) private(i)
   for (k = 0; k < P->K; ++k) {
     int n = P->nx[k] + P->nu[k];
-    double* R = d->hbuf + P->rsq_off[k];
-    for (i = P->hstart[k]; i < P->hstart[k + 1]; ++i) R[P->ht[P->horder[i]] - P->rsq_off[k]] = d->h[P->horder[i]];
-    for (i = P->hadd_start[k]; i < P->hadd_start[k + 1]; ++i) R[P->hadd_to[i] - P->rsq_off[k]] += d->h[P->hadd[i]];
-    for (i = 0; i < n; ++i) LAST(R, k, i) = d->grad[P->xoff[k] + (i < P->nu[k] ? P->nx[k] + i : i - P->nu[k])];
-    blasfeo_pack_dmat(n + 1, n, R, n + 1, RSQrqt + k, 0, 0);
+    double* R = RSQrqt[k].pA;
+    for (i = P->hstart[k]; i < P->hstart[k + 1]; ++i) R[d->hpm[i]] = d->h[P->horder[i]];
+    for (i = P->hadd_start[k]; i < P->hadd_start[k + 1]; ++i) R[d->hapm[i]] += d->h[P->hadd[i]];
+    for (i = 0; i < n; ++i) EL(RSQrqt + k, n, i) = d->grad[P->xoff[k] + (i < P->nu[k] ? P->nx[k] + i : i - P->nu[k])];
   }
   return 1;
 }
 
 /* where this driver's BLASFEO calls go (libfatrop's bind alike): blasfeo.py names the library */
-void* rsf_blasfeo_function(void) { return (void*)&blasfeo_pack_dmat; }
+void* rsf_blasfeo_function(void) { return (void*)&blasfeo_dgese; }
 
 /* fatrop keeps the last writer it was given for the process (a global stream): every solver gets
    this one, which prints only while a verbose solve runs (solves are one at a time, driver.py) */
@@ -458,7 +542,8 @@ void rsf_close(rsf_session* S) {
   if (!S) return;
   d = &S->d;
   if (S->solver) fatrop_ocp_c_destroy(S->solver);
-  free(d->x); free(d->gx); free(d->gv); free(d->a); free(d->h); free(d->lam); free(d->grad); free(d->jbuf); free(d->hbuf);
+  free(d->x); free(d->gx); free(d->gv); free(d->a); free(d->h); free(d->lam); free(d->grad);
+  free(d->jpm); free(d->hpm); free(d->hapm); free(d->jseen); free(d->hseen);
   free(d->arg); free(d->res); free(d->iw); free(d->w);
   if (d->targ) {
     int t;
@@ -477,7 +562,13 @@ rsf_session* rsf_open(const rsf_problem* P) {
   d->x = calloc(P->nv, sizeof(double)); d->gx = calloc(P->nv, sizeof(double)); d->gv = calloc(P->ng + 1, sizeof(double));
   d->a = calloc(P->nnz_j + 1, sizeof(double)); d->h = calloc(P->nnz_h + 1, sizeof(double));
   d->lam = calloc(P->ng + 1, sizeof(double)); d->grad = calloc(P->nv, sizeof(double));
-  d->jbuf = calloc(P->n_jbuf + 1, sizeof(double)); d->hbuf = calloc(P->n_hbuf + 1, sizeof(double));
+  d->jpm = calloc(P->jstart[P->K] + 1, sizeof(int)); d->hpm = calloc(P->hstart[P->K] + 1, sizeof(int));
+  d->hapm = calloc(P->hadd_start[P->K] + 1, sizeof(int));
+  {
+    int k, n[3];
+    for (k = 0; k < P->K; ++k) { jac_columns(P, k, n); d->n_jblocks += (n[0] > 0) + (n[1] > 0) + (n[2] > 0); }
+  }
+  d->jseen = calloc((size_t)SEEN * d->n_jblocks + 1, sizeof(double*)); d->hseen = calloc((size_t)SEEN * P->K + 1, sizeof(double*));
   d->arg = calloc(P->sz_arg + 4, sizeof(double*)); d->res = calloc(P->sz_res + 2, sizeof(double*));
   d->iw = calloc(P->sz_iw + 1, sizeof(casadi_int)); d->w = calloc(P->sz_w + 1, sizeof(double));
   if (P->n_pieces) {                       /* each thread its own z, k, lam, outputs and work memory */

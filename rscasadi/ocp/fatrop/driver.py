@@ -108,7 +108,7 @@ class _Problem(ctypes.Structure):
     _fields_ = ([(k, ctypes.c_int) for k in ("K", "nv", "ng")]  # type: ignore[assignment]  # typeshed: a union
                 + [(k, _I) for k in ("nx", "nu", "xoff", "roff", "a_eq", "a_eq_idx", "a_in", "a_in_idx",
                                      "x_eq", "x_eq_idx", "x_in", "x_in_idx")]
-                + [(k, ctypes.c_int) for k in ("nnz_j", "nnz_h", "n_jbuf", "n_hbuf", "n_jparts", "n_hparts")]
+                + [(k, ctypes.c_int) for k in ("nnz_j", "nnz_h", "n_jparts", "n_hparts")]
                 + [("jt", _I), ("ht", _I), ("js", _Dp), ("jpart", _I), ("hpart", _I)]
                 + [(k, _I) for k in ("jorder", "jstart", "horder", "hstart", "hadd", "hadd_to", "hadd_start")]
                 + [(k, _I) for k in ("bab_off", "geq_off", "gin_off", "rsq_off")]
@@ -201,7 +201,7 @@ class _Layout:
         hadd = _repeats(ht)
         hadd_to = ht[hadd]
         ht[hadd] = -1
-        # each stage's nonzeros listed together: the driver places and packs a stage at once, on the
+        # each stage's nonzeros listed together: the driver places a stage at once, on the
         # thread that evaluated that interval (its values still in that core's cache)
         jorder, jstart = _by_stage(self.r_stage[jac[1]], K)
         kept = np.flatnonzero(ht >= 0)
@@ -212,7 +212,6 @@ class _Layout:
             "jorder": jorder, "jstart": jstart, "horder": kept[horder], "hstart": hstart,
             "hadd": hadd[hsort], "hadd_to": hadd_to[hsort], "hadd_start": hadd_start,
             "bab_off": self.offs[:, 0], "geq_off": self.offs[:, 1], "gin_off": self.offs[:, 2], "rsq_off": rsq}.items()}
-        self.n_jbuf, self.n_hbuf = int(np.sum(sizes)), int(np.sum(self.ld * (nx + nu)))
 
     def _lists(self) -> dict:
         """Per stage, its equality and inequality rows and bounded variables (CSR-like)."""
@@ -224,7 +223,8 @@ class _Layout:
         return lists
 
     def _jacobian_places(self, r, c, lists, nu):
-        """Each Jacobian nonzero's place in jbuf and sign: a gap row's (x_k, u_k) entries go to BAbt
+        """Each Jacobian nonzero's place and sign (places: stage by stage the blocks BAbt, Ggt, Ggt_ineq
+        column-major, ld rows each, one after another; driver.c turns them into fatrop's memory): a gap row's (x_k, u_k) entries go to BAbt
         negated (fatrop's x_{k+1} = F), its x_{k+1} entry must be 1 (-2: checked in C), path rows to
         Ggt or Ggt_ineq, free rows nowhere (-1)."""
         col = np.full(self.ng, -1)                                # a path row's column in its block
@@ -339,7 +339,7 @@ class DirectFatrop:
 
     def _problem(self, L: _Layout) -> _Problem:
         (jo, ho), arrays = self._offsets, L.arrays
-        P = _Problem(K=L.K, nv=L.nv, ng=L.ng, nnz_j=int(jo[-1]), nnz_h=int(ho[-1]), n_jbuf=L.n_jbuf, n_hbuf=L.n_hbuf,
+        P = _Problem(K=L.K, nv=L.nv, ng=L.ng, nnz_j=int(jo[-1]), nnz_h=int(ho[-1]),
                      n_jparts=len(jo) - 1, n_hparts=len(ho) - 1, js=L.js.ctypes.data_as(_Dp),
                      jpart=jo.ctypes.data_as(_I), hpart=ho.ctypes.data_as(_I),
                      sz_arg=self.work[0], sz_res=self.work[1], sz_iw=self.work[2], sz_w=self.work[3])
