@@ -223,10 +223,10 @@ class _Layout:
         return lists
 
     def _jacobian_places(self, r, c, lists, nu):
-        """Each Jacobian nonzero's place and sign (places: stage by stage the blocks BAbt, Ggt, Ggt_ineq
-        column-major, ld rows each, one after another; driver.c turns them into fatrop's memory): a gap row's (x_k, u_k) entries go to BAbt
-        negated (fatrop's x_{k+1} = F), its x_{k+1} entry must be 1 (-2: checked in C), path rows to
-        Ggt or Ggt_ineq, free rows nowhere (-1)."""
+        """Each Jacobian nonzero's place and sign: a gap row's (x_k, u_k) entries go to BAbt negated
+        (fatrop's x_{k+1} = F), its x_{k+1} entry must be 1 (-2: checked in C), path rows to Ggt or
+        Ggt_ineq, free rows nowhere (-1).  A place counts stage by stage through the blocks BAbt,
+        Ggt, Ggt_ineq, each column-major with ld rows; driver.c turns it into fatrop's memory."""
         col = np.full(self.ng, -1)                                # a path row's column in its block
         for name in ("a_eq", "a_in"):
             idx, start = lists[name], lists[name + "_idx"]
