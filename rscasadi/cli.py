@@ -127,18 +127,14 @@ def _cmd_mpc(args):
         plot_task_study(res, Path(args.out) / "closed_loop.png")
         print(f"wrote {Path(args.out) / 'closed_loop.json'} and closed_loop.png")
     elif args.study is not None:
-        import os
         traces = {}
         res = closed_loop(args.problem, args.out, duration=args.study or None, log=lambda msg: print(msg, flush=True),
                           model=args.model, traces=traces)
         out = Path(args.out)
-        tmp_png = out / f".closed_loop.{os.getpid()}.png"
-        try:                                          # both files, or neither
+        from rscasadi.files import replacing
+        with replacing(out / "closed_loop.png") as tmp_png:         # both files, or neither
             plot_closed_loop({"heavier_tip": traces}, tmp_png)
             write_json(out / "closed_loop.json", res)
-            tmp_png.replace(out / "closed_loop.png")
-        finally:
-            tmp_png.unlink(missing_ok=True)
         print(f"wrote {out / 'closed_loop.json'} and closed_loop.png")
 
 
@@ -150,11 +146,10 @@ def _cmd_simulate(args):
 
 
 def _cmd_view(args):
+    from rscasadi.files import check_output_file
     from rscasadi.view import scene_of, write_gif, write_html
     for target in [args.out] + ([args.gif] if args.gif else []):
-        parent = Path(target).resolve().parent
-        if not parent.is_dir():
-            raise OutputError(f"{target}: the directory {parent} does not exist")
+        check_output_file(target)
     scene = scene_of(args.result, model=args.model)
     for name, why in scene.skipped:
         print(f"skipped mesh {name!r}: {why}; its link is drawn by its capsules")

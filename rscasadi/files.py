@@ -6,6 +6,7 @@ import contextlib
 import hashlib
 import os
 import shutil
+import stat
 import tempfile
 from pathlib import Path
 
@@ -35,15 +36,60 @@ def sources_digest(*paths) -> str:
     return digest.hexdigest()
 
 
+MiB = 1 << 20
+MAX_INPUT_BYTES = {"log": 256 * MiB,       # 29 columns at 1 kHz for 15 min; longer runs: several logs
+                   "mesh": 64 * MiB,       # the largest meshes of public robot descriptions are ~20 MB
+                   "model": 16 * MiB,      # a model file, a URDF, a problem or trajectory file
+                   "result": 256 * MiB}    # a solution.json
+
+
+class InputTooLarge(Error, ValueError):
+    """An input file is larger than rscasadi reads for its kind: refused by its size, unread."""
+
+
+def check_input_size(path, kind: str) -> None:
+    """Refuse `path` before reading it when it is larger than MAX_INPUT_BYTES[kind], naming the
+    file, its size and the limit: a 2 GB file is refused at once, not after minutes and
+    gigabytes of memory.  A missing file is left for the reader to name."""
+    try:
+        size = Path(path).stat().st_size
+    except OSError:
+        return
+    limit = MAX_INPUT_BYTES[kind]
+    if size > limit:
+        raise InputTooLarge(f"{path}: {size / MiB:.0f} MiB, larger than the {limit // MiB} MiB rscasadi reads "
+                            f"for a {kind} file; refused unread"
+                            + (" (split a long log into several: identify takes many)" if kind == "log" else ""))
+
+
 def _existing_ancestor(path: Path) -> Path:
     while not path.exists():
         path = path.parent
     return path
 
 
+def _kind(mode: int) -> str:
+    """A file's kind in words, from its st_mode."""
+    for test, word in ((stat.S_ISDIR, "a directory"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket"),
+                       (stat.S_ISLNK, "a symbolic link"), (stat.S_ISREG, "a regular file")):
+        if test(mode):
+            return word
+    return "a special file"
+
+
+def _not_a_link(path: Path, what: str):
+    """Refuse `path` if its last component is a symbolic link: an output goes where it is named,
+    never where a link points (a link into a system folder would have rscasadi write there)."""
+    if path.is_symlink():
+        raise OutputError(f"{path} is a symbolic link (to {os.readlink(path)}); refusing to write {what} through "
+                          "it: give the real path")
+
+
 def check_writable(out) -> Path:
     """`out` resolved, after checking that it is a directory (or can be made one) that this
-    process may write: before the work, not after it."""
+    process may write, and not a symbolic link: before the work, not after it."""
+    _not_a_link(Path(out), "a directory")
     out = Path(out).resolve()
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out} exists and is not a directory; give --out a directory")
@@ -53,6 +99,29 @@ def check_writable(out) -> Path:
     if not os.access(here, os.W_OK | os.X_OK):
         raise OutputError(f"cannot write into {out}: {here} is not writable")
     return out
+
+
+def check_output_file(path) -> Path:
+    """`path` (absolute), after checking before the work that it can become a regular file:
+    absent or a regular file, not a symbolic link, in an existing directory this process may
+    write.  A device, FIFO, socket or directory there is refused by name, never replaced."""
+    path = Path(path)
+    _not_a_link(path, "a file")
+    try:
+        mode = path.lstat().st_mode
+    except FileNotFoundError:
+        mode = None
+    except OSError as exc:
+        raise OutputError(f"{path}: {exc.strerror}") from exc
+    if mode is not None and not stat.S_ISREG(mode):
+        raise OutputError(f"{path} exists and is {_kind(mode)}, not a regular file; refusing to replace it "
+                          "(give the name of a file to write)")
+    parent = path.absolute().parent
+    if not parent.is_dir():
+        raise OutputError(f"{path}: the directory {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise OutputError(f"cannot write {path}: {parent} is not writable")
+    return path.absolute()
 
 
 def _replaced(src: Path, dst: Path, prefix: str = "") -> tuple[list[str], list[str]]:
@@ -67,8 +136,9 @@ def _replaced(src: Path, dst: Path, prefix: str = "") -> tuple[list[str], list[s
             replaced, clash = replaced + r, clash + c
         elif target.exists() or target.is_symlink():
             replaced.append(name)
-            if target.is_dir() != entry.is_dir():
-                clash.append(name)
+            mode = target.lstat().st_mode
+            if stat.S_ISDIR(mode) != entry.is_dir() or not (stat.S_ISDIR(mode) or stat.S_ISREG(mode)):
+                clash.append(f"{name} ({_kind(mode)})")
     return replaced, clash
 
 
@@ -142,8 +212,8 @@ def fresh_directory(out):
             return
         replaced, clash = _replaced(tmp, out)
         if clash:
-            raise OutputError(f"{out}: {', '.join(clash)} is of another kind (file or directory) than what "
-                              f"rscasadi writes there; refusing to replace it")
+            raise OutputError(f"{out}: {', '.join(clash)} is of another kind than what rscasadi writes there "
+                              f"(a regular file or a directory); refusing to replace it")
         replaced = [name for name in replaced if name != MARKER]
         if replaced and not (out / MARKER).is_file():
             raise OutputError(f"{out} was not written by rscasadi (no {MARKER} file in it) and holds "
@@ -183,11 +253,16 @@ def finite_json(obj):
 @contextlib.contextmanager
 def replacing(path):
     """The project's one atomic write: a temporary name beside `path` to write to, which replaces
-    `path` whole when the block ends normally and is removed otherwise."""
-    path = Path(path)
+    `path` whole when the block ends normally and is removed otherwise.  `path` must be absent or
+    a regular file (check_output_file), checked before and again just before the replacement: a
+    device, FIFO, socket, directory or symbolic link is never replaced."""
+    path = check_output_file(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    if tmp.is_symlink() or (tmp.exists() and not tmp.is_file()):
+        raise OutputError(f"{tmp} (rscasadi's temporary name for {path.name}) exists and is not a regular file")
     try:
         yield tmp
+        check_output_file(path)
         tmp.replace(path)
     finally:
         tmp.unlink(missing_ok=True)

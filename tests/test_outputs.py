@@ -13,7 +13,7 @@ import pytest
 from rscasadi.cli import main
 from rscasadi.files import OutputError, fresh_directory, write_json
 
-from conftest import REFERENCE
+from conftest import REFERENCE, ROOT
 
 
 def _write(out, names):
@@ -173,3 +173,107 @@ def test_read_only_output_is_refused_before_the_work(read_only, tmp_path, capsys
         assert "not writable" in res.err and str(read_only) in res.err, res.err
         assert not_started not in res.out and "Traceback" not in res.err, res.out
     assert list(read_only.iterdir()) == []
+
+
+def _special_files(tmp_path):
+    """A FIFO, a socket, a directory and (as root) a character device made in tmp_path, never the
+    machine's own: what an output must refuse rather than replace."""
+    import socket
+    made = {"FIFO": tmp_path / "fifo.out"}
+    os.mkfifo(made["FIFO"])
+    made["socket"] = tmp_path / "sock.out"
+    sock = socket.socket(socket.AF_UNIX)
+    sock.bind(str(made["socket"]))
+    made["directory"] = tmp_path / "dir.out"
+    made["directory"].mkdir()
+    if os.geteuid() == 0:
+        made["character device"] = tmp_path / "null.out"
+        os.mknod(made["character device"], stat.S_IFCHR | 0o666, os.makedev(1, 3))
+    return made, sock
+
+
+def _kinds(paths):
+    return {name: stat.S_IFMT(os.lstat(p).st_mode) for name, p in paths.items()}
+
+
+@pytest.mark.parametrize("command", ["view", "view --gif", "simulate"])
+def test_an_output_file_never_replaces_a_device_fifo_socket_or_directory(command, tmp_path, capsys):
+    """view --out, view --gif and simulate --out pointed at a device node, a FIFO, a socket or a
+    directory: exit 2 naming the path and its kind, before the work, and the node is still there
+    and of its kind."""
+    made, sock = _special_files(tmp_path)
+    before = _kinds(made)
+    traj = ROOT / "problems" / "trajectory_arm3.toml"
+    try:
+        for kind, target in made.items():
+            argv = {"view": ["view", str(REFERENCE), "--out", str(target)],
+                    "view --gif": ["view", str(REFERENCE), "--out", str(tmp_path / "v.html"), "--gif", str(target)],
+                    "simulate": ["simulate", str(REFERENCE), str(traj), "--out", str(target)]}[command]
+            assert main(argv) == 2, kind
+            err = capsys.readouterr().err
+            assert str(target) in err and ("not a regular file" in err or "is not a directory" in err), err
+            assert not (tmp_path / "v.html").exists()
+    finally:
+        sock.close()
+    assert _kinds(made) == before
+
+
+def test_an_output_through_a_symlink_is_refused(tmp_path, capsys):
+    """An --out (file or directory) that is a symbolic link, here into a folder standing for a
+    system one: refused by name, and nothing is written where it points."""
+    system = tmp_path / "system"
+    system.mkdir()
+    (system / "passwd").write_text("root:x:0:0\n")
+    link_file, link_dir = tmp_path / "view.html", tmp_path / "out"
+    os.symlink(system / "passwd", link_file)
+    os.symlink(system, link_dir)
+    assert main(["view", str(REFERENCE), "--out", str(link_file)]) == 2
+    assert "symbolic link" in capsys.readouterr().err
+    assert main(["export", "mujoco", str(REFERENCE), "--out", str(link_dir)]) == 2
+    assert "symbolic link" in capsys.readouterr().err
+    assert sorted(p.name for p in system.iterdir()) == ["passwd"]
+    assert (system / "passwd").read_text() == "root:x:0:0\n"
+
+
+def test_a_device_inside_an_output_directory_is_not_replaced(tmp_path):
+    """A directory rscasadi wrote, in which a file it writes has become a FIFO: the next run
+    refuses to replace it, and the directory is as it was."""
+    out = tmp_path / "out"
+    _write(out, ["a.txt"])
+    (out / "a.txt").unlink()
+    os.mkfifo(out / "a.txt")
+    with pytest.raises(OutputError, match="a.txt .a FIFO."):
+        _write(out, ["a.txt"])
+    assert stat.S_ISFIFO(os.lstat(out / "a.txt").st_mode)
+
+
+def test_huge_inputs_are_refused_by_size_at_once(tmp_path, capsys):
+    """A 2 GiB log and a 2 GiB mesh (sparse files: no disk used): the log is refused in one line,
+    by its size, without being read; the mesh is skipped with its size named, and view still
+    draws the arm."""
+    import time
+    log = tmp_path / "huge.csv"
+    with open(log, "wb") as fh:
+        fh.write(b"t,theta_1,theta_2,theta_3,phi_1,phi_2,phi_3,tau_1,tau_2,tau_3\n")
+        fh.truncate(2 << 30)
+    t0 = time.perf_counter()
+    assert main(["identify", str(REFERENCE), str(log), "--out", str(tmp_path / "ident")]) == 2
+    err = capsys.readouterr().err
+    assert time.perf_counter() - t0 < 30                     # a generous bound: reading it took minutes
+    assert err.count("\n") == 1 and "2048 MiB" in err and str(log) in err and "refused unread" in err, err
+    assert not (tmp_path / "ident").exists()
+    pkg = tmp_path / "robot"
+    (pkg / "urdf").mkdir(parents=True)
+    (pkg / "package.xml").write_text("<package><name>robot</name></package>\n")
+    (pkg / "meshes").mkdir()
+    with open(pkg / "meshes" / "huge.stl", "wb") as fh:
+        fh.truncate(2 << 30)
+    text = (ROOT / "problems" / "urdf" / "panda.urdf").read_text().replace(
+        "package://example-robot-data/robots/panda_description/meshes/visual/link3.dae", "package://robot/meshes/huge.stl")
+    (pkg / "urdf" / "panda.urdf").write_text(text)
+    model = (ROOT / "problems" / "panda_sea.toml").read_text().replace('urdf = "urdf/panda.urdf"', 'urdf = "robot/urdf/panda.urdf"')
+    (tmp_path / "panda.toml").write_text(model)
+    assert main(["view", str(tmp_path / "panda.toml"), "--out", str(tmp_path / "view.html")]) in (0, None)
+    out = capsys.readouterr().out
+    assert "skipped mesh 'package://robot/meshes/huge.stl': 2048 MiB, larger than" in out, out
+    assert (tmp_path / "view.html").stat().st_size > 0

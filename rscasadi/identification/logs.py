@@ -137,7 +137,9 @@ def column_groups(path, cols: list, n: int) -> dict:
 
 def read_log(path, n: int, min_samples: int = 50) -> Log:
     """Read and check a log for an n-joint arm."""
+    from rscasadi.files import check_input_size
     path = Path(path)
+    check_input_size(path, "log")
     try:
         with open(path, newline="") as fh:
             rows = list(csv.reader(fh))

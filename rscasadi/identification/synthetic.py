@@ -127,15 +127,13 @@ def simulate_log(model, trajectory, out, rate: float = 1000.0, noise: float = 0.
     rate, a divisor of the loop's `rate`."""
     import time
     from rscasadi.dynamics.arm import load
-    from rscasadi.files import check_writable, write_text
+    from rscasadi.files import check_output_file, write_text
     from rscasadi.identification.logs import write_log
     from rscasadi.model.modelfile import document, to_toml
     from rscasadi.sim.trajectory import load_trajectory
     out = Path(out)
     for target in [out] + ([Path(true_model)] if true_model else []):
-        if target.is_dir():
-            raise OSError(21, "is a directory: give a file name", str(target))
-        check_writable(target.resolve().parent)
+        check_output_file(target)
     if not (rate > 0 and np.isfinite(rate)) or not (noise >= 0 and np.isfinite(noise)):
         raise InvalidArgument(f"simulate: --rate {rate!r} must be > 0 and --noise {noise!r} >= 0")
     nominal = load(model)

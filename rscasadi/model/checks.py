@@ -169,6 +169,8 @@ def field_checker(path, d: dict, allowed):
 
 def read_toml(path, kind: str = "model") -> dict:
     """A TOML document, or a ModelFileError that names the file (kind: model, problem, trajectory)."""
+    from rscasadi.files import check_input_size
+    check_input_size(path, "model")
     try:
         with open(path, "rb") as fh:
             return tomllib.load(fh)

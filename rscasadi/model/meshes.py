@@ -43,6 +43,14 @@ def _inside(path: Path, root: Path) -> Path | None:
     return real
 
 
+def _too_large(path: Path) -> str:
+    """Why a mesh file is not read for its size, or "" (checked before trimesh reads it)."""
+    from rscasadi.files import MAX_INPUT_BYTES, MiB
+    size = path.stat().st_size
+    limit = MAX_INPUT_BYTES["mesh"]
+    return f"{size / MiB:.0f} MiB, larger than the {limit // MiB} MiB rscasadi reads for a mesh" if size > limit else ""
+
+
 def mesh_file(urdf: Path, name: str) -> tuple[Path | None, str]:
     """A mesh file inside the robot's package, and why not where there is none."""
     urdf = Path(urdf)
@@ -55,6 +63,8 @@ def mesh_file(urdf: Path, name: str) -> tuple[Path | None, str]:
         if Path(name).is_absolute():
             return None, f"an absolute path (outside the robot's package {root})"
         found = _inside(urdf.resolve().parent / name, root)
+        if found and _too_large(found):
+            return None, _too_large(found)
         return (found, "") if found else (None, f"not a mesh file inside the robot's package {root}")
     parts = Path(name[len("package://"):]).parts
     if ".." in parts:
@@ -62,7 +72,7 @@ def mesh_file(urdf: Path, name: str) -> tuple[Path | None, str]:
     for k in range(len(parts)):                         # with or without the package's own name
         found = _inside(root.joinpath(*parts[k:]), root)
         if found:
-            return found, ""
+            return (None, _too_large(found)) if _too_large(found) else (found, "")
     return None, f"not found inside the robot's package {root} (a package.xml marks its root)"
 
 

@@ -80,6 +80,9 @@ def _load(path, ctx):
     import io
 
     import yourdfpy
+
+    from rscasadi.files import check_input_size
+    check_input_size(path, "model")
     try:
         text, _ = snapped(path)
         return yourdfpy.URDF.load(io.BytesIO(text), load_meshes=False, build_scene_graph=False,

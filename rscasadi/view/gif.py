@@ -5,6 +5,7 @@ everything the scene shows at any instant (nothing clipped).  matplotlib in 3D, 
 animation frame, 800 x 600 pixels."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from typing import Any
@@ -157,10 +158,11 @@ def write_gif(scene, out: Path, fps: int = 15):
                   + (f" (slowed x{slow:.1f})" if slow > 1 else ""), transform=ax.transAxes, fontsize=11)
         return []
 
-    tmp = Path(out).with_name(f".{Path(out).name}.part.gif")
+    from rscasadi.files import replacing
     try:
-        FuncAnimation(fig, draw, frames=frames).save(tmp, writer=PillowWriter(fps=rate))
-        tmp.replace(out)
+        with replacing(out) as tmp:
+            FuncAnimation(fig, draw, frames=frames).save(tmp.with_suffix(".gif"), writer=PillowWriter(fps=rate))
+            tmp.with_suffix(".gif").replace(tmp)
     finally:
-        tmp.unlink(missing_ok=True)
+        Path(out).with_name(f".{Path(out).name}.{os.getpid()}.gif").unlink(missing_ok=True)
         plt.close(fig)

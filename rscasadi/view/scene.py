@@ -138,7 +138,9 @@ def _poses(arm: Arm, thetas: np.ndarray) -> np.ndarray:
 
 def scene_of(path, model=None) -> Scene:
     """The scene of a solution.json, or of a model file alone (the arm at theta = 0)."""
+    from rscasadi.files import check_input_size
     path = Path(path)
+    check_input_size(path, "result")
     text = path.read_text() if path.suffix == ".json" else None
     if text is None:
         arm = load(path)
