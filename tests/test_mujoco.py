@@ -223,3 +223,65 @@ def test_a_push_in_mujoco_moves_the_impedance_controlled_tool_by_force_over_stif
     assert res["observer_error"] < 0.01 * res["observer_torque"], res
     with pytest.raises(Exception, match="push needs the frame"):
         mujoco_plant(arm, 1e-3, push=lambda t: np.zeros(6))
+
+
+def _off_zero_arm(tmp_path):
+    """A random arm whose first and last joints' ranges exclude 0 (MuJoCo's default qpos)."""
+    from conftest import random_arm_doc, write_arm
+    doc = random_arm_doc(np.random.default_rng(104), 4)
+    for jt in doc["joints"]:
+        jt["sea"]["k3"], jt["gear_loss"]["c"] = 0.0, 0.0
+    doc["joints"][0].setdefault("limits", {})["theta"] = [0.4, 2.0]
+    doc["joints"][-1].setdefault("limits", {})["theta"] = [-2.5, -0.7]
+    return rscasadi.load(write_arm(tmp_path, doc))
+
+
+def _baxter_left(tmp_path):
+    """Baxter's left arm with motors strong enough to hold it level (1 N m at gear 100)."""
+    from test_whole_robot import sidecar, write
+    doc = sidecar()
+    for jt in doc["joints"]:
+        jt["limits"]["tau"] = 1.0
+    return rscasadi.load(write(tmp_path, doc))
+
+
+@pytest.mark.parametrize("name,variant", [(n, "complete") for n in ("arm3", "panda", "off_zero", "baxter")]
+                         + [("panda", "reduced"), ("panda", "armature"), ("off_zero", "armature")])
+def test_the_export_starts_at_rest_inside_its_ranges(name, variant, tmp_path):
+    """MuJoCo's qpos0 lies inside every link's range (the Panda's fourth joint and a random arm
+    have ranges without 0), and the keyframe "rest" (qpos0 and the holding torques) is a static
+    equilibrium in MuJoCo's own terms: the generalised forces it computes there (springs, gravity,
+    motors), projected through the gear, cancel to 1e-9 of the gravity's; from it 0.2 s of
+    MuJoCo's motion touches no limit."""
+    from rscasadi.export.mujoco import gear_map
+    arm = {"off_zero": _off_zero_arm, "baxter": _baxter_left}[name](tmp_path) if name in ("off_zero", "baxter") \
+        else rscasadi.load(ARMS[name][0])
+    m = mujoco.MjModel.from_xml_string(mujoco_xml(arm.model, variant))
+    d = mujoco.MjData(m)
+    limited = np.flatnonzero(m.jnt_limited)
+    assert len(limited) > 0
+    q0 = m.qpos0[m.jnt_qposadr[limited]]
+    lo, hi = m.jnt_range[limited].T
+    assert np.all((lo < q0) & (q0 < hi)), (q0, lo, hi)
+    if name in ("panda", "off_zero"):
+        assert np.any(lo > 0) or np.any(hi < 0)                # the test can tell qpos 0 from the rest
+    assert m.nkey == 1 and m.key(0).name == "rest"
+    mujoco.mj_resetDataKeyframe(m, d, 0)
+    mujoco.mj_forward(m, d)
+    T = np.eye(m.nv)[:, :arm.n] if variant == "armature" else gear_map(arm, m)
+    residual = T.T @ (d.qfrc_passive + d.qfrc_actuator - d.qfrc_bias)
+    assert np.max(np.abs(residual)) < 1e-9 * np.max(np.abs(T.T @ d.qfrc_bias)), residual
+    for _ in range(200):
+        mujoco.mj_step(m, d)
+        assert mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT not in set(d.efc_type[:d.nefc])
+
+
+def test_the_export_says_which_joints_cannot_hold_the_rest(tmp_path, capsys):
+    """Baxter's left arm with motors too weak to hold it level: the keyframe's torques are the
+    limits, and the command names the joints that cannot hold the rest."""
+    from rscasadi.cli import main
+    from test_whole_robot import sidecar, write
+    path = write(tmp_path, sidecar())
+    assert main(["export", "mujoco", str(path), "--out", str(tmp_path / "mj")]) == 0
+    out = capsys.readouterr().out
+    assert "cannot hold the rest pose" in out and "left_s1" in out, out

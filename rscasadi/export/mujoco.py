@@ -20,6 +20,10 @@ payload's sphere) are geoms on their links, of contype 2 and conaffinity 1: they
 user adds to the world (MuJoCo's default geoms, contype = conaffinity = 1) and never each other,
 as the model's capsules are only ever checked against obstacles.  Meshes are not written: the
 capsules are the geometry.
+The model starts at rest: every hinge's `ref` (MuJoCo's qpos0, with its body's frame turned by
+it, so that qpos stays the model's angle) is the rest pose, the links at the angle nearest 0
+inside their range (`rest_pose`) and the rotors where the springs hold them statically, and the
+keyframe "rest" adds the motor torques that hold it (mj_resetDataKeyframe(m, d, 0)).
 MuJoCo keeps the gear only as a constraint it solves softly: the file asks for RK4 at 1 ms and
 an equality nearly hard (solimp 0.9999), under which its motion follows the complete model
 (tests/test_mujoco.py). Not expressed, and refused by name: a cubic spring term (k3), Coulomb
@@ -54,6 +58,58 @@ def _quat(R) -> str:
         q[0], q[1 + i] = (R[k, j] - R[j, k]) / s, s / 4
         q[1 + j], q[1 + k] = (R[j, i] + R[i, j]) / s, (R[k, i] + R[i, k]) / s
     return " ".join(repr(float(v)) for v in q)
+
+
+def _rz(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _hinge_frame(pos, R, ref: float) -> str:
+    """A hinge body's pos and quat for a joint whose qpos0 is `ref`: the body frame is R turned
+    by ref about z, so that at qpos = q it is R Rz(q), as with ref 0 (MuJoCo turns a hinge's body
+    by qpos - qpos0)."""
+    return f'pos="{_numbers(pos)}" quat="{_quat(np.asarray(R, float) @ _rz(ref))}"'
+
+
+REST_MARGIN = 0.05        # the rest angle keeps this fraction of its range from either end
+
+
+def rest_pose(model) -> np.ndarray:
+    """Each link's rest angle: 0 where it lies inside the joint's range, else the nearest angle
+    inside it, REST_MARGIN of the range from its end."""
+    theta = np.zeros(len(model.joints))
+    for j, jt in enumerate(model.joints):
+        lim = jt.limits.get("theta")
+        if lim is not None and np.all(np.isfinite(lim)):
+            lo, hi = float(lim[0]), float(lim[1])
+            if not lo <= 0.0 <= hi:
+                margin = REST_MARGIN * (hi - lo)
+                theta[j] = float(np.clip(0.0, lo + margin, hi - margin))
+    return theta
+
+
+def rest_state(model, variant: str = "complete") -> tuple:
+    """(theta, phi, tau) of the rest the export starts in: the links at `rest_pose`, the motors
+    where the springs hold the links statically (the reduced model's for "reduced"), and the
+    motor torques that hold them still.  "armature": no spring; the rotors welded at their zero
+    angle, the motors carry the link torque through the gear (tau = -T / mu)."""
+    from rscasadi.dynamics.arm import Arm
+    from rscasadi.dynamics.statics import spring_deflection
+    arm, theta = Arm(model), rest_pose(model)
+    z = np.zeros(arm.n)
+    if variant == "armature":
+        T = np.array(arm.inverse_dynamics()(theta, z, z, z, z, z)[1]).ravel()
+        return theta, theta, -T / model.column("gear_ratio")
+    inv = arm.inverse_dynamics() if variant == "complete" else arm.reduced_inverse_dynamics()
+    phi = theta.copy()
+    for _ in range(50):             # unbalanced rotors' weight moves with phi: a fixed point, k1 >> its slope
+        T = np.array(inv(theta, phi, z, z, z, z)[1]).ravel()
+        phi, before = theta + spring_deflection(arm, T), phi
+        if np.max(np.abs(phi - before)) < 1e-15:
+            break
+    tau = np.array(inv(theta, phi, z, z, z, z)[0]).ravel()
+    return theta, phi, tau
 
 
 def _numbers(v) -> str:
@@ -126,6 +182,7 @@ def mujoco_xml(model, variant: str = "complete") -> str:
         from rscasadi.dynamics.arm import Arm
         Arm(model).mass_matrix(reduced=True)
     names = [safe_name(jt.name) for jt in model.joints]
+    theta0, phi0, tau0 = rest_state(model, variant)
     g = np.asarray(model.gravity, float)
     lines = [f'<mujoco model={quoteattr(safe_name(model.name))}>',
              f'  <option timestep="{TIMESTEP!r}" integrator="RK4" gravity="{_numbers(g)}"/>',
@@ -135,42 +192,47 @@ def mujoco_xml(model, variant: str = "complete") -> str:
 
     def joint_bodies(j: int, indent: str) -> list:
         jt, name = model.joints[j], names[j]
-        pos, quat = _numbers(jt.origin_xyz), _quat(jt.R)
         theta = jt.limits.get("theta")
         rigid = f' armature="{float(jt.rotor_inertia)!r}"' if armature else ""
         damping = jt.link_b + (jt.b if armature else 0.0)
         link_side = (f' damping="{float(damping)!r}"' if damping else "") + (
             f' stiffness="{float(jt.cb_k)!r}" springref="{float(jt.cb_theta0)!r}"' if jt.cb_k else "")
-        out = [f'{indent}<body name="{name}_link" pos="{pos}" quat="{quat}">',
+        out = [f'{indent}<body name="{name}_link" {_hinge_frame(jt.origin_xyz, jt.R, theta0[j])}>',
                _inertial(jt.link, indent + "  ").rstrip("\n"),
-               f'{indent}  <joint name="{name}" type="hinge" axis="0 0 1"{rigid}{link_side}'
+               f'{indent}  <joint name="{name}" type="hinge" axis="0 0 1" ref="{float(theta0[j])!r}"{rigid}{link_side}'
                + (f' range="{theta[0]!r} {theta[1]!r}"' if theta is not None and np.all(np.isfinite(theta)) else "")
                + "/>"] + _attached(model, j + 1, indent + "  ")
         if j + 1 < len(model.joints):
             out += joint_bodies(j + 1, indent + "  ")
         out.append(f"{indent}</body>")
-        for part, suffix, damping in (("slow_rotor", "slow", jt.b), ("fast_rotor", "fast", 0.0)):
-            out += [f'{indent}<body name="{name}_{suffix}" pos="{pos}" quat="{quat}">',
+        for part, suffix, damping, gear in (("slow_rotor", "slow", jt.b, 1.0), ("fast_rotor", "fast", 0.0, -jt.gear_ratio)):
+            ref = float(gear * phi0[j]) if variant == "complete" else 0.0
+            out += [f'{indent}<body name="{name}_{suffix}" {_hinge_frame(jt.origin_xyz, jt.R, ref)}>',
                     _inertial(getattr(jt, part), indent + "  ").rstrip("\n")]
             if variant == "complete":
-                out.append(f'{indent}  <joint name="{name}_{suffix}" type="hinge" axis="0 0 1" damping="{float(damping)!r}"/>')
+                out.append(f'{indent}  <joint name="{name}_{suffix}" type="hinge" axis="0 0 1" ref="{ref!r}" '
+                           f'damping="{float(damping)!r}"/>')
             out.append(f"{indent}</body>")
         return out
 
     lines += joint_bodies(0, "    ")
     if reduced:                         # each motor coordinate on its own, its spin inertia B_j
-        for n, jt in zip(names, model.joints):
+        for j, (n, jt) in enumerate(zip(names, model.joints)):
             B = float(jt.rotor_inertia)
-            lines += [f'    <body name="{n}_motor">', f'      <inertial pos="0 0 0" mass="1.0" diaginertia="{B!r} {B!r} {B!r}"/>',
-                      f'      <joint name="{n}_motor" type="hinge" axis="0 0 1" damping="{float(jt.b)!r}"/>', "    </body>"]
+            lines += [f'    <body name="{n}_motor" {_hinge_frame(np.zeros(3), np.eye(3), phi0[j])}>',
+                      f'      <inertial pos="0 0 0" mass="1.0" diaginertia="{B!r} {B!r} {B!r}"/>',
+                      f'      <joint name="{n}_motor" type="hinge" axis="0 0 1" ref="{float(phi0[j])!r}" damping="{float(jt.b)!r}"/>',
+                      "    </body>"]
     lines += ["  </worldbody>"]
+    limits = np.array([jt.limits.get("tau", np.inf) for jt in model.joints], float)
+    key = [f'  <keyframe>\n    <key name="rest" ctrl="{_numbers(np.clip(tau0, -limits, limits))}"/>\n  </keyframe>']
     if armature:
         lines.append("  <actuator>")
         for n, jt in zip(names, model.joints):
             tau = jt.limits.get("tau")
             limit = f' ctrlrange="{-float(tau)!r} {float(tau)!r}"' if tau is not None and np.isfinite(tau) else ""
             lines.append(f'    <motor name="{n}_motor" joint="{n}" gear="{-float(jt.gear_ratio)!r}"{limit}/>')
-        return "\n".join(lines + ["  </actuator>", "</mujoco>"]) + "\n"
+        return "\n".join(lines + ["  </actuator>"] + key + ["</mujoco>"]) + "\n"
     motor = "motor" if reduced else "slow"              # the joint of phi_j
     if not reduced:
         lines += ["  <equality>"]
@@ -187,7 +249,7 @@ def mujoco_xml(model, variant: str = "complete") -> str:
         limit = f' ctrlrange="{-float(tau)!r} {float(tau)!r}"' if tau is not None and np.isfinite(tau) else ""
         on = f'"{n}_motor" gear="{-float(jt.gear_ratio)!r}"' if reduced else f'"{n}_fast" gear="1"'
         lines.append(f'    <motor name="{n}_motor" joint={on}{limit}/>')
-    lines += ["  </actuator>", "</mujoco>"]
+    lines += ["  </actuator>"] + key + ["</mujoco>"]
     return "\n".join(lines) + "\n"
 
 
@@ -281,7 +343,15 @@ def export_mujoco(model_file, out, log=print, variant: str = "complete") -> Path
     what = {"armature": "rigid joints with the rotors as armature (for comparison)",
             "reduced": "the DLR/Spong reduced model: rotors welded, each motor coordinate a joint of its own",
             "complete": "each a link, a slow and a fast rotor, the gear an equality, the spring a tendon"}[variant]
-    log(f"wrote {Path(out) / 'model.xml'}: {arm.n} joints, {what} (RK4 at {TIMESTEP * 1e3:g} ms)")
+    theta, _, tau = rest_state(arm.model, variant)
+    limits = np.array([jt.limits.get("tau", np.inf) for jt in arm.model.joints], float)
+    weak = [f"{jt.name} ({abs(t):.3g} N m, limit {lim:g})" for jt, t, lim in zip(arm.model.joints, tau, limits)
+            if abs(t) > lim]
+    log(f"wrote {Path(out) / 'model.xml'}: {arm.n} joints, {what} (RK4 at {TIMESTEP * 1e3:g} ms); starts at rest "
+        f"(keyframe 'rest': links at {_numbers(np.round(theta, 4))} rad, the springs deflected)")
+    if weak:
+        log(f"note: the motors cannot hold the rest pose at {', '.join(weak)}: the keyframe's torques are the limits, "
+            "and the arm moves from it")
     return Path(out) / "model.xml"
 
 
