@@ -109,3 +109,58 @@ def test_the_coulomb_terms_are_left_out_of_the_linear_response():
     sticky = model_frf(change(c=0.5, c1=0.05, stribeck=0.3, v_stribeck=0.1, link_c=0.2), pose, 1, f)
     assert np.max(np.abs(sticky - plain) / np.abs(plain)) < 1e-12
     assert np.max(np.abs(model_frf(change(c=0.0, b=5.0), pose, 1, f) - plain) / np.abs(plain)) > 1e-3
+
+
+def _closed_loop_log(arm, seconds=20.0, dt=1e-3, noise=2e-4):
+    """The joint held at rest by a motor-position PD acting on a noisy encoder, nothing else
+    exciting it: the logged torque is the controller's answer to the sensor noise."""
+    from rscasadi.sim.loop import rk4_plant
+    rng, step, x = np.random.default_rng(5), rk4_plant(arm, dt), np.zeros(4)
+    mu = arm.model.joints[0].gear_ratio
+    kp, kd = 4.0 / mu, 0.05 / mu
+    N, last = int(seconds / dt), 0.0
+    taus, phis, thetas = [], [], []
+    for _ in range(N):
+        measured = x[1] + rng.normal(0, noise)
+        tau = (kp * measured + kd * (measured - last) / dt)            # the fast rotor turns by -mu: + holds it
+        last = measured
+        taus.append(tau)
+        phis.append(measured)
+        thetas.append(x[0])
+        x = step(x, np.array([tau]), 0.0)[0]
+    t = np.arange(N) * dt
+    return Log("closed", t, np.array([thetas]), np.array([phis]), np.array([taus]))
+
+
+def test_a_log_that_cannot_show_the_resonance_says_so(tmp_path, capsys):
+    """Three logs that cannot show the joint's resonance, each told why, with null peaks: a
+    closed loop whose torque answers sensor noise (its tau -> phi is not passive: the estimate is
+    minus the controller's inverse, though coherent), and the README's `excite` -> `simulate`
+    pipeline (excited below 2 Hz only: no coherent bin near 7-11 Hz); and a pose with NaN is
+    refused by name before any work."""
+    arm = one_joint(tmp_path, d=0.3, b=0.5)
+    lg = _closed_loop_log(arm)
+    f, G, coh = log_frf(lg, 0)
+    assert np.mean(coh[(f > 1) & (f < 100)] > 0.9) > 0.5               # coherent: coherence cannot tell
+    write_log(tmp_path / "closed.csv", lg)
+    assert main(["frf", str(arm.model.path), str(tmp_path / "closed.csv"), "--out", str(tmp_path / "frf")]) in (0, None)
+    said = capsys.readouterr().out
+    result = json.loads((tmp_path / "frf" / "frf.json").read_text())
+    assert result["log"]["resonance_hz"] is None and result["log"]["antiresonance_hz"] is None
+    assert "closed-loop log" in result["log"]["not_shown"]["resonance"] and "closed-loop log" in said
+    traj = tmp_path / "excite"
+    assert main(["excite", str(ROOT / "problems" / "arm3.toml"), "--out", str(traj), "--period", "10",
+                 "--harmonics", "5"]) in (0, None)
+    assert main(["simulate", str(ROOT / "problems" / "arm3.toml"), str(traj / "trajectory.toml"), "--out",
+                 str(tmp_path / "log.csv"), "--perturb", "1"]) in (0, None)
+    capsys.readouterr()
+    assert main(["frf", str(ROOT / "problems" / "arm3.toml"), str(tmp_path / "log.csv"), "--joint", "2",
+                 "--out", str(tmp_path / "frf2")]) in (0, None)
+    said = capsys.readouterr().out
+    result = json.loads((tmp_path / "frf2" / "frf.json").read_text())
+    assert result["complete"]["resonance_hz"] is not None
+    assert result["log"]["resonance_hz"] is None and "too little excitation" in result["log"]["not_shown"]["resonance"]
+    assert "the log cannot show the resonance" in said
+    assert main(["frf", str(ROOT / "problems" / "arm3.toml"), "--pose", "0", "nan", "0", "--out",
+                 str(tmp_path / "nan")]) == 2
+    assert "angle 2 (shoulder_pitch) is nan" in capsys.readouterr().err and not (tmp_path / "nan").exists()

@@ -15,7 +15,12 @@ comparison is the same arm with every spring 1e6 times stiffer (its modes far ab
 
 Log: the H1 estimate P_tau,y / P_tau,tau (Welch, Hann windows, half overlap; scipy.signal) and
 the coherence, from a log with tau_j (the torque actually applied: feedback in the loop does not
-bias H1 when the torque is measured without noise).
+bias H1 when the torque is measured without noise).  A log shows a model's peak only where it was
+excited there (`what_the_log_shows`): most bins near the peak coherent, and, for the collocated
+output phi, a passive response.  A joint driven by its own torque is passive: tau -> phi's phase
+(the gear's sign taken out) lies within [-180, 0] degrees; a closed-loop log whose torque is the
+controller's answer to sensor noise gives instead minus the controller's inverse, whose phase lies
+outside it.  Where a log cannot show a peak, its value is null and the reason is said.
 """
 from __future__ import annotations
 
@@ -86,6 +91,42 @@ def log_frf(log: Log, joint: int, output: str = "phi", resolution: float = 0.25)
     return f[1:], (Puy / Puu)[1:], coh[1:]              # csd(u, y) = conj(U) Y: H1 = Puy / Puu
 
 
+NEAR = 1.5           # a model's peak at f0 is looked for in the log's bins within f0 / NEAR .. f0 NEAR
+SHOWN = 0.6          # ... and shown when this share of them (at least MIN_BINS) is coherent
+MIN_BINS = 4
+PASSIVE_SLACK = 30.0  # degrees beyond [-180, 0] still taken as passive (leakage, the torque held a sample)
+ACTIVE_SHARE = 0.2   # a log whose coherent bins break passivity at least this often is taken as closed loop
+
+
+def what_the_log_shows(f, G, coh, model_peaks: dict, output: str) -> dict:
+    """For each of the model's peaks ("antiresonance", "resonance"): "" where the log can show it,
+    else why not (a sentence).  Closed loop (output phi: ACTIVE_SHARE of the coherent bins with the
+    phase of -G outside [-180, 0] degrees by more than PASSIVE_SLACK) answers for every peak; then
+    each peak needs SHOWN of its bins within a factor NEAR coherent."""
+    f, G, coh = (np.asarray(a) for a in (f, G, coh))
+    good = coh > COHERENT
+    why = {}
+    if output == "phi" and good.sum() >= MIN_BINS:
+        phase = np.degrees(np.angle(-G[good]))          # -G: the fast rotor turns by -mu
+        active = np.mean((phase > PASSIVE_SLACK) & (phase < 180.0 - PASSIVE_SLACK))
+        if active >= ACTIVE_SHARE:
+            reason = (f"its tau -> phi is not passive in {100 * active:.0f} % of its coherent bins (a joint driven by "
+                      "its own torque keeps the phase within 180 degrees): a closed-loop log, where tau is the "
+                      "controller's answer to sensor noise; add noise or a chirp to tau to measure a response")
+            return {kind: reason for kind in ("antiresonance", "resonance")}
+    for kind in ("antiresonance", "resonance"):
+        f0 = model_peaks.get(f"{kind}_hz")
+        if f0 is None:
+            why[kind] = "the model has none in the band"
+            continue
+        near = (f >= f0 / NEAR) & (f <= f0 * NEAR)
+        k, m = int(good[near].sum()), int(near.sum())
+        why[kind] = "" if m >= MIN_BINS and k >= SHOWN * m else (
+            f"coherence above {COHERENT:g} in {k} of its {m} bins between {f0 / NEAR:.1f} and {f0 * NEAR:.1f} Hz, "
+            f"around the model's {kind} at {f0:.1f} Hz: too little excitation there (add noise or a chirp to tau)")
+    return why
+
+
 PROMINENCE = 0.5     # a peak stands out of its neighbourhood by this much in ln |G / G_rigid| (4.3 dB)
 
 
@@ -147,6 +188,10 @@ def run(model_file, out, log_file=None, joint: int = 1, output: str = "phi", pos
         theta = np.asarray(pose, float)
         if theta.shape != (arm.n,):
             raise InvalidArgument(f"frf: --pose has {theta.size} angles, {model_file} has {arm.n} joints")
+        if not np.all(np.isfinite(theta)):
+            bad = int(np.flatnonzero(~np.isfinite(theta))[0])
+            raise InvalidArgument(f"frf: --pose: angle {bad + 1} ({arm.model.joints[bad].name}) is {theta[bad]}, "
+                                  "not a finite number")
     elif lg is not None:
         theta = np.mean(lg.theta, axis=1)
     else:
@@ -166,11 +211,20 @@ def run(model_file, out, log_file=None, joint: int = 1, output: str = "phi", pos
         good = (fl >= band[0]) & (fl <= hi_f) & (coh > COHERENT)
         curves.append((f"log {Path(log_file).name} (H1, coherence > {COHERENT:g})", fl[good], Gl[good], "C3."))
         rigid_there = model_frf(stiff, theta, j, fl[good], output)
-        result["log"] = {"file": str(log_file), **peaks(fl[good], Gl[good], rigid_there),
+        found = peaks(fl[good], Gl[good], rigid_there)
+        inband = (fl >= band[0]) & (fl <= hi_f)
+        why = what_the_log_shows(fl[inband], Gl[inband], coh[inband], result["complete"], output)
+        result["log"] = {"file": str(log_file),
+                         **{f"{k}_hz": found[f"{k}_hz"] if not why[k] else None for k in why},
+                         "not_shown": {k: w for k, w in why.items() if w},
                          "coherent_band_hz": [float(fl[good].min()), float(fl[good].max())] if good.any() else None}
+    hidden = (result.get("log") or {}).get("not_shown", {})
     say(f"{arm.model.name}, joint {joint}, tau -> {output}: " + "; ".join(
-        f"{name} anti-resonance {_hz(r['antiresonance_hz'])}, resonance {_hz(r['resonance_hz'])}"
+        f"{name} anti-resonance {_hz(r['antiresonance_hz'], name == 'log' and 'antiresonance' in hidden)}, "
+        f"resonance {_hz(r['resonance_hz'], name == 'log' and 'resonance' in hidden)}"
         for name, r in result.items() if isinstance(r, dict) and "resonance_hz" in r))
+    for kind, reason in (result.get("log") or {}).get("not_shown", {}).items():
+        say(f"the log cannot show the {kind}: {reason}")
     with fresh_directory(Path(out)) as tmp:
         plot(tmp / "frf.png", curves, f"{arm.model.name}: tau_{joint} -> {output}_{joint} at rest")
         write_json(tmp / "frf.json", result, indent=2)
@@ -178,5 +232,5 @@ def run(model_file, out, log_file=None, joint: int = 1, output: str = "phi", pos
     return result
 
 
-def _hz(v) -> str:
-    return "none in the band" if v is None else f"{v:.2f} Hz"
+def _hz(v, hidden: bool = False) -> str:
+    return "not shown" if hidden else "none in the band" if v is None else f"{v:.2f} Hz"
