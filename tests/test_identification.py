@@ -360,23 +360,27 @@ def test_the_limits_jacobian_assembled_by_the_chain_rule_equals_casadis_ad():
     assert J.shape == (3 * n * M, 2 * n * K + n) and np.max(np.abs(J - J_ad)) < 1e-12 * np.max(np.abs(J_ad))
 
 
-def test_excitation_on_seven_joints_names_what_it_cannot_excite(tmp_path, capsys):
-    """The Panda (7 joints, 90 base parameters) at short settings: `excite` prints its progress and
-    refuses the design, naming the direction that holds the condition number up (the wrist's
-    cubic spring term, which the wrist's small deflections cannot show) and what to change; with
-    a larger --max-condition it writes a design at rest within the limits, and `identify` on a
-    log of it reports that parameter as uncertain."""
+def test_excitation_on_seven_joints_fixes_what_it_cannot_excite(tmp_path, capsys):
+    """The Panda (7 joints, 90 base parameters) at short settings: the wrist's cubic spring term,
+    which the wrist's small deflections cannot show, is fixed at the file's value with a note
+    (printed and in excitation.json), and the design of the other 89 passes at rest within the
+    limits; `identify` on a log of it reports that parameter as uncertain.  Asked for a
+    condition number no design reaches, `excite` refuses in one whole line: every start's cause,
+    the direction that holds it up, and what to change."""
     panda = ROOT / "problems" / "panda_sea.toml"
     short = ["--harmonics", "3", "--samples", "20", "--starts", "1", "--period", "6"]
-    assert main(["excite", str(panda), "--out", str(tmp_path / "refused"), *short]) == 2
+    assert main(["excite", str(panda), "--out", str(tmp_path / "refused"), *short, "--max-condition", "10"]) == 2
     out = capsys.readouterr()
     assert "excitation: start 1/1: IPOPT" in out.out
-    assert "least determined: panda_joint7.sea.k3" in out.err and "What to change" in out.err
+    assert "start 1: condition number" in out.err and "least determined: " in out.err
+    assert out.err.rstrip().endswith("held near the model file's values)") and "What to change" in out.err
     assert len(out.err.strip().splitlines()) == 1 and not (tmp_path / "refused").exists()
     design = tmp_path / "design"
-    assert main(["excite", str(panda), "--out", str(design), *short, "--max-condition", "1e7"]) == 0
+    assert main(["excite", str(panda), "--out", str(design), *short]) == 0
+    assert "panda_joint7.sea.k3 cannot be excited within the limits; fixed at the file's value" in capsys.readouterr().out
     summary = json.loads((design / "excitation.json").read_text())
-    assert 1e5 < summary["condition_number"] < 1e7 and summary["hessian"] == "limited-memory"
+    assert summary["condition_number"] < 1e5 and summary["hessian"] == "limited-memory"
+    assert list(summary["fixed"]) == ["panda_joint7.sea.k3"] and summary["base_parameters"] == 89
     traj = load_trajectory(design / "trajectory.toml")
     q = traj(np.array([0.0, traj.period]))
     assert np.max(np.abs(np.vstack(q[1:4]))) < 1e-12                   # at rest at both ends
@@ -388,6 +392,36 @@ def test_excitation_on_seven_joints_names_what_it_cannot_excite(tmp_path, capsys
     assert main(["identify", str(panda), str(tmp_path / "log.csv"), "--out", str(tmp_path / "identified")]) == 0
     report = json.loads((tmp_path / "identified" / "report.json").read_text())
     assert "panda_joint7.sea.k3" in report["uncertain"]                 # {name: std / |estimate|}
+
+
+def test_excitation_at_default_settings_on_an_arm_it_never_saw(tmp_path, capsys):
+    """Unitree's Z1 (tests/data/z1_description, as shipped: products of inertia written to 1e-8
+    beside moments of 1e-3, two ranges ending at 0) with an SEA table whose wrist spring has a
+    cubic term: `excite` at its default settings designs a checked trajectory (it stopped at
+    IPOPT's iteration 0 with Invalid_Number_Detected on every start), the cubic term fixed with
+    a note."""
+    z1 = ROOT / "tests" / "data" / "z1_sea.toml"
+    assert main(["excite", str(z1), "--out", str(tmp_path / "z1")]) == 0
+    out = capsys.readouterr().out
+    assert "Invalid_Number" not in out and "joint6.sea.k3 cannot be excited" in out
+    summary = json.loads((tmp_path / "z1" / "excitation.json").read_text())
+    assert summary["condition_number"] < 1e5 and "joint6.sea.k3" in summary["fixed"]
+    assert all(e["status"] != "Invalid_Number_Detected" for e in summary["starts"])
+
+
+def test_the_design_sizes_round_off_as_its_kind():
+    """A product of inertia a URDF writes as 6e-8 (or 1e-20) beside a moment of 1e-3 is sized by
+    the design at a tenth of that moment; identify's prior keeps the file's own magnitude."""
+    from rscasadi.identification.identify import Unknowns, prior_scale
+    from rscasadi.identification.excitation import SIZE_FLOOR
+    arm = rscasadi.load(ROOT / "tests" / "data" / "z1_sea.toml")
+    unknowns = Unknowns.of(arm.model, load_losses=False)
+    th = unknowns.from_p(arm.parameters()[1][:n_linear(arm.model)])
+    k = unknowns.names.index("joint2.link.Ixy")
+    moments = [i for i, name in enumerate(unknowns.names) if name.startswith("joint2.link.I")]
+    th[k] = 1e-20
+    design, prior = prior_scale(unknowns, th, floor=SIZE_FLOOR), prior_scale(unknowns, th)
+    assert design[k] == pytest.approx(SIZE_FLOOR * max(abs(th[i]) for i in moments)) and prior[k] <= 1e-12
 
 
 def test_excitation_design_holds_on_other_blas_kernels(tmp_path):

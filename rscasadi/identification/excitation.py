@@ -43,6 +43,8 @@ from rscasadi.errors import InvalidArgument
 
 TORQUE_NOISE = 0.005
 MAX_CONDITION = 1e5  # a design above this is refused (a hand-picked bump on every joint: ~1e9)
+SIZE_FLOOR = 0.1     # the design's relative variances: a parameter sized at least a tenth of its kind
+                     # (a product of inertia of 6e-8 kg m^2 beside moments of 1e-3 is not wanted to 1e-8)
 MIN_SWEEP = 0.1      # every joint sweeps at least this fraction of its angle range
 STARTS = 3           # deterministic starts; the best checked design is kept
 PROGRESS_S = 5.0     # seconds between progress lines of a start
@@ -99,11 +101,11 @@ def _limits(arm: Arm):
     return lim, lo, hi
 
 
-def _svd(arm: Arm, traj: Trajectory, samples: int = 400):
+def _svd(arm: Arm, traj: Trajectory, samples: int = 400, fixed: tuple = ()):
     """Singular values (normalised by the number of samples like A = Z Z^T / M) and right singular
-    vectors (rows, in the base parameters) of the weighted, scaled base regressor of the design
-    model along traj (one period)."""
-    (g, _), _ = _design_parts(arm)
+    vectors (rows, in the base parameters less `fixed`) of the weighted, scaled base regressor of
+    the design model along traj (one period)."""
+    (g, _), _ = _design_parts(arm, fixed)
     t = np.linspace(0, traj.period, samples, endpoint=False)
     rows = np.array(g.map(samples)(*traj(t)))
     Z = rows.reshape(2 * arm.n, samples, -1).reshape(-1, rows.shape[1] // samples)
@@ -111,46 +113,84 @@ def _svd(arm: Arm, traj: Trajectory, samples: int = 400):
     return sv / np.sqrt(samples), Vt
 
 
-def _singular_values(arm: Arm, traj: Trajectory, samples: int = 400) -> np.ndarray:
-    return _svd(arm, traj, samples)[0]
+def _singular_values(arm: Arm, traj: Trajectory, samples: int = 400, fixed: tuple = ()) -> np.ndarray:
+    return _svd(arm, traj, samples, fixed)[0]
 
 
-def weakest(arm: Arm, traj: Trajectory, share: float = 0.1) -> tuple[list[tuple[str, float]], float]:
+def weakest(arm: Arm, traj: Trajectory, share: float = 0.1, fixed: tuple = ()) -> tuple[list[tuple[str, float]], float]:
     """The least determined direction of the design: the base parameters (named by their
     independent unknown) that make up more than `share` of it, with their weights, and the
     condition number without it."""
-    sv, Vt = _svd(arm, traj)
-    _, base = _design_parts(arm)
-    names = [base.names[i] for i in base.independent]
+    sv, Vt = _svd(arm, traj, fixed=fixed)
+    _, names = _design_parts(arm, fixed)
     v = Vt[-1] ** 2
     order = [i for i in np.argsort(-v) if v[i] > share]
     return [(names[i], float(v[i])) for i in order], float(sv[0] / sv[-2]) if len(sv) > 1 else float("nan")
 
 
-def condition_number(arm: Arm, traj: Trajectory, samples: int = 400) -> float:
-    """kappa of the weighted, scaled base regressor of the design model along traj (one period)."""
-    sv = _singular_values(arm, traj, samples)
+def condition_number(arm: Arm, traj: Trajectory, samples: int = 400, fixed: tuple = ()) -> float:
+    """kappa of the weighted, scaled base regressor of the design model along traj (one period),
+    the base parameters `fixed` left out."""
+    sv = _singular_values(arm, traj, samples, fixed)
     return float(sv[0] / sv[-1])
 
 
 @functools.lru_cache(maxsize=8)
-def _design_parts(arm: Arm):
-    """The design model's sample functions (rows, limits) and the base parameters (built once per arm)."""
+def _design_parts(arm: Arm, fixed: tuple = ()):
+    """The design model's sample functions (rows, limits) and the names of the base parameters it
+    excites (each named by its independent unknown), those in `fixed` left out (built once per arm
+    and set)."""
     unknowns = Unknowns.of(arm.model, load_losses=False)      # the design excites the linear part
     base = structural_base(arm, unknowns)
     th_nom = unknowns.from_p(arm.parameters()[1][:n_linear(arm.model)])
-    col_scale = np.abs(base.P) @ prior_scale(unknowns, th_nom)
+    keep = [c for c, i in enumerate(base.independent) if base.names[i] not in fixed]
+    col_scale = (np.abs(base.P) @ prior_scale(unknowns, th_nom, floor=SIZE_FLOOR))[keep]
     lim, _, _ = _limits(arm)
     tau_noise = TORQUE_NOISE * np.where(np.isfinite(lim["tau"]), lim["tau"], 1.0)
     spring = 0.01 * arm.model.column("k1") * np.where(np.isfinite(lim["psi"]), lim["psi"], 0.1)
     weights = np.r_[1.0 / tau_noise, 1.0 / spring]
-    return _sample_function(arm, unknowns, list(base.independent), col_scale, weights), base
+    return (_sample_function(arm, unknowns, [base.independent[c] for c in keep], col_scale, weights),
+            [base.names[base.independent[c]] for c in keep])
 
 
 ADVICE = ("What to change: a longer --period or more --harmonics (slower, richer motions); "
-          "--margin closer to 1 if the limits allow; a parameter the limits cannot excite (a light "
-          "wrist's cubic spring term k3, say) can be accepted with a larger --max-condition: "
-          "identify then reports it as uncertain")
+          "--margin closer to 1 if the limits allow; --max-condition above the least determined "
+          "direction's condition number to accept it (identify then reports those parameters as "
+          "uncertain, held near the model file's values)")
+
+
+RIDGE = 1e-14        # A + RIDGE tr(A) / r: tr A^-1 stays finite and positive in floating point
+UNEXCITABLE = 1e-16  # a base direction whose information at a probe motion filling the limits is below
+                     # this fraction of the largest (kappa 1e8: 1000x past MAX_CONDITION) is fixed
+
+
+def unexcitable(arm: Arm, period: float, K: int, t, log=print) -> dict:
+    """The base parameters that no motion within the limits can excite, {name: why}: a probe
+    motion (the first start, grown until a limit binds) is taken, and while its information has
+    a direction below UNEXCITABLE of the largest, the parameter that makes up most of it is
+    fixed at the file's value (a light wrist's cubic spring term: the deflections stay far too
+    small to show it; products of inertia the axes never turn).  identify still fits them, with
+    the file's value as the prior; their uncertainty shows in its report."""
+    n = arm.n
+    w = _start(arm, K, 1)
+    a, b = w[:n * K].reshape(n, K, order="F"), w[n * K:2 * n * K].reshape(n, K, order="F")
+    probe = Trajectory(model_path=Path(arm.model.path), period=period, duration=period, kind="fourier",
+                       offset=w[2 * n * K:], a=a * 20.0, b=b * 20.0)
+    try:
+        probe = within_limits(arm, probe, t, log=lambda m: None)[0]
+    except ExcitationError:
+        return {}
+    fixed: dict = {}
+    for _ in range(len(_design_parts(arm)[1])):
+        sv, Vt = _svd(arm, probe, fixed=tuple(fixed))
+        if sv[-1] >= np.sqrt(UNEXCITABLE) * sv[0]:
+            break
+        _, names = _design_parts(arm, tuple(fixed))
+        name = names[int(np.argmax(Vt[-1] ** 2))]
+        fixed[name] = (f"fixed at the file's value: a motion filling the limits gives it {sv[-1] ** 2 / sv[0] ** 2:.1e} "
+                       "of the best-determined direction's information")
+        log(f"excitation: {name} cannot be excited within the limits; {fixed[name]}")
+    return fixed
 
 
 class ExcitationError(CheckError):
@@ -158,12 +198,13 @@ class ExcitationError(CheckError):
 
 
 def _design_problem(arm: Arm, period: float, K: int, margin: float, M: int, max_iter: int = 500, log=print,
-                    hessian: str = "limited-memory"):
+                    hessian: str = "limited-memory", fixed: tuple = ()):
     """The design NLP over (a, b, q0) and its bounds: min log tr A^-1 subject to rest at t = 0 and
-    the limits at the M sample points (IPOPT; `hessian` "limited-memory" or "exact")."""
+    the limits at the M sample points (IPOPT; `hessian` "limited-memory" or "exact"); the base
+    parameters `fixed` left out of A."""
     n = arm.n
-    (g_rows, g_limits), base = _design_parts(arm)
-    r = base.rank
+    (g_rows, g_limits), names = _design_parts(arm, fixed)
+    r = len(names)
     lim, lo, hi = _limits(arm)
     t = np.linspace(0, period, M, endpoint=False)
     B = _basis(period, K, t)
@@ -174,6 +215,7 @@ def _design_problem(arm: Arm, period: float, K: int, margin: float, M: int, max_
     limits = _limit_function(g_limits, B, n, K)(x)
     Z = ca.reshape(rows.T, r, 2 * n * M)
     A = Z @ Z.T / M
+    A = A + RIDGE * ca.trace(A) / r * ca.DM.eye(r)             # round-off never makes tr A^-1 negative
     # A-optimal: tr(A^-1) is the sum of the (column-scaled, so relative) parameter variances; it
     # bounds the condition number (kappa <= tr(A) tr(A^-1)) and, unlike kappa, rewards amplitude
     f = ca.log(ca.trace(ca.solve(A, ca.DM.eye(r))))
@@ -282,7 +324,8 @@ def _start(arm: Arm, K: int, seed: int):
     return np.r_[(k * a0).ravel(order="F"), (k * b0).ravel(order="F"), 0.5 * (lo + hi)]
 
 
-def check_design(arm: Arm, traj: Trajectory, t, kappa: float, max_condition: float = MAX_CONDITION) -> list[str]:
+def check_design(arm: Arm, traj: Trajectory, t, kappa: float, max_condition: float = MAX_CONDITION,
+                 fixed: tuple = ()) -> list[str]:
     """What makes a designed trajectory unfit for identification: a joint that hardly moves, a
     condition number above the bound, or numbers that are not finite."""
     _, lo, hi = _limits(arm)
@@ -293,7 +336,7 @@ def check_design(arm: Arm, traj: Trajectory, t, kappa: float, max_condition: flo
     out = [f"joint {jt.name} sweeps {100 * s:.2g} % of its angle range (at least {100 * MIN_SWEEP:g} % needed)"
            for jt, s in zip(arm.model.joints, sweep) if s < MIN_SWEEP]
     if kappa > max_condition:
-        names, rest = weakest(arm, traj)
+        names, rest = weakest(arm, traj, fixed=fixed)
         out.append(f"condition number {kappa:.3g} above {max_condition:.3g}; least determined: "
                    + ", ".join(f"{name} ({100 * w:.0f} %)" for name, w in names)
                    + f" (without that direction {rest:.3g})")
@@ -312,10 +355,11 @@ def design(arm: Arm, period: float = 10.0, harmonics: int = 5, margin: float = 0
     M = samples or max(60, 12 * K)
     if hessian not in HESSIANS:
         raise InvalidArgument(f"hessian: must be one of {', '.join(HESSIANS)}, got {hessian!r}")
-    solver, bounds, r = _design_problem(arm, period, K, margin, M, max_iter, log, hessian)
     t = np.arange(int(round(period * rate)) + 1) / rate
-    log(f"excitation: {n} joints, {K} harmonics, period {period} s, {M} samples, {r} base parameters; "
-        f"{starts} starts")
+    fixed = unexcitable(arm, period, K, t, log)
+    solver, bounds, r = _design_problem(arm, period, K, margin, M, max_iter, log, hessian, tuple(fixed))
+    log(f"excitation: {n} joints, {K} harmonics, period {period} s, {M} samples, {r} base parameters"
+        + (f" ({len(fixed)} fixed at the file's values)" if fixed else "") + f"; {starts} starts")
     tried: list[dict] = []
     best = None
     for seed in range(1, starts + 1):
@@ -332,9 +376,9 @@ def design(arm: Arm, period: float = 10.0, harmonics: int = 5, margin: float = 0
                           offset=w[2 * n * K:], a=a, b=b)
         try:
             traj, ff, use = within_limits(arm, traj, t, log=lambda m: None)
-            sv = _singular_values(arm, traj)
+            sv = _singular_values(arm, traj, fixed=tuple(fixed))
             kappa, variance = float(sv[0] / sv[-1]), float(np.sum(sv ** -2.0))     # tr A^-1, the criterion
-            problems = check_design(arm, traj, t, kappa, max_condition)
+            problems = check_design(arm, traj, t, kappa, max_condition, tuple(fixed))
         except ExcitationError as exc:
             kappa, variance, problems = float("nan"), float("nan"), [str(exc)]
         status = "Stalled" if solver.progress.stalled else stats["return_status"]
@@ -352,7 +396,8 @@ def design(arm: Arm, period: float = 10.0, harmonics: int = 5, margin: float = 0
                               + ". " + ADVICE)
     traj, ff, use, _, entry = best
     return traj, ff, use, {"status": entry["status"], "iterations": entry["iterations"], "start": entry["start"],
-                           "starts": tried, "samples": M, "base_parameters": r, "hessian": hessian}
+                           "starts": tried, "samples": M, "base_parameters": r, "hessian": hessian,
+                           "fixed": fixed}
 
 
 def _worded(status: str) -> str:
@@ -439,7 +484,8 @@ def run(model_file, out, period: float = 10.0, harmonics: int = 5, rate: float =
                                      max_iter=max_iter, hessian=hessian, margin=margin, max_condition=max_condition,
                                      log=log)
         t = np.arange(int(round(period * rate)) + 1) / rate
-        kappa, kappa_hand = condition_number(arm, traj), condition_number(arm, hand_picked(arm, period))
+        fixed = tuple(info["fixed"])
+        kappa, kappa_hand = (condition_number(arm, tr, fixed=fixed) for tr in (traj, hand_picked(arm, period)))
         log(f"excitation: condition number {kappa:.4g} (hand-picked bump of 0.5 rad: {kappa_hand:.4g})")
         summary = {"model": os.path.relpath(Path(model_file).resolve(), Path(out).resolve()), **info, "period": period,
                    "harmonics": harmonics, "condition_number": kappa, "condition_number_hand_picked": kappa_hand,

@@ -623,27 +623,32 @@ def physical_fit(arm: Arm, unknowns: Unknowns, ls: LeastSquares, th_nominal: np.
     return scale * np.asarray(x.value), status
 
 
-def prior_scale(unknowns: Unknowns, th_nominal) -> np.ndarray:
-    """A size for every unknown: its nominal magnitude, or for zero nominals that of its kind
-    in the same body (first moments: mass x 5 cm; inertias: the body's largest moment)."""
-    scale = np.abs(np.asarray(th_nominal, float)).copy()
+def prior_scale(unknowns: Unknowns, th_nominal, floor: float = 0.0) -> np.ndarray:
+    """A size for every unknown: its nominal magnitude, and for zero nominals that of its kind in
+    the same body (first moments: mass x 5 cm; inertias: the body's largest moment; k3: the cubic
+    term that doubles k1 at 5 cm of deflection).  `floor`: every size at least this fraction of
+    its kind's, so that a value a URDF writes as round-off (a product of inertia of 6e-8 kg m^2
+    beside moments of 1e-3) is sized as its kind, not as 1e-8 (the excitation design's scaling)."""
+    th_nominal = np.asarray(th_nominal, float)
+    scale = np.abs(th_nominal).copy()
     for k, (name, kind) in enumerate(zip(unknowns.names, unknowns.kinds)):
-        if scale[k] > 0:
-            continue
         same = [i for i, kd in enumerate(unknowns.kinds) if kd[:3] == kind[:3]]
         q = name.rsplit(".", 1)[1]
         if q in ("mx", "my", "mz"):
             mass = th_nominal[next(i for i in same if unknowns.names[i].endswith(".mass"))]
-            scale[k] = 0.05 * mass
+            size = 0.05 * abs(mass)
         elif q.startswith("I"):
-            scale[k] = max(abs(th_nominal[i]) for i in same if unknowns.names[i].rsplit(".", 1)[1].startswith("I"))
+            size = max(abs(th_nominal[i]) for i in same if unknowns.names[i].rsplit(".", 1)[1].startswith("I"))
         elif q == "k3":
             k1 = th_nominal[unknowns.names.index(name.replace("sea.k3", "sea.k1"))]
-            scale[k] = k1 / 0.05 ** 2
+            size = abs(k1) / 0.05 ** 2
         elif k in unknowns.shift:                         # a torque constant's change: the file's kt
-            scale[k] = abs(unknowns.shift[k])
+            size = abs(unknowns.shift[k])
+        elif scale[k] > 0:
+            continue
         else:                                             # a loss (b, c, d) with nominal 0
-            scale[k] = 1.0
+            size = 1.0
+        scale[k] = size if scale[k] == 0 else max(scale[k], floor * size)
     return np.maximum(scale, 1e-12)
 
 
