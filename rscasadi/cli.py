@@ -148,6 +148,8 @@ def _cmd_simulate(args):
 def _cmd_view(args):
     from rscasadi.files import check_output_file
     from rscasadi.view import scene_of, write_gif, write_html
+    if args.gif and Path(args.gif).suffix.lower() != ".gif":
+        raise InvalidArgument(f"--gif {args.gif}: the animation's file name must end in .gif")
     for target in [args.out] + ([args.gif] if args.gif else []):
         check_output_file(target)
     scene = scene_of(args.result, model=args.model)

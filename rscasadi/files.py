@@ -257,7 +257,7 @@ def replacing(path):
     a regular file (check_output_file), checked before and again just before the replacement: a
     device, FIFO, socket, directory or symbolic link is never replaced."""
     path = check_output_file(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")       # the suffix kept: writers read it
     if tmp.is_symlink() or (tmp.exists() and not tmp.is_file()):
         raise OutputError(f"{tmp} (rscasadi's temporary name for {path.name}) exists and is not a regular file")
     try:

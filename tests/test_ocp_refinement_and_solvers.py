@@ -87,6 +87,12 @@ def test_a_miss_the_replay_places_is_refined_there_and_beside_it_only(pitch_arm)
               "min_clearance": float(gap.min()), "interval_clearance": gap.tolist()}
     mesh = refined_mesh(p, {"mesh": w}, report)
     assert len(mesh) == 12 and np.allclose(mesh[:4], 0.05) and np.allclose(mesh[4:], 0.1)
+    from rscasadi.ocp.solving import failures                       # the URDF's own shapes, measured by coal
+    report.update(min_clearance=0.1, interval_clearance=np.full(10, 0.1).tolist(),
+                  urdf_min_clearance=float(gap.min()), interval_urdf_clearance=gap.tolist())
+    assert list(failures(p, report)) == ["urdf_min_clearance"]
+    mesh = refined_mesh(p, {"mesh": w}, report)
+    assert len(mesh) == 12 and np.allclose(mesh[:4], 0.05) and np.allclose(mesh[4:], 0.1)
 
 
 def test_min_effort_reference_problem_passes_after_refinement():

@@ -179,15 +179,15 @@ def _special_files(tmp_path):
     """A FIFO, a socket, a directory and (as root) a character device made in tmp_path, never the
     machine's own: what an output must refuse rather than replace."""
     import socket
-    made = {"FIFO": tmp_path / "fifo.out"}
+    made = {"FIFO": tmp_path / "fifo.gif"}
     os.mkfifo(made["FIFO"])
-    made["socket"] = tmp_path / "sock.out"
+    made["socket"] = tmp_path / "sock.gif"
     sock = socket.socket(socket.AF_UNIX)
     sock.bind(str(made["socket"]))
-    made["directory"] = tmp_path / "dir.out"
+    made["directory"] = tmp_path / "dir.gif"
     made["directory"].mkdir()
     if os.geteuid() == 0:
-        made["character device"] = tmp_path / "null.out"
+        made["character device"] = tmp_path / "null.gif"
         os.mknod(made["character device"], stat.S_IFCHR | 0o666, os.makedev(1, 3))
     return made, sock
 

@@ -459,3 +459,4 @@ def test_the_panda_shelf_task_at_a_coarse_mesh():
     R, p = (np.array(v) for v in arm.frame_placement("panda_hand_tcp")(sol.theta[:, -1]))
     assert np.linalg.norm(p.ravel() - [0.45, 0.35, 0.45]) < 1e-6 and np.allclose(R[:, 2], [0, 0, -1], atol=1e-6)
     assert report["min_clearance"] > 0 and report["goal_position_error"] < 5e-3
+    assert report["urdf_min_clearance"] >= report["min_clearance"] - 1e-4     # the fingers' own boxes, by coal

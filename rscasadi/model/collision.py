@@ -11,12 +11,16 @@
     radius = 0.03
 
 A link given a radius has one capsule from its joint's origin to the next joint's origin (the
-last link's to `tip`), whatever the URDF says; a link given "urdf" has the URDF's collision
-geometry of every URDF link merged into it (a fixed or locked child's too): a cylinder as the
-capsule of its radius over its length, a sphere as a capsule of no length, a box as one to four
-capsules along its longest edge, a mesh as the capsule that holds its vertices.  Each holds
-its shape, so a clearance measured on the capsules is never more than the true one.  A URDF
-model without `links` takes the URDF's geometry of every moving link that has some.  A mesh
+last link's to `tip`); a link given "urdf" has the URDF's collision geometry of every URDF link
+merged into it (a fixed or locked child's too): a cylinder as the capsule of its radius over its
+length, a sphere as a capsule of no length, a box as one to four capsules along its longest
+edge, a mesh as the capsule that holds its vertices.  Each holds its shape, so a clearance
+measured on the capsules is never more than the true one.  A URDF model without `links` takes
+the URDF's geometry of every moving link that has some.  With `links`, the geometry is never
+less than the URDF's: every URDF collision shape on a moving link (one `links` names with a
+radius, one it leaves out, a hand or finger merged into a link) that the capsules do not hold is
+added as its own capsules, and one that cannot be read (a mesh not shipped) is named in the
+table's notes (`rscasadi info --collision`) as unchecked.  A mesh
 that cannot be read (not shipped, outside the robot's package) is an error naming it: a link
 is never left out silently.  A payload with a `radius` adds a sphere of that radius about its
 centre of mass.
@@ -25,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 
@@ -119,10 +124,56 @@ def collision(ctx, raw, joints, frames: tuple, default_tip: str | None, urdf: di
                                            joints, known, tip))
     for i, entry in enumerate(_list(ctx, "collision.capsules", t.get("capsules", []))):
         capsules.append(_given_capsule(ctx, f"collision.capsules[{i}]", entry, known))
+    notes: list = []
+    if urdf and "links" in t:
+        added, notes = _urdf_not_held(capsules, frames, urdf, urdf_path)
+        capsules += added
     if not capsules:
         ctx.fail("collision", "no link has geometry: give `links` (a capsule radius or \"urdf\" per link) or "
                               "[[collision.capsules]]")
-    return Collision(margin, tuple(capsules), tip, links)
+    return Collision(margin, tuple(capsules), tip, links, tuple(notes))
+
+
+def _held(piece, capsule) -> bool:
+    """Whether the capsule (a, b, r) `piece` lies inside `capsule` (same body frame): the distance
+    to a segment is convex, so both ends' distances to capsule's axis plus r within its radius."""
+    a, b, r = piece
+    return all(_to_segment(p, capsule.a, capsule.b) + r <= capsule.radius + 1e-12 for p in (a, b))
+
+
+def _to_segment(p, a, b) -> float:
+    p, a, b = (np.asarray(v, float) for v in (p, a, b))
+    d = b - a
+    s = 0.0 if not d.any() else float(np.clip((p - a) @ d / (d @ d), 0.0, 1.0))
+    return float(np.linalg.norm(p - a - s * d))
+
+
+def _urdf_not_held(given: list, frames, urdf: dict, urdf_path) -> tuple[list, list]:
+    """The URDF collision shapes of every moving link that the `given` capsules do not hold, as
+    capsules of their own; and notes naming the links whose shapes were added, and the shapes
+    that cannot be read (by reason)."""
+    added: list = []
+    grown: dict = {}
+    unread: dict = {}
+    for f in frames:
+        if f.body == 0 or f.user:
+            continue
+        for shape in urdf.get(f.name, ()):
+            try:
+                pieces = [(f.R @ a + f.p, f.R @ b + f.p, float(r)) for a, b, r in shape_capsules(urdf_path, shape)]
+            except ValueError as exc:
+                unread.setdefault(str(exc), []).append(f"{f.name} ({Path(str(shape[2][0])).name})")
+                continue
+            own = [c for c in given + added if c.body == f.body]
+            if all(any(_held(piece, c) for c in own) for piece in pieces):
+                continue
+            added += [Capsule(f.name, f.body, a, b, r) for a, b, r in pieces]
+            grown.setdefault(f.name, []).append(shape[0])
+    notes = [f"URDF link {name!r}: {len(kinds)} collision {'/'.join(sorted(set(kinds)))} shape(s) outside the "
+             "capsules given: added" for name, kinds in grown.items()]
+    notes += [f"collision meshes of {', '.join(where)}: {why}; not checked against obstacles (give the mesh, or a "
+              "capsule that holds it)" for why, where in unread.items()]
+    return added, notes
 
 
 def _list(ctx, fld, value) -> list:

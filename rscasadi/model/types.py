@@ -149,6 +149,7 @@ class Collision:
     capsules: tuple
     tip: str
     links: dict = field(default_factory=dict, compare=False)     # as the [collision] table gave them
+    notes: tuple = field(default=(), compare=False)              # URDF shapes added, or not readable
 
 
 @dataclass(frozen=True)

@@ -151,6 +151,12 @@ def verify(solution: dict, substeps: int = 20, tol: float = 1e-10, terms=()) -> 
         gap = np.array(exact_clearance(arm.model, obstacles).map(sim["theta"].shape[1])(sim["theta"])).ravel()
         report["min_clearance"] = float(gap.min())
         report["interval_clearance"] = gap[1:].reshape(len(t) - 1, substeps).min(axis=1).tolist()
+        from rscasadi.dynamics.shapes_clearance import shapes_clearance
+        from rscasadi.model.collision import margin
+        urdf_gap = shapes_clearance(arm.model, obstacles, sim["theta"]) - margin(arm.model)
+        if np.all(np.isfinite(urdf_gap)):                             # the URDF's own shapes, by coal
+            report["urdf_min_clearance"] = float(urdf_gap.min())
+            report["interval_urdf_clearance"] = urdf_gap[1:].reshape(len(t) - 1, substeps).min(axis=1).tolist()
     if solution.get("path"):                                          # on the path, between the nodes too
         from rscasadi.task.toolpath import ToolPath
         path = ToolPath.from_dict(solution["path"])

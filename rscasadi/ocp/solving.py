@@ -301,8 +301,9 @@ def failures(problem: Problem, report: dict) -> dict:
         tols.update(path_error=problem.task.path.tolerance)
     tols.update({f"term.{t.name}": t.tolerance for t in problem.task.terms if t.constraint})
     failed = {k: f"{k} {report[k]:.2e} > {tol:g}" for k, tol in tols.items() if k in report and report[k] > tol}
-    if report.get("min_clearance", np.inf) < -problem.verification.clearance_tol:
-        failed["min_clearance"] = f"min_clearance {report['min_clearance']:.2e} m < -{problem.verification.clearance_tol:g}"
+    for key in ("min_clearance", "urdf_min_clearance"):
+        if report.get(key, np.inf) < -problem.verification.clearance_tol:
+            failed[key] = f"{key} {report[key]:.2e} m < -{problem.verification.clearance_tol:g}"
     return failed
 
 
@@ -329,6 +330,7 @@ def local_errors(problem: Problem, solution: dict) -> np.ndarray:
 # failures the replay places in intervals (a limit, an obstacle's margin, the path), by the
 # report's per-interval list; any other (an end state, the goal, a task term) is the mesh's accuracy
 LOCATED = {"max_limit_violation": "interval_violation", "min_clearance": "interval_clearance",
+           "urdf_min_clearance": "interval_urdf_clearance",
            "term.clearance": "interval_clearance", "path_error": "interval_path_error"}
 
 
@@ -344,8 +346,9 @@ def refined_mesh(problem: Problem, solution: dict, report: dict, failed=None) ->
     failed = set(failures(problem, report) if failed is None else failed)
     located = np.zeros(len(w), bool)
     located |= np.asarray(report["interval_violation"]) > problem.verification.limit_tol
-    if "interval_clearance" in report:
-        located |= np.asarray(report["interval_clearance"]) < -problem.verification.clearance_tol
+    for key in ("interval_clearance", "interval_urdf_clearance"):
+        if key in report:
+            located |= np.asarray(report[key]) < -problem.verification.clearance_tol
     if "interval_path_error" in report:
         located |= np.asarray(report["interval_path_error"]) > problem.task.path.tolerance
     split = located.copy()

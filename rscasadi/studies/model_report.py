@@ -25,6 +25,9 @@ def collision_report(model) -> list:
     bare = [name[b] for b in range(1, model.n + 1) if not any(c.body == b for c in caps)]
     if bare:
         lines += ["", f"Links with no geometry (never checked against obstacles): {', '.join(bare)}."]
+    notes = model.collision.notes if model.collision is not None else ()
+    if notes:
+        lines += ["", "Beside the table, from the URDF:", ""] + [f"- {note}" for note in notes]
     return lines + [""]
 
 

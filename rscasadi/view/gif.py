@@ -5,7 +5,6 @@ everything the scene shows at any instant (nothing clipped).  matplotlib in 3D, 
 animation frame, 800 x 600 pixels."""
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 from typing import Any
@@ -161,8 +160,6 @@ def write_gif(scene, out: Path, fps: int = 15):
     from rscasadi.files import replacing
     try:
         with replacing(out) as tmp:
-            FuncAnimation(fig, draw, frames=frames).save(tmp.with_suffix(".gif"), writer=PillowWriter(fps=rate))
-            tmp.with_suffix(".gif").replace(tmp)
+            FuncAnimation(fig, draw, frames=frames).save(tmp, writer=PillowWriter(fps=rate))
     finally:
-        Path(out).with_name(f".{Path(out).name}.{os.getpid()}.gif").unlink(missing_ok=True)
         plt.close(fig)
