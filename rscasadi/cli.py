@@ -97,7 +97,7 @@ def _cmd_paper(args):
 def _cmd_ocp(args):
     from rscasadi.ocp import run
     sol = run(args.problem, args.out, warm_file=args.warm, log=lambda msg: print(msg, flush=True),
-              print_level=0 if args.quiet else (10 if args.verbose else 5), solver=args.solver)
+              print_level=0 if args.quiet else (10 if args.verbose else 5), solver=args.solver, reuse=not args.cold)
     verdict = ("verified on the complete model" if sol["success"] else
                "NOT verified: the solver failed" if not sol["solver_success"] else
                "NOT verified: the replay on the complete model misses its tolerances")
@@ -297,6 +297,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("problem")
     p.add_argument("--out", default="results/ocp")
     p.add_argument("--warm", default=None, help="a previous solution.json to start from")
+    p.add_argument("--cold", action="store_true",
+                   help="start from the problem's own guess, not from the verified solution of the same problem "
+                        "that an earlier run kept in the cache (its refined mesh and states)")
     p.add_argument("--quiet", action="store_true", help="no solver iteration log")
     p.add_argument("--verbose", action="store_true", help="the solver's whole log (fatrop: its iterative refinement too)")
     p.add_argument("--solver", choices=("ipopt", "fatrop"), help="override the problem file's [solver] name")

@@ -180,3 +180,28 @@ def test_a_new_process_finds_the_kernel_without_building_its_derivatives(pitch_a
     b = solve(load_problem(path), print_level=0, log=lambda m: None)
     assert a["success"] and b["success"] and b["iterations"] == a["iterations"]
     assert abs(b["objective"] - a["objective"]) <= 1e-12 * abs(a["objective"])
+
+
+def test_a_second_run_of_the_same_problem_starts_from_its_verified_solution(pitch_arm, capsys):
+    """A coarse problem the replay sends through refinement rounds: run again (the cache holds its
+    verified solution), it starts on the refined mesh from that solution and passes in one round,
+    to the same objective; a changed problem, or --cold, starts from its own guess."""
+    path = problem(pitch_arm, "reuse.toml", transcription={"intervals": 6},
+                   verification={"final_angle_tol": 1e-5, "final_speed_tol": 3e-4})
+    out = pitch_arm / "reuse"
+    assert main(["ocp", str(path), "--out", str(out), "--quiet"]) == 0
+    first = json.loads((out / "solution.json").read_text())
+    assert len(first["rounds"]) >= 2 and "starting from the verified solution" not in capsys.readouterr().out
+    assert main(["ocp", str(path), "--out", str(out), "--quiet"]) == 0
+    again = json.loads((out / "solution.json").read_text())
+    said = capsys.readouterr().out
+    assert "starting from the verified solution of the same problem" in said
+    assert len(again["rounds"]) == 1 and again["success"] and len(again["t"]) == len(first["t"])
+    assert again["objective"] == pytest.approx(first["objective"], rel=1e-6)
+    assert main(["ocp", str(path), "--out", str(out), "--quiet", "--cold"]) == 0
+    cold = json.loads((out / "solution.json").read_text())
+    assert "starting from" not in capsys.readouterr().out and len(cold["rounds"]) == len(first["rounds"])
+    other = problem(pitch_arm, "reuse2.toml", transcription={"intervals": 6}, theta_end=[0.8],
+                    verification={"final_angle_tol": 1e-5, "final_speed_tol": 3e-4})
+    assert main(["ocp", str(other), "--out", str(pitch_arm / "other"), "--quiet"]) == 0
+    assert "starting from" not in capsys.readouterr().out

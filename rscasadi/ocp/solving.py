@@ -364,11 +364,12 @@ def refined_mesh(problem: Problem, solution: dict, report: dict, failed=None) ->
 
 
 def solve(problem: Problem, warm: dict | None = None, log=print, print_level: int = 5,
-          options: dict | None = None) -> Solution:
+          options: dict | None = None, mesh=None) -> Solution:
     """Solve, verify, and refine the mesh until the verification passes (or the rounds run out).
     A co-design problem first solves the nominal arm (design at the model file's values) and
     starts from that solution: the design can then only improve on it (a local solver from a
-    straight-line guess found a worse local minimum here)."""
+    straight-line guess found a worse local minimum here).  `mesh`: the first round's interval
+    widths (fractions summing to 1; a refined mesh of an earlier solve), with `warm`."""
     nominal = None
     if problem.task.design and warm is None:
         log("co-design: first the nominal arm, as the starting point")
@@ -376,7 +377,7 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
         warm = nominal if nominal["solver_success"] else None
     # on the nominal's refined mesh: a coarse mesh lets the design exploit the discretisation
     # (seen: a stiffer design 'faster' on 100 intervals whose replay broke a limit)
-    w, rounds = (np.asarray(nominal["mesh"]) if nominal is not None and warm else None), []
+    w, rounds = (np.asarray(nominal["mesh"]) if nominal is not None and warm else mesh), []
     fallback = None
     for r in range(problem.verification.rounds + 1):
         # a refinement round starts next to the answer: a small barrier keeps the solver there
@@ -425,9 +426,69 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
     return Solution(sol)
 
 
-def run(problem, out, warm_file=None, log=print, print_level: int = 5, solver: str | None = None) -> Solution:
+REUSED = ("t", "theta", "phi", "dtheta", "dphi", "tau", "mesh", "design", "path_arc")
+KEPT_SOLUTIONS = 32           # verified solutions kept in the cache (the oldest go first)
+
+
+def problem_key(problem: Problem) -> str | None:
+    """A digest of everything that decides `problem`'s solution: its parts as written (arrays in
+    full) and the contents of the model it loads (URDF included) and of its trajectory file; None
+    for a problem with Python terms (objects without a stable written form)."""
+    import hashlib
+    import pickle
+    import sys
+    if problem.task.terms:
+        return None
+    with np.printoptions(threshold=sys.maxsize, precision=17):
+        text = repr((problem.task, problem.transcription, problem.solver, problem.verification))
+    digest = hashlib.sha256(text.encode())
+    digest.update(pickle.dumps(read(problem.task.model)))
+    if problem.task.trajectory is not None:
+        digest.update(Path(problem.task.trajectory).read_bytes())
+    return digest.hexdigest()
+
+
+def _solutions_dir() -> Path:
+    from rscasadi.files import cache_dir
+    return cache_dir() / "ocp-solutions"
+
+
+def reused_solution(problem: Problem) -> dict | None:
+    """The verified solution of the same problem (problem_key) from the cache, or None."""
+    key = problem_key(problem)
+    path = _solutions_dir() / f"{key}.json"
+    if key is None or not path.is_file():
+        return None
+    try:
+        sol = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    return sol if isinstance(sol, dict) and set(REUSED[:7]) <= set(sol) else None
+
+
+def keep_solution(problem: Problem, sol) -> None:
+    """Keep a verified solution for the next run of the same problem (its mesh and its states)."""
+    from rscasadi.files import write_json
+    key = problem_key(problem)
+    if key is None or not sol["success"]:
+        return
+    folder = _solutions_dir()
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        write_json(folder / f"{key}.json", {k: sol[k] for k in REUSED if sol.get(k) is not None})
+        for old in sorted(folder.glob("*.json"), key=lambda f: f.stat().st_mtime)[:-KEPT_SOLUTIONS]:
+            old.unlink(missing_ok=True)
+    except OSError:                        # a read-only cache: the next run starts cold
+        pass
+
+
+def run(problem, out, warm_file=None, log=print, print_level: int = 5, solver: str | None = None,
+        reuse: bool = True) -> Solution:
     """`rscasadi ocp`: solve `problem` (a `Problem`, or the path of a problem file), verify,
-    refine, write DIR/solution.json and the plots; return the solution."""
+    refine, write DIR/solution.json and the plots; return the solution.  `reuse`: without a
+    `warm_file`, start from the verified solution of the same problem kept in the cache by an
+    earlier run (its refined mesh and its states: one round where the first run took several),
+    and keep this one's for the next."""
     from rscasadi.files import check_writable, fresh_directory
     from rscasadi.model.modelfile import ModelFileError
     check_writable(out)
@@ -448,8 +509,15 @@ def run(problem, out, warm_file=None, log=print, print_level: int = 5, solver: s
         + ("condensed (each interval's collocation solved in C)" if problem.transcription.condense
            else f"lifted, {problem.transcription.dynamics} dynamics, {'compiled' if problem.transcription.compiled else 'not compiled'}")
         + (f", designing {', '.join(problem.task.design)}" if problem.task.design else ""))
+    kept = reused_solution(problem) if reuse and warm is None else None
+    if kept is not None:
+        log(f"starting from the verified solution of the same problem in the cache ({len(kept['mesh'])} "
+            "intervals; --cold to start from the problem's own guess)")
     log(f"solving with {problem.solver.name}" + (" (log quieted)" if print_level == 0 else "") + " ...")
-    sol = solve(problem, warm, log=log, print_level=print_level)
+    sol = solve(problem, warm or kept, log=log, print_level=print_level,
+                mesh=None if kept is None else np.asarray(kept["mesh"]))
+    if reuse:
+        keep_solution(problem, sol)
     if sol["design"]:
         log("optimal design: " + ", ".join(f"{k} = {v:.6g}" for k, v in sol["design"].items()))
     with fresh_directory(out) as tmp:
