@@ -3,9 +3,10 @@
 1. Signals (`prepare`): every logged angle is low-passed by a zero-phase Butterworth filter
    (scipy.signal, order 4, run forwards and backwards) and differentiated twice; the logged
    torques go through the same filter, so regressor and torque see the same attenuation.
-   The cut-off is twice the highest SEA mode of the arm (at least 20 Hz, at most Nyquist/2):
-   the modes are in the data (they carry k1 and d) and must pass, while the encoder
-   quantisation, amplified by differentiation, is cut above them.  Measured on the synthetic
+   With motor angles, the cut-off is twice the highest SEA mode of the arm (at least 20 Hz, at
+   most Nyquist/2): the modes are in the data (they carry k1 and d) and must pass, while the
+   encoder quantisation, amplified by differentiation, is cut above them.  Link-side logs (no
+   spring rows) take the cut-off that predicts unseen data best (`cross_validated_cutoff`).  Measured on the synthetic
    arm of the tests: at 1.5x the modes the estimates of k1 move by 100 standard deviations.
    Rows are kept every 1 / (2 fc) s, so that their noise is close to independent.
 2. Rows: the motor-torque rows tau = Y_tau theta, the link rows, whose torque is the spring
@@ -39,7 +40,8 @@ from rscasadi.model.modelfile import BODIES, ArmModel, document, to_toml
 from rscasadi.model.parameters import (ACTUATOR, ACTUATOR_ATTR, INERTIAL, PER_JOINT, body_from_parameters, n_linear,
                                        payload_slice)
 from rscasadi.identification.logs import Log, LogError, motor_torques, read_log
-from rscasadi.identification.regressor import BaseParameters, base_of, random_samples, regressor, spring_regressor, stacked
+from rscasadi.identification.regressor import (BaseParameters, base_of, over_samples, random_samples, regressor,
+                                               spring_regressor, stacked)
 
 PRIOR = 0.3          # relative standard deviation of the prior on the model file's values
 CUTOFF_FACTOR = 2.0  # filter cut-off / highest SEA mode (1.5 biases k1 by 100 sigma, see above)
@@ -270,6 +272,66 @@ def motion_cutoff_hz(log: Log) -> tuple[float, str]:
     return fc, why
 
 
+CV_GRID = (1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 7.0, 10.0, 14.0, 20.0, 28.0, 40.0, 56.0, 80.0)   # Hz
+CV_MAX = 0.4         # of the Nyquist frequency: the highest cut-off tried
+
+
+def halves(log: Log) -> tuple[Log, Log]:
+    """The log's first and second half in time (every column cut alike)."""
+    m = log.t.size // 2
+    cut = lambda k: {f: (None if getattr(log, f) is None else getattr(log, f)[..., k])     # noqa: E731
+                     for f in ("t", "theta", "phi", "tau", "i", "T", "dtheta", "dphi")}
+    return Log(f"{log.path} (first half)", **cut(slice(0, m))), Log(f"{log.path} (second half)", **cut(slice(m, None)))
+
+
+def cross_validated_cutoff(arm: Arm, logs: list[Log], unknowns: Unknowns, base, th_nominal,
+                           reduced: bool = False) -> tuple[float, str, dict] | None:
+    """The cut-off that predicts unseen data best, from the training logs alone: each log split
+    in two halves in time; for a cut-off, the base parameters fitted (least squares) on the first
+    halves predict the second halves' torques, and the reverse; its score is the mean over both
+    folds and every joint of the relative mean-square error against the held-out torque filtered
+    at the highest cut-off tried (one target for all: a lower cut-off would otherwise win by
+    smoothing its own target).  Every other cut-off of CV_GRID (up to CV_MAX of the Nyquist
+    frequency) is tried, then the two beside the best.  Returns (cut-off, why, {cut-off: score}),
+    or None where the halves are too short to tell."""
+    nyquist = 0.5 / max(lg.dt for lg in logs)
+    grid = [f for f in CV_GRID if f <= CV_MAX * nyquist]
+    if len(grid) < 3 or any(lg.t[-1] - lg.t[0] < 2 * (4 * EDGE_S + 1.0) for lg in logs):
+        return None
+    parts = [half for lg in logs for half in halves(lg)]            # first, second, first, second, ...
+    every = [max(1, int(0.5 / (grid[-1] * lg.dt))) for lg in parts]
+    targets = [rows(arm, prepare(lg, grid[-1], k, arm=arm), unknowns, reduced) for lg, k in zip(parts, every)]
+    scores: dict = {}
+
+    def score(fc: float) -> float:
+        seen = [rows(arm, prepare(lg, fc, k, arm=arm), unknowns, reduced) for lg, k in zip(parts, every)]
+        errors = []
+        for fold in (0, 1):                                          # fit on one half of each log, score the other
+            try:
+                beta = least_squares(combine(seen[fold::2]), base, th_nominal, bootstrap=False).beta
+            except (np.linalg.LinAlgError, ValueError):
+                return float("inf")
+            for held, target in zip(seen[1 - fold::2], targets[1 - fold::2]):
+                pred = held.A[:, base.independent] @ beta
+                errors += [float(np.mean((pred[sel] - target.y[sel]) ** 2) / max(np.mean(target.y[sel] ** 2), 1e-300))
+                           for b, label in enumerate(target.labels) if not label.startswith("spring")
+                           for sel in [target.block == b]]
+        return float(np.mean(errors))
+
+    for fc in grid[::2] + ([grid[-1]] if len(grid) % 2 == 0 else []):
+        scores[fc] = score(fc)
+    k = grid.index(min(scores, key=scores.get))
+    for fc in grid[max(k - 1, 0):k + 2]:
+        if fc not in scores:
+            scores[fc] = score(fc)
+    scores = dict(sorted(scores.items()))
+    best = min(scores, key=scores.get)
+    why = (f"{best:g} Hz: of the cut-offs tried, the one whose fit on one half of each log predicts the other half "
+           f"best (two folds; mean relative mean-square error of the held-out torques: "
+           + ", ".join(f"{f:g} Hz {v:.3g}" for f, v in scores.items()) + f"; Nyquist {nyquist:.0f} Hz)")
+    return best, why, scores
+
+
 @dataclass
 class Signals:
     """A log low-passed (zero-phase), its speeds and accelerations by finite differences of the
@@ -371,8 +433,7 @@ def rows(arm: Arm, sig: Signals, unknowns: Unknowns, reduced: bool = False, spri
     far as the log's columns go (`row_kinds`); the gears' load-dependent losses with the logged T
     or the spring law of `spring` (a model; default the arm's)."""
     n, count = arm.n, sig.t.size
-    Yf = regressor(arm, reduced=reduced).map(count)
-    Y = np.array(Yf(*sig.state())[0]).reshape(2 * n, count, -1) @ unknowns.E        # (2n, count, m)
+    Y = over_samples(regressor(arm, reduced=reduced), *sig.state())[0].reshape(2 * n, count, -1) @ unknowns.E
     if unknowns.load_losses():
         w = load_loss_column(arm, sig.theta, sig.phi, sig.dtheta, sig.dphi, T=sig.T if sig.phi_measured else None,
                              spring=spring)
@@ -386,7 +447,7 @@ def rows(arm: Arm, sig: Signals, unknowns: Unknowns, reduced: bool = False, spri
         K = unknowns.kt_change(arm.model)
         for j in range(n):
             Y[j] -= sig.i[j][:, None] * K[j][None, :]
-    Ys = np.array(spring_regressor(arm).map(count)(*sig.state()[:4])).reshape(n, count, -1) @ unknowns.E
+    Ys = over_samples(spring_regressor(arm), *sig.state()[:4])[0].reshape(n, count, -1) @ unknowns.E
     # near a velocity reversal the Coulomb term c tanh(dphi / eps) jumps within milliseconds, and
     # the filtered torque no longer equals the loss at the filtered speed: those rows are left out
     eps = arm.model.column("eps")
@@ -701,6 +762,7 @@ class Identification:
     fit_status: str = "converged"
     sensors: str = ""               # the columns the logs had, in words
     kinds: tuple = ()               # the row kinds the base parameters were computed in
+    cutoff_scores: dict | None = None   # cross_validated_cutoff's {cut-off: score}, where it chose
 
     def std(self) -> np.ndarray:
         out = np.full(len(self.th), np.nan)
@@ -730,17 +792,21 @@ def identify(arm: Arm, logs: list[Log], reduced: bool = False, fc: float | None 
     unknowns = Unknowns.of(arm.model, sensor_offsets=any(log.T is not None for log in logs),
                            torque_constants=kt_scale(logs))
     th_nominal = unknowns.from_p(arm.parameters()[1][:n_linear(arm.model)])
-    if fc is None:
-        fc, why = cutoff_hz(arm, logs[0])
-    else:
-        why = f"{fc:.1f} Hz, set by the user"
     short = [lg.path for lg in logs if lg.t[-1] - lg.t[0] <= 4 * EDGE_S]
     if short:
         raise LogError(f"{', '.join(short)}: column 't': shorter than {4 * EDGE_S:g} s, too short to filter and "
                        f"excite the parameters")
+    base = structural_base(arm, unknowns, reduced=reduced, kinds=base_kinds(logs))
+    scores = None
+    if fc is not None:
+        why = f"{fc:.1f} Hz, set by the user"
+    elif all(lg.link_side for lg in logs) and (cv := cross_validated_cutoff(arm, logs, unknowns, base, th_nominal,
+                                                                           reduced)) is not None:
+        fc, why, scores = cv
+    else:
+        fc, why = cutoff_hz(arm, logs[0])
     signals = [prepare(log, fc, arm=arm) for log in logs]
     rows_ = combine([rows(arm, sig, unknowns, reduced) for sig in signals])
-    base = structural_base(arm, unknowns, reduced=reduced, kinds=base_kinds(logs))
     excited = excitation_rank(rows_, base)
     if excited < base.rank:
         raise LogError(f"{', '.join(lg.path for lg in logs)}: the logged motion determines only {excited} of the "
@@ -765,7 +831,7 @@ def identify(arm: Arm, logs: list[Log], reduced: bool = False, fc: float | None 
         spring = identified_model(arm, unknowns, th)
     sensors = "; ".join(sorted({log.describe() for log in logs}))
     return Identification(unknowns, ls, th, th_nominal, identified_model(arm, unknowns, th), fc, why, rows_, status,
-                          sensors, base_kinds(logs))
+                          sensors, base_kinds(logs), scores)
 
 
 # ----------------------------------------------------------------------------- command
@@ -816,7 +882,7 @@ def report(ident: Identification, arm: Arm, validation: dict | None, log_files: 
         "undetermined": {"parameters": ident.ls.base.unidentifiable,
                          "why": f"no effect on what the logs measure ({ident.sensors}): kept at the model file's "
                                 "values"},
-        "cutoff_hz": ident.cutoff_hz, "cutoff_why": ident.cutoff_why,
+        "cutoff_hz": ident.cutoff_hz, "cutoff_why": ident.cutoff_why, "cutoff_cross_validation": ident.cutoff_scores,
         "condition_number": ident.ls.condition, "physical_fit": ident.fit_status, "base_parameters": base,
         "parameters": parameters,
         "reflected_rotor_inertia": reflected,

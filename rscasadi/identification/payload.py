@@ -26,7 +26,7 @@ from rscasadi.dynamics.statics import spring_torque
 from rscasadi.files import CheckError
 from rscasadi.identification.identify import REVERSAL, _pseudo_inertia, cutoff_hz, prepare
 from rscasadi.identification.logs import Log, LogError
-from rscasadi.identification.regressor import base_of, regressor
+from rscasadi.identification.regressor import base_of, over_samples, regressor
 from rscasadi.model.parameters import INERTIAL, body_from_parameters, payload_slice
 
 NAMES = [f"payload.{q}" for q in INERTIAL]
@@ -36,8 +36,7 @@ PRIOR = 1e-3          # weight of the model file's guess, relative to the data, 
 def _rows(arm: Arm, sig, known: list) -> tuple[list, list, list]:
     """A p_payload = y: the link rows with the spring's torque, and the motor rows where it turns."""
     n, count = arm.n, sig.t.size
-    Yf = regressor(arm, known=known).map(count)
-    Y, y0 = (np.array(v) for v in Yf(*sig.state()))
+    Y, y0 = over_samples(regressor(arm, known=known), *sig.state())
     Y = Y.reshape(2 * n, count, -1)
     y0 = y0.reshape(2 * n, count)
     eps = arm.model.column("eps")
