@@ -96,10 +96,16 @@ def write_results(stem: str, fig, csv: str, md: str):
 
 # a fresh interpreter solves one problem file (as a user's first command would) and prints its record
 CHILD = """
-import json, sys, time
+import json, sys, tempfile, time
 t0 = time.perf_counter()
 from rscasadi.ocp import load_problem, solve
-sol = solve(load_problem(sys.argv[1]), print_level=0, log=lambda m: print(m, file=sys.stderr, flush=True))
+from rscasadi.ocp.solving import run
+say = lambda m: print(m, file=sys.stderr, flush=True)
+if sys.argv[2] == "solve":
+    sol = solve(load_problem(sys.argv[1]), print_level=0, log=say)
+else:                                   # the command: its solution kept, and reused ("reuse")
+    with tempfile.TemporaryDirectory() as out:
+        sol = run(sys.argv[1], out, print_level=0, log=say, reuse=sys.argv[2] == "reuse")
 rounds = sol["rounds"]
 print(json.dumps({"wall_s": time.perf_counter() - t0, "success": bool(sol["success"]), "T": sol["t"][-1],
                   "setup_first_s": rounds[0]["setup_time_s"], "solve_first_s": rounds[0]["solve_time_s"],
@@ -110,12 +116,14 @@ print(json.dumps({"wall_s": time.perf_counter() - t0, "success": bool(sol["succe
 """
 
 
-def solve_in_child(problem: Path, cache=None) -> dict:
+def solve_in_child(problem: Path, cache=None, how: str = "solve") -> dict:
     """`rscasadi.ocp.solve` of a problem file in a child process (with RSCASADI_CACHE=cache if
-    given: an empty directory is a cold start); its record (CHILD)."""
+    given: an empty directory is a cold start); its record (CHILD).  `how`: "solve"; "command",
+    `rscasadi ocp --cold` (it keeps its verified solution in the cache); "reuse", `rscasadi ocp`
+    (it starts from the solution kept for the same problem)."""
     env = dict(os.environ, **({"RSCASADI_CACHE": str(cache)} if cache else {}))
     print(f"solving {problem.name}" + (f" (compile cache {cache})" if cache else "") + " ...", flush=True)
-    run = subprocess.run([sys.executable, "-c", CHILD, str(problem)], env=env, capture_output=True, text=True,
+    run = subprocess.run([sys.executable, "-c", CHILD, str(problem), how], env=env, capture_output=True, text=True,
                          cwd=ROOT)
     if run.returncode != 0:
         raise RuntimeError(f"{problem.name}: {run.stderr[-2000:]}")

@@ -102,7 +102,7 @@ def test_a_link_side_log_identifies_link_losses_and_a_counterbalance(tmp_path):
     each recovered within 2 % (or 0.05 of a zero), the offsets within three of their reported
     standard deviations (below 0.05 N m), and the held-out
     link torques within 2 %; the same log identified on the file without the tables misses them
-    by more than 20 %."""
+    by more than 20 % and names the joint whose residual is a friction, and the table to declare."""
     from rscasadi.identification.identify import run
     from rscasadi.identification.logs import write_log
     from rscasadi.identification.synthetic import perturbed_arm, record
@@ -128,6 +128,11 @@ def test_a_link_side_log_identifies_link_losses_and_a_counterbalance(tmp_path):
         rep, ident = run(tmp_path / f"{model}.toml", [tmp_path / "ident.csv"], tmp_path / model,
                          validate=tmp_path / "valid.csv", log=lambda m: None)
         errors[model] = max(v["relative"] for v in rep["validation"]["prediction"].values())
+        hints = [w for w in rep["warnings"] if "a link-side friction" in w]
+        if model == "plain":                     # the file without the tables is told which to declare
+            assert any(w.startswith("joint shoulder_pitch:") and "[joints.link_loss]" in w for w in hints), rep["warnings"]
+        else:
+            assert not hints, hints
         if model == "declared":
             for jt, want in zip(ident.model.joints, truth):
                 for got, w in zip((jt.link_b, jt.link_c, jt.cb_k), want):

@@ -923,6 +923,40 @@ def cutoff_check(arm: Arm, logs: list, val_log: Log, ident: "Identification", re
     return out
 
 
+FRICTION_SHARE = 0.25    # a link-side residual this much smaller with b dtheta + c tanh(dtheta / eps) is named
+
+
+def friction_hints(arm: Arm, logs: list, ident: "Identification", reduced: bool = False) -> list:
+    """Joints of link-side logs whose model file declares no [joints.link_loss] but whose torques
+    a viscous and a Coulomb link loss would explain: the least-squares fit in the base parameters
+    again with those two columns added to the joint's rows leaves FRICTION_SHARE less of its
+    squared residual, both terms dissipative.  One line each, naming the joint, the loss it
+    looks like and the table to declare."""
+    hints: list = []
+    if not all(lg.link_side for lg in logs):
+        return hints
+    eps, base = arm.model.column("eps"), ident.ls.base
+    parts = [(rows(arm, sig, ident.unknowns, reduced, ident.model), sig)
+             for sig in (prepare(lg, ident.cutoff_hz, arm=arm) for lg in logs)]
+    A = np.vstack([rw.A[:, base.independent] for rw, _ in parts])
+    y = np.concatenate([rw.y for rw, _ in parts])
+    plain = y - A @ np.linalg.lstsq(A, y, rcond=None)[0]
+    for j, jt in enumerate(arm.model.joints):
+        if "link_loss" in jt.declared:
+            continue
+        mine = np.concatenate([rw.block == rw.labels.index(f"T_{j + 1}") for rw, _ in parts])
+        speed = np.zeros(len(y))
+        speed[mine] = np.concatenate([sig.dtheta[j] for _, sig in parts])      # a T_j row per sample
+        extra = np.column_stack([speed, np.where(mine, np.tanh(speed / eps[j]), 0.0)])    # T = ... + the loss
+        coef = np.linalg.lstsq(np.hstack([A, extra]), y, rcond=None)[0]
+        share = 1.0 - float(np.sum((y - np.hstack([A, extra]) @ coef)[mine] ** 2) / max(np.sum(plain[mine] ** 2), 1e-300))
+        if share >= FRICTION_SHARE and np.all(coef[-2:] >= 0):
+            hints.append(f"joint {jt.name}: a link-side friction (about b = {coef[-2]:.3g} N m s/rad, c = "
+                         f"{coef[-1]:.3g} N m) would take {100 * share:.0f} % of its torque residual, and the model "
+                         f"file declares none: add [joints.link_loss] (b, c) for {jt.name} and identify again")
+    return hints
+
+
 def _grouped(names: list) -> str:
     """Parameter names shortened: an attribute undetermined at every joint named once."""
     joints = sorted({name.split(".", 1)[0] for name in names})
@@ -1015,6 +1049,7 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
         rep["warnings"].append(f"the cut-off {best['cutoff_hz']:.1f} Hz predicts the held-out log better than the "
                                f"chosen {ident.cutoff_hz:.1f} Hz ({best['held_out_worst']:.2%} against {mine:.2%} "
                                f"worst error): try --cutoff {best['cutoff_hz']:.1f}")
+    rep["warnings"] += friction_hints(arm, logs, ident, reduced)
     for warning in rep["warnings"]:
         log(f"warning: {warning}")
     with fresh_directory(out) as tmp:
