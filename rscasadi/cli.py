@@ -299,7 +299,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--warm", default=None, help="a previous solution.json to start from")
     p.add_argument("--cold", action="store_true",
                    help="start from the problem's own guess, not from the verified solution of the same problem "
-                        "that an earlier run kept in the cache (its refined mesh and states)")
+                        "that an earlier run kept in the cache (its refined mesh and states); this run's is kept")
     p.add_argument("--quiet", action="store_true", help="no solver iteration log")
     p.add_argument("--verbose", action="store_true", help="the solver's whole log (fatrop: its iterative refinement too)")
     p.add_argument("--solver", choices=("ipopt", "fatrop"), help="override the problem file's [solver] name")

@@ -189,7 +189,7 @@ def test_a_second_run_of_the_same_problem_starts_from_its_verified_solution(pitc
     path = problem(pitch_arm, "reuse.toml", transcription={"intervals": 6},
                    verification={"final_angle_tol": 1e-5, "final_speed_tol": 3e-4})
     out = pitch_arm / "reuse"
-    assert main(["ocp", str(path), "--out", str(out), "--quiet"]) == 0
+    assert main(["ocp", str(path), "--out", str(out), "--quiet", "--cold"]) == 0     # kept, though cold
     first = json.loads((out / "solution.json").read_text())
     assert len(first["rounds"]) >= 2 and "starting from the verified solution" not in capsys.readouterr().out
     assert main(["ocp", str(path), "--out", str(out), "--quiet"]) == 0

@@ -485,10 +485,10 @@ def keep_solution(problem: Problem, sol) -> None:
 def run(problem, out, warm_file=None, log=print, print_level: int = 5, solver: str | None = None,
         reuse: bool = True) -> Solution:
     """`rscasadi ocp`: solve `problem` (a `Problem`, or the path of a problem file), verify,
-    refine, write DIR/solution.json and the plots; return the solution.  `reuse`: without a
-    `warm_file`, start from the verified solution of the same problem kept in the cache by an
-    earlier run (its refined mesh and its states: one round where the first run took several),
-    and keep this one's for the next."""
+    refine, write DIR/solution.json and the plots; return the solution.  A verified solution is
+    kept in the cache for the next run of the same problem; `reuse`: without a `warm_file`, start
+    from the one an earlier run kept (its refined mesh and its states: one round where the first
+    run took several)."""
     from rscasadi.files import check_writable, fresh_directory
     from rscasadi.model.modelfile import ModelFileError
     check_writable(out)
@@ -516,8 +516,7 @@ def run(problem, out, warm_file=None, log=print, print_level: int = 5, solver: s
     log(f"solving with {problem.solver.name}" + (" (log quieted)" if print_level == 0 else "") + " ...")
     sol = solve(problem, warm or kept, log=log, print_level=print_level,
                 mesh=None if kept is None else np.asarray(kept["mesh"]))
-    if reuse:
-        keep_solution(problem, sol)
+    keep_solution(problem, sol)
     if sol["design"]:
         log("optimal design: " + ", ".join(f"{k} = {v:.6g}" for k, v in sol["design"].items()))
     with fresh_directory(out) as tmp:
