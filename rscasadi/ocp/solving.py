@@ -369,7 +369,8 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
     A co-design problem first solves the nominal arm (design at the model file's values) and
     starts from that solution: the design can then only improve on it (a local solver from a
     straight-line guess found a worse local minimum here).  `mesh`: the first round's interval
-    widths (fractions summing to 1; a refined mesh of an earlier solve), with `warm`."""
+    widths (fractions summing to 1; a refined mesh of an earlier solve), with `warm` its solution:
+    the first round then starts with the small barrier of a refinement round."""
     nominal = None
     if problem.task.design and warm is None:
         log("co-design: first the nominal arm, as the starting point")
@@ -382,7 +383,8 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
     for r in range(problem.verification.rounds + 1):
         # a refinement round starts next to the answer: a small barrier keeps the solver there
         # (seen: a co-design round wandered from T = 0.2472 s to another local minimum, 0.2506 s)
-        extra = {**(WARM.get(problem.solver.name, {}) if r else {}), **(options or {})}
+        near = r or mesh is not None                   # a refinement round, or a kept solution's mesh
+        extra = {**(WARM.get(problem.solver.name, {}) if near else {}), **(options or {})}
         sol = dict(solve_once(problem, w, warm, log, print_level, extra))
         if not sol["success"] and problem.solver.name == "fatrop":
             # fatrop fails on some problems where IPOPT does not (maximum iterations, a failed
@@ -391,7 +393,7 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
             problem = problem.replace(solver="ipopt")
             fallback = {"solver": "fatrop", "round": r, "status": sol["status"], "iterations": sol["iterations"]}
             options = None                                     # fatrop's own options mean nothing to IPOPT
-            sol = dict(solve_once(problem, w, warm, log, print_level, WARM["ipopt"] if r else None))
+            sol = dict(solve_once(problem, w, warm, log, print_level, WARM["ipopt"] if near else None))
         if fallback:
             sol["fallback_from"] = fallback                    # kept through the later rounds (IPOPT's)
         report = verify(sol, terms=problem.task.terms)
