@@ -1,10 +1,11 @@
 """Benchmark of tasks in space, in one run:
 
 1. the Panda's shelf task (problems/ocp_panda_shelf.toml: 2 kg, minimum time, a pose goal,
-   around a ball above the table), cold (an empty compile cache: everything it needs compiled)
-   and warm (the cache that first solve filled): the time to the first solve's start (compiling
-   or finding the condensing kernel), the first round's solve, and the whole solve with its mesh
-   refinements;
+   around a ball above the table) as `rscasadi ocp` solves it: cold (an empty compile cache:
+   everything it needs compiled), warm with --cold (the cache that first solve filled) and warm
+   from the verified solution the earlier runs kept: the time to the first solve's start
+   (compiling or finding the condensing kernel), the first round's solve, and the whole solve
+   with its mesh refinements;
    the same kind of task on a second 7-joint arm, Baxter's left arm from its whole-robot URDF
    (tests/data/baxter_description, as example-robot-data ships it) with an FS-SEA table, a 1 kg
    part, a ball and a table, cold and warm;
