@@ -47,18 +47,23 @@ class InputTooLarge(Error, ValueError):
     """An input file is larger than rscasadi reads for its kind: refused by its size, unread."""
 
 
-def check_input_size(path, kind: str) -> None:
-    """Refuse `path` before reading it when it is larger than MAX_INPUT_BYTES[kind], naming the
-    file, its size and the limit: a 2 GB file is refused at once, not after minutes and
-    gigabytes of memory.  A missing file is left for the reader to name."""
+def size_refusal(path, kind: str) -> str:
+    """Why `path` is not read for its size (larger than MAX_INPUT_BYTES[kind]), or "": its size
+    and the limit, checked before any reading.  A missing file is left for the reader to name."""
     try:
         size = Path(path).stat().st_size
     except OSError:
-        return
+        return ""
     limit = MAX_INPUT_BYTES[kind]
-    if size > limit:
-        raise InputTooLarge(f"{path}: {size / MiB:.0f} MiB, larger than the {limit // MiB} MiB rscasadi reads "
-                            f"for a {kind} file; refused unread"
+    return f"{size / MiB:.0f} MiB, larger than the {limit // MiB} MiB rscasadi reads for a {kind}" if size > limit else ""
+
+
+def check_input_size(path, kind: str) -> None:
+    """Refuse `path` before reading it when it is too large for its kind (`size_refusal`), naming
+    the file: a 2 GB file is refused at once, not after minutes and gigabytes of memory."""
+    why = size_refusal(path, kind)
+    if why:
+        raise InputTooLarge(f"{path}: {why} file; refused unread"
                             + (" (split a long log into several: identify takes many)" if kind == "log" else ""))
 
 

@@ -112,6 +112,11 @@ def rest_state(model, variant: str = "complete") -> tuple:
     return theta, phi, tau
 
 
+def _torque_limits(model) -> np.ndarray:
+    """Each motor's torque limit (N m; inf where the model file gives none)."""
+    return np.array([jt.limits.get("tau", np.inf) for jt in model.joints], float)
+
+
 def _numbers(v) -> str:
     return " ".join(repr(float(x)) for x in np.ravel(v))
 
@@ -224,7 +229,7 @@ def mujoco_xml(model, variant: str = "complete") -> str:
                       f'      <joint name="{n}_motor" type="hinge" axis="0 0 1" ref="{float(phi0[j])!r}" damping="{float(jt.b)!r}"/>',
                       "    </body>"]
     lines += ["  </worldbody>"]
-    limits = np.array([jt.limits.get("tau", np.inf) for jt in model.joints], float)
+    limits = _torque_limits(model)
     key = [f'  <keyframe>\n    <key name="rest" ctrl="{_numbers(np.clip(tau0, -limits, limits))}"/>\n  </keyframe>']
     if armature:
         lines.append("  <actuator>")
@@ -344,8 +349,7 @@ def export_mujoco(model_file, out, log=print, variant: str = "complete") -> Path
             "reduced": "the DLR/Spong reduced model: rotors welded, each motor coordinate a joint of its own",
             "complete": "each a link, a slow and a fast rotor, the gear an equality, the spring a tendon"}[variant]
     theta, _, tau = rest_state(arm.model, variant)
-    limits = np.array([jt.limits.get("tau", np.inf) for jt in arm.model.joints], float)
-    weak = [f"{jt.name} ({abs(t):.3g} N m, limit {lim:g})" for jt, t, lim in zip(arm.model.joints, tau, limits)
+    weak = [f"{jt.name} ({abs(t):.3g} N m, limit {lim:g})" for jt, t, lim in zip(arm.model.joints, tau, _torque_limits(arm.model))
             if abs(t) > lim]
     log(f"wrote {Path(out) / 'model.xml'}: {arm.n} joints, {what} (RK4 at {TIMESTEP * 1e3:g} ms); starts at rest "
         f"(keyframe 'rest': links at {_numbers(np.round(theta, 4))} rad, the springs deflected)")

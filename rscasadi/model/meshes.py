@@ -43,12 +43,11 @@ def _inside(path: Path, root: Path) -> Path | None:
     return real
 
 
-def _too_large(path: Path) -> str:
-    """Why a mesh file is not read for its size, or "" (checked before trimesh reads it)."""
-    from rscasadi.files import MAX_INPUT_BYTES, MiB
-    size = path.stat().st_size
-    limit = MAX_INPUT_BYTES["mesh"]
-    return f"{size / MiB:.0f} MiB, larger than the {limit // MiB} MiB rscasadi reads for a mesh" if size > limit else ""
+def _sized(path: Path) -> tuple[Path | None, str]:
+    """(path, "") for a mesh small enough to read, else (None, why): checked before trimesh reads it."""
+    from rscasadi.files import size_refusal
+    why = size_refusal(path, "mesh")
+    return (None, why) if why else (path, "")
 
 
 def mesh_file(urdf: Path, name: str) -> tuple[Path | None, str]:
@@ -63,16 +62,14 @@ def mesh_file(urdf: Path, name: str) -> tuple[Path | None, str]:
         if Path(name).is_absolute():
             return None, f"an absolute path (outside the robot's package {root})"
         found = _inside(urdf.resolve().parent / name, root)
-        if found and _too_large(found):
-            return None, _too_large(found)
-        return (found, "") if found else (None, f"not a mesh file inside the robot's package {root}")
+        return _sized(found) if found else (None, f"not a mesh file inside the robot's package {root}")
     parts = Path(name[len("package://"):]).parts
     if ".." in parts:
         return None, f"climbs out of the robot's package {root}"
     for k in range(len(parts)):                         # with or without the package's own name
         found = _inside(root.joinpath(*parts[k:]), root)
         if found:
-            return (None, _too_large(found)) if _too_large(found) else (found, "")
+            return _sized(found)
     return None, f"not found inside the robot's package {root} (a package.xml marks its root)"
 
 

@@ -414,8 +414,8 @@ def solve(problem: Problem, warm: dict | None = None, log=print, print_level: in
         log(f"refining: {sol['intervals']} -> {len(w)} intervals {where}")
     report["passed"] = not failed
     report.pop("interval_violation")
-    report.pop("interval_clearance", None)
-    report.pop("interval_path_error", None)
+    for key in ("interval_clearance", "interval_urdf_clearance", "interval_path_error"):
+        report.pop(key, None)
     sol["verification"], sol["rounds"] = report, rounds
     sol["success"] = bool(sol["solver_success"] and not failed)
     if nominal is not None:
