@@ -46,6 +46,20 @@ def random_arm_doc(rng, n, balanced=False):
     return {"name": f"random-{n}", "gravity": rng.normal(size=3) * 5, "joints": joints}
 
 
+def random_tree_doc(rng, n, balanced=False):
+    """random_arm_doc's joints in a random tree: joint 1 on the base, every later one on the base
+    (one in five) or on the link of any joint before it, named by `parent`; at least one link
+    carries two joints."""
+    doc = random_arm_doc(rng, n, balanced)
+    parents = [-1] + [-1 if rng.uniform() < 0.2 else int(rng.integers(0, j)) for j in range(1, n)]
+    if n >= 3 and len(set(parents)) == n:
+        parents[-1] = parents[-2]
+    for jt, p in zip(doc["joints"], parents):
+        jt["parent"] = "base" if p < 0 else f"j{p + 1}"
+    doc["name"] = f"random-tree-{n}"
+    return doc
+
+
 def write_arm(tmp_path, doc, name="arm.toml"):
     path = Path(tmp_path) / name
     path.write_text(to_toml(doc))

@@ -25,11 +25,11 @@ def loaded(name, variant="complete"):
     return arm, m, mujoco.MjData(m), gear_map(arm, m)
 
 
-def random_arm(tmp_path, n):
-    """A random arm of conftest (axes at any angle, unbalanced rotors, random gravity) with a
-    linear spring and no Coulomb loss, as MJCF holds them."""
-    from conftest import random_arm_doc, write_arm
-    doc = random_arm_doc(np.random.default_rng(100 + n), n)
+def random_arm(tmp_path, n, tree=False):
+    """A random arm of conftest (axes at any angle, unbalanced rotors, random gravity), or a
+    random tree of them, with a linear spring and no Coulomb loss, as MJCF holds them."""
+    from conftest import random_arm_doc, random_tree_doc, write_arm
+    doc = (random_tree_doc if tree else random_arm_doc)(np.random.default_rng(100 + n), n)
     for jt in doc["joints"]:
         jt["sea"]["k3"], jt["gear_loss"]["c"] = 0.0, 0.0
     return rscasadi.load(write_arm(tmp_path, doc))
@@ -44,15 +44,16 @@ def holding_a_part():
                                 inertia=[2e-3, 1e-3, 1.5e-3, 1e-4, 0.0, -2e-4], radius=0.04))
 
 
-@pytest.mark.parametrize("name,variant", [(name, "complete") for name in (*ARMS, 2, 5, 7, "part")]
+@pytest.mark.parametrize("name,variant", [(name, "complete") for name in (*ARMS, 2, 5, 7, "part", "tree")]
                          + [("arm3", "reduced"), ("panda", "reduced"), ("part", "reduced")])
 def test_mujoco_s_mass_matrix_and_forces_are_the_model_s(name, variant, tmp_path):
     """At random states and torques within the limits: T' M T equals the model's mass matrix and
     T' (passive + actuator - bias) its generalised forces (M ddq of its forward dynamics), to 1e-12;
-    the reference arm, the Panda from its URDF, random arms with unbalanced rotors, and the arm
-    holding a part (its capsules exported as geoms, which must not change the inertias); the
+    the reference arm, the Panda from its URDF, random arms and a random tree with unbalanced
+    rotors, and the arm holding a part (its capsules exported as geoms, which must not change the inertias); the
     reduced export against the reduced model (Arm.reduced_forward_dynamics)."""
-    arm = holding_a_part() if name == "part" else name if name in ARMS else random_arm(tmp_path, name)
+    arm = (holding_a_part() if name == "part" else name if name in ARMS
+           else random_arm(tmp_path, 8, tree=True) if name == "tree" else random_arm(tmp_path, name))
     arm, m, d, T = loaded(arm, variant)
     n, rng = arm.n, np.random.default_rng(7)
     limit = np.array([jt.limits.get("tau", 1.0) for jt in arm.model.joints])

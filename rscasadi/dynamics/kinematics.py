@@ -30,8 +30,9 @@ REFERENCES = ("local_world_aligned", "local", "world")
 def body_poses(model, theta) -> list:
     """(R, o) of every body in the world frame: the base (0) and each joint's link (1..n), eq. (12)."""
     poses = [(ca.DM.eye(3), ca.DM.zeros(3))]
-    for j, jt in enumerate(model.joints):
-        poses.append(base_pose(*poses[-1], joint_rotation(jt.R, theta[j]), jt.origin_xyz))
+    for j, (jt, parent) in enumerate(zip(model.joints, model.parent)):
+        R_p, o_p = poses[parent + 1]
+        poses.append(base_pose(R_p, o_p, joint_rotation(jt.R, theta[j]), jt.origin_xyz))
     return poses
 
 
@@ -44,7 +45,7 @@ def frame_pose(model, frame, theta, poses=None) -> tuple:
 def frame_jacobian(model, frame, theta, reference: str = "local_world_aligned"):
     """J (6 x n, [linear; angular]) with [v; w] = J dtheta in `reference` (module docstring).
     The angular column of joint j is its axis in the world (the z of its link's frame) when the
-    frame rides on that link or beyond, else zero; the linear part is dp/dtheta."""
+    frame rides on that link or on a link it carries, else zero; the linear part is dp/dtheta."""
     R, p, J = _placement_and_jacobian(model, frame, theta)
     return _expressed(reference, R, p, J[:3, :], J[3:, :])
 
@@ -53,7 +54,8 @@ def _placement_and_jacobian(model, frame, theta) -> tuple:
     """R, p and the local_world_aligned J of a frame, from one chain of body poses."""
     poses = body_poses(model, theta)
     R, p = frame_pose(model, frame, theta, poses)
-    Jw = ca.horzcat(*[poses[j + 1][0][:, 2] if j < frame.body else ca.DM.zeros(3) for j in range(model.n)])
+    support = set(model.support(frame.body))
+    Jw = ca.horzcat(*[poses[j + 1][0][:, 2] if j in support else ca.DM.zeros(3) for j in range(model.n)])
     return R, p, ca.vertcat(ca.jacobian(p, theta), Jw)
 
 
@@ -89,9 +91,9 @@ def jacobian_dot_times_v(model, frame, theta, dtheta):
 def center_of_mass(segs, theta, phi):
     """The centre of mass of every moving body: links and rotors (the fixed base excluded).  A
     rotor's centre turns with phi only if it is off its axis (an unbalanced rotor)."""
-    mass, moment = 0, ca.DM.zeros(3)
-    R_p, o_p = ca.DM.eye(3), ca.DM.zeros(3)
+    mass, moment, poses = 0, ca.DM.zeros(3), []
     for j, seg in enumerate(segs):
+        R_p, o_p = poses[seg.parent] if seg.parent >= 0 else (ca.DM.eye(3), ca.DM.zeros(3))
         bodies = [(seg.M, joint_rotation(seg.R, theta[j]))]
         bodies += [(M, joint_rotation(seg.R, rec.rotor_frame_angle(gear, spins, phi[j])))
                    for gear, M, spins in seg.leaves]
@@ -99,7 +101,7 @@ def center_of_mass(segs, theta, phi):
             R_b, o = base_pose(R_p, o_p, R, seg.l)
             m, mp = M[3, 3], ca.vertcat(M[2, 4], M[0, 5], M[1, 3])       # eq. (11): m and m c
             mass, moment = mass + m, moment + m * o + R_b @ mp
-        R_p, o_p = base_pose(R_p, o_p, bodies[0][1], seg.l)
+        poses.append(base_pose(R_p, o_p, bodies[0][1], seg.l))
     return moment / mass
 
 

@@ -1,7 +1,10 @@
-"""The rotor-separated recursions (paper section III), symbolic, in body frames.
+"""The rotor-separated recursions (paper section III), symbolic, in body frames, on a tree.
 
-Public index j = 0..n-1 runs base to tip; the paper's k = n - j (k = 1 is the tip).
-A loop "for j in reversed(range(n))" is the paper's "for k = 1..n" (tip to base).
+Joints j = 0..n-1 are ordered so that each comes after its parent (`Segment.parent`, -1 for the
+base); a serial chain is the tree whose parent of j is j - 1.  As in Featherstone's tree
+algorithms, every recursion is one loop forward over j (base to leaves, reading the parent's
+quantities) and one backward (leaves to base, adding into the parent's): on a chain the
+backward loop is the paper's "for k = 1..n" (k = n - j, k = 1 the tip).
 
 The model (constant) is a list of `Segment`s, one per joint; the per-call workspace
 is a list of `Kin` records made by `kinematics`.  Each joint's two rotors are a
@@ -29,6 +32,7 @@ class Segment:
     M: np.ndarray            # spatial inertia of link j (eq. 11), link frame
     leaves: list             # [(gear, M, spins)] rotors of joint j; see `segments`
     B_spin: float = 0.0      # reduced model only: B_j on the rotor coordinate
+    parent: int = -1         # the joint whose link carries joint j (-1: the base)
 
 
 @dataclass
@@ -51,25 +55,28 @@ def segments(model, phys, reduced: bool = False) -> list:
     """The tree of the complete model, or of the DLR reduced model, with the inertias of `phys`
     (numbers, or expressions of the parameters: then every rotor spins in its own frame)."""
     segs = []
-    for j, jt in enumerate(model.joints):
+    for j, (jt, parent) in enumerate(zip(model.joints, model.parent)):
         M, mu = phys.inertias[j], phys.columns["gear_ratio"][j]        # mu: a number, or free
         rotors = [(gear, M[part], (phys.symbolic and (jt.name, part) not in phys.balanced)
                    or not getattr(jt, part).balanced)
                   for gear, part in ((1.0, "slow_rotor"), (-mu, "fast_rotor"))]
         segs.append(Segment(jt.R, jt.origin_xyz, M["link"], [] if reduced else rotors,
-                            phys.rotor_inertia(j) if reduced else 0.0))
-    if reduced:  # rotor j+1 carried rigidly by link j at its zero angle (exact for balanced rotors)
-        for seg, jt, M in zip(segs[:-1], model.joints[1:], phys.inertias[1:]):
+                            phys.rotor_inertia(j) if reduced else 0.0, parent))
+    if reduced:  # joint j's rotors carried rigidly by its parent link at zero angle (exact for balanced rotors)
+        for jt, M, parent in zip(model.joints, phys.inertias, model.parent):
+            if parent < 0:
+                continue
             X0 = Xup(ca.DM(jt.R), jt.origin_xyz)
             for part in ("slow_rotor", "fast_rotor"):
-                seg.M = as_casadi(seg.M) + X0.T @ as_casadi(M[part]) @ X0
+                segs[parent].M = as_casadi(segs[parent].M) + X0.T @ as_casadi(M[part]) @ X0
     return segs
 
 
 def kinematics(segs, theta, phi, dtheta, dphi) -> list:
-    """Eqs. (1), (9), (18): velocities and Coriolis terms, base to tip."""
-    kin, V_p = [], ca.DM.zeros(6)
+    """Eqs. (1), (9), (18): velocities and Coriolis terms, base to leaves."""
+    kin: list = []
     for j, seg in enumerate(segs):
+        V_p = kin[seg.parent].V if seg.parent >= 0 else ca.DM.zeros(6)
         R = joint_rotation(seg.R, theta[j])
         X = Xup(R, seg.l)
         k = Kin((theta[j], phi[j], dtheta[j], dphi[j]), X, X @ V_p + H * dtheta[j], coriolis(R, seg.l, V_p[:3], dtheta[j]))
@@ -78,17 +85,17 @@ def kinematics(segs, theta, phi, dtheta, dphi) -> list:
             Xr = Xup(Rr, seg.l)
             k.leaves.append((gear, M, Xr, Xr @ V_p + H * gear * dphi[j], coriolis(Rr, seg.l, V_p[:3], gear * dphi[j])))
         kin.append(k)
-        V_p = k.V
     return kin
 
 
 def accelerations(segs, kin, ddtheta, ddphi, gravity):
-    """Eqs. (2), (18): spatial accelerations of links and rotors, base to tip."""
-    alpha, alpha_r, alpha_p = [], [], base_acceleration(gravity)
-    for j, k in enumerate(kin):
+    """Eqs. (2), (18): spatial accelerations of links and rotors, base to leaves."""
+    alpha: list = []
+    alpha_r: list = []
+    for j, (seg, k) in enumerate(zip(segs, kin)):
+        alpha_p = alpha[seg.parent] if seg.parent >= 0 else base_acceleration(gravity)
         alpha_r.append([Xr @ alpha_p + H * gear * ddphi[j] + ar for gear, _, Xr, _, ar in k.leaves])
-        alpha_p = k.X @ alpha_p + H * ddtheta[j] + k.a
-        alpha.append(alpha_p)
+        alpha.append(k.X @ alpha_p + H * ddtheta[j] + k.a)
     return alpha, alpha_r
 
 
@@ -103,15 +110,18 @@ def inverse_dynamics(segs, kin, ddtheta, ddphi, gravity, f_ext=None):
     n = len(segs)
     alpha, alpha_r = accelerations(segs, kin, ddtheta, ddphi, gravity)
     T, Qphi = [None] * n, [None] * n
-    f_child = ca.DM.zeros(6)                       # force of the outboard joint on link j
+    f_child = [ca.DM.zeros(6) for _ in range(n)]   # force of the outboard joints on link j
     for j in reversed(range(n)):
-        f = rotor_force(segs[j].M, kin[j].V, alpha[j]) + f_child        # eq. (25)
+        f = rotor_force(segs[j].M, kin[j].V, alpha[j]) + f_child[j]     # eq. (25)
         if f_ext is not None:
             f = f - f_ext[j]                                           # the environment's share
         T[j] = f[2]                                                    # eq. (26): T_k = H^T f_k
         rotor_f = [rotor_force(M, Vr, ar) for (_, M, _, Vr, _), ar in zip(kin[j].leaves, alpha_r[j])]
         Qphi[j] = segs[j].B_spin * ddphi[j] + sum((gear * fr[2] for (gear, *_), fr in zip(kin[j].leaves, rotor_f)), 0)
-        f_child = kin[j].X.T @ f + sum((Xr.T @ fr for (_, _, Xr, _, _), fr in zip(kin[j].leaves, rotor_f)), ca.DM.zeros(6))
+        i = segs[j].parent
+        if i >= 0:
+            f_child[i] = f_child[i] + kin[j].X.T @ f + sum((Xr.T @ fr for (_, _, Xr, _, _), fr
+                                                             in zip(kin[j].leaves, rotor_f)), ca.DM.zeros(6))
     return ca.vertcat(*T), ca.vertcat(*Qphi)
 
 
@@ -152,27 +162,31 @@ def forward_dynamics(segs, kin, Qtheta, Qphi, gravity, f_ext=None):
             z = z - f_ext[j]                                           # the bias less the applied force
         G[j], nu[j], P_plus, z_plus = project(P, z, Qtheta[j])
         leaf[j] = leaf_articulated(segs[j], kin[j], Qphi[j])
-        if j > 0:
-            P_c[j - 1] = P_c[j - 1] + kin[j].X.T @ P_plus @ kin[j].X + leaf[j][3]
-            z_c[j - 1] = z_c[j - 1] + kin[j].X.T @ z_plus + leaf[j][4]
-    ddtheta, ddphi, alpha_p = [], [], base_acceleration(gravity)
+        i = segs[j].parent
+        if i >= 0:
+            P_c[i] = P_c[i] + kin[j].X.T @ P_plus @ kin[j].X + leaf[j][3]
+            z_c[i] = z_c[i] + kin[j].X.T @ z_plus + leaf[j][4]
+    ddtheta: list = []
+    ddphi: list = []
+    alpha: list = []
     for j in range(n):                                             # eq. (6), paper k = n..1
+        alpha_p = alpha[segs[j].parent] if segs[j].parent >= 0 else base_acceleration(gravity)
         D_r, U, eps_r = leaf[j][:3]
         ddphi.append((eps_r - U.T @ alpha_p) / D_r)                # eq. (23)
         alpha_plus = kin[j].X @ alpha_p
         ddtheta.append(nu[j] - G[j].T @ alpha_plus)
-        alpha_p = alpha_plus + H * ddtheta[j] + kin[j].a
+        alpha.append(alpha_plus + H * ddtheta[j] + kin[j].a)
     return ca.vertcat(*ddtheta), ca.vertcat(*ddphi)
 
 
 def joint_forward_dynamics(segs, kin, ddtheta, Qphi, gravity):
     """Paper eq. (23): each rotor's ddphi from the link accelerations (eq. 2) of its parent."""
     alpha, _ = accelerations(segs, kin, ddtheta, ca.DM.zeros(len(segs)), gravity)
-    alpha_p = [base_acceleration(gravity)] + alpha[:-1]
     out = []
     for j, seg in enumerate(segs):
         D, U, eps = leaf_articulated(seg, kin[j], Qphi[j])[:3]
-        out.append((eps - U.T @ alpha_p[j]) / D)
+        alpha_p = alpha[seg.parent] if seg.parent >= 0 else base_acceleration(gravity)
+        out.append((eps - U.T @ alpha_p) / D)
     return ca.vertcat(*out)
 
 
@@ -184,20 +198,20 @@ def _inner_joint(angle, w_parent, rate):
 
 
 def arm_forward_dynamics(segs, kin, T, ddphi, ddtheta_guess, gravity):
-    """Paper eqs. (29)-(32): link accelerations of the serial chain link k <- ks <- kf <- link k+1.
+    """Paper eqs. (29)-(32): link accelerations of the chains link k <- ks <- kf <- parent link.
 
     The rotor joints are driven by T_ks, T_kf of eq. (29), which need the rotors'
     spatial accelerations: they are formed from ddphi and the parent links'
     accelerations of `ddtheta_guess` (the paper's predictor).  At the exact
-    ddtheta the result equals it (a fixed point).  The base joint's rotors sit on
-    the fixed base and are not part of the chain (3n - 1 bodies)."""
+    ddtheta the result equals it (a fixed point).  The rotors of a joint on the base sit on
+    the fixed base and are not part of the tree (3n - 1 bodies on a chain)."""
     n = len(segs)
     _, alpha_r = accelerations(segs, kin, ddtheta_guess, ddphi, gravity)
     P_c, z_c = [ca.DM.zeros(6, 6)] * n, [ca.DM.zeros(6)] * n
     G, nu, inner = [None] * n, [None] * n, [None] * n
     for j in reversed(range(n)):                                   # eqs. (30), (31), paper k = 1..n
-        a_link = kin[j].a
-        if j > 0:
+        a_link, on_base = kin[j].a, segs[j].parent < 0
+        if not on_base:
             theta, phi, dtheta, dphi = kin[j].q
             (_, Ms, Xs, Vs, a_s), (gear, Mf, Xf, Vf, a_f) = kin[j].leaves
             (_, _, spins_s), (_, _, spins_f) = segs[j].leaves
@@ -208,8 +222,8 @@ def arm_forward_dynamics(segs, kin, T, ddphi, ddtheta_guess, gravity):
         P = segs[j].M + P_c[j]
         z = P @ a_link + gyroscopic(segs[j].M, kin[j].V[:3]) + z_c[j]
         G[j], nu[j], P_plus, z_plus = project(P, z, T[j])
-        if j == 0:
-            break
+        if on_base:
+            continue
         F_s = rotor_force(Ms, Vs, alpha_r[j][0])
         T_s = T[j] + F_s[2]                                        # eq. (29)
         T_f = T_s + rotor_force(Mf, Vf, alpha_r[j][1])[2]
@@ -219,27 +233,29 @@ def arm_forward_dynamics(segs, kin, T, ddphi, ddtheta_guess, gravity):
         P_f = X_fs.T @ P_s_plus @ X_fs + Mf
         z_f = X_fs.T @ z_s_plus + P_f @ a_f + gyroscopic(Mf, Vf[:3])
         _, _, P_f_plus, z_f_plus = project(P_f, z_f, T_f)
-        P_c[j - 1] = Xf.T @ P_f_plus @ Xf
-        z_c[j - 1] = Xf.T @ z_f_plus
-    ddtheta, alpha_p = [], base_acceleration(gravity)
+        P_c[segs[j].parent] = P_c[segs[j].parent] + Xf.T @ P_f_plus @ Xf
+        z_c[segs[j].parent] = z_c[segs[j].parent] + Xf.T @ z_f_plus
+    ddtheta: list = []
+    alpha: list = []
     for j in range(n):                                             # eq. (32), paper k = n..1
-        if j == 0:
-            alpha_plus = kin[0].X @ alpha_p
-            ddtheta.append(nu[0] - G[0].T @ alpha_plus)
-            alpha_p = alpha_plus + H * ddtheta[0] + kin[0].a
+        if segs[j].parent < 0:
+            alpha_plus = kin[j].X @ base_acceleration(gravity)
+            ddtheta.append(nu[j] - G[j].T @ alpha_plus)
+            alpha.append(alpha_plus + H * ddtheta[j] + kin[j].a)
         else:
             Xs, a_s, X_sl, a_sl = inner[j]
-            alpha_plus = X_sl @ (Xs @ alpha_p + H * ddphi[j] + a_s)
+            alpha_plus = X_sl @ (Xs @ alpha[segs[j].parent] + H * ddphi[j] + a_s)
             ddtheta.append(ddphi[j] + nu[j] - G[j].T @ alpha_plus)
-            alpha_p = alpha_plus + H * (ddtheta[j] - ddphi[j]) + a_sl
+            alpha.append(alpha_plus + H * (ddtheta[j] - ddphi[j]) + a_sl)
     return ca.vertcat(*ddtheta)
 
 
 def energy(segs, kin, gravity):
     """Kinetic (0.5 V^T M V per body) plus gravitational (-m g . p_com, eq. 12 for the poses)."""
-    E, R_p, o_p, g = 0, ca.DM.eye(3), ca.DM.zeros(3), as_casadi(gravity)
+    E, g, poses = 0, as_casadi(gravity), []
     for seg, k in zip(segs, kin):
         theta = k.q[0]
+        R_p, o_p = poses[seg.parent] if seg.parent >= 0 else (ca.DM.eye(3), ca.DM.zeros(3))
         bodies = [(seg.M, k.V, joint_rotation(seg.R, theta))]
         bodies += [(M, Vr, joint_rotation(seg.R, rotor_frame_angle(gear, spins, k.q[1])))
                    for (gear, M, _, Vr, _), (_, _, spins) in zip(k.leaves, seg.leaves)]
@@ -247,5 +263,5 @@ def energy(segs, kin, gravity):
             R_b, o = base_pose(R_p, o_p, R, seg.l)                  # eq. (12): the body in the base frame
             m, mp = M[3, 3], ca.vertcat(M[2, 4], M[0, 5], M[1, 3])
             E += 0.5 * V.T @ as_casadi(M) @ V - g.T @ (m * o + R_b @ mp)
-        R_p, o_p = base_pose(R_p, o_p, bodies[0][2], seg.l)
+        poses.append(base_pose(R_p, o_p, bodies[0][2], seg.l))
     return E

@@ -1,6 +1,7 @@
 """The complete rotor-separated model as MuJoCo's MJCF, exact in MuJoCo's own terms.
 
-Per joint j, inside the body of link j - 1 (the world for j = 1), at the joint frame J_j:
+Per joint j, inside the body of the link that carries it (the world for a joint on the base), at
+the joint frame J_j:
   - the link j (a hinge about z: theta_j) with its subtree;
   - the slow rotor S_j (a hinge about z: phi_j) and the fast rotor F_j (a hinge about z), both
     on the parent as in the paper; the gear is a joint equality, fast = -mu_j slow (the fast
@@ -207,8 +208,8 @@ def mujoco_xml(model, variant: str = "complete") -> str:
                f'{indent}  <joint name="{name}" type="hinge" axis="0 0 1" ref="{float(theta0[j])!r}"{rigid}{link_side}'
                + (f' range="{theta[0]!r} {theta[1]!r}"' if theta is not None and np.all(np.isfinite(theta)) else "")
                + "/>"] + _attached(model, j + 1, indent + "  ")
-        if j + 1 < len(model.joints):
-            out += joint_bodies(j + 1, indent + "  ")
+        for child in model.children(j):
+            out += joint_bodies(child, indent + "  ")
         out.append(f"{indent}</body>")
         for part, suffix, damping, gear in (("slow_rotor", "slow", jt.b, 1.0), ("fast_rotor", "fast", 0.0, -jt.gear_ratio)):
             ref = float(gear * phi0[j]) if variant == "complete" else 0.0
@@ -220,7 +221,8 @@ def mujoco_xml(model, variant: str = "complete") -> str:
             out.append(f"{indent}</body>")
         return out
 
-    lines += joint_bodies(0, "    ")
+    for root in model.children(-1):
+        lines += joint_bodies(root, "    ")
     if reduced:                         # each motor coordinate on its own, its spin inertia B_j
         for j, (n, jt) in enumerate(zip(names, model.joints)):
             B = float(jt.rotor_inertia)

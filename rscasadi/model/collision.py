@@ -84,10 +84,11 @@ def shape_capsules(urdf_path, shape) -> list:
 
 # ----------------------------------------------------------------------------- the [collision] table
 
-def collision(ctx, raw, joints, frames: tuple, default_tip: str | None, urdf: dict | None = None,
-              urdf_path=None) -> Collision | None:
+def collision(ctx, raw, joints, frames: tuple, default_tip, urdf: dict | None = None,
+              urdf_path=None, parents: tuple = ()) -> Collision | None:
     """The [collision] table (module docstring); `urdf` maps a URDF link's name to its collision
-    shapes (none for a link-list model)."""
+    shapes (none for a link-list model); `default_tip` the frame (or, for a tree, the frames)
+    where a leaf link's capsule ends; `parents` the tree (ArmModel.parents)."""
     if raw is None:
         return None
     urdf = urdf or {}
@@ -95,8 +96,9 @@ def collision(ctx, raw, joints, frames: tuple, default_tip: str | None, urdf: di
     known = {f.name: f for f in frames}
     margin = _number(ctx, "collision.margin", t.get("margin", 0.0), nonneg=True)
     tip = t.get("tip", default_tip)
-    if tip is not None and not isinstance(tip, str):
-        ctx.fail("collision.tip", f"expected the name of a frame, got {tip!r}")
+    if tip is not None and not isinstance(tip, str) and not (isinstance(tip, list) and all(isinstance(x, str) for x in tip)):
+        ctx.fail("collision.tip", f"expected the name of a frame (or a list of them, one per leaf link), got {tip!r}")
+    parent = tuple(parents) if parents else tuple(range(-1, len(joints) - 1))
     if "links" in t or not urdf:
         links = dict(_table(ctx, "collision.links", t.get("links", {}), set(t.get("links", {}))))
     else:                                        # every moving link the URDF gives geometry
@@ -121,7 +123,7 @@ def collision(ctx, raw, joints, frames: tuple, default_tip: str | None, urdf: di
             capsules += _urdf_geometry(ctx, fld, name, body, frames, urdf, urdf_path)
         else:
             capsules.append(_joint_capsule(ctx, fld, name, body, _number(ctx, fld, value, positive=True),
-                                           joints, known, tip))
+                                           joints, known, tip, parent))
     for i, entry in enumerate(_list(ctx, "collision.capsules", t.get("capsules", []))):
         capsules.append(_given_capsule(ctx, f"collision.capsules[{i}]", entry, known))
     notes: list = []
@@ -200,17 +202,21 @@ def _urdf_geometry(ctx, fld, name, body, frames, urdf, urdf_path) -> list:
     return out
 
 
-def _joint_capsule(ctx, fld, name, body, radius, joints, known, tip) -> Capsule:
-    """The capsule from the link's joint origin to the next joint's (the last link's to `tip`)."""
-    if body < len(joints):
-        end = np.asarray(joints[body].origin_xyz, float)
-    else:
-        if tip is None or tip not in known:
-            ctx.fail("collision.tip", f"the last link's capsule needs the frame where it ends, got {tip!r}")
-        if known[tip].body != len(joints):
-            ctx.fail("collision.tip", f"frame {tip!r} is not on the last link")
-        end = np.asarray(known[tip].p, float)
-    return Capsule(name, body, np.zeros(3), end, radius)
+def _joint_capsule(ctx, fld, name, body, radius, joints, known, tip, parent) -> Capsule:
+    """The capsule from the link's joint origin to the origin of the joint it carries (a leaf
+    link's to its `tip` frame; a link that carries several joints needs capsules given)."""
+    carried = [j for j, p in enumerate(parent) if p == body - 1]
+    if len(carried) == 1:
+        return Capsule(name, body, np.zeros(3), np.asarray(joints[carried[0]].origin_xyz, float), radius)
+    if carried:
+        ctx.fail(fld, f"the link of {name!r} carries {len(carried)} joints "
+                      f"({', '.join(joints[j].name for j in carried)}): give its capsules under [[collision.capsules]]")
+    tips = [tip] if isinstance(tip, str) else list(tip or [])
+    mine = [t for t in tips if t in known and known[t].body == body]
+    if not mine:
+        ctx.fail("collision.tip", f"the capsule of the leaf link {name!r} needs the frame where it ends "
+                                  f"(a frame on that link), got {tip!r}")
+    return Capsule(name, body, np.zeros(3), np.asarray(known[mine[0]].p, float), radius)
 
 
 def _given_capsule(ctx, fld, entry, known) -> Capsule:
@@ -248,7 +254,7 @@ def with_collision(model, raw: dict, where):
     tip = model.collision.tip if model.collision is not None else model.extra.get("tip_link_name")
     return dataclasses.replace(model, collision=collision(_Ctx(where), raw, model.joints, model.frames, tip,
                                                           model.extra.get("collision_geometry"),
-                                                          model.extra.get("urdf")))
+                                                          model.extra.get("urdf"), model.parents))
 
 
 # ----------------------------------------------------------------------------- what keeps clear

@@ -36,6 +36,26 @@ def _joint(path, idx, raw, names) -> Joint:
                  origin_R=R, link=_body(ctx, "link", t["link"]), **actuator(ctx, {k: v for k, v in t.items()}, names))
 
 
+def _parents(path, raw_joints, joints) -> tuple:
+    """Each joint's parent index from its `parent` (a joint given before it, or "base"; absent:
+    the joint before it, a chain); every parent that names no such joint, in one message."""
+    index = {jt.name: j for j, jt in enumerate(joints)}
+    parents, bad = [], []
+    for j, raw in enumerate(raw_joints):
+        name = raw.get("parent", BASE if j == 0 else joints[j - 1].name)
+        if name == BASE:
+            parents.append(-1)
+        elif isinstance(name, str) and index.get(name, j) < j:
+            parents.append(index[name])
+        else:
+            where = ("comes after it: list every joint after its parent" if name in index
+                     else f"is no joint (joints: {', '.join(index)}, or {BASE!r})")
+            bad.append(f"[[joints]] {joints[j].name!r}: parent {name!r} {where}")
+    if bad:
+        raise ModelFileError(f"{path}: " + "; ".join(bad))
+    return () if parents == list(range(-1, len(joints) - 1)) else tuple(parents)
+
+
 def parse(data: dict, path: str = "<memory>") -> ArmModel:
     """Validate a decoded TOML document (docs/user-guide/model.md section 4) into an ArmModel."""
     ctx = _Ctx(path)
@@ -52,10 +72,11 @@ def parse(data: dict, path: str = "<memory>") -> ArmModel:
     joints: list = []
     for idx, raw in enumerate(raw_joints):
         joints.append(_joint(path, idx, raw, {jt.name for jt in joints} | {BASE}))
-    model = ArmModel(data["name"], gravity, tuple(joints), path)
+    model = ArmModel(data["name"], gravity, tuple(joints), path, parents=_parents(path, raw_joints, joints))
     frames = user_frames(ctx, data.get("frames"), link_frames(model))
     return dataclasses.replace(model, frames=frames, payload=payload(ctx, data.get("payload"), frames),
-                               collision=collision(ctx, data.get("collision"), model.joints, frames, None))
+                               collision=collision(ctx, data.get("collision"), model.joints, frames, None,
+                                                   parents=model.parents))
 
 
 _READ: dict = {}       # (path, resolved) -> (the files' stamps, the model): read once while unchanged
@@ -185,12 +206,19 @@ def link_side_document(jt) -> dict:
     return out
 
 
+def parent_name(model: ArmModel, j: int) -> str:
+    """The name of the joint whose link carries joint j, or "base"."""
+    p = model.parent[j]
+    return BASE if p < 0 else model.joints[p].name
+
+
 def document(model: ArmModel) -> dict:
     """The link-list form (docs/user-guide/model.md section 4) of any model, URDF-based ones included."""
     joints = []
-    for jt in model.joints:
+    for j, jt in enumerate(model.joints):
         limits = {k: (list(v) if isinstance(v, tuple) else v) for k, v in jt.limits.items()}
-        joints.append({"name": jt.name, "origin_xyz": [float(x) for x in jt.origin_xyz],
+        joints.append({"name": jt.name, **({"parent": parent_name(model, j)} if model.parents else {}),
+                       "origin_xyz": [float(x) for x in jt.origin_xyz],
                        **rotation_document(jt.R, "origin_rpy", "origin_R"), "gear_ratio": jt.gear_ratio,
                        "sea": {"k1": jt.k1, "k3": jt.k3, "d": jt.d},
                        "gear_loss": {"b": jt.b, "c": jt.c, "eps": jt.eps,

@@ -14,7 +14,7 @@ from rscasadi.errors import Error, NotFound
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
 TOP_KEYS = {"name", "gravity", "joints", "frames", "payload", "collision"}
-JOINT_KEYS = {"name", "origin_xyz", "origin_rpy", "origin_R", "gear_ratio", "sea", "gear_loss", "limits",
+JOINT_KEYS = {"name", "parent", "origin_xyz", "origin_rpy", "origin_R", "gear_ratio", "sea", "gear_loss", "limits",
               "link", "slow_rotor", "fast_rotor", "link_loss", "counterbalance", "torque_constant"}
 BODY_KEYS = {"mass", "com", "inertia"}
 SEA_KEYS = {"k1", "k3", "d"}
@@ -147,7 +147,7 @@ class Collision:
     """The arm's collision geometry: capsules, and the clearance `margin` (m) every obstacle must keep."""
     margin: float
     capsules: tuple
-    tip: str
+    tip: str | list | None
     links: dict = field(default_factory=dict, compare=False)     # as the [collision] table gave them
     notes: tuple = field(default=(), compare=False)              # URDF shapes added, or not readable
 
@@ -163,8 +163,9 @@ class Payload:
 
 @dataclass(frozen=True)
 class ArmModel:
-    """The constant description of an n-joint FS-SEA arm; joints base to tip; `frames` by name
-    (docs/user-guide/frames.md)."""
+    """The constant description of an n-joint FS-SEA robot: a tree of joints, each after its parent
+    (`parents[j]`: the joint whose link carries joint j, -1 for the base; empty: a serial chain,
+    joint j on the link of joint j - 1); `frames` by name (docs/user-guide/frames.md)."""
     name: str
     gravity: np.ndarray
     joints: tuple
@@ -173,6 +174,35 @@ class ArmModel:
     frames: tuple = field(default=(), compare=False)
     payload: Payload | None = None
     collision: Collision | None = field(default=None, compare=False)
+    parents: tuple = ()
+
+    def __post_init__(self):
+        if self.parents and (len(self.parents) != len(self.joints)
+                             or any(not -1 <= p < j for j, p in enumerate(self.parents))):
+            raise ModelFileError(f"{self.path}: parents {list(self.parents)} is not a tree of {len(self.joints)} "
+                                 "joints each after its parent (-1: the base)")
+
+    @property
+    def parent(self) -> tuple:
+        """Per joint the index of the joint whose link carries it, -1 for the base."""
+        return tuple(self.parents) if self.parents else tuple(range(-1, len(self.joints) - 1))
+
+    @property
+    def is_chain(self) -> bool:
+        """Whether the tree is one serial chain (each joint on the link of the one before it)."""
+        return self.parent == tuple(range(-1, len(self.joints) - 1))
+
+    def support(self, body: int) -> list:
+        """The joints that move `body` (0: the base, j >= 1: the link of joint j - 1), root first."""
+        out, j = [], body - 1
+        while j >= 0:
+            out.append(j)
+            j = self.parent[j]
+        return out[::-1]
+
+    def children(self, j: int) -> list:
+        """The joints carried by the link of joint j (j = -1: by the base)."""
+        return [c for c, p in enumerate(self.parent) if p == j]
 
     def frame(self, name: str) -> Frame:
         """The frame called `name`, or a KeyError listing the frames there are."""

@@ -22,7 +22,7 @@ from rscasadi.model.collision import collision
 from rscasadi.model.frames import payload, user_frames
 from rscasadi.model.types import DEFAULT_GRAVITY, ArmModel, Body, Frame, Joint, ModelFileError, inertia_problem, rpy_of
 
-URDF_TOP_KEYS = {"name", "urdf", "tip", "locked", "lock_others", "gravity", "joints", "frames", "payload",
+URDF_TOP_KEYS = {"name", "urdf", "tip", "tips", "locked", "lock_others", "gravity", "joints", "frames", "payload",
                  "collision"}
 MOVING = ("revolute", "continuous")
 
@@ -143,7 +143,7 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
     ctx = _Ctx(path)
     _table(ctx, "", data, URDF_TOP_KEYS, ("name", "urdf", "joints"))
     for key in ("name", "urdf"):
-        if not isinstance(data[key], str) or not data[key].strip():
+        if not isinstance(data[key], str) or not data[key].strip() or "\0" in data[key]:
             ctx.fail(key, f"expected a non-empty string, got {data[key]!r}")
     gravity = _vector(ctx, "gravity", data.get("gravity", list(DEFAULT_GRAVITY)), 3)
     urdf_path = (Path(path).parent / data["urdf"]) if path != "<memory>" else Path(data["urdf"])
@@ -175,23 +175,32 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
         actuators[act["name"]] = (idx, act)
 
     lock_others = _number(ctx, "lock_others", data.get("lock_others", 0.0))
-    chain, bodies, tip_body, held_at = _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked,
-                                                  actuators, data.get("tip"), ctx, lock_others)
-    order = [act_name for act_name in actuators]
-    if [jt.name for jt in chain] != order:
-        ctx.fail("joints", f"[[joints]] must list the chain's moving joints base to tip: "
-                           f"{[jt.name for jt in chain]}, got {order}")
-    joints, R_prev, axes = [], np.eye(3), [np.eye(3)]
-    for j, ujoint in enumerate(chain):
-        idx, act = actuators[ujoint.name]
-        jctx = joint_context(path, idx, {"name": ujoint.name})
-        T_acc = bodies[j]["T_joint"]                          # parent body's URDF frame -> joint origin
+    if "tip" in data and "tips" in data:
+        ctx.fail("tips", "give tip (one chain) or tips (a tree), not both")
+    if "tips" in data and (not isinstance(data["tips"], list) or not data["tips"]):
+        ctx.fail("tips", f"expected a list of link names, got {data['tips']!r}")
+    placement, bodies, held_at = _cut_tree(robot, urdf_path, joints_by_name, links_by_name, locked, actuators,
+                                           data.get("tips", data.get("tip")), ctx, lock_others)
+    order = list(actuators)
+    parents = [placement[name][0] - 1 for name in order]
+    late = [f"{name!r} before {order[p]!r}" for j, (name, p) in enumerate(zip(order, parents)) if p >= j]
+    if late:
+        if len(set(parents)) == len(parents):                 # one chain: each body carries one joint
+            depth = sorted(order, key=lambda name: len(_path_joints(robot, links_by_name, joints_by_name[name].child)))
+            ctx.fail("joints", f"[[joints]] must list the chain's moving joints base to tip: {depth}, got {order}")
+        ctx.fail("joints", "[[joints]] must list every joint after the joint that carries it: " + ", ".join(late))
+    joints, axes = [], [np.eye(3)]
+    for j, name in enumerate(order):
+        ujoint, (idx, act) = joints_by_name[name], actuators[name]
+        jctx = joint_context(path, idx, {"name": name})
+        T_acc = placement[name][1]                             # parent body's URDF frame -> joint origin
+        R_prev = axes[parents[j] + 1]
         R_a = axis_rotation(_axis(urdf_path, ujoint))
         R_J = R_prev.T @ T_acc[:3, :3] @ R_a
         R_J[np.abs(R_J) < 1e-15] = 0.0
         M = bodies[j + 1]["M"]
         if M[3, 3] <= 0.0:
-            jctx.fail("link", f"the link moved by joint {ujoint.name!r} ({', '.join(bodies[j + 1]['links'])} in "
+            jctx.fail("link", f"the link moved by joint {name!r} ({', '.join(bodies[j + 1]['links'])} in "
                               f"{urdf_path}) has no mass: give it an <inertial>")
         M_ours = transform_inertia(M, R_a.T, np.zeros(3))     # from L_urdf to L_j = L_urdf R_a
         link = Body.from_spatial(M_ours)
@@ -206,24 +215,25 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
             limits["theta"] = (float(lim.lower), float(lim.upper))
         rpy = rpy_of(R_J)                               # informative only: origin_R is what counts
         joints.append(Joint(origin_xyz=R_prev.T @ T_acc[:3, 3], origin_rpy=np.full(3, np.nan) if rpy is None else rpy,
-                            link=link,
-                            limits=limits, origin_R=R_J, **act))
-        R_prev = R_a
+                            link=link, limits=limits, origin_R=R_J, **act))
         axes.append(R_a)
-    extra = {"urdf": str(urdf_path), "tip_link": tip_body, "locked": held_at,
-             "links": [b["links"] for b in bodies]}
-    # each URDF link's frame on its chain body: L_j = L_urdf R_a, so a pose T in L_urdf is R_a^T T in L_j
+    tips = data.get("tips") or ([data["tip"]] if "tip" in data else [])
+    extra = {"urdf": str(urdf_path), "locked": held_at, "links": [b["links"] for b in bodies]}
+    # each URDF link's frame on its tree body: L_j = L_urdf R_a, so a pose T in L_urdf is R_a^T T in L_j
     frames = tuple(Frame(name, b, axes[b].T @ T[:3, :3], axes[b].T @ T[:3, 3])
                    for b, body in enumerate(bodies) for name, T in zip(body["links"], body["T_links"]))
     frames = user_frames(ctx, data.get("frames"), frames)
-    tip_link = data.get("tip") or next((lk for lk in reversed(bodies[-1]["links"])), None)
-    extra["tip_link_name"] = tip_link                          # where the last link's capsule ends by default
+    leaves = [b for b in range(1, len(bodies)) if b - 1 not in parents]
+    ends = tips or [next((lk for lk in reversed(bodies[b]["links"])), None) for b in leaves]
+    tip_link = ends[0] if len(ends) == 1 else ends
+    extra["tip_link_name"] = tip_link                          # where a leaf link's capsule ends by default
     extra["collision_geometry"] = {lk: shapes for b in bodies for lk in b["links"]
                                    if (shapes := _collision_shapes(urdf_path, links_by_name[lk]))}
+    tree = () if parents == list(range(-1, len(order) - 1)) else tuple(parents)
     return ArmModel(data["name"], gravity, tuple(joints), path, extra, frames=frames,
-                    payload=payload(ctx, data.get("payload"), frames),
+                    payload=payload(ctx, data.get("payload"), frames), parents=tree,
                     collision=collision(ctx, data.get("collision"), joints, frames, tip_link,
-                                        extra["collision_geometry"], urdf_path))
+                                        extra["collision_geometry"], urdf_path, parents=tree))
 
 
 def _collision_shapes(urdf_path, link) -> list:
@@ -267,14 +277,15 @@ def _path_joints(robot, links_by_name, target: str) -> list:
     return path[::-1]
 
 
-def _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuators, tip, ctx, lock_others: float = 0.0):
-    """Walk the URDF tree from its root: the chain of moving joints on the path from the root to
-    the tip (`tip`, else the child link of the deepest actuated joint), and for every chain body
-    (0 = base, j = link of moving joint j) its merged spatial inertia in its URDF frame, the
-    names of the links merged into it, and (T_joint) the transform from it to the origin of
-    the next moving joint.  Moving joints off that path (a whole robot's head, other arm,
-    fingers) are held at their [locked] position, else at `lock_others`: those hanging from the
-    fixed base cannot move the chain, those hanging from its links add their mass there."""
+def _cut_tree(robot, urdf_path, joints_by_name, links_by_name, locked, actuators, tips, ctx, lock_others: float = 0.0):
+    """Walk the URDF tree from its root: the tree of moving joints on the paths from the root to
+    the tips (`tips`, else the child links of the actuated joints), and for every body of that
+    tree (0 = base, then one per moving joint in the order of `actuators`) its merged spatial
+    inertia in its URDF frame, the names of the links merged into it; per moving joint the body
+    that carries it and the transform from that body's frame to the joint's origin.  Moving joints
+    off those paths (a whole robot's head, other arm, fingers) are held at their [locked]
+    position, else at `lock_others`: those hanging from the fixed base cannot move the tree, those
+    hanging from its links add their mass there."""
     children: dict = {}
     for jt in robot.robot.joints:
         if jt.parent not in links_by_name or jt.child not in links_by_name:
@@ -285,42 +296,47 @@ def _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuator
     roots = [lk for lk in links_by_name if lk not in child_links]
     if len(roots) != 1:
         ctx.fail("urdf", f"{urdf_path}: expected one root link, found {roots}")
-    if tip is not None and (not isinstance(tip, str) or tip not in links_by_name):
-        ctx.fail("tip", f"no link {tip!r} in {urdf_path}")
-    # where no tip is given the chain ends below the deepest actuated joint (whatever their order
-    # in the file: the order is checked by the caller, with its own message)
-    target = tip if tip is not None else max((joints_by_name[name].child for name in actuators),
-                                             key=lambda link: len(_path_joints(robot, links_by_name, link)))
-    on_path = {jt.name for jt in _path_joints(robot, links_by_name, target)}
-    off = [name for name in actuators if name not in on_path]
-    if off:
-        ctx.fail("joints", f"{urdf_path}: {', '.join(repr(n) for n in off)} not on the path from {roots[0]!r} to the "
-                           f"tip {target!r}: actuate the joints of one chain (tip = its last link)")
+    field = "tips" if isinstance(tips, list) else "tip"
+    given = tips if isinstance(tips, list) else ([] if tips is None else [tips])
+    for tip in given:
+        if not isinstance(tip, str) or tip not in links_by_name:
+            ctx.fail(field, f"no link {tip!r} in {urdf_path}")
+    targets = given or [joints_by_name[name].child for name in actuators]
+    on_path = {jt.name for t in targets for jt in _path_joints(robot, links_by_name, t)}
     held = lambda jt: jt.type not in MOVING + ("prismatic",) or jt.name in actuators or jt.name in locked  # noqa: E731
-    unlisted = [jt.name for jt in _path_joints(robot, links_by_name, target) if not held(jt)]
-    if tip is None:                     # where the chain ends is not said: the joints below it must be
-        below, todo = [], [target]
+    off = [name for name in actuators if name not in on_path]
+    below_tip = [name for name in off if any(t in {jt.child for jt in _path_joints(robot, links_by_name,
+                                                                                    joints_by_name[name].child)}
+                                             for t in given)]
+    if below_tip:
+        ctx.fail(field, f"joints {below_tip} lie beyond the tip link(s) {given}: lock them or move the tip")
+    if off:
+        ctx.fail("joints", f"{urdf_path}: {', '.join(repr(n) for n in off)} not on the paths from {roots[0]!r} to "
+                           f"the tips {given}: add their last links to tips, or lock them")
+    unlisted = [jt.name for t in targets for jt in _path_joints(robot, links_by_name, t) if not held(jt)]
+    if not given:                       # where the tree ends is not said: the joints below it must be
+        below, todo = [], list(dict.fromkeys(targets))
         while todo:
             for jt in children.get(todo.pop(), []):
-                below += [] if held(jt) else [jt.name]
+                below += [] if held(jt) or jt.name in on_path else [jt.name]
                 todo.append(jt.child)
         unlisted += below
+    unlisted = list(dict.fromkeys(unlisted))
     if unlisted:
-        ctx.fail("joints", f"{urdf_path}: the moving joints {', '.join(repr(n) for n in unlisted)} on the path from "
-                           f"{roots[0]!r} to the chain's last link {target!r}{' or below it' if tip is None else ''} "
+        ends = targets if given else [max(targets, key=lambda t: len(_path_joints(robot, links_by_name, t)))]
+        ctx.fail("joints", f"{urdf_path}: the moving joints {', '.join(repr(n) for n in unlisted)} on the paths from "
+                           f"{roots[0]!r} to {', '.join(repr(t) for t in ends)}{' or below them' if not given else ''} "
                            "have no [[joints]] entry and are not locked: give each an actuator, hold it under "
-                           "[locked], or end the chain at a link with tip = \"LINK\" (every moving joint off the "
-                           "path from the root to the tip is then held at lock_others)")
-    bodies: list[dict[str, Any]] = [{"M": np.zeros((6, 6)), "links": [], "T_joint": None, "T_links": []}]
-    chain, held_at = [], {}                                   # held_at: every held moving joint's position
-    tip_body = None
-    stack = [(roots[0], 0, np.eye(4))]                        # (link, chain body, transform body frame -> link)
+                           "[locked], or end the tree at its last links with tip = \"LINK\" or tips = [\"LINK\", ...] "
+                           "(every moving joint off the paths from the root to the tips is then held at lock_others)")
+    index = {name: k + 1 for k, name in enumerate(actuators)}        # joint name -> its body
+    bodies: list[dict[str, Any]] = [{"M": np.zeros((6, 6)), "links": [], "T_links": []} for _ in range(len(index) + 1)]
+    placement, held_at = {}, {}                               # held_at: every held moving joint's position
+    stack = [(roots[0], 0, np.eye(4))]                        # (link, tree body, transform body frame -> link)
     while stack:
         link_name, b, T = stack.pop()
         bodies[b]["links"].append(link_name)
         bodies[b]["T_links"].append(T)
-        if link_name == tip:
-            tip_body = b
         if b > 0:
             bodies[b]["M"] = bodies[b]["M"] + transform_inertia(_link_spatial(urdf_path, links_by_name[link_name]),
                                                                 T[:3, :3], T[:3, 3])
@@ -332,7 +348,7 @@ def _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuator
             if jt.name in actuators and jt.type not in MOVING:
                 ctx.fail("urdf", f"{urdf_path}: joint {jt.name!r} is {jt.type}: only revolute and continuous "
                                  f"joints can be actuated (lock it under 'locked' to hold it fixed)")
-            if jt.name not in actuators:                          # fixed, locked, or off the chain: held
+            if jt.name not in actuators:                          # fixed, locked, or off the tree: held
                 if jt.type in MOVING + ("prismatic",):
                     held_at[jt.name] = float(locked.get(jt.name, lock_others))
                     motion = _joint_motion(urdf_path, jt, held_at[jt.name])
@@ -340,11 +356,6 @@ def _cut_chain(robot, urdf_path, joints_by_name, links_by_name, locked, actuator
                     motion = np.eye(4)
                 stack.append((jt.child, b, T @ origin @ motion))
                 continue
-            bodies[b]["T_joint"], bodies[b]["next"] = T @ origin, jt.name
-            chain.append(jt)
-            bodies.append({"M": np.zeros((6, 6)), "links": [], "T_joint": None, "T_links": []})
-            stack.append((jt.child, len(bodies) - 1, np.eye(4)))
-    if tip is not None and tip_body != len(bodies) - 1:
-        beyond = [jt.name for jt in chain[tip_body:]]
-        ctx.fail("tip", f"joints {beyond} lie beyond the tip link {tip!r}: lock them or move the tip")
-    return chain, bodies, tip_body, held_at
+            placement[jt.name] = (b, T @ origin)
+            stack.append((jt.child, index[jt.name], np.eye(4)))
+    return placement, bodies, held_at

@@ -184,9 +184,9 @@ def load_mpc_problem(path) -> MPCProblem:
     path = Path(path)
     d = read_toml(path, "MPC problem")
     fail = field_checker(path, d, TOP)
-    if not isinstance(d.get("model"), str):
+    if not isinstance(d.get("model"), str) or "\0" in d["model"]:
         fail("model", "missing, or not the path of a model file")
-    if "trajectory" in d and not isinstance(d["trajectory"], str):
+    if "trajectory" in d and (not isinstance(d["trajectory"], str) or "\0" in d["trajectory"]):
         fail("trajectory", "expected the path of a trajectory file")
     if not isinstance(d.get("weights", {}), dict):
         fail("weights", "expected a table")
@@ -201,7 +201,7 @@ def load_mpc_problem(path) -> MPCProblem:
     if "payload" in d:
         fields["payload"] = read_payload(fail, d["payload"])
     if "solution" in d:
-        if not isinstance(d["solution"], str) or not d["solution"].strip():
+        if not isinstance(d["solution"], str) or not d["solution"].strip() or "\0" in d["solution"]:
             fail("solution", f"expected the path of a solution.json, got {d['solution']!r}")
         fields["solution"] = (path.parent / d["solution"]).resolve()
     if "theta_start" in d:

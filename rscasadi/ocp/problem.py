@@ -338,7 +338,7 @@ def load_problem(path) -> Problem:
         fail("duration", "a path's length and speed set the duration: leave it out")
     tool_path = read_path(fail, table("path")) if "path" in d else None
     for key in ("model", "trajectory"):
-        if key in d and (not isinstance(d[key], str) or not d[key].strip()):
+        if key in d and (not isinstance(d[key], str) or not d[key].strip() or "\0" in d[key]):
             fail(key, f"expected the path of a file, got {d[key]!r}")
     if timed_path and tool_path.speed is None:
         fail("path.speed", "missing required field (objective min_effort: the mean speed along the path)")

@@ -1,7 +1,8 @@
 """The complete model the Pinocchio way, as an outside reference (optional: `pip install pin`).
 
-Every rotor is a separate revolute joint of a 3n-joint tree (each joint's two rotors added
-before its link, so the tree stays in depth-first order, which Pinocchio's CRBA needs).
+Every rotor is a separate revolute joint of a 3n-joint tree: each joint's two rotors on its
+parent link beside it, added before its link, and the joints added depth first (whatever the
+model's order), which Pinocchio's CRBA needs.
 The gear constraint q_tree = G q, with fast-rotor angle -mu phi, projects the tree's
 dynamics onto q = (theta, phi): M = G^T M_tree G, c = G^T rnea(q_tree, G dq, 0).
 
@@ -30,15 +31,16 @@ class PinocchioRoute:
                        _inertia(jt.link, np.eye(3)), np.eye(3)) for jt in model.joints]
         self.model = pin.Model()
         self.model.gravity.linear = np.asarray(model.gravity if gravity is None else gravity, float)
-        parent, G = 0, np.zeros((3 * n, 2 * n))
-        for j, ((placement, jmodel, link_inertia, R_a), jt) in enumerate(zip(stages, model.joints)):
+        G, link_id = np.zeros((3 * n, 2 * n)), {-1: 0}
+        for j in _depth_first(model.parent):
+            (placement, jmodel, link_inertia, R_a), jt = stages[j], model.joints[j]
             for k, (inertia, col, gear) in enumerate(((_inertia(jt.slow_rotor, R_a), n + j, 1.0),
                                                       (_inertia(jt.fast_rotor, R_a), n + j, -jt.gear_ratio),
                                                       (link_inertia, j, 1.0))):
-                jid = self.model.addJoint(parent, jmodel, placement, f"joint{j}_{k}")
+                jid = self.model.addJoint(link_id[model.parent[j]], jmodel, placement, f"joint{j}_{k}")
                 self.model.appendBodyToJoint(jid, inertia, pin.SE3.Identity())
-                G[jid - 1, col] = gear
-            parent = jid                                   # the link carries the next joint
+                G[self.model.joints[jid].idx_v, col] = gear
+            link_id[j] = jid                               # the link carries its child joints
             held = model.payload
             if held is not None and model.frame(held.frame).body == j + 1:   # a payload on this link
                 f = model.frame(held.frame)
@@ -53,10 +55,13 @@ class PinocchioRoute:
         removed by buildReducedModel at their locked values); rotors from our model file."""
         reduced = urdf_model(model)
         names = [reduced.names[i] for i in range(1, reduced.njoints)]
-        if names != [jt.name for jt in model.joints]:
-            raise InvalidArgument(f"Pinocchio's chain {names} differs from the model's joints")
+        ours = [jt.name for jt in model.joints]
+        parents = [ours.index(reduced.names[reduced.parents[i]]) if reduced.parents[i] else -1
+                   for i in (reduced.getJointId(name) for name in ours if name in names)]
+        if sorted(names) != sorted(ours) or tuple(parents) != model.parent:
+            raise InvalidArgument(f"Pinocchio's tree {names} differs from the model's joints {ours}")
         stages = []
-        for i in range(1, reduced.njoints):
+        for i in (reduced.getJointId(name) for name in ours):
             axis = _axis(reduced.joints[i])
             stages.append((reduced.jointPlacements[i], pin.JointModelRevoluteUnaligned(*axis),
                            reduced.inertias[i], axis_rotation(axis)))
@@ -98,6 +103,17 @@ def urdf_model(model) -> "pin.Model":
         else:
             q0[jm.idx_q] = value
     return pin.buildReducedModel(full, lock_ids, q0) if lock_ids else full
+
+
+def _depth_first(parent) -> list:
+    """The joints of a tree (each after its parent) in depth-first order, children in index order."""
+    out: list = []
+    todo = [j for j in reversed(range(len(parent))) if parent[j] < 0]
+    while todo:
+        j = todo.pop()
+        out.append(j)
+        todo += [c for c in reversed(range(len(parent))) if parent[c] == j]
+    return out
 
 
 def configuration(pin_model, theta) -> np.ndarray:

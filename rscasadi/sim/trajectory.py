@@ -122,7 +122,7 @@ def load_trajectory(path) -> Trajectory:
     for key in keys - {"kind"}:
         if key not in data:
             raise ModelFileError(f"{path}: field '{key}': missing required field")
-    if not isinstance(data["model"], str):
+    if not isinstance(data["model"], str) or "\0" in data["model"]:
         raise ModelFileError(f"{path}: field 'model': expected a file name, got {data['model']!r}")
     for key in ("period", "duration"):
         if isinstance(data[key], bool) or not isinstance(data[key], (int, float)) or not data[key] > 0:

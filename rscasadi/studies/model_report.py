@@ -41,11 +41,13 @@ def model_report(path, collision: bool = False) -> str:
     T = np.array(arm.inverse_dynamics()(theta, theta, zero, zero, zero, zero)[1]).ravel()
     psi = T / m.column("k1")                         # static: k3 correction ignored in the report
     tau = np.array(arm.inverse_dynamics()(theta, theta + psi, zero, zero, zero, zero)[0]).ravel()
-    lines = [f"# Model `{m.name}` ({m.path})", "", f"{n} joints; gravity {m.gravity.tolist()} m/s^2.", "",
-             "| j | joint | mu | B_j = Izz(S)+mu^2 Izz(F) (kg m^2) | rotors balanced |", "|---|---|---|---|---|"]
-    lines += [f"| {j + 1} | {jt.name} | {jt.gear_ratio:g} | {jt.rotor_inertia:.6g} | "
-              f"{'yes' if jt.slow_rotor.balanced and jt.fast_rotor.balanced else 'no'} |"
-              for j, jt in enumerate(m.joints)]
+    shape = "a serial chain" if m.is_chain else f"a tree with {len(m.children(-1))} joints on the base"
+    lines = [f"# Model `{m.name}` ({m.path})", "", f"{n} joints, {shape}; gravity {m.gravity.tolist()} m/s^2.", "",
+             "| j | joint | carried by | mu | B_j = Izz(S)+mu^2 Izz(F) (kg m^2) | rotors balanced |",
+             "|---|---|---|---|---|---|"]
+    lines += [f"| {j + 1} | {jt.name} | {'base' if p < 0 else m.joints[p].name} | {jt.gear_ratio:g} | "
+              f"{jt.rotor_inertia:.6g} | {'yes' if jt.slow_rotor.balanced and jt.fast_rotor.balanced else 'no'} |"
+              for j, (jt, p) in enumerate(zip(m.joints, m.parent))]
     S = M[:n, n:]
     lines += ["", f"Coupling block S (link rows, rotor columns) at theta = phi = {np.round(theta, 3).tolist()}:", ""]
     lines += ["| link \\ rotor | " + " | ".join(str(j + 1) for j in range(n)) + " |", "|---" * (n + 1) + "|"]

@@ -57,8 +57,8 @@ def _homogeneous(R, p) -> np.ndarray:
 
 
 def _links(arm: Arm) -> dict:
-    """Per body its capsules: the model's collision capsules, else a rod from the joint to the
-    next joint (the last link: to its farthest frame), 2.5 cm thick."""
+    """Per body its capsules: the model's collision capsules, else a rod from the joint to each
+    joint it carries (a leaf link: to its farthest frame), 2.5 cm thick."""
     model = arm.model
     shapes: dict[int, list] = {b: [] for b in range(1, model.n + 1)}
     if model.collision is not None:
@@ -67,13 +67,14 @@ def _links(arm: Arm) -> dict:
     for b in range(1, model.n + 1):
         if shapes[b]:
             continue
-        if b < model.n:
-            end = np.asarray(model.joints[b].origin_xyz, float)
+        carried = model.children(b - 1)
+        if carried:
+            ends = [np.asarray(model.joints[c].origin_xyz, float) for c in carried]
         else:
             ends = [np.asarray(f.p, float) for f in model.frames if f.body == b]
-            ends.append(2 * np.asarray(model.joints[-1].link.com, float))     # or as far again as its centre
-            end = max(ends, key=np.linalg.norm)
-        shapes[b].append((np.zeros(3), end, 0.025))
+            ends.append(2 * np.asarray(model.joints[b - 1].link.com, float))     # or as far again as its centre
+            ends = [max(ends, key=np.linalg.norm)]
+        shapes[b] += [(np.zeros(3), end, 0.025) for end in ends]
     return shapes
 
 
@@ -120,7 +121,7 @@ def _visuals(arm: Arm) -> tuple[dict, list]:
 
 def _rotors(arm: Arm) -> list:
     """Per joint: (parent body, 4x4 of the joint frame in it): the rotors sit at the joint."""
-    return [(j, _homogeneous(jt.R, jt.origin_xyz)) for j, jt in enumerate(arm.model.joints)]
+    return [(p + 1, _homogeneous(jt.R, jt.origin_xyz)) for jt, p in zip(arm.model.joints, arm.model.parent)]
 
 
 def _poses(arm: Arm, thetas: np.ndarray) -> np.ndarray:

@@ -1,0 +1,212 @@
+"""Robots that are trees: the recursions over a parent array, checked against Pinocchio with the
+rotors as bodies of their own (a tree of 3n joints built depth first, sharing no code with the
+recursions), on random trees and on two public whole robots read from their URDFs: Baxter's two
+arms and head (three branches on the torso) and the Unitree G1's upper body (a waist carrying two
+arms)."""
+import copy
+import tomllib
+
+import casadi as ca
+import numpy as np
+import pinocchio as pin
+import pytest
+
+import rscasadi
+from rscasadi import ModelFileError
+from rscasadi.model.modelfile import document, parse
+from rscasadi.reference.pinocchio_route import PinocchioRoute, urdf_model
+
+from conftest import ROOT, dm, random_state, random_tree_doc, to_toml, write_arm
+
+BAXTER = ROOT / "tests" / "data" / "baxter_description" / "urdf" / "baxter.urdf"
+G1 = ROOT / "tests" / "data" / "g1_description" / "urdf" / "g1_29dof_rev_1_0.urdf"
+ARM7 = ("s0", "s1", "e0", "e1", "w0", "w1", "w2")
+G1_ARM = ("shoulder_pitch", "shoulder_roll", "shoulder_yaw", "elbow", "wrist_roll", "wrist_pitch", "wrist_yaw")
+ROBOTS = {
+    "baxter": (BAXTER, ["left_gripper", "right_gripper", "head"],
+               ["head_pan"] + [f"{s}_{j}" for s in ("left", "right") for j in ARM7]),
+    "g1": (G1, ["left_rubber_hand", "right_rubber_hand"],
+           ["waist_yaw_joint", "waist_roll_joint", "waist_pitch_joint"]
+           + [f"{s}_{j}_joint" for s in ("left", "right") for j in G1_ARM]),
+}
+
+
+def actuator(name: str, rng) -> dict:
+    """An SEA with unbalanced rotors (centre off the axis, products of inertia)."""
+    def rotor(m, i):
+        return {"mass": m, "com": list(rng.uniform(-2e-3, 2e-3, 3)), "inertia": [i, 1.1 * i, 1.6 * i, 1e-2 * i, 0.0, 0.0]}
+    return {"name": name, "gear_ratio": float(rng.uniform(30, 120)), "sea": {"k1": 1500.0, "d": 1.0},
+            "gear_loss": {"b": 0.5}, "slow_rotor": rotor(0.2, 1e-4), "fast_rotor": rotor(0.1, 1e-5)}
+
+
+def whole_robot(tmp_path, name):
+    urdf, tips, joints = ROBOTS[name]
+    rng = np.random.default_rng(len(joints))
+    doc = {"name": f"{name}-tree", "urdf": str(urdf), "tips": tips, "joints": [actuator(j, rng) for j in joints]}
+    return rscasadi.load(write_arm(tmp_path, doc, f"{name}.toml"))
+
+
+def random_tree(tmp_path, seed, n, balanced=False):
+    return rscasadi.load(write_arm(tmp_path, random_tree_doc(np.random.default_rng(seed), n, balanced), f"tree{seed}.toml"))
+
+
+def rel(a, b):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300)
+
+
+def link_ids(route):
+    """Per joint j the Pinocchio joint id of its link (the route names it joint<j>_2)."""
+    return [route.model.getJointId(f"joint{j}_2") for j in range(route.arm_model.n)]
+
+
+def check_against(arm, route, rng, frames_of=None):
+    """Forward and inverse dynamics, mass matrix, centre of mass, each link's placement and
+    Jacobian, equal to Pinocchio's with the rotors as bodies, at random states."""
+    n = arm.n
+    fd, inv, mass, com = arm.forward_dynamics(), arm.inverse_dynamics(), arm.mass_matrix(), arm.center_of_mass()
+    names = frames_of or [jt.name for jt in arm.model.joints]
+    place = [arm.frame_placement(f) for f in names]
+    jac = [arm.frame_jacobian(f) for f in names]
+    for _ in range(3):
+        x, tau = random_state(rng, n, 2.0), rng.normal(size=n)
+        ddq = np.concatenate([dm(v) for v in fd(*x, tau)])
+        assert rel(ddq, np.concatenate(route.forward_dynamics(*x, tau))) < 1e-9
+        M, _ = route.mass_bias(*x)
+        assert rel(np.array(mass(x[0], x[1])), M) < 1e-9
+        assert rel(dm(inv(*x, ddq[:n], ddq[n:])[0]), tau) < 1e-9
+        q = route.G @ np.r_[x[0], x[1]]
+        pin.computeJointJacobians(route.model, route.data, q)
+        pin.updateFramePlacements(route.model, route.data)
+        assert rel(dm(com(x[0], x[1])), pin.centerOfMass(route.model, route.data, q)) < 1e-9
+        for j, jid in enumerate(link_ids(route)):
+            R, p = (np.array(v) for v in place[j](x[0]))
+            oMi = route.data.oMi[jid]
+            assert np.max(np.abs(R - oMi.rotation)) < 1e-9 and np.max(np.abs(p.ravel() - oMi.translation)) < 1e-9
+            J = pin.getJointJacobian(route.model, route.data, jid, pin.LOCAL_WORLD_ALIGNED) @ route.G[:, :n]
+            assert np.max(np.abs(np.array(jac[j](x[0])) - J)) < 1e-9 * max(1.0, np.max(np.abs(J)))
+
+
+@pytest.mark.parametrize("seed,n", [(1, 5), (2, 8), (3, 12)])
+def test_random_trees_equal_pinocchio_with_rotors_as_bodies(tmp_path, seed, n):
+    """Random trees (several joints on the base and on one link, axes at any angle, unbalanced
+    rotors, random gravity): every quantity equal to Pinocchio's to 1e-9 or better."""
+    arm = random_tree(tmp_path, seed, n)
+    parent = arm.model.parent
+    assert not arm.model.is_chain and len(set(parent)) < n
+    check_against(arm, PinocchioRoute(arm.model), np.random.default_rng(seed))
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_whole_robots_from_their_urdf_equal_pinocchio_s_own_parse(tmp_path, name):
+    """Baxter with both arms and the head (15 joints, tips = the two grippers and the head) and
+    the G1's upper body (17 joints; a waist carrying two arms; the legs held): the link tree from
+    Pinocchio's own URDF parser (fixed links merged, held joints removed by its
+    buildReducedModel), the rotors as bodies, equal to ours; the hands' placements equal
+    Pinocchio's frames of those URDF links."""
+    arm = whole_robot(tmp_path, name)
+    urdf, tips, joints = ROBOTS[name]
+    assert [jt.name for jt in arm.model.joints] == joints and not arm.model.is_chain
+    route = PinocchioRoute.from_urdf(arm.model)
+    rng = np.random.default_rng(5)
+    check_against(arm, route, rng, [links[0] for links in arm.model.extra["links"][1:]])
+    reduced = urdf_model(arm.model)
+    data = reduced.createData()
+    for _ in range(2):
+        theta = rng.uniform(-1, 1, arm.n)
+        q = pin.neutral(reduced)
+        for name_j, th in zip(joints, theta):
+            q[reduced.joints[reduced.getJointId(name_j)].idx_q] = th
+        pin.framesForwardKinematics(reduced, data, q)
+        for tip in tips:
+            R, p = (np.array(v) for v in arm.frame_placement(tip)(theta))
+            oMf = data.oMf[reduced.getFrameId(tip)]
+            assert np.max(np.abs(R - oMf.rotation)) < 1e-9 and np.max(np.abs(p.ravel() - oMf.translation)) < 1e-9
+
+
+def test_energy_is_conserved_and_the_paper_s_sweeps_agree_on_a_tree(tmp_path):
+    """With no losses and no torque, dE/dt = dE/dx . f(x) vanishes (E from poses and velocities,
+    f from the articulated sweep: two routes through the tree); the paper's eq. (23) and
+    eqs. (29)-(32) give back the forward dynamics' accelerations (a fixed point) on a tree."""
+    doc = random_tree_doc(np.random.default_rng(11), 7)
+    for jt in doc["joints"]:
+        jt["sea"]["d"], jt["gear_loss"] = 0.0, {"b": 0.0, "c": 0.0}
+    arm = rscasadi.load(write_arm(tmp_path, doc))
+    n = arm.n
+    x = [ca.SX.sym(s, n) for s in ("theta", "phi", "dtheta", "dphi")]
+    ddth, ddph = arm.forward_dynamics()(*x, ca.DM.zeros(n))
+    E = arm.energy()(*x)
+    dE = ca.Function("dE", x, [ca.jtimes(E, ca.vertcat(*x), ca.vertcat(x[2], x[3], ddth, ddph)),
+                               ca.norm_2(ca.gradient(E, ca.vertcat(*x))) * ca.norm_2(ca.vertcat(x[2], x[3], ddth, ddph))])
+    rng = np.random.default_rng(2)
+    for _ in range(3):
+        state = random_state(rng, n, 2.0)
+        rate, scale = (float(v) for v in dE(*state))
+        assert abs(rate) < 1e-12 * scale and scale > 1.0
+        tau = rng.normal(size=n)
+        a, b = arm.forward_dynamics()(*state, tau)
+        assert rel(dm(arm.arm_forward_dynamics()(*state, b, a)), dm(a)) < 1e-10
+        assert rel(dm(arm.joint_forward_dynamics()(*state, tau, a)), dm(b)) < 1e-10
+
+
+def test_a_tree_written_by_hand_reads_back_and_every_bad_parent_is_named(tmp_path):
+    """`parent = "joint"` in [[joints]] makes a tree; the link-list form written from it (and
+    from a URDF-based tree) reads back the same dynamics; parents that name no joint, or a
+    joint listed later, are all named in one message before any work."""
+    doc = random_tree_doc(np.random.default_rng(4), 6)
+    model = parse(tomllib.loads(to_toml(doc)))
+    assert model.parent == tuple(-1 if jt["parent"] == "base" else int(jt["parent"][1:]) - 1 for jt in doc["joints"])
+    again = parse(tomllib.loads(to_toml(document(model))))
+    assert again.parent == model.parent
+    whole = whole_robot(tmp_path, "g1").model
+    written = parse(tomllib.loads(to_toml(document(whole))), str(tmp_path / "g1-link-list.toml"))
+    assert written.parent == whole.parent
+    rng = np.random.default_rng(8)
+    x, tau = random_state(rng, whole.n, 1.0), rng.normal(size=whole.n)
+    a, b = (np.concatenate([dm(v) for v in rscasadi.Arm(m).forward_dynamics()(*x, tau)]) for m in (whole, written))
+    assert rel(a, b) < 1e-12
+    bad = copy.deepcopy(doc)
+    bad["joints"][2]["parent"] = "nowhere"
+    bad["joints"][3]["parent"] = "j6"
+    with pytest.raises(ModelFileError) as err:
+        parse(tomllib.loads(to_toml(bad)), "hand.toml")
+    message = str(err.value)
+    assert "hand.toml" in message and "'j3': parent 'nowhere' is no joint" in message
+    assert "'j4': parent 'j6' comes after it" in message
+
+
+def test_tips_choose_the_branches_and_wrong_ones_are_named(tmp_path):
+    """tips keeps the union of the paths to them (the rest held at lock_others); a joint listed
+    off those paths, a tip that is no link, tip and tips together, and a joint listed before the
+    joint that carries it are refused by name."""
+    urdf, tips, joints = ROBOTS["baxter"]
+    rng = np.random.default_rng(1)
+    base = {"name": "baxter", "urdf": str(urdf), "tips": tips, "joints": [actuator(j, rng) for j in joints]}
+    held = whole_robot(tmp_path, "baxter").model.extra["locked"]
+    assert set(held) == {"l_gripper_l_finger_joint", "l_gripper_r_finger_joint", "r_gripper_l_finger_joint",
+                         "r_gripper_r_finger_joint"}
+    cases = [({"tips": ["left_gripper", "head"]}, "'right_s0'"),
+             ({"tips": ["left_gripper", "nowhere"]}, "no link 'nowhere'"),
+             ({"tip": "left_gripper"}, "not both"),
+             ({"joints": [base["joints"][2], base["joints"][1]] + base["joints"][3:] + base["joints"][:1]},
+              "after the joint that carries it: 'left_s1' before 'left_s0'")]
+    for over, words in cases:
+        doc = {**copy.deepcopy(base), **over}
+        with pytest.raises(ModelFileError) as err:
+            rscasadi.load(write_arm(tmp_path, doc, "bad.toml"))
+        assert words in str(err.value) and "bad.toml" in str(err.value), str(err.value)
+
+
+def test_generated_c_of_a_tree_equals_its_functions_and_pinocchio(tmp_path):
+    """codegen on a tree: the compiled forward dynamics equals the Function and Pinocchio."""
+    from rscasadi.codegen import generate
+    path = write_arm(tmp_path, random_tree_doc(np.random.default_rng(6), 5))
+    out = tmp_path / "gen"
+    generate(path, out, opt="-O1", log=lambda m: None)
+    compiled, arm = rscasadi.load_compiled(out), rscasadi.load(path)
+    route, rng = PinocchioRoute(arm.model), np.random.default_rng(3)
+    for _ in range(3):
+        x, tau = random_state(rng, arm.n, 2.0), rng.normal(size=arm.n)
+        c = np.concatenate([dm(v) for v in compiled["forward_dynamics"](*x, tau)])
+        assert rel(c, np.concatenate([dm(v) for v in arm.forward_dynamics()(*x, tau)])) < 1e-12
+        assert rel(c, np.concatenate(route.forward_dynamics(*x, tau))) < 1e-9
