@@ -60,6 +60,30 @@ def random_tree_doc(rng, n, balanced=False):
     return doc
 
 
+def with_kinds(doc, kinds, rng=None):
+    """The link-list document `doc` with its joints of `kinds` (rscasadi.model.kinds), in order:
+    a geared joint keeps its rotors and gear, no spring; spring, free and direct joints keep only
+    their links (a spring joint gets a spring to a rest angle, `rng` choosing both)."""
+    rng = rng or np.random.default_rng(0)
+    for jt, kind in zip(doc["joints"], kinds):
+        if kind == "sea":
+            continue
+        jt["kind"] = kind
+        del jt["sea"]
+        jt.get("gear_loss", {}).pop("c1", None)
+        if kind in ("spring", "free", "direct"):
+            for key in ("gear_ratio", "slow_rotor", "fast_rotor", "gear_loss", "torque_constant"):
+                jt.pop(key, None)
+            lim = jt.get("limits", {})
+            for key in ("dphi", "psi") + (("tau",) if kind != "direct" else ()):
+                lim.pop(key, None)
+        elif kind == "geared":
+            jt.get("limits", {}).pop("psi", None)
+        if kind == "spring":
+            jt["spring"] = {"k": float(rng.uniform(20, 80)), "theta0": float(rng.uniform(-0.3, 0.3))}
+    return doc
+
+
 def write_arm(tmp_path, doc, name="arm.toml"):
     path = Path(tmp_path) / name
     path.write_text(to_toml(doc))

@@ -25,13 +25,18 @@ def loaded(name, variant="complete"):
     return arm, m, mujoco.MjData(m), gear_map(arm, m)
 
 
-def random_arm(tmp_path, n, tree=False):
+MIXED = ("sea", "geared", "spring", "direct", "sea", "free", "geared", "direct")
+
+
+def random_arm(tmp_path, n, tree=False, kinds=(), balanced=False):
     """A random arm of conftest (axes at any angle, unbalanced rotors, random gravity), or a
-    random tree of them, with a linear spring and no Coulomb loss, as MJCF holds them."""
-    from conftest import random_arm_doc, random_tree_doc, write_arm
-    doc = (random_tree_doc if tree else random_arm_doc)(np.random.default_rng(100 + n), n)
+    random tree of them (joints of `kinds`), with a linear spring and no Coulomb loss, as MJCF
+    holds them."""
+    from conftest import random_arm_doc, random_tree_doc, with_kinds, write_arm
+    doc = with_kinds((random_tree_doc if tree else random_arm_doc)(np.random.default_rng(100 + n), n, balanced), kinds)
     for jt in doc["joints"]:
-        jt["sea"]["k3"], jt["gear_loss"]["c"] = 0.0, 0.0
+        jt.get("sea", {})["k3"] = 0.0
+        jt.get("gear_loss", {})["c"] = 0.0
     return rscasadi.load(write_arm(tmp_path, doc))
 
 
@@ -44,25 +49,28 @@ def holding_a_part():
                                 inertia=[2e-3, 1e-3, 1.5e-3, 1e-4, 0.0, -2e-4], radius=0.04))
 
 
-@pytest.mark.parametrize("name,variant", [(name, "complete") for name in (*ARMS, 2, 5, 7, "part", "tree")]
-                         + [("arm3", "reduced"), ("panda", "reduced"), ("part", "reduced")])
+@pytest.mark.parametrize("name,variant", [(name, "complete") for name in (*ARMS, 2, 5, 7, "part", "tree", "kinds")]
+                         + [("arm3", "reduced"), ("panda", "reduced"), ("part", "reduced"), ("kinds", "reduced")])
 def test_mujoco_s_mass_matrix_and_forces_are_the_model_s(name, variant, tmp_path):
     """At random states and torques within the limits: T' M T equals the model's mass matrix and
     T' (passive + actuator - bias) its generalised forces (M ddq of its forward dynamics), to 1e-12;
-    the reference arm, the Panda from its URDF, random arms and a random tree with unbalanced
-    rotors, and the arm holding a part (its capsules exported as geoms, which must not change the inertias); the
+    the reference arm, the Panda from its URDF, random arms, a random tree and a random tree of
+    joints of every kind with unbalanced rotors, and the arm holding a part (its capsules exported as geoms, which must not change the inertias); the
     reduced export against the reduced model (Arm.reduced_forward_dynamics)."""
     arm = (holding_a_part() if name == "part" else name if name in ARMS
-           else random_arm(tmp_path, 8, tree=True) if name == "tree" else random_arm(tmp_path, name))
+           else random_arm(tmp_path, 8, tree=True) if name == "tree"
+           else random_arm(tmp_path, 8, tree=True, kinds=MIXED, balanced=variant == "reduced") if name == "kinds"
+           else random_arm(tmp_path, name))
     arm, m, d, T = loaded(arm, variant)
-    n, rng = arm.n, np.random.default_rng(7)
-    limit = np.array([jt.limits.get("tau", 1.0) for jt in arm.model.joints])
+    n, m_, rng = arm.n, arm.m, np.random.default_rng(7)
+    limit = np.array([arm.model.joints[j].limits.get("tau", 1.0) for j in arm.model.actuated])
     reduced = variant == "reduced"
     fd = arm.reduced_forward_dynamics() if reduced else arm.forward_dynamics()
     mass = arm.mass_matrix(reduced=reduced)
     for _ in range(5):
         th = rng.uniform(-1, 1, n)
-        ph, dth, dph, tau = th + rng.uniform(-0.05, 0.05, n), rng.normal(size=n), rng.normal(size=n), rng.uniform(-1, 1, n) * limit
+        ph, dth, dph = th[arm.model.motors] + rng.uniform(-0.05, 0.05, m_), rng.normal(size=n), rng.normal(size=m_)
+        tau = rng.uniform(-1, 1, arm.u) * limit
         d.qpos[:], d.qvel[:], d.ctrl[:] = T @ np.r_[th, ph], T @ np.r_[dth, dph], tau
         mujoco.mj_forward(m, d)
         M = np.zeros((m.nv, m.nv))
@@ -231,10 +239,22 @@ def _off_zero_arm(tmp_path):
     from conftest import random_arm_doc, write_arm
     doc = random_arm_doc(np.random.default_rng(104), 4)
     for jt in doc["joints"]:
-        jt["sea"]["k3"], jt["gear_loss"]["c"] = 0.0, 0.0
+        jt.get("sea", {})["k3"] = 0.0
+        jt.get("gear_loss", {})["c"] = 0.0
     doc["joints"][0].setdefault("limits", {})["theta"] = [0.4, 2.0]
     doc["joints"][-1].setdefault("limits", {})["theta"] = [-2.5, -0.7]
     return rscasadi.load(write_arm(tmp_path, doc))
+
+
+def _kinds_tree(tmp_path, balanced=False):
+    """A random tree of joints of every kind, its first joint's range excluding 0: the spring and
+    free joints rest where their links hang."""
+    arm = random_arm(tmp_path, 8, tree=True, kinds=MIXED, balanced=balanced)
+    from conftest import write_arm
+    from rscasadi.model.modelfile import document
+    doc = document(arm.model)
+    doc["joints"][0].setdefault("limits", {})["theta"] = [0.4, 2.0]
+    return rscasadi.load(write_arm(tmp_path, doc, "kinds.toml"))
 
 
 def _baxter_left(tmp_path):
@@ -246,8 +266,9 @@ def _baxter_left(tmp_path):
     return rscasadi.load(write(tmp_path, doc))
 
 
-@pytest.mark.parametrize("name,variant", [(n, "complete") for n in ("arm3", "panda", "off_zero", "baxter")]
-                         + [("panda", "reduced"), ("panda", "armature"), ("off_zero", "armature")])
+@pytest.mark.parametrize("name,variant", [(n, "complete") for n in ("arm3", "panda", "off_zero", "baxter", "kinds")]
+                         + [("panda", "reduced"), ("panda", "armature"), ("off_zero", "armature"),
+                            ("kinds", "armature")])
 def test_the_export_starts_at_rest_inside_its_ranges(name, variant, tmp_path):
     """MuJoCo's qpos0 lies inside every link's range (the Panda's fourth joint and a random arm
     have ranges without 0), and the keyframe "rest" (qpos0 and the holding torques) is a static
@@ -255,8 +276,9 @@ def test_the_export_starts_at_rest_inside_its_ranges(name, variant, tmp_path):
     motors), projected through the gear, cancel to 1e-9 of the gravity's; from it 0.2 s of
     MuJoCo's motion touches no limit."""
     from rscasadi.export.mujoco import gear_map
-    arm = {"off_zero": _off_zero_arm, "baxter": _baxter_left}[name](tmp_path) if name in ("off_zero", "baxter") \
-        else rscasadi.load(ARMS[name][0])
+    makers = {"off_zero": _off_zero_arm, "baxter": _baxter_left,      # the armature file welds the rotors at 0:
+              "kinds": lambda p: _kinds_tree(p, balanced=variant == "armature")}   # its rest is exact if balanced
+    arm = makers[name](tmp_path) if name in makers else rscasadi.load(ARMS[name][0])
     m = mujoco.MjModel.from_xml_string(mujoco_xml(arm.model, variant))
     d = mujoco.MjData(m)
     limited = np.flatnonzero(m.jnt_limited)
@@ -269,7 +291,7 @@ def test_the_export_starts_at_rest_inside_its_ranges(name, variant, tmp_path):
     assert m.nkey == 1 and m.key(0).name == "rest"
     mujoco.mj_resetDataKeyframe(m, d, 0)
     mujoco.mj_forward(m, d)
-    T = np.eye(m.nv)[:, :arm.n] if variant == "armature" else gear_map(arm, m)
+    T = gear_map(arm, m)[:, :arm.n] if variant == "armature" else gear_map(arm, m)
     residual = T.T @ (d.qfrc_passive + d.qfrc_actuator - d.qfrc_bias)
     assert np.max(np.abs(residual)) < 1e-9 * np.max(np.abs(T.T @ d.qfrc_bias)), residual
     for _ in range(200):

@@ -55,11 +55,6 @@ def rel(a, b):
     return np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300)
 
 
-def link_ids(route):
-    """Per joint j the Pinocchio joint id of its link (the route names it joint<j>_2)."""
-    return [route.model.getJointId(f"joint{j}_2") for j in range(route.arm_model.n)]
-
-
 def check_against(arm, route, rng, frames_of=None):
     """Forward and inverse dynamics, mass matrix, centre of mass, each link's placement and
     Jacobian, equal to Pinocchio's with the rotors as bodies, at random states."""
@@ -79,7 +74,7 @@ def check_against(arm, route, rng, frames_of=None):
         pin.computeJointJacobians(route.model, route.data, q)
         pin.updateFramePlacements(route.model, route.data)
         assert rel(dm(com(x[0], x[1])), pin.centerOfMass(route.model, route.data, q)) < 1e-9
-        for j, jid in enumerate(link_ids(route)):
+        for j, jid in enumerate(route.link_ids):
             R, p = (np.array(v) for v in place[j](x[0]))
             oMi = route.data.oMi[jid]
             assert np.max(np.abs(R - oMi.rotation)) < 1e-9 and np.max(np.abs(p.ravel() - oMi.translation)) < 1e-9

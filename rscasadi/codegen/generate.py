@@ -58,10 +58,9 @@ def rk4(f, x, h):
 
 def rhs(arm: Arm, parametric: bool = False) -> ca.Function:
     """The state equation as a compact SX Function: (x, tau[, p]) -> dx/dt, x = (theta, phi, dtheta, dphi)."""
-    n = arm.n
-    x, tau = ca.SX.sym("x", 4 * n), ca.SX.sym("tau", n)
+    x, tau = ca.SX.sym("x", 2 * arm.nq), ca.SX.sym("tau", arm.u)
     p = [ca.SX.sym("p", arm.n_p)] if parametric else []
-    q = ca.vertsplit(x, n)
+    q = arm.split_state(x)
     xdot = ca.vertcat(q[2], q[3], *arm.forward_dynamics(parametric=parametric)(*q, tau, *p))
     return ca.Function("rhs", [x, tau] + p, ca.cse([xdot]), ["x", "tau"] + ["p"] * len(p), ["xdot"])
 
@@ -82,29 +81,29 @@ def step_functions(arm: Arm, prefix: str = "", fd_jacobian: ca.Function | None =
     S_i = [0 1 0] + c_i h B_{i-1}, and B_i = M_i^-1 ([-dr/dx | dQ/dtau] - c_i h dr/dx dk_{i-1})
     (Arm.acceleration_sensitivity): the sparse residual Jacobian times dk_{i-1}, no identity
     added to a dense matrix (n = 12: 206 -> ~100 us)."""
-    n, f = arm.n, rhs(arm, parametric)
+    nq, nx, f = arm.nq, 2 * arm.nq, rhs(arm, parametric)
     fd_jacobian = fd_jacobian or forward_dynamics_jacobian(arm, parametric, prefix + "forward_dynamics_jacobian")
-    x, tau, h = ca.MX.sym("x", 4 * n), ca.MX.sym("tau", n), ca.MX.sym("h")
+    x, tau, h = ca.MX.sym("x", nx), ca.MX.sym("tau", arm.u), ca.MX.sym("h")
     p = [ca.MX.sym("p", arm.n_p)] if parametric else []
     x_next, stages = rk4(lambda z: f(z, tau, *p), x, h)
-    I = ca.DM.eye(5 * n)[:4 * n, :]                                  # d x / d(x, tau)
+    I = ca.DM.eye(nx + arm.u)[:nx, :]                                # d x / d(x, tau)
     small = arm.forward_dynamics(parametric=parametric).n_instructions() <= AD_JACOBIAN_LIMIT
     S: list = []                                                     # dk_i = [S_i; B_i]
     B: list = []
     for xi, c in zip(stages, (0.0, 0.5, 0.5, 1.0)):
         if small:                                                    # F_i = d(ddtheta, ddphi)/d(x, tau)
             dX = I + c * h * ca.vertcat(S[-1], B[-1]) if S else ca.MX(I)
-            F = ca.densify(fd_jacobian(*ca.vertsplit(xi, n), tau, *p))
-            B.append(ca.mtimes(F[:, :4 * n], ca.densify(dX)) + ca.horzcat(ca.MX.zeros(2 * n, 4 * n), F[:, 4 * n:]))
+            F = ca.densify(fd_jacobian(*arm.split_state(xi), tau, *p))
+            B.append(ca.mtimes(F[:, :nx], ca.densify(dX)) + ca.horzcat(ca.MX.zeros(nq, nx), F[:, nx:]))
         else:
-            B.append(arm.acceleration_sensitivity(ca.vertsplit(xi, n), tau, ca.vertcat(S[-1], B[-1]) if S else None,
+            B.append(arm.acceleration_sensitivity(arm.split_state(xi), tau, ca.vertcat(S[-1], B[-1]) if S else None,
                                                   c * h, *p))
-        S.append(I[2 * n:, :] + c * h * B[-2] if S else ca.MX(I[2 * n:, :]))
+        S.append(I[nq:, :] + c * h * B[-2] if S else ca.MX(I[nq:, :]))
     weights = (1, 2, 2, 1)
     dnext = I + h / 6 * ca.vertcat(sum(w * Si for w, Si in zip(weights, S)), sum(w * Bi for w, Bi in zip(weights, B)))
     names = ["x", "tau", "h"] + ["p"] * len(p)
     step = ca.Function(prefix + "step", [x, tau, h] + p, [x_next], names, ["x_next"])
-    step_jac = ca.Function(prefix + "step_jacobian", [x, tau, h] + p, [dnext[:, :4 * n], dnext[:, 4 * n:]],
+    step_jac = ca.Function(prefix + "step_jacobian", [x, tau, h] + p, [dnext[:, :nx], dnext[:, nx:]],
                            names, ["A", "B"])
     if expand if expand is not None else small:
         step_jac = step_jac.expand(prefix + "step_jacobian", {"cse": True})
@@ -129,14 +128,12 @@ IMPLICIT_SX_LIMIT = 30000  # SX instructions of the straight-line implicit-funct
 def _implicit_sx(arm: Arm, parametric: bool) -> ca.Function:
     """The implicit-function route as one straight-line SX Function: forward dynamics, the
     residual's Jacobian and a symbolic LDL^T of the sparse M, M J = [-dr/dx | dQ/dtau]."""
-    n = arm.n
-    x = [ca.SX.sym(name, n) for name in ("theta", "phi", "dtheta", "dphi")]
-    tau = ca.SX.sym("tau", n)
+    x = [ca.SX.sym(name, arm._size(name)) for name in ("theta", "phi", "dtheta", "dphi")]
+    tau = ca.SX.sym("tau", arm.u)
     p = [ca.SX.sym("p", arm.n_p)] if parametric else []
     ddtheta, ddphi = arm.forward_dynamics(parametric=parametric)(*x, tau, *p)
     Jr = arm.residual_jacobian(parametric=parametric)(*x, ddtheta, ddphi, *p)
-    mu = gear_ratios(arm.model, arm.free, *p)
-    rhs = ca.horzcat(-Jr, ca.vertcat(ca.DM.zeros(n, n), -ca.diag(mu)))
+    rhs = ca.horzcat(-Jr, arm.input_matrix(gear_ratios(arm.model, arm.free, *p)))
     D, Lt, perm = ca.ldl(arm.mass_matrix(parametric=parametric)(x[0], x[1], *p))
     return ca.Function("forward_dynamics_jacobian", x + [tau] + p, [ca.ldl_solve(rhs, D, Lt, perm)],
                        ["theta", "phi", "dtheta", "dphi", "tau"] + ["p"] * len(p), ["jacobian"], {"cse": True})
@@ -212,8 +209,12 @@ def functions(arm: Arm, prefix: str = "", parametric: bool = False, frames=(), e
     fns["inverse_dynamics_jacobian"] = _renamed(inv, p + "inverse_dynamics_jacobian",
                                                 lambda *ins: [_ad_jacobian(inv, ins, parametric)], ["jacobian"])
     fns["step"], fns["step_jacobian"] = step_functions(arm, p, fns["forward_dynamics_jacobian"], parametric)
-    for f in feedforward_functions(arm, parametric=parametric):      # the paper's feedforward, on line
-        fns[f.name()] = _renamed(f, p + f.name())
+    if arm.model.all_sea:
+        for f in feedforward_functions(arm, parametric=parametric):  # the paper's feedforward, on line
+            fns[f.name()] = _renamed(f, p + f.name())
+    else:
+        omitted["feedforward_init"] = omitted["feedforward_step"] = (
+            "the paper's feedforward (eqs. 33-35) drives SEAs; this robot has joints of other kinds")
     return fns, omitted
 
 
@@ -255,11 +256,13 @@ def arm_macros(arm: Arm, prefix: str) -> str:
         return "{" + ", ".join(repr(float(x)) for x in v) + "}"
     return (f"\n/* The arm: its size and its model file's numbers (initialisers of {p}ARM_NQ entries). */\n"
             f"#define {p}ARM_NQ {m.n}                 /* joints */\n"
-            f"#define {p}ARM_NX {4 * m.n}             /* state x = (theta, phi, dtheta, dphi) */\n"
+            f"#define {p}ARM_NM {arm.m}                 /* motor coordinates phi (the SEA joints) */\n"
+            f"#define {p}ARM_NU {arm.u}                 /* torque inputs tau (the actuated joints) */\n"
+            f"#define {p}ARM_NX {2 * arm.nq}             /* state x = (theta, phi, dtheta, dphi) */\n"
             f"#define {p}ARM_GEAR_RATIO {numbers(m.column('gear_ratio'))}  /* mu: motor turns per link turn */\n"
             f"#define {p}ARM_K1 {numbers(m.column('k1'))}  /* SEA stiffness, N m/rad */\n"
-            f"#define {p}ARM_TAU_MAX {numbers(np.where(np.isfinite(tau), tau, 0.0))}  /* motor torque limit, "
-            "N m; 0: none */\n\n")
+            f"#define {p}ARM_TAU_MAX {numbers(np.where(np.isfinite(tau), tau, 0.0)[m.actuated])}  /* each input's "
+            "torque limit, N m; 0: none */\n\n")
 
 
 def arm_header(arm: Arm, prefix: str, declarations: list) -> str:
@@ -317,7 +320,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
     with tempfile.TemporaryDirectory() as d:
         for name, f in fns.items():
             gen = ca.CodeGenerator(f"{f.name()}.c", {"with_header": False})
-            if name == "step_jacobian" and not f.is_a("SXFunction"):   # past straight-line SX: the C kernel
+            if name == "step_jacobian" and not f.is_a("SXFunction") and arm.model.all_sea:   # the C kernel
                 kernels[name] = kernel_source(arm, f.name(), takes_p)
                 for g in kernels[name].functions:
                     gen.add(g)
@@ -330,16 +333,17 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
         texts[CASADI_HEADER] = (Path(d) / CASADI_HEADER).read_text()
     sources = [file for file in texts if file.endswith(".c")]
     texts[HEADER] = arm_header(arm, prefix, [k.header for k in kernels.values()])
-    if not takes_p:                                 # the feedforward as a guarded controller
+    guarded = not takes_p and arm.model.all_sea     # the feedforward as a guarded controller
+    if guarded:
         texts.update(feedforward_controller(arm, fns, prefix))
     manifest = {
         "model": str(getattr(arm.model, "path", "")),
         "header": HEADER,
         "headers": [HEADER, CASADI_HEADER],           # the one to include, and CasADi's, which it includes
-        "sources": sources + ([FEEDFORWARD + ".c"] if not takes_p else []),
+        "sources": sources + ([FEEDFORWARD + ".c"] if guarded else []),
         "controllers": {"feedforward": {"header": FEEDFORWARD + ".h", "type": f"{prefix + '_' if prefix else ''}ff_t",
                                         "init": f"{prefix + '_' if prefix else ''}ff_init",
-                                        "step": f"{prefix + '_' if prefix else ''}ff_step"}} if not takes_p else {},
+                                        "step": f"{prefix + '_' if prefix else ''}ff_step"}} if guarded else {},
         "functions": {name: {"symbol": f.name(), "inputs": _io(f, False), "outputs": _io(f, True),
                              "n_instructions": kernels[name].n_instructions if name in kernels else f.n_instructions()}
                       for name, f in fns.items()},

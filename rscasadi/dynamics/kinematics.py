@@ -95,8 +95,10 @@ def center_of_mass(segs, theta, phi):
     for j, seg in enumerate(segs):
         R_p, o_p = poses[seg.parent] if seg.parent >= 0 else (ca.DM.eye(3), ca.DM.zeros(3))
         bodies = [(seg.M, joint_rotation(seg.R, theta[j]))]
-        bodies += [(M, joint_rotation(seg.R, rec.rotor_frame_angle(gear, spins, phi[j])))
+        bodies += [(M, joint_rotation(seg.R, rec.rotor_frame_angle(gear, spins, phi[seg.motor])))
                    for gear, M, spins in seg.leaves]
+        bodies += [(M, joint_rotation(seg.R, rec.rotor_frame_angle(gear, spins, theta[j])))
+                   for gear, M, spins in seg.geared]
         for M, R in bodies:
             R_b, o = base_pose(R_p, o_p, R, seg.l)
             m, mp = M[3, 3], ca.vertcat(M[2, 4], M[0, 5], M[1, 3])       # eq. (11): m and m c

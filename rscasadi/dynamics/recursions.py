@@ -7,11 +7,15 @@ quantities) and one backward (leaves to base, adding into the parent's): on a ch
 backward loop is the paper's "for k = 1..n" (k = n - j, k = 1 the tip).
 
 The model (constant) is a list of `Segment`s, one per joint; the per-call workspace
-is a list of `Kin` records made by `kinematics`.  Each joint's two rotors are a
-one-degree-of-freedom leaf hanging on the parent link: `Segment.leaves` holds
-(gear, M) for the slow rotor (gear 1) and the fast rotor (gear -mu).
+is a list of `Kin` records made by `kinematics`.  A joint's two rotors hang on its parent
+link, each (gear, M, spins): the slow rotor (gear 1) and the fast rotor (gear -mu).  An SEA
+joint's rotors turn with its motor coordinate phi (`Segment.leaves`: a one-degree-of-freedom
+leaf of the parent, paper eq. 23); a geared joint's turn with its link coordinate theta through
+the gear (`Segment.geared`: one cluster with the link, one coordinate, as GRBDA's); the other
+kinds have none (rscasadi.model.kinds).
 The DLR/Spong reduced model uses the same code: rotors merged rigidly into the
-parent link, no leaves, and a spin inertia `B_spin` on the rotor coordinate.
+parent link, and a spin inertia on the coordinate they turn with (`B_spin` on phi, `B_link` on
+theta).
 """
 from __future__ import annotations
 
@@ -30,19 +34,23 @@ class Segment:
     R: np.ndarray            # J_j relative to the parent frame
     l: np.ndarray            # J_j origin in the parent frame
     M: np.ndarray            # spatial inertia of link j (eq. 11), link frame
-    leaves: list             # [(gear, M, spins)] rotors of joint j; see `segments`
-    B_spin: float = 0.0      # reduced model only: B_j on the rotor coordinate
+    leaves: list             # [(gear, M, spins)] rotors turning with the motor coordinate; see `segments`
+    B_spin: float = 0.0      # reduced model only: B_j on the motor coordinate
     parent: int = -1         # the joint whose link carries joint j (-1: the base)
+    motor: int | None = None  # the index of joint j's motor coordinate in phi, if it has one
+    geared: list = field(default_factory=list)   # [(gear, M, spins)] rotors turning with theta_j
+    B_link: float = 0.0      # reduced model only: the spin inertia of geared rotors on theta_j
 
 
 @dataclass
 class Kin:
     """Per-call workspace of one joint: angles, transforms, velocities and Coriolis terms."""
-    q: tuple                 # (theta_j, phi_j, dtheta_j, dphi_j)
+    q: tuple                 # (theta_j, phi_j, dtheta_j, dphi_j); phi None without a motor
     X: ca.SX
     V: ca.SX
     a: ca.SX
-    leaves: list = field(default_factory=list)   # [(gear, M, X, V, a)]
+    leaves: list = field(default_factory=list)   # [(gear, M, X, V, a)] rotors on the motor coordinate
+    geared: list = field(default_factory=list)   # [(gear, M, X, V, a)] rotors on theta_j
 
 
 def rotor_frame_angle(gear, spins, phi):
@@ -54,17 +62,20 @@ def rotor_frame_angle(gear, spins, phi):
 def segments(model, phys, reduced: bool = False) -> list:
     """The tree of the complete model, or of the DLR reduced model, with the inertias of `phys`
     (numbers, or expressions of the parameters: then every rotor spins in its own frame)."""
-    segs = []
+    segs, motors = [], {j: i for i, j in enumerate(model.motors)}
     for j, (jt, parent) in enumerate(zip(model.joints, model.parent)):
-        M, mu = phys.inertias[j], phys.columns["gear_ratio"][j]        # mu: a number, or free
+        M, mu, kind = phys.inertias[j], phys.columns["gear_ratio"][j], jt.joint_kind   # mu: a number, or free
         rotors = [(gear, M[part], (phys.symbolic and (jt.name, part) not in phys.balanced)
                    or not getattr(jt, part).balanced)
-                  for gear, part in ((1.0, "slow_rotor"), (-mu, "fast_rotor"))]
-        segs.append(Segment(jt.R, jt.origin_xyz, M["link"], [] if reduced else rotors,
-                            phys.rotor_inertia(j) if reduced else 0.0, parent))
+                  for gear, part in ((1.0, "slow_rotor"), (-mu, "fast_rotor"))] if kind.rotors else []
+        on_motor, on_link = kind.rotors == "motor", kind.rotors == "link"
+        spin = phys.rotor_inertia(j) if reduced and kind.rotors else 0.0
+        segs.append(Segment(jt.R, jt.origin_xyz, M["link"], rotors if on_motor and not reduced else [],
+                            spin if on_motor else 0.0, parent, motors.get(j),
+                            rotors if on_link and not reduced else [], spin if on_link else 0.0))
     if reduced:  # joint j's rotors carried rigidly by its parent link at zero angle (exact for balanced rotors)
         for jt, M, parent in zip(model.joints, phys.inertias, model.parent):
-            if parent < 0:
+            if parent < 0 or not jt.joint_kind.rotors:
                 continue
             X0 = Xup(ca.DM(jt.R), jt.origin_xyz)
             for part in ("slow_rotor", "fast_rotor"):
@@ -79,24 +90,34 @@ def kinematics(segs, theta, phi, dtheta, dphi) -> list:
         V_p = kin[seg.parent].V if seg.parent >= 0 else ca.DM.zeros(6)
         R = joint_rotation(seg.R, theta[j])
         X = Xup(R, seg.l)
-        k = Kin((theta[j], phi[j], dtheta[j], dphi[j]), X, X @ V_p + H * dtheta[j], coriolis(R, seg.l, V_p[:3], dtheta[j]))
-        for gear, M, spins in seg.leaves:
-            Rr = joint_rotation(seg.R, rotor_frame_angle(gear, spins, phi[j]))
-            Xr = Xup(Rr, seg.l)
-            k.leaves.append((gear, M, Xr, Xr @ V_p + H * gear * dphi[j], coriolis(Rr, seg.l, V_p[:3], gear * dphi[j])))
+        m = seg.motor
+        q = (theta[j], None, dtheta[j], None) if m is None else (theta[j], phi[m], dtheta[j], dphi[m])
+        k = Kin(q, X, X @ V_p + H * dtheta[j], coriolis(R, seg.l, V_p[:3], dtheta[j]))
+        k.leaves = [_rotor(seg, V_p, rotor, q[1], q[3]) for rotor in seg.leaves]
+        k.geared = [_rotor(seg, V_p, rotor, q[0], q[2]) for rotor in seg.geared]
         kin.append(k)
     return kin
 
 
+def _rotor(seg, V_p, rotor, angle, rate) -> tuple:
+    """A rotor at the joint frame turned by gear * angle: (gear, M, X, V, Coriolis term)."""
+    gear, M, spins = rotor
+    Rr = joint_rotation(seg.R, rotor_frame_angle(gear, spins, angle))
+    Xr = Xup(Rr, seg.l)
+    return gear, M, Xr, Xr @ V_p + H * gear * rate, coriolis(Rr, seg.l, V_p[:3], gear * rate)
+
+
 def accelerations(segs, kin, ddtheta, ddphi, gravity):
-    """Eqs. (2), (18): spatial accelerations of links and rotors, base to leaves."""
+    """Eqs. (2), (18): spatial accelerations of links, motor rotors and geared rotors, base to leaves."""
     alpha: list = []
     alpha_r: list = []
+    alpha_g: list = []
     for j, (seg, k) in enumerate(zip(segs, kin)):
         alpha_p = alpha[seg.parent] if seg.parent >= 0 else base_acceleration(gravity)
-        alpha_r.append([Xr @ alpha_p + H * gear * ddphi[j] + ar for gear, _, Xr, _, ar in k.leaves])
+        alpha_r.append([Xr @ alpha_p + H * gear * ddphi[seg.motor] + ar for gear, _, Xr, _, ar in k.leaves])
+        alpha_g.append([Xr @ alpha_p + H * gear * ddtheta[j] + ar for gear, _, Xr, _, ar in k.geared])
         alpha.append(k.X @ alpha_p + H * ddtheta[j] + k.a)
-    return alpha, alpha_r
+    return alpha, alpha_r, alpha_g
 
 
 def rotor_force(M, V, alpha):
@@ -108,21 +129,42 @@ def inverse_dynamics(segs, kin, ddtheta, ddphi, gravity, f_ext=None):
     """Eqs. (2), (3), (25), (26): T = theta rows of M ddq + c; Qphi = phi rows (rotor inertia).
     f_ext: per link the spatial force the environment applies to it (link frame), or None."""
     n = len(segs)
-    alpha, alpha_r = accelerations(segs, kin, ddtheta, ddphi, gravity)
-    T, Qphi = [None] * n, [None] * n
+    alpha, alpha_r, alpha_g = accelerations(segs, kin, ddtheta, ddphi, gravity)
+    T, Qphi = [None] * n, {}
     f_child = [ca.DM.zeros(6) for _ in range(n)]   # force of the outboard joints on link j
     for j in reversed(range(n)):
-        f = rotor_force(segs[j].M, kin[j].V, alpha[j]) + f_child[j]     # eq. (25)
+        seg = segs[j]
+        f = rotor_force(seg.M, kin[j].V, alpha[j]) + f_child[j]        # eq. (25)
         if f_ext is not None:
             f = f - f_ext[j]                                           # the environment's share
-        T[j] = f[2]                                                    # eq. (26): T_k = H^T f_k
         rotor_f = [rotor_force(M, Vr, ar) for (_, M, _, Vr, _), ar in zip(kin[j].leaves, alpha_r[j])]
-        Qphi[j] = segs[j].B_spin * ddphi[j] + sum((gear * fr[2] for (gear, *_), fr in zip(kin[j].leaves, rotor_f)), 0)
-        i = segs[j].parent
-        if i >= 0:
-            f_child[i] = f_child[i] + kin[j].X.T @ f + sum((Xr.T @ fr for (_, _, Xr, _, _), fr
-                                                             in zip(kin[j].leaves, rotor_f)), ca.DM.zeros(6))
-    return ca.vertcat(*T), ca.vertcat(*Qphi)
+        geared_f = [rotor_force(M, Vr, ar) for (_, M, _, Vr, _), ar in zip(kin[j].geared, alpha_g[j])]
+        T[j] = f[2]                                                    # eq. (26): T_k = H^T f_k
+        if kin[j].geared:                                              # and the rotors turning with theta_j
+            T[j] = T[j] + seg.B_link * ddtheta[j] + _spin(kin[j].geared, geared_f)
+        elif seg.B_link:
+            T[j] = T[j] + seg.B_link * ddtheta[j]
+        if seg.motor is not None:
+            Qphi[seg.motor] = seg.B_spin * ddphi[seg.motor] + _spin(kin[j].leaves, rotor_f)
+        if seg.parent >= 0:
+            f_child[seg.parent] = (f_child[seg.parent] + kin[j].X.T @ f
+                                   + _carried(kin[j].leaves, rotor_f) + _carried(kin[j].geared, geared_f))
+    return ca.vertcat(*T), _column([Qphi[m] for m in sorted(Qphi)])
+
+
+def _spin(rotors, forces):
+    """The rotors' share of their coordinate's generalised force: sum of gear * H^T f."""
+    return sum((gear * f[2] for (gear, *_), f in zip(rotors, forces)), 0)
+
+
+def _carried(rotors, forces):
+    """The rotors' forces on the parent link: sum of X^T f."""
+    return sum((Xr.T @ f for (_, _, Xr, _, _), f in zip(rotors, forces)), ca.DM.zeros(6))
+
+
+def _column(entries):
+    """A column of entries (0 x 1 when there are none)."""
+    return ca.vertcat(*entries) if entries else ca.DM.zeros(0, 1)
 
 
 def leaf_articulated(seg, k, Qphi_j):
@@ -149,45 +191,75 @@ def project(P, z, torque):
     return G, eps / D, P - G @ P[2, :], z + G * eps                # nu, P+ = (1 - G H^T) P, z+ = z + G eps
 
 
+def geared_cluster(seg, k, P, z, torque):
+    """A geared joint's link with the rotors turning with it (gear g_r, through the gear) as one
+    body of one coordinate, seen from the parent (the cluster of GRBDA; with no rotors, eqs. 4-5):
+    D = H^T P H + B + sum g_r^2 H^T M_r H, U = X^T P H + sum g_r X_r^T M_r H (parent frame),
+    u = T - H^T z - sum g_r H^T F_r; theta'' = (u - U^T alpha_parent) / D.  Returns D, U, u and the
+    articulated inertia and bias force handed to the parent link."""
+    D, U, u = P[2, 2] + seg.B_link, k.X.T @ P[:, 2], torque - z[2]
+    P_add, z_add = k.X.T @ P @ k.X, k.X.T @ z
+    for gear, M, Xr, Vr, ar in k.geared:
+        Mr, F = as_casadi(M), rotor_force(M, Vr, ar)
+        D += gear ** 2 * Mr[2, 2]
+        U += gear * Xr.T @ Mr[:, 2]
+        u -= gear * F[2]
+        P_add += Xr.T @ Mr @ Xr
+        z_add += Xr.T @ F
+    return D, U, u, P_add - U @ U.T / D, z_add + U * u / D
+
+
 def forward_dynamics(segs, kin, Qtheta, Qphi, gravity, f_ext=None):
-    """The complete model solved in one O(n) sweep: eqs. (4)-(6) with each rotor pair a leaf (eq. 23).
+    """The complete model solved in one O(n) sweep: eqs. (4)-(6) with each SEA's rotor pair a leaf
+    (eq. 23) and each geared joint's link and rotors one cluster (`geared_cluster`).
     f_ext: per link the spatial force the environment applies to it (link frame), or None."""
     n = len(segs)
     P_c, z_c = [ca.DM.zeros(6, 6)] * n, [ca.DM.zeros(6)] * n     # what children hand to link j
-    G, nu, leaf = [None] * n, [None] * n, [None] * n
+    solve, leaf = [None] * n, [None] * n                           # theta_j'' from the parent's alpha
     for j in reversed(range(n)):                                   # paper k = 1..n
-        P = segs[j].M + P_c[j]                                     # eq. (4)
-        z = P @ kin[j].a + gyroscopic(segs[j].M, kin[j].V[:3]) + z_c[j]   # eq. (5)
+        seg, k = segs[j], kin[j]
+        P = seg.M + P_c[j]                                         # eq. (4)
+        z = P @ k.a + gyroscopic(seg.M, k.V[:3]) + z_c[j]          # eq. (5)
         if f_ext is not None:
             z = z - f_ext[j]                                           # the bias less the applied force
-        G[j], nu[j], P_plus, z_plus = project(P, z, Qtheta[j])
-        leaf[j] = leaf_articulated(segs[j], kin[j], Qphi[j])
-        i = segs[j].parent
-        if i >= 0:
-            P_c[i] = P_c[i] + kin[j].X.T @ P_plus @ kin[j].X + leaf[j][3]
-            z_c[i] = z_c[i] + kin[j].X.T @ z_plus + leaf[j][4]
+        if k.geared or seg.B_link:
+            D, U, u, P_add, z_add = geared_cluster(seg, k, P, z, Qtheta[j])
+            solve[j] = lambda alpha_p, alpha_plus, D=D, U=U, u=u: (u - U.T @ alpha_p) / D
+        else:
+            G, nu, P_plus, z_plus = project(P, z, Qtheta[j])
+            solve[j] = lambda alpha_p, alpha_plus, G=G, nu=nu: nu - G.T @ alpha_plus
+            P_add, z_add = k.X.T @ P_plus @ k.X, k.X.T @ z_plus
+        if seg.motor is not None:
+            leaf[j] = leaf_articulated(seg, k, Qphi[seg.motor])
+            P_add, z_add = P_add + leaf[j][3], z_add + leaf[j][4]
+        if seg.parent >= 0:
+            P_c[seg.parent] = P_c[seg.parent] + P_add
+            z_c[seg.parent] = z_c[seg.parent] + z_add
     ddtheta: list = []
     ddphi: list = []
     alpha: list = []
     for j in range(n):                                             # eq. (6), paper k = n..1
         alpha_p = alpha[segs[j].parent] if segs[j].parent >= 0 else base_acceleration(gravity)
-        D_r, U, eps_r = leaf[j][:3]
-        ddphi.append((eps_r - U.T @ alpha_p) / D_r)                # eq. (23)
+        if leaf[j] is not None:
+            D_r, U_r, eps_r = leaf[j][:3]
+            ddphi.append((eps_r - U_r.T @ alpha_p) / D_r)          # eq. (23)
         alpha_plus = kin[j].X @ alpha_p
-        ddtheta.append(nu[j] - G[j].T @ alpha_plus)
+        ddtheta.append(solve[j](alpha_p, alpha_plus))
         alpha.append(alpha_plus + H * ddtheta[j] + kin[j].a)
-    return ca.vertcat(*ddtheta), ca.vertcat(*ddphi)
+    return ca.vertcat(*ddtheta), _column(ddphi)
 
 
 def joint_forward_dynamics(segs, kin, ddtheta, Qphi, gravity):
-    """Paper eq. (23): each rotor's ddphi from the link accelerations (eq. 2) of its parent."""
-    alpha, _ = accelerations(segs, kin, ddtheta, ca.DM.zeros(len(segs)), gravity)
+    """Paper eq. (23): each motor's ddphi from the link accelerations (eq. 2) of its parent."""
+    alpha = accelerations(segs, kin, ddtheta, ca.DM.zeros(sum(seg.motor is not None for seg in segs)), gravity)[0]
     out = []
     for j, seg in enumerate(segs):
-        D, U, eps = leaf_articulated(seg, kin[j], Qphi[j])[:3]
+        if seg.motor is None:
+            continue
+        D, U, eps = leaf_articulated(seg, kin[j], Qphi[seg.motor])[:3]
         alpha_p = alpha[seg.parent] if seg.parent >= 0 else base_acceleration(gravity)
         out.append((eps - U.T @ alpha_p) / D)
-    return ca.vertcat(*out)
+    return _column(out)
 
 
 def _inner_joint(angle, w_parent, rate):
@@ -204,9 +276,10 @@ def arm_forward_dynamics(segs, kin, T, ddphi, ddtheta_guess, gravity):
     spatial accelerations: they are formed from ddphi and the parent links'
     accelerations of `ddtheta_guess` (the paper's predictor).  At the exact
     ddtheta the result equals it (a fixed point).  The rotors of a joint on the base sit on
-    the fixed base and are not part of the tree (3n - 1 bodies on a chain)."""
+    the fixed base and are not part of the tree (3n - 1 bodies on a chain).  Every joint an SEA
+    (phi[j] is joint j's motor)."""
     n = len(segs)
-    _, alpha_r = accelerations(segs, kin, ddtheta_guess, ddphi, gravity)
+    _, alpha_r, _ = accelerations(segs, kin, ddtheta_guess, ddphi, gravity)
     P_c, z_c = [ca.DM.zeros(6, 6)] * n, [ca.DM.zeros(6)] * n
     G, nu, inner = [None] * n, [None] * n, [None] * n
     for j in reversed(range(n)):                                   # eqs. (30), (31), paper k = 1..n
@@ -259,6 +332,8 @@ def energy(segs, kin, gravity):
         bodies = [(seg.M, k.V, joint_rotation(seg.R, theta))]
         bodies += [(M, Vr, joint_rotation(seg.R, rotor_frame_angle(gear, spins, k.q[1])))
                    for (gear, M, _, Vr, _), (_, _, spins) in zip(k.leaves, seg.leaves)]
+        bodies += [(M, Vr, joint_rotation(seg.R, rotor_frame_angle(gear, spins, theta)))
+                   for (gear, M, _, Vr, _), (_, _, spins) in zip(k.geared, seg.geared)]
         for M, V, R in bodies:
             R_b, o = base_pose(R_p, o_p, R, seg.l)                  # eq. (12): the body in the base frame
             m, mp = M[3, 3], ca.vertcat(M[2, 4], M[0, 5], M[1, 3])

@@ -13,6 +13,11 @@ the joint frame J_j:
     the link hinge's damping, stiffness and springref;
   - the motor: an actuator on the fast rotor, its torque tau_j the model's motor torque (through
     the gear the slow side receives -mu_j tau_j, as in the model), ctrlrange the torque limit.
+Joints of other kinds (rscasadi.model.kinds): a geared joint's rotors are bodies as an SEA's, the
+slow one held to the link by a second equality (slow = theta) instead of the spring; a spring
+joint is its link hinge's stiffness and springref; a direct joint's motor acts on its link hinge;
+a free joint is its link hinge alone.  In the reduced and armature files a geared joint's rotors
+are welded and their spin inertia is the link hinge's armature.
 Inertias are each body's own (mass, centre of mass, inertia about it, in the joint or link frame;
 `inertiafromgeom` off, so geometry never changes them).  The model's frames are sites on their
 links (named as the frames); the payload is a body welded to its frame's link (MuJoCo folds its
@@ -91,31 +96,26 @@ def rest_pose(model) -> np.ndarray:
 
 
 def rest_state(model, variant: str = "complete") -> tuple:
-    """(theta, phi, tau) of the rest the export starts in: the links at `rest_pose`, the motors
-    where the springs hold the links statically (the reduced model's for "reduced"), and the
-    motor torques that hold them still.  "armature": no spring; the rotors welded at their zero
-    angle, the motors carry the link torque through the gear (tau = -T / mu)."""
+    """(theta, phi, tau) of the rest the export starts in: the links at `rest_pose` (the joints
+    without an input where they rest), the motors where the springs hold the links statically
+    (the reduced model's for "reduced"), and the motor torques that hold them still
+    (dynamics.statics.rest).  "armature": no spring; the rotors welded at their zero angle, the
+    motors carry the link torque through the gear (tau = -T / mu)."""
     from rscasadi.dynamics.arm import Arm
-    from rscasadi.dynamics.statics import spring_deflection
-    arm, theta = Arm(model), rest_pose(model)
-    z = np.zeros(arm.n)
-    if variant == "armature":
-        T = np.array(arm.inverse_dynamics()(theta, z, z, z, z, z)[1]).ravel()
-        return theta, theta, -T / model.column("gear_ratio")
-    inv = arm.inverse_dynamics() if variant == "complete" else arm.reduced_inverse_dynamics()
-    phi = theta.copy()
-    for _ in range(50):             # unbalanced rotors' weight moves with phi: a fixed point, k1 >> its slope
-        T = np.array(inv(theta, phi, z, z, z, z)[1]).ravel()
-        phi, before = theta + spring_deflection(arm, T), phi
-        if np.max(np.abs(phi - before)) < 1e-15:
-            break
-    tau = np.array(inv(theta, phi, z, z, z, z)[0]).ravel()
-    return theta, phi, tau
+    from rscasadi.dynamics.statics import rest
+    arm = Arm(model)
+    if variant != "armature":
+        return rest(arm, rest_pose(model), reduced=variant == "reduced")
+    theta, _, _ = rest(arm, rest_pose(model), phi=np.zeros(arm.m))                 # rotors at their zero angle
+    z, zm = np.zeros(arm.n), np.zeros(arm.m)
+    T = np.array(arm.inverse_dynamics()(theta, zm, z, zm, z, zm)[1]).ravel()[model.actuated]
+    geared = np.array([bool(model.joints[j].joint_kind.rotors) for j in model.actuated])
+    return theta, theta[model.motors], np.where(geared, -T / model.column("gear_ratio")[model.actuated], T)
 
 
 def _torque_limits(model) -> np.ndarray:
-    """Each motor's torque limit (N m; inf where the model file gives none)."""
-    return np.array([jt.limits.get("tau", np.inf) for jt in model.joints], float)
+    """Each input's torque limit (the actuated joints'; N m; inf where the model file gives none)."""
+    return np.array([model.joints[j].limits.get("tau", np.inf) for j in model.actuated], float)
 
 
 def _numbers(v) -> str:
@@ -196,11 +196,14 @@ def mujoco_xml(model, variant: str = "complete") -> str:
              '  <worldbody>']
     lines += _attached(model, 0, "    ")
 
+    motor_of = {j: i for i, j in enumerate(model.motors)}
+
     def joint_bodies(j: int, indent: str) -> list:
-        jt, name = model.joints[j], names[j]
+        jt, name, kind = model.joints[j], names[j], model.joints[j].joint_kind
         theta = jt.limits.get("theta")
-        rigid = f' armature="{float(jt.rotor_inertia)!r}"' if armature else ""
-        damping = jt.link_b + (jt.b if armature else 0.0)
+        welded = bool(kind.rotors) and (armature or (kind.rotors == "link" and variant != "complete"))
+        rigid = f' armature="{float(jt.rotor_inertia)!r}"' if welded else ""
+        damping = jt.link_b + (jt.b if welded else 0.0)
         link_side = (f' damping="{float(damping)!r}"' if damping else "") + (
             f' stiffness="{float(jt.cb_k)!r}" springref="{float(jt.cb_theta0)!r}"' if jt.cb_k else "")
         out = [f'{indent}<body name="{name}_link" {_hinge_frame(jt.origin_xyz, jt.R, theta0[j])}>',
@@ -211,8 +214,11 @@ def mujoco_xml(model, variant: str = "complete") -> str:
         for child in model.children(j):
             out += joint_bodies(child, indent + "  ")
         out.append(f"{indent}</body>")
+        if not kind.rotors:
+            return out
+        turns = phi0[motor_of[j]] if kind.motor else theta0[j]           # what the rotors turn with
         for part, suffix, damping, gear in (("slow_rotor", "slow", jt.b, 1.0), ("fast_rotor", "fast", 0.0, -jt.gear_ratio)):
-            ref = float(gear * phi0[j]) if variant == "complete" else 0.0
+            ref = float(gear * turns) if variant == "complete" else 0.0
             out += [f'{indent}<body name="{name}_{suffix}" {_hinge_frame(jt.origin_xyz, jt.R, ref)}>',
                     _inertial(getattr(jt, part), indent + "  ").rstrip("\n")]
             if variant == "complete":
@@ -224,37 +230,43 @@ def mujoco_xml(model, variant: str = "complete") -> str:
     for root in model.children(-1):
         lines += joint_bodies(root, "    ")
     if reduced:                         # each motor coordinate on its own, its spin inertia B_j
-        for j, (n, jt) in enumerate(zip(names, model.joints)):
+        for i, j in enumerate(model.motors):
+            n, jt = names[j], model.joints[j]
             B = float(jt.rotor_inertia)
-            lines += [f'    <body name="{n}_motor" {_hinge_frame(np.zeros(3), np.eye(3), phi0[j])}>',
+            lines += [f'    <body name="{n}_motor" {_hinge_frame(np.zeros(3), np.eye(3), phi0[i])}>',
                       f'      <inertial pos="0 0 0" mass="1.0" diaginertia="{B!r} {B!r} {B!r}"/>',
-                      f'      <joint name="{n}_motor" type="hinge" axis="0 0 1" ref="{float(phi0[j])!r}" damping="{float(jt.b)!r}"/>',
+                      f'      <joint name="{n}_motor" type="hinge" axis="0 0 1" ref="{float(phi0[i])!r}" damping="{float(jt.b)!r}"/>',
                       "    </body>"]
     lines += ["  </worldbody>"]
     limits = _torque_limits(model)
     key = [f'  <keyframe>\n    <key name="rest" ctrl="{_numbers(np.clip(tau0, -limits, limits))}"/>\n  </keyframe>']
-    if armature:
-        lines.append("  <actuator>")
-        for n, jt in zip(names, model.joints):
-            tau = jt.limits.get("tau")
-            limit = f' ctrlrange="{-float(tau)!r} {float(tau)!r}"' if tau is not None and np.isfinite(tau) else ""
-            lines.append(f'    <motor name="{n}_motor" joint="{n}" gear="{-float(jt.gear_ratio)!r}"{limit}/>')
-        return "\n".join(lines + ["  </actuator>"] + key + ["</mujoco>"]) + "\n"
-    motor = "motor" if reduced else "slow"              # the joint of phi_j
-    if not reduced:
-        lines += ["  <equality>"]
-        lines += [f'    <joint name="{n}_gear" joint1="{n}_fast" joint2="{n}_slow" polycoef="0 {-float(jt.gear_ratio)!r} 0 0 0" '
-                  f'solimp="{SOLIMP}" solref="{SOLREF}"/>' for n, jt in zip(names, model.joints)]
-        lines += ["  </equality>"]
-    lines += ["  <tendon>"]
-    lines += [f'    <fixed name="{n}_spring" stiffness="{float(jt.k1)!r}" damping="{float(jt.d)!r}" springlength="0">\n'
-              f'      <joint joint="{n}_{motor}" coef="1"/>\n      <joint joint="{n}" coef="-1"/>\n    </fixed>'
-              for n, jt in zip(names, model.joints)]
-    lines += ["  </tendon>", "  <actuator>"]
-    for n, jt in zip(names, model.joints):
-        tau = jt.limits.get("tau")
-        limit = f' ctrlrange="{-float(tau)!r} {float(tau)!r}"' if tau is not None and np.isfinite(tau) else ""
-        on = f'"{n}_motor" gear="{-float(jt.gear_ratio)!r}"' if reduced else f'"{n}_fast" gear="1"'
+    kinds = model.kinds
+    if not armature:
+        equal = [f'    <joint name="{names[j]}_gear" joint1="{names[j]}_fast" joint2="{names[j]}_slow" '
+                 f'polycoef="0 {-float(jt.gear_ratio)!r} 0 0 0" solimp="{SOLIMP}" solref="{SOLREF}"/>'
+                 for j, jt in enumerate(model.joints) if kinds[j].rotors and not reduced]
+        equal += [f'    <joint name="{names[j]}_drive" joint1="{names[j]}_slow" joint2="{names[j]}" '
+                  f'polycoef="0 1 0 0 0" solimp="{SOLIMP}" solref="{SOLREF}"/>'
+                  for j in range(model.n) if kinds[j].rotors == "link" and not reduced]
+        lines += ["  <equality>"] + equal + ["  </equality>"] if equal else []
+        motor = "motor" if reduced else "slow"              # the joint of phi_j
+        springs = [f'    <fixed name="{names[j]}_spring" stiffness="{float(model.joints[j].k1)!r}" '
+                   f'damping="{float(model.joints[j].d)!r}" springlength="0">\n'
+                   f'      <joint joint="{names[j]}_{motor}" coef="1"/>\n      <joint joint="{names[j]}" coef="-1"/>\n'
+                   f'    </fixed>' for j in model.motors]
+        lines += ["  <tendon>"] + springs + ["  </tendon>"] if springs else []
+    lines.append("  <actuator>")
+    for j, tau in zip(model.actuated, limits):
+        n, jt, kind = names[j], model.joints[j], kinds[j]
+        limit = f' ctrlrange="{-float(tau)!r} {float(tau)!r}"' if np.isfinite(tau) else ""
+        if not kind.rotors:                                   # direct: the torque on the joint
+            on = f'"{n}" gear="1.0"'
+        elif armature or (reduced and not kind.motor):        # through the gear onto the link
+            on = f'"{n}" gear="{-float(jt.gear_ratio)!r}"'
+        elif reduced:
+            on = f'"{n}_motor" gear="{-float(jt.gear_ratio)!r}"'
+        else:
+            on = f'"{n}_fast" gear="1"'
         lines.append(f'    <motor name="{n}_motor" joint={on}{limit}/>')
     lines += ["  </actuator>"] + key + ["</mujoco>"]
     return "\n".join(lines) + "\n"
@@ -263,17 +275,21 @@ def mujoco_xml(model, variant: str = "complete") -> str:
 def gear_map(arm, m) -> np.ndarray:
     """T: the model's (theta, phi) velocities to MuJoCo's (link, slow, fast per joint, in MuJoCo's
     order; link and motor in the reduced file) for the file `mujoco_xml` wrote: MuJoCo's
-    q = T (theta, phi), the fast rotor -mu phi."""
-    n, mu = arm.n, arm.model.column("gear_ratio")
-    T = np.zeros((m.nv, 2 * n))
-    for j, jt in enumerate(arm.model.joints):
+    q = T (theta, phi), the fast rotor -mu times what the rotors turn with (an SEA's phi, a
+    geared joint's theta)."""
+    n, model = arm.n, arm.model
+    T = np.zeros((m.nv, n + arm.m))
+    motor_of = {j: i for i, j in enumerate(model.motors)}
+    names = {m.joint(i).name for i in range(m.njnt)}
+    for j, jt in enumerate(model.joints):
         name = safe_name(jt.name)
         T[m.joint(name).dofadr[0], j] = 1.0
-        if m.njnt > 2 * n:
-            T[m.joint(name + "_slow").dofadr[0], n + j] = 1.0
-            T[m.joint(name + "_fast").dofadr[0], n + j] = -float(mu[j])
-        elif m.njnt == 2 * n:
-            T[m.joint(name + "_motor").dofadr[0], n + j] = 1.0
+        col = n + motor_of[j] if j in motor_of else j
+        if name + "_slow" in names:
+            T[m.joint(name + "_slow").dofadr[0], col] = 1.0
+            T[m.joint(name + "_fast").dofadr[0], col] = -float(jt.gear_ratio)
+        elif name + "_motor" in names:
+            T[m.joint(name + "_motor").dofadr[0], col] = 1.0
     return T
 
 
@@ -311,7 +327,7 @@ def mujoco_plant(arm, dt: float, world: str = "", frame: str | None = None, push
     m = mujoco.MjModel.from_xml_string(with_world(mujoco_xml(arm.model), world))
     d = mujoco.MjData(m)
     T = gear_map(arm, m)
-    back, steps, n = np.linalg.pinv(T), int(round(dt / m.opt.timestep)), arm.n
+    back, steps, n = np.linalg.pinv(T), int(round(dt / m.opt.timestep)), arm.n + arm.m
     if steps < 1 or abs(steps * m.opt.timestep - dt) > 1e-12:
         raise InvalidArgument(f"mujoco_plant: dt = {dt!r} s must be a whole number of MuJoCo's {m.opt.timestep!r} s steps")
     if frame is not None:
@@ -320,7 +336,7 @@ def mujoco_plant(arm, dt: float, world: str = "", frame: str | None = None, push
         raise InvalidArgument("mujoco_plant: push needs the frame it acts at")
 
     def plant(x, tau, t):
-        d.qpos[:], d.qvel[:], d.ctrl[:] = T @ x[:2 * n], T @ x[2 * n:], tau
+        d.qpos[:], d.qvel[:], d.ctrl[:] = T @ x[:n], T @ x[n:], tau
         applied = np.zeros(6) if push is None else np.asarray(push(t), float)
         for _ in range(steps):
             d.qfrc_applied[:] = 0.0
@@ -351,7 +367,8 @@ def export_mujoco(model_file, out, log=print, variant: str = "complete") -> Path
             "reduced": "the DLR/Spong reduced model: rotors welded, each motor coordinate a joint of its own",
             "complete": "each a link, a slow and a fast rotor, the gear an equality, the spring a tendon"}[variant]
     theta, _, tau = rest_state(arm.model, variant)
-    weak = [f"{jt.name} ({abs(t):.3g} N m, limit {lim:g})" for jt, t, lim in zip(arm.model.joints, tau, _torque_limits(arm.model))
+    weak = [f"{arm.model.joints[j].name} ({abs(t):.3g} N m, limit {lim:g})"
+            for j, t, lim in zip(arm.model.actuated, tau, _torque_limits(arm.model))
             if abs(t) > lim]
     log(f"wrote {Path(out) / 'model.xml'}: {arm.n} joints, {what} (RK4 at {TIMESTEP * 1e3:g} ms); starts at rest "
         f"(keyframe 'rest': links at {_numbers(np.round(theta, 4))} rad, the springs deflected)")
@@ -379,9 +396,9 @@ def compare_variants(arm, trajectory) -> dict:
             continue
         m = mujoco.MjModel.from_xml_string(mujoco_xml(arm.model, variant))
         d = mujoco.MjData(m)
-        T = np.eye(2 * n)[:n] if variant == "armature" else gear_map(arm, m)       # armature: the links alone
-        x0 = ff["x0"] if variant != "armature" else np.r_[ff["x0"][:n], np.zeros(n), ff["x0"][2 * n:3 * n], np.zeros(n)]
-        d.qpos[:], d.qvel[:] = T @ x0[:2 * n], T @ x0[2 * n:]
+        T = gear_map(arm, m)                           # armature: the links alone (no motor coordinates)
+        q = n + arm.m
+        d.qpos[:], d.qvel[:] = T @ ff["x0"][:q], T @ ff["x0"][q:]
         back, worst = np.linalg.pinv(T), 0.0
         for k in range(len(t) - 1):
             d.ctrl[:] = ff["tau"][:, k]

@@ -40,6 +40,7 @@ from rscasadi.identification.identify import Unknowns, prior_scale, structural_b
 from rscasadi.identification.regressor import regressor, spring_regressor
 from rscasadi.interrupt import happened, raise_if_interrupted
 from rscasadi.errors import InvalidArgument
+from rscasadi.model.kinds import require_sea
 
 TORQUE_NOISE = 0.005
 MAX_CONDITION = 1e5  # a design above this is refused (a hand-picked bump on every joint: ~1e9)
@@ -351,6 +352,7 @@ def design(arm: Arm, period: float = 10.0, harmonics: int = 5, margin: float = 0
     `starts`, `samples` (the points the design's limits and information are taken at) or
     `max_iter` trade the design's quality for time; `hessian` "exact" takes IPOPT's exact Hessian
     (fewer, much dearer iterations: on 7 joints worse designs in the same time)."""
+    require_sea(arm.model, "the excitation design")
     n, K = arm.n, harmonics
     M = samples or max(60, 12 * K)
     if hessian not in HESSIANS:

@@ -33,6 +33,7 @@ from rscasadi.dynamics.arm import Arm
 from rscasadi.dynamics.statics import rest_state
 from rscasadi.errors import InvalidArgument
 from rscasadi.identification.logs import Log, LogError
+from rscasadi.model.kinds import require_sea
 
 OUTPUTS = ("phi", "theta")
 COHERENT = 0.9       # log bins drawn and searched: coherence above this
@@ -176,6 +177,7 @@ def run(model_file, out, log_file=None, joint: int = 1, output: str = "phi", pos
     from rscasadi.model.limits import limit_arrays
     check_writable(out)
     arm = load(model_file)
+    require_sea(arm.model, "rscasadi frf")
     if not 1 <= joint <= arm.n:
         raise InvalidArgument(f"frf: --joint {joint}: {model_file} has joints 1..{arm.n}")
     if output not in OUTPUTS:

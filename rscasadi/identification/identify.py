@@ -42,6 +42,7 @@ from rscasadi.model.parameters import (ACTUATOR, ACTUATOR_ATTR, INERTIAL, PER_JO
 from rscasadi.identification.logs import Log, LogError, motor_torques, read_log
 from rscasadi.identification.regressor import (BaseParameters, base_of, over_samples, random_samples, regressor,
                                                spring_regressor, stacked)
+from rscasadi.model.kinds import require_sea
 
 PRIOR = 0.3          # relative standard deviation of the prior on the model file's values
 CUTOFF_FACTOR = 2.0  # filter cut-off / highest SEA mode (1.5 biases k1 by 100 sigma, see above)
@@ -995,6 +996,7 @@ def run(model_file, log_files, out, validate=None, cutoff=None, explain=False, r
     write the identified model file, its report and figures into `out`; returns (report, ident)."""
     check_writable(out)
     arm = load(model_file)
+    require_sea(arm.model, "rscasadi identify")
     logs = [motor_torques(read_log(f, arm.n), arm.model) for f in log_files]
     val_log = motor_torques(read_log(validate, arm.n), arm.model) if validate else None
     if val_log is not None:                          # refused before the work, not after it

@@ -28,6 +28,7 @@ from rscasadi.identification.identify import REVERSAL, _pseudo_inertia, cutoff_h
 from rscasadi.identification.logs import Log, LogError
 from rscasadi.identification.regressor import base_of, over_samples, regressor
 from rscasadi.model.parameters import INERTIAL, body_from_parameters, payload_slice
+from rscasadi.model.kinds import require_sea
 
 NAMES = [f"payload.{q}" for q in INERTIAL]
 PRIOR = 1e-3          # weight of the model file's guess, relative to the data, where the data is silent
@@ -142,6 +143,7 @@ def run(model_file, log_files, out, validate=None, cutoff=None, log=print) -> di
     from rscasadi.model.modelfile import document, to_toml
     check_writable(out)
     arm = load(model_file)
+    require_sea(arm.model, "rscasadi identify")
     if arm.model.payload is None:
         raise CheckError(f"{model_file}: --only payload needs a [payload] table (its frame and a guess)")
     logs = [motor_torques(read_log(f, arm.n), arm.model) for f in log_files]

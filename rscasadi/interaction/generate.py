@@ -19,6 +19,7 @@ from rscasadi.native.controller import DAMPING_RATIO_BOUND, STIFFNESS_BOUND, box
 from rscasadi.native.generate import function_name, write_controller
 from rscasadi.native.loader import CompiledController
 from rscasadi.errors import InvalidArgument
+from rscasadi.model.kinds import require_sea
 
 TEMPLATES = Path(__file__).with_name("templates")
 
@@ -35,6 +36,7 @@ def generate_observer(model, out, gain, sample_time: float = 1e-3, threshold: fl
     collision flag above `threshold` (N m, any link); `prefix`: before every C symbol and file
     (rscasadi.native.generate.symbols)."""
     arm = model if isinstance(model, Arm) else load(model)
+    require_sea(arm.model, "the observer")
     n = arm.n
     K = np.broadcast_to(np.asarray(gain, float), (2 * n)).copy()
     if not np.all(np.isfinite(K)) or not np.all(K > 0) or not (sample_time > 0) or K.max() * sample_time >= 1.0:
@@ -68,6 +70,7 @@ def generate_impedance(model, out, frame: str | None, design: str = "motor", opt
     from rscasadi.interaction.impedance import impedance_law
     from rscasadi.model.checks import identifier
     arm = model if isinstance(model, Arm) else load(model)
+    require_sea(arm.model, "the impedance controller")
     if frame is not None and frame not in arm.frames():
         raise InvalidArgument(f"--frame: {arm.model.path} has no frame {frame!r} (frames: {', '.join(arm.frames())})")
     if design not in ("motor", "link"):

@@ -7,6 +7,7 @@ import tomllib
 
 import numpy as np
 
+from rscasadi.model.kinds import KINDS, Kind, kind_of
 from rscasadi.model.types import (BASE, BODY_KEYS, COUNTERBALANCE_KEYS, GEAR_LOSS_KEYS, LIMIT_KEYS, LINK_LOSS_KEYS,
                                   SEA_KEYS, Body, ModelFileError, inertia_problem)
 from rscasadi.errors import InvalidArgument
@@ -88,8 +89,9 @@ def _body(ctx, fld, value) -> Body:
     return Body(mass, com, inertia)
 
 
-ACTUATOR_KEYS = {"name", "gear_ratio", "sea", "gear_loss", "limits", "slow_rotor", "fast_rotor", "link_loss",
-                 "counterbalance", "torque_constant"}
+ACTUATOR_KEYS = {"name", "kind", "gear_ratio", "sea", "gear_loss", "limits", "slow_rotor", "fast_rotor", "link_loss",
+                 "counterbalance", "spring", "torque_constant"}
+SPRING_KEYS = {"k", "theta0"}                 # a spring joint's spring: k (theta - theta0)
 
 
 def _stribeck(ctx, loss: dict) -> dict:
@@ -109,21 +111,29 @@ def joint_context(path, idx, raw) -> _Ctx:
     return _Ctx(path, (idx, name if isinstance(name, str) else None))
 
 
-def actuator(ctx, t: dict, names) -> dict:
-    """The actuator part of a [[joints]] table, common to both forms of the file: name, gear
-    ratio, SEA, gear loss, limits and the two rotor bodies (given in J_j, z = joint axis)."""
-    name = t.get("name")
-    if not isinstance(name, str) or not name.strip():
-        ctx.fail("name", f"expected a non-empty string, got {name!r}")
-    if name in names:
-        ctx.fail("name", f"duplicate joint name {name!r}" if name != BASE else
-                 f"{BASE!r} names the base frame (and its joint would name its link's frame)")
-    sea = _table(ctx, "sea", t["sea"], SEA_KEYS, ("k1",))
-    loss = _table(ctx, "gear_loss", t.get("gear_loss", {}), GEAR_LOSS_KEYS)
-    link = _table(ctx, "link_loss", t.get("link_loss", {}), LINK_LOSS_KEYS)
-    balance = _table(ctx, "counterbalance", t.get("counterbalance", {}), COUNTERBALANCE_KEYS, ("k",)
-                     if "counterbalance" in t else ())
+def joint_kind(ctx, t: dict) -> Kind:
+    """The joint's kind (default sea), its required keys present and its refused ones absent."""
+    kind = kind_of(t.get("kind", "sea"))
+    if kind is None:
+        ctx.fail("kind", f"expected one of {', '.join(KINDS)}, got {t.get('kind')!r}")
+    for key in kind.refused:
+        if key in t:
+            ctx.fail(key, f"a {kind.name} joint has no {key}")
+    for key in kind.required:
+        if key not in t:
+            ctx.fail(key, f"missing required field (a {kind.name} joint)")
+    return kind
+
+
+def _limits(ctx, t: dict, kind: Kind) -> dict:
+    """limits: tau (an actuated joint's motor), dphi (the slow side's speed: sea, geared), psi (the
+    SEA's deflection), theta (the link's range)."""
+    allowed = {"theta"} | ({"tau"} if kind.actuated else set()) | ({"dphi"} if kind.rotors else set()) \
+        | ({"psi"} if kind.motor else set())
     lim_raw = _table(ctx, "limits", t.get("limits", {}), LIMIT_KEYS)
+    for key in lim_raw:
+        if key not in allowed:
+            ctx.fail(f"limits.{key}", f"a {kind.name} joint has no {key} to limit (allowed: {', '.join(sorted(allowed))})")
     limits = {key: _number(ctx, f"limits.{key}", lim_raw[key], positive=True)
               for key in ("tau", "dphi", "psi") if key in lim_raw}
     if "theta" in lim_raw:
@@ -131,10 +141,38 @@ def actuator(ctx, t: dict, names) -> dict:
         if not lo < hi:
             ctx.fail("limits.theta", f"lower bound {lo} must be below upper bound {hi}")
         limits["theta"] = (float(lo), float(hi))
+    return limits
+
+
+NO_BODY = Body(0.0, np.zeros(3), np.zeros((3, 3)))     # the rotors of a joint that has none
+
+
+def actuator(ctx, t: dict, names) -> dict:
+    """The actuator part of a [[joints]] table, common to both forms of the file: name, kind,
+    gear ratio, SEA, gear loss, limits and the two rotor bodies (given in J_j, z = joint axis)."""
+    name = t.get("name")
+    if not isinstance(name, str) or not name.strip():
+        ctx.fail("name", f"expected a non-empty string, got {name!r}")
+    if name in names:
+        ctx.fail("name", f"duplicate joint name {name!r}" if name != BASE else
+                 f"{BASE!r} names the base frame (and its joint would name its link's frame)")
+    kind = joint_kind(ctx, t)
+    sea = _table(ctx, "sea", t["sea"], SEA_KEYS, ("k1",)) if kind.motor else {}
+    loss = _table(ctx, "gear_loss", t.get("gear_loss", {}), GEAR_LOSS_KEYS)
+    if kind.rotors == "link" and "c1" in loss:
+        ctx.fail("gear_loss.c1", "a geared joint's gear loss has no load term: the torque its gear carries "
+                                 "depends on the acceleration")
+    link = _table(ctx, "link_loss", t.get("link_loss", {}), LINK_LOSS_KEYS)
+    balance = _table(ctx, "counterbalance", t.get("counterbalance", {}), COUNTERBALANCE_KEYS, ("k",)
+                     if "counterbalance" in t else ())
+    if "spring" in t:
+        spring = _table(ctx, "spring", t["spring"], SPRING_KEYS, ("k",))
+        balance = {"k": _number(ctx, "spring.k", spring["k"], positive=True), "theta0": spring.get("theta0", 0.0)}
     return dict(
         name=name,
-        gear_ratio=_number(ctx, "gear_ratio", t["gear_ratio"], positive=True),
-        k1=_number(ctx, "sea.k1", sea["k1"], positive=True),
+        kind=kind.name,
+        gear_ratio=_number(ctx, "gear_ratio", t["gear_ratio"], positive=True) if kind.rotors else 1.0,
+        k1=_number(ctx, "sea.k1", sea["k1"], positive=True) if kind.motor else 0.0,
         k3=_number(ctx, "sea.k3", sea.get("k3", 0.0), nonneg=True),
         d=_number(ctx, "sea.d", sea.get("d", 0.0), nonneg=True),
         b=_number(ctx, "gear_loss.b", loss.get("b", 0.0), nonneg=True),
@@ -149,10 +187,11 @@ def actuator(ctx, t: dict, names) -> dict:
         **({"torque_constant": _number(ctx, "torque_constant", t["torque_constant"], positive=True)}
            if "torque_constant" in t else {}),
         declared=frozenset([key for key in ("link_loss", "counterbalance") if key in t]
+                           + (["counterbalance"] if "spring" in t else [])
                            + [f"gear_loss.{key}" for key in ("c1", "stribeck") if key in loss]),
-        limits=limits,
-        slow_rotor=_body(ctx, "slow_rotor", t["slow_rotor"]),
-        fast_rotor=_body(ctx, "fast_rotor", t["fast_rotor"]),
+        limits=_limits(ctx, t, kind),
+        slow_rotor=_body(ctx, "slow_rotor", t["slow_rotor"]) if kind.rotors else NO_BODY,
+        fast_rotor=_body(ctx, "fast_rotor", t["fast_rotor"]) if kind.rotors else NO_BODY,
     )
 
 

@@ -26,8 +26,7 @@ from rscasadi.model.types import (BASE, BODIES, BODY_KEYS, DEFAULT_GRAVITY, JOIN
 
 def _joint(path, idx, raw, names) -> Joint:
     ctx = joint_context(path, idx, raw)
-    t = _table(ctx, "", raw, JOINT_KEYS,
-               ("name", "origin_xyz", "gear_ratio", "sea", "link", "slow_rotor", "fast_rotor"))
+    t = _table(ctx, "", raw, JOINT_KEYS, ("name", "origin_xyz", "link"))
     if "origin_rpy" not in t and "origin_R" not in t:
         ctx.fail("origin_rpy", "missing required field (or origin_R, a rotation matrix)")
     rpy, R = orientation(ctx, t, "origin_rpy", "origin_R")
@@ -197,12 +196,31 @@ def body_document(body: Body) -> dict:
 
 
 def link_side_document(jt) -> dict:
-    """A joint's link_loss and counterbalance tables, where the file gave them or they are not zero."""
+    """A joint's link_loss and counterbalance (a spring joint's: spring) tables, where the file
+    gave them or they are not zero."""
     out = {}
     if "link_loss" in jt.declared or jt.link_b or jt.link_c:
         out["link_loss"] = {"b": jt.link_b, "c": jt.link_c}
-    if "counterbalance" in jt.declared or jt.cb_k:
+    if jt.kind == "spring":
+        out["spring"] = {"k": jt.cb_k, "theta0": jt.cb_theta0}
+    elif "counterbalance" in jt.declared or jt.cb_k:
         out["counterbalance"] = {"k": jt.cb_k, "theta0": jt.cb_theta0}
+    return out
+
+
+def actuator_document(jt) -> dict:
+    """A joint's kind and, as far as its kind has them, gear ratio, SEA and gear loss."""
+    kind = jt.joint_kind
+    out: dict = {} if kind.name == "sea" else {"kind": kind.name}
+    if kind.rotors:
+        out["gear_ratio"] = jt.gear_ratio
+    if kind.motor:
+        out["sea"] = {"k1": jt.k1, "k3": jt.k3, "d": jt.d}
+    if kind.rotors:
+        out["gear_loss"] = {"b": jt.b, "c": jt.c, "eps": jt.eps,
+                            **({"c1": jt.c1} if jt.c1 or "gear_loss.c1" in jt.declared else {}),
+                            **({"stribeck": jt.stribeck, "v_stribeck": jt.v_stribeck}
+                               if jt.stribeck or "gear_loss.stribeck" in jt.declared else {})}
     return out
 
 
@@ -219,16 +237,12 @@ def document(model: ArmModel) -> dict:
         limits = {k: (list(v) if isinstance(v, tuple) else v) for k, v in jt.limits.items()}
         joints.append({"name": jt.name, **({"parent": parent_name(model, j)} if model.parents else {}),
                        "origin_xyz": [float(x) for x in jt.origin_xyz],
-                       **rotation_document(jt.R, "origin_rpy", "origin_R"), "gear_ratio": jt.gear_ratio,
-                       "sea": {"k1": jt.k1, "k3": jt.k3, "d": jt.d},
-                       "gear_loss": {"b": jt.b, "c": jt.c, "eps": jt.eps,
-                                     **({"c1": jt.c1} if jt.c1 or "gear_loss.c1" in jt.declared else {}),
-                                     **({"stribeck": jt.stribeck, "v_stribeck": jt.v_stribeck}
-                                        if jt.stribeck or "gear_loss.stribeck" in jt.declared else {})},
+                       **rotation_document(jt.R, "origin_rpy", "origin_R"), **actuator_document(jt),
                        **link_side_document(jt),
                        **({"torque_constant": jt.torque_constant} if jt.torque_constant is not None else {}),
                        **({"limits": limits} if limits else {}),
-                       **{b: body_document(getattr(jt, b)) for b in BODIES}})
+                       **{b: body_document(getattr(jt, b)) for b in BODIES
+                          if b == "link" or jt.joint_kind.rotors}})
     frames, held, shape = frames_document(model), payload_document(model), collision_document(model)
     return {"name": model.name, "gravity": [float(g) for g in model.gravity], **({"frames": frames} if frames else {}),
             **({"payload": held} if held else {}), **({"collision": shape} if shape else {}), "joints": joints}

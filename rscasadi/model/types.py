@@ -14,7 +14,7 @@ from rscasadi.errors import Error, NotFound
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
 TOP_KEYS = {"name", "gravity", "joints", "frames", "payload", "collision"}
-JOINT_KEYS = {"name", "parent", "origin_xyz", "origin_rpy", "origin_R", "gear_ratio", "sea", "gear_loss", "limits",
+JOINT_KEYS = {"name", "kind", "spring", "parent", "origin_xyz", "origin_rpy", "origin_R", "gear_ratio", "sea", "gear_loss", "limits",
               "link", "slow_rotor", "fast_rotor", "link_loss", "counterbalance", "torque_constant"}
 BODY_KEYS = {"mass", "com", "inertia"}
 SEA_KEYS = {"k1", "k3", "d"}
@@ -99,6 +99,7 @@ class Joint:
     torque_constant: float | None = None  # N m/A, motor side: logged currents i_j become tau_j = kt i_j
     declared: frozenset = frozenset()    # the optional terms the file gives (link_loss, counterbalance,
     #                                      gear_loss.c1, gear_loss.stribeck)
+    kind: str = "sea"                    # rscasadi.model.kinds: sea, geared, spring, free, direct
 
     @property
     def R(self) -> np.ndarray:
@@ -107,6 +108,12 @@ class Joint:
         R = rpy_matrix(self.origin_rpy) if self.origin_R is None else np.array(self.origin_R, dtype=float)
         R[np.abs(R) < 1e-15] = 0.0
         return R
+
+    @property
+    def joint_kind(self):
+        """The joint's Kind (rscasadi.model.kinds)."""
+        from rscasadi.model.kinds import KINDS
+        return KINDS[self.kind]
 
     @property
     def rotor_inertia(self) -> float:
@@ -199,6 +206,31 @@ class ArmModel:
             out.append(j)
             j = self.parent[j]
         return out[::-1]
+
+    @property
+    def kinds(self) -> list:
+        """Per joint its Kind (rscasadi.model.kinds)."""
+        return [jt.joint_kind for jt in self.joints]
+
+    @property
+    def motors(self) -> list:
+        """The joints with a motor coordinate phi (sea), in order: phi[i] is joint motors[i]'s."""
+        return [j for j, jt in enumerate(self.joints) if jt.joint_kind.motor]
+
+    @property
+    def actuated(self) -> list:
+        """The joints with a torque input, in order: tau[i] is joint actuated[i]'s."""
+        return [j for j, jt in enumerate(self.joints) if jt.joint_kind.actuated]
+
+    @property
+    def all_sea(self) -> bool:
+        """Whether every joint is an SEA (the arm of the paper)."""
+        return all(jt.kind == "sea" for jt in self.joints)
+
+    @property
+    def coordinates(self) -> list:
+        """The names of q = (theta, phi): every joint's, then `<joint>.motor` of each sea joint."""
+        return [jt.name for jt in self.joints] + [f"{self.joints[j].name}.motor" for j in self.motors]
 
     def children(self, j: int) -> list:
         """The joints carried by the link of joint j (j = -1: by the base)."""

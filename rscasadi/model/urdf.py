@@ -20,6 +20,7 @@ from rscasadi.spatial import spatial_inertia, transform_inertia
 from rscasadi.model.checks import ACTUATOR_KEYS, _Ctx, _number, _table, _vector, actuator, joint_context
 from rscasadi.model.collision import collision
 from rscasadi.model.frames import payload, user_frames
+from rscasadi.model.kinds import KINDS
 from rscasadi.model.types import DEFAULT_GRAVITY, ArmModel, Body, Frame, Joint, ModelFileError, inertia_problem, rpy_of
 
 URDF_TOP_KEYS = {"name", "urdf", "tip", "tips", "locked", "lock_others", "gravity", "joints", "frames", "payload",
@@ -166,7 +167,7 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
     actuators: dict = {}
     for idx, raw in enumerate(raw_joints):
         jctx = joint_context(path, idx, raw)
-        t = _table(jctx, "", raw, ACTUATOR_KEYS, ("name", "gear_ratio", "sea", "slow_rotor", "fast_rotor"))
+        t = _table(jctx, "", raw, ACTUATOR_KEYS, ("name",))
         act = actuator(jctx, t, set(actuators))
         if act["name"] not in joints_by_name:
             jctx.fail("name", f"no joint {act['name']!r} in {urdf_path}")
@@ -174,6 +175,11 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
             jctx.fail("name", f"joint {act['name']!r} is both actuated and locked")
         actuators[act["name"]] = (idx, act)
 
+    misfits = [f"{name!r} is {joints_by_name[name].type}, which a {act['kind']} joint cannot model"
+               f" (a {act['kind']} joint models {', '.join(KINDS[act['kind']].fits)} joints)"
+               for name, (_, act) in actuators.items() if joints_by_name[name].type not in KINDS[act["kind"]].fits]
+    if misfits:
+        ctx.fail("joints", f"{urdf_path}: " + "; ".join(misfits) + " (hold a joint fixed under [locked])")
     lock_others = _number(ctx, "lock_others", data.get("lock_others", 0.0))
     if "tip" in data and "tips" in data:
         ctx.fail("tips", "give tip (one chain) or tips (a tree), not both")
@@ -345,9 +351,6 @@ def _cut_tree(robot, urdf_path, joints_by_name, links_by_name, locked, actuators
             if jt.name in locked and jt.type not in MOVING + ("prismatic",):
                 ctx.fail(f"locked.{jt.name}", f"{urdf_path}: joint {jt.name!r} is {jt.type}: only revolute, "
                                               f"continuous and prismatic joints can be locked")
-            if jt.name in actuators and jt.type not in MOVING:
-                ctx.fail("urdf", f"{urdf_path}: joint {jt.name!r} is {jt.type}: only revolute and continuous "
-                                 f"joints can be actuated (lock it under 'locked' to hold it fixed)")
             if jt.name not in actuators:                          # fixed, locked, or off the tree: held
                 if jt.type in MOVING + ("prismatic",):
                     held_at[jt.name] = float(locked.get(jt.name, lock_others))

@@ -1,10 +1,12 @@
 """The complete model the Pinocchio way, as an outside reference (optional: `pip install pin`).
 
-Every rotor is a separate revolute joint of a 3n-joint tree: each joint's two rotors on its
-parent link beside it, added before its link, and the joints added depth first (whatever the
-model's order), which Pinocchio's CRBA needs.
-The gear constraint q_tree = G q, with fast-rotor angle -mu phi, projects the tree's
-dynamics onto q = (theta, phi): M = G^T M_tree G, c = G^T rnea(q_tree, G dq, 0).
+Every rotor is a separate revolute joint of the tree: each joint's two rotors (if its kind has
+them) on its parent link beside it, added before its link, and the joints added depth first
+(whatever the model's order), which Pinocchio's CRBA needs.
+The gear constraint q_tree = G q, with fast-rotor angle -mu times the coordinate the rotors turn
+with (an SEA's phi, a geared joint's theta), projects the tree's dynamics onto q = (theta, phi):
+M = G^T M_tree G, c = G^T rnea(q_tree, G dq, 0).  The generalised forces of each kind are
+written here again, in numpy, from docs/user-guide/model.md.
 
 Two ways to build it: from our ArmModel (`PinocchioRoute(model)`), or from the URDF itself
 (`PinocchioRoute.from_urdf(model)`), where Pinocchio parses the URDF, merges fixed links and
@@ -31,12 +33,14 @@ class PinocchioRoute:
                        _inertia(jt.link, np.eye(3)), np.eye(3)) for jt in model.joints]
         self.model = pin.Model()
         self.model.gravity.linear = np.asarray(model.gravity if gravity is None else gravity, float)
-        G, link_id = np.zeros((3 * n, 2 * n)), {-1: 0}
+        motors = [j for j, jt in enumerate(model.joints) if jt.kind == "sea"]
+        with_rotors = [j for j, jt in enumerate(model.joints) if jt.kind in ("sea", "geared")]
+        G, link_id = np.zeros((n + 2 * len(with_rotors), n + len(motors))), {-1: 0}
         for j in _depth_first(model.parent):
             (placement, jmodel, link_inertia, R_a), jt = stages[j], model.joints[j]
-            for k, (inertia, col, gear) in enumerate(((_inertia(jt.slow_rotor, R_a), n + j, 1.0),
-                                                      (_inertia(jt.fast_rotor, R_a), n + j, -jt.gear_ratio),
-                                                      (link_inertia, j, 1.0))):
+            turns = n + motors.index(j) if jt.kind == "sea" else j        # the coordinate the rotors follow
+            bodies = [(_inertia(jt.slow_rotor, R_a), turns, 1.0), (_inertia(jt.fast_rotor, R_a), turns, -jt.gear_ratio)]
+            for k, (inertia, col, gear) in enumerate((bodies if j in with_rotors else []) + [(link_inertia, j, 1.0)]):
                 jid = self.model.addJoint(link_id[model.parent[j]], jmodel, placement, f"joint{j}_{k}")
                 self.model.appendBodyToJoint(jid, inertia, pin.SE3.Identity())
                 G[self.model.joints[jid].idx_v, col] = gear
@@ -45,7 +49,10 @@ class PinocchioRoute:
             if held is not None and model.frame(held.frame).body == j + 1:   # a payload on this link
                 f = model.frame(held.frame)
                 self.model.appendBodyToJoint(jid, _inertia(held.body, np.eye(3)), pin.SE3(R_a @ f.R, R_a @ f.p))
-        self.G, self.data = G, self.model.createData()
+        self.G, self.data, self.motors = G, self.model.createData(), motors
+        self.kinds = [jt.kind for jt in model.joints]
+        self.actuated = [j for j, k in enumerate(self.kinds) if k in ("sea", "geared", "direct")]
+        self.link_ids = [self.model.getJointId(f"joint{j}_{2 if j in with_rotors else 0}") for j in range(n)]
         self._cols = {a: model.column(a) for a in ("k1", "k3", "d", "b", "c", "eps", "gear_ratio", "link_b", "link_c",
                                                    "cb_k", "cb_theta0", "c1", "stribeck", "v_stribeck")}
 
@@ -76,16 +83,33 @@ class PinocchioRoute:
 
     def forward_dynamics(self, theta, phi, dtheta, dphi, tau):
         M, c = self.mass_bias(theta, phi, dtheta, dphi)
-        k = self._cols
-        psi, dpsi = np.asarray(phi) - theta, np.asarray(dphi) - dtheta
-        T = k["k1"] * psi + k["k3"] * psi ** 3 + k["d"] * dpsi
-        coulomb = k["c"] + k["c1"] * (np.sqrt(T ** 2 + 1e-6) - 1e-3) + k["stribeck"] * np.exp(-(np.asarray(dphi) / k["v_stribeck"]) ** 2)
-        TB2 = k["b"] * dphi + coulomb * np.tanh(np.asarray(dphi) / k["eps"])
-        TL = k["link_b"] * dtheta + k["link_c"] * np.tanh(np.asarray(dtheta) / k["eps"]) + k["cb_k"] * (theta - k["cb_theta0"])
         L = np.linalg.cholesky(M)                          # M = L L^T, then two triangular solves
-        ddq = np.linalg.solve(L.T, np.linalg.solve(L, np.r_[T - TL, -T - TB2 - k["gear_ratio"] * tau] - c))
+        ddq = np.linalg.solve(L.T, np.linalg.solve(L, self.forces(theta, phi, dtheta, dphi, tau) - c))
         n = self.arm_model.n
         return ddq[:n], ddq[n:]
+
+    def forces(self, theta, phi, dtheta, dphi, tau):
+        """The generalised forces on (theta, phi) besides the inertial ones, per kind: an SEA's
+        spring T on its link and -T - T_B2 - mu tau on its motor; a geared joint's -mu tau -
+        T_B2(dtheta) (no load term); a direct joint's tau; every link's -T_L."""
+        k, mot = self._cols, self.motors
+        theta, dtheta = np.asarray(theta, float), np.asarray(dtheta, float)
+        u = np.zeros(len(theta))
+        u[self.actuated] = tau
+        def loss(v, j, T):
+            coulomb = k["c"][j] + k["c1"][j] * (np.sqrt(T ** 2 + 1e-6) - 1e-3) + k["stribeck"][j] * np.exp(-(v / k["v_stribeck"][j]) ** 2)
+            return k["b"][j] * v + coulomb * np.tanh(v / k["eps"][j])
+        Q = -(k["link_b"] * dtheta + k["link_c"] * np.tanh(dtheta / k["eps"]) + k["cb_k"] * (theta - k["cb_theta0"]))
+        psi, dpsi = np.asarray(phi) - theta[mot], np.asarray(dphi) - dtheta[mot]
+        T = k["k1"][mot] * psi + k["k3"][mot] * psi ** 3 + k["d"][mot] * dpsi
+        Q[mot] += T
+        Q_phi = -T - loss(np.asarray(dphi, float), mot, T) - k["gear_ratio"][mot] * u[mot]
+        for j, kind in enumerate(self.kinds):
+            if kind == "geared":
+                Q[j] += -k["gear_ratio"][j] * u[j] - loss(dtheta[j], j, 0.0)
+            elif kind == "direct":
+                Q[j] += u[j]
+        return np.r_[Q, Q_phi]
 
 
 def urdf_model(model) -> "pin.Model":

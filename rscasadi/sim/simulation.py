@@ -16,6 +16,7 @@ from rscasadi.dynamics.arm import Arm
 from rscasadi.dynamics.statics import spring_deflection  # noqa: F401  (part of this module's API)
 from rscasadi.errors import InvalidArgument
 from rscasadi.files import sources_digest
+from rscasadi.model.kinds import require_sea
 
 
 def _uniform_step(t):
@@ -39,6 +40,7 @@ def simulate(arm: Arm, x0, t, tau, method: str = "cvodes", tol: float = 1e-10, s
     method "cvodes": adaptive BDF/Adams (CasADi's CVODES) to relative/absolute `tol`;
     method "rk4": `substeps` classical RK4 steps per sample interval.
     Returns t, theta, phi, dtheta, dphi (n, len(t)), psi = phi - theta, and energy."""
+    require_sea(arm.model, "simulate")
     n, dt = arm.n, _uniform_step(t)
     tau = np.asarray(tau, float).reshape(n, len(t))
     if interpolation not in ("linear", "constant"):

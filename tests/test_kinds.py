@@ -1,0 +1,257 @@
+"""Joints of every kind (rscasadi.model.kinds): sea, geared, spring, free, direct, on random trees,
+checked against Pinocchio with the rotors as bodies (a geared joint's rotors geared to its link
+coordinate, an SEA's to its motor coordinate) and against the SEA with a rigid spring."""
+import copy
+import tomllib
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+import rscasadi
+from rscasadi import ModelFileError
+from rscasadi.model.modelfile import document, parse
+from rscasadi.reference.pinocchio_route import PinocchioRoute
+
+from conftest import ROOT, dm, random_tree_doc, to_toml, with_kinds, write_arm
+
+KINDS = ("sea", "geared", "spring", "free", "direct")
+
+
+def mixed(seed, n, kinds=None, balanced=False):
+    rng = np.random.default_rng(seed)
+    kinds = kinds or [KINDS[i % len(KINDS)] for i in rng.permutation(n)]
+    return parse(tomllib.loads(to_toml(with_kinds(random_tree_doc(rng, n, balanced), kinds, rng))))
+
+
+def state(rng, arm, scale=1.0):
+    n, m = arm.n, arm.m
+    return [rng.uniform(-np.pi, np.pi, n), rng.uniform(-np.pi, np.pi, m), rng.normal(size=n) * scale,
+            rng.normal(size=m) * scale], rng.normal(size=arm.u)
+
+
+def rel(a, b):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300)
+
+
+@pytest.mark.parametrize("seed,n", [(1, 5), (2, 9), (3, 14)])
+def test_every_kind_equals_pinocchio_with_its_rotors_as_bodies(seed, n):
+    """Random trees whose joints are of every kind (unbalanced rotors, random axes and gravity,
+    losses): the coordinates are named, forward and inverse dynamics, the mass matrix, the centre
+    of mass and every link's placement and Jacobian equal Pinocchio's to 1e-9."""
+    model = mixed(seed, n)
+    arm, route = rscasadi.Arm(model), PinocchioRoute(model)
+    kinds = [jt.kind for jt in model.joints]
+    assert set(kinds) == set(KINDS)
+    motors = [jt.name for jt in model.joints if jt.kind == "sea"]
+    assert arm.coordinates == [jt.name for jt in model.joints] + [f"{j}.motor" for j in motors]
+    assert arm.inputs == [jt.name for jt in model.joints if jt.kind in ("sea", "geared", "direct")]
+    fd, inv, mass, com = arm.forward_dynamics(), arm.inverse_dynamics(), arm.mass_matrix(), arm.center_of_mass()
+    assert fd.size1_in("phi") == arm.m == len(motors) and fd.size1_in("tau") == arm.u
+    rng = np.random.default_rng(seed)
+    for _ in range(3):
+        x, tau = state(rng, arm, 2.0)
+        ddq = np.concatenate([dm(v) for v in fd(*x, tau)])
+        assert rel(ddq, np.concatenate(route.forward_dynamics(*x, tau))) < 1e-9
+        M, _ = route.mass_bias(*x)
+        assert rel(np.array(mass(x[0], x[1])), M) < 1e-12
+        assert rel(dm(inv(*x, ddq[:n], ddq[n:])[0]), tau) < 1e-9
+        q = route.G @ np.r_[x[0], x[1]]
+        pin.computeJointJacobians(route.model, route.data, q)
+        assert rel(dm(com(x[0], x[1])), pin.centerOfMass(route.model, route.data, q)) < 1e-12
+        for j, jid in enumerate(route.link_ids):
+            R, p = (np.array(v) for v in arm.frame_placement(model.joints[j].name)(x[0]))
+            assert np.max(np.abs(R - route.data.oMi[jid].rotation)) < 1e-12
+            assert np.max(np.abs(p.ravel() - route.data.oMi[jid].translation)) < 1e-12
+
+
+def test_a_geared_joint_is_an_sea_whose_spring_is_rigid():
+    """The geared joint's dynamics is the SEA's constrained to phi = theta (k1 -> infinity): its
+    mass matrix is P^T M_sea P and its forward dynamics (P^T M_sea P)^-1 P^T (Q_sea - c_sea), where
+    P puts theta in the motor's place, the spring's torque cancelling (computed through the SEA's
+    leaf, the geared joint's cluster: two routes through the articulated sweep)."""
+    kinds = ["sea", "geared", "sea", "geared", "direct", "geared"]
+    geared = mixed(5, 6, kinds)
+    as_sea = [dict(**{k: v for k, v in jt.items() if k != "kind"}, sea={"k1": 1e3, "d": 0.0})
+              if jt.get("kind") == "geared" else jt for jt in document(geared)["joints"]]
+    sea = parse(tomllib.loads(to_toml({**document(geared), "joints": as_sea})))
+    G, S = rscasadi.Arm(geared), rscasadi.Arm(sea)
+    n, motor_of = G.n, {j: i for i, j in enumerate(sea.motors)}
+    P = np.zeros((n + S.m, n + G.m))                 # (theta, phi_sea) = P (theta, phi_geared)
+    for j in range(n):
+        P[j, j] = 1.0
+        if j in motor_of:
+            P[n + motor_of[j], j if kinds[j] == "geared" else n + geared.motors.index(j)] = 1.0
+    rng = np.random.default_rng(4)
+    for _ in range(3):
+        (th, ph, dth, dph), tau = state(rng, G, 2.0)
+        q, dq = P @ np.r_[th, ph], P @ np.r_[dth, dph]
+        M_s = np.array(S.mass_matrix()(q[:n], q[n:]))
+        assert rel(np.array(G.mass_matrix()(th, ph)), P.T @ M_s @ P) < 1e-12
+        tau_s = tau                                   # the same inputs: every geared joint keeps its motor
+        a_s = np.concatenate([dm(v) for v in S.forward_dynamics()(q[:n], q[n:], dq[:n], dq[n:], tau_s)])
+        rhs = P.T @ M_s @ a_s                         # P^T (Q - c): the spring's torque cancels in P^T
+        a_g = np.concatenate([dm(v) for v in G.forward_dynamics()(th, ph, dth, dph, tau)])
+        assert rel(a_g, np.linalg.solve(P.T @ M_s @ P, rhs)) < 1e-10
+
+
+def test_energy_of_passive_kinds_is_conserved():
+    """Spring and free joints with an SEA and a geared joint, no losses, no torque: dE/dt = 0."""
+    import casadi as ca
+    doc = with_kinds(random_tree_doc(np.random.default_rng(9), 6), ["sea", "geared", "spring", "free", "spring", "geared"])
+    for jt in doc["joints"]:
+        if "sea" in jt:
+            jt["sea"]["d"] = 0.0
+        if "gear_loss" in jt:
+            jt["gear_loss"] = {"b": 0.0, "c": 0.0}
+    arm = rscasadi.Arm(parse(tomllib.loads(to_toml(doc))))
+    x = [ca.SX.sym(s, arm._size(s)) for s in ("theta", "phi", "dtheta", "dphi")]
+    a, b = arm.forward_dynamics()(*x, ca.DM.zeros(arm.u))
+    E = arm.energy()(*x)
+    v = ca.vertcat(x[2], x[3], a, b)
+    f = ca.Function("f", x, [ca.jtimes(E, ca.vertcat(*x), v), ca.norm_2(ca.gradient(E, ca.vertcat(*x))) * ca.norm_2(v)])
+    rng = np.random.default_rng(1)
+    for _ in range(3):
+        rate, scale = (float(r) for r in f(*state(rng, arm, 2.0)[0]))
+        assert abs(rate) < 1e-12 * scale and scale > 1.0
+
+
+def test_kinds_read_back_and_every_misfit_is_named(tmp_path):
+    """A link-list file of every kind writes and reads back the same robot; a kind that is no kind,
+    a geared joint with a spring, a spring joint with rotors, a psi limit on a joint with no SEA are
+    each refused naming the joint and field; on a URDF, every joint whose kind cannot model its
+    type is named in one message."""
+    model = mixed(7, 7)
+    again = parse(tomllib.loads(to_toml(document(model))))
+    assert [jt.kind for jt in again.joints] == [jt.kind for jt in model.joints]
+    rng = np.random.default_rng(2)
+    x, tau = state(rng, rscasadi.Arm(model))
+    a, b = (np.concatenate([dm(v) for v in rscasadi.Arm(m).forward_dynamics()(*x, tau)]) for m in (model, again))
+    assert rel(a, b) < 1e-14
+    base = document(model)
+    names = {jt["kind"] if "kind" in jt else "sea": i for i, jt in enumerate(base["joints"])}
+    cases = [(names["free"], {"kind": "wobbly"}, "kind", "expected one of sea, geared"),
+             (names["geared"], {"sea": {"k1": 10.0}}, "sea", "a geared joint has no sea"),
+             (names["spring"], {"gear_ratio": 10.0}, "gear_ratio", "a spring joint has no gear_ratio"),
+             (names["direct"], {"limits": {"psi": 0.1}}, "limits.psi", "a direct joint has no psi"),
+             (names["geared"], {"gear_loss": {"b": 0.1, "c1": 0.01}}, "gear_loss.c1", "no load term")]
+    for j, over, fld, words in cases:
+        doc = copy.deepcopy(base)
+        doc["joints"][j].update(over)
+        with pytest.raises(ModelFileError) as err:
+            parse(tomllib.loads(to_toml(doc)), "kinds.toml")
+        assert f"'{fld}'" in str(err.value) and words in str(err.value) and doc["joints"][j]["name"] in str(err.value)
+    urdf = ROOT / "tests" / "data" / "baxter_description" / "urdf" / "baxter.urdf"
+    rotor = {"mass": 0.2, "com": [0.0, 0.0, 0.0], "inertia": [1e-4, 1e-4, 1.6e-4, 0.0, 0.0, 0.0]}
+    joints = [{"name": "left_s0", "gear_ratio": 50.0, "sea": {"k1": 900.0}, "slow_rotor": rotor, "fast_rotor": rotor}]
+    joints += [{"name": j, "kind": "free"} for j in ("left_s1", "left_e0", "left_e1", "left_w0", "left_w1", "left_w2")]
+    joints += [{"name": "l_gripper_l_finger_joint", "kind": "geared", "gear_ratio": 10.0, "slow_rotor": rotor,
+                "fast_rotor": rotor}, {"name": "l_gripper_r_finger_joint", "kind": "sea", "gear_ratio": 10.0,
+                                       "sea": {"k1": 10.0}, "slow_rotor": rotor, "fast_rotor": rotor}]
+    path = write_arm(tmp_path, {"name": "baxter", "urdf": str(urdf), "joints": joints}, "misfit.toml")
+    with pytest.raises(ModelFileError) as err:
+        rscasadi.load(path)
+    message = str(err.value)
+    assert "'l_gripper_l_finger_joint' is prismatic, which a geared joint cannot model" in message
+    assert "'l_gripper_r_finger_joint' is prismatic, which a sea joint cannot model" in message
+    assert "misfit.toml" in message
+
+
+def test_a_whole_robot_of_mixed_kinds_from_its_urdf(tmp_path):
+    """Baxter with SEA shoulders, geared wrists and a direct-drive head: equal to Pinocchio's
+    own parse of the URDF with the rotors as bodies, and exported to MuJoCo, whose mass matrix
+    and forces equal the model's."""
+    import mujoco
+    from rscasadi.export.mujoco import gear_map, mujoco_xml
+    urdf = ROOT / "tests" / "data" / "baxter_description" / "urdf" / "baxter.urdf"
+    rng = np.random.default_rng(3)
+    def rotor(m, i):
+        return {"mass": m, "com": list(rng.uniform(-1e-3, 1e-3, 3)), "inertia": [i, 1.1 * i, 1.6 * i, 0.0, 0.0, 0.0]}
+    joints = [{"name": "head_pan", "kind": "direct", "limits": {"tau": 5.0}}]
+    for side in ("left", "right"):
+        for j in ("s0", "s1", "e0", "e1"):
+            joints.append({"name": f"{side}_{j}", "gear_ratio": 100.0, "sea": {"k1": 3000.0, "d": 3.0},
+                           "gear_loss": {"b": 1.0}, "slow_rotor": rotor(0.3, 2e-4), "fast_rotor": rotor(0.2, 1.5e-5)})
+        for j in ("w0", "w1", "w2"):
+            joints.append({"name": f"{side}_{j}", "kind": "geared", "gear_ratio": 80.0, "gear_loss": {"b": 0.2},
+                           "slow_rotor": rotor(0.1, 5e-5), "fast_rotor": rotor(0.05, 5e-6)})
+    doc = {"name": "baxter-kinds", "urdf": str(urdf), "tips": ["left_gripper", "right_gripper", "head"], "joints": joints}
+    arm = rscasadi.load(write_arm(tmp_path, doc, "baxter.toml"))
+    assert (arm.n, arm.m, arm.u) == (15, 8, 15)
+    route = PinocchioRoute.from_urdf(arm.model)
+    m = mujoco.MjModel.from_xml_string(mujoco_xml(arm.model))
+    d, T = mujoco.MjData(m), gear_map(arm, m)
+    for _ in range(3):
+        x, tau = state(rng, arm)
+        ddq = np.concatenate([dm(v) for v in arm.forward_dynamics()(*x, tau)])
+        assert rel(ddq, np.concatenate(route.forward_dynamics(*x, tau))) < 1e-9
+        d.qpos[:], d.qvel[:], d.ctrl[:] = T @ np.r_[x[0], x[1]], T @ np.r_[x[2], x[3]], tau
+        mujoco.mj_forward(m, d)
+        M = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, d, M)
+        ours = np.array(arm.mass_matrix()(x[0], x[1]))
+        assert rel(T.T @ M @ T, ours) < 1e-12
+        assert rel(T.T @ (d.qfrc_passive + d.qfrc_actuator - d.qfrc_bias), ours @ ddq) < 1e-12
+
+
+def test_generated_c_of_a_robot_of_every_kind_equals_its_functions(tmp_path):
+    """codegen on a tree of every kind: the sizes are macros of the header (NQ joints, NM motors,
+    NU inputs, NX state), every compiled Function equals its symbolic twin, the step equals RK4 of
+    the forward dynamics, and the paper's SEA feedforward is omitted with the reason."""
+    from rscasadi.codegen import functions, generate
+    model = mixed(12, 7)
+    path = write_arm(tmp_path, document(model), "kinds.toml")
+    out = tmp_path / "gen"
+    manifest = generate(path, out, opt="-O1", log=lambda m: None)
+    arm = rscasadi.load(path)
+    header = (out / manifest["header"]).read_text()
+    for macro, value in (("NQ", arm.n), ("NM", arm.m), ("NU", arm.u), ("NX", 2 * (arm.n + arm.m))):
+        assert f"#define ARM_{macro} {value} " in header
+    assert "feedforward_step" in manifest["omitted"] and "controllers" not in manifest or not manifest["controllers"]
+    compiled, (twins, _) = rscasadi.load_compiled(out), functions(arm)
+    rng = np.random.default_rng(2)
+    for name in manifest["functions"]:
+        f, g = compiled[name], twins[name]
+        args = [rng.normal(size=(g.size1_in(i), g.size2_in(i))) * (0.01 if g.name_in(i) == "h" else 1.0)
+                for i in range(g.n_in())]
+        for a, b in zip(f(*args) if f.n_out() > 1 else [f(*args)], g(*args) if g.n_out() > 1 else [g(*args)]):
+            assert rel(np.array(a), np.array(b)) < 1e-11, name
+    x, tau = state(rng, arm)
+    x = np.concatenate(x)
+    fd, h = arm.forward_dynamics(), 1e-3
+    def f(z):
+        parts = np.split(z, np.cumsum([arm.n, arm.m, arm.n]))
+        return np.concatenate([parts[2], parts[3]] + [dm(v) for v in fd(*parts, tau)])
+    k1 = f(x); k2 = f(x + h / 2 * k1); k3 = f(x + h / 2 * k2); k4 = f(x + h * k3)
+    assert rel(dm(compiled["step"](x, tau, h)), x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)) < 1e-12
+
+
+def test_what_takes_only_seas_refuses_other_kinds_by_name(tmp_path):
+    """Optimal control, the MPC, simulation, identification, the frequency response and the
+    interaction controllers are written for robots of SEAs: given a geared joint, each refuses
+    before any work, naming the joint and its kind."""
+    from rscasadi.errors import InvalidArgument
+    from rscasadi.identification import frf, identify
+    from rscasadi.identification.excitation import design
+    from rscasadi.interaction import generate_observer
+    from rscasadi.mpc.problem import MPCProblem, mpc_model
+    from rscasadi.ocp.problem import check_against_model, load_problem
+    from rscasadi.sim.simulation import simulate
+    doc = with_kinds(random_tree_doc(np.random.default_rng(1), 3), ["sea", "geared", "sea"])
+    for jt in doc["joints"]:
+        jt["limits"] = {"tau": 1.0}
+    path = write_arm(tmp_path, doc, "geared.toml")
+    arm = rscasadi.load(path)
+    problem = load_problem(ROOT / "problems" / "ocp_min_time.toml")
+    calls = [lambda: simulate(arm, np.zeros(2 * arm.nq), np.linspace(0, 0.1, 3), np.zeros((arm.u, 3))),
+             lambda: design(arm, period=1.0, harmonics=1),
+             lambda: identify.run(path, [tmp_path / "none.csv"], tmp_path / "id"),
+             lambda: frf.run(path, tmp_path / "frf"),
+             lambda: generate_observer(path, tmp_path / "obs", 10.0),
+             lambda: mpc_model(MPCProblem(path, None)),
+             lambda: check_against_model(problem, arm.model)]
+    for call in calls:
+        with pytest.raises(InvalidArgument, match=r"all SEAs; joints of other kinds: j2 \(geared\)"):
+            call()
+    assert not (tmp_path / "id").exists() and not (tmp_path / "frf").exists() and not (tmp_path / "obs").exists()
