@@ -205,3 +205,96 @@ def test_generated_c_of_a_tree_equals_its_functions_and_pinocchio(tmp_path):
         c = np.concatenate([dm(v) for v in compiled["forward_dynamics"](*x, tau)])
         assert rel(c, np.concatenate([dm(v) for v in arm.forward_dynamics()(*x, tau)])) < 1e-12
         assert rel(c, np.concatenate(route.forward_dynamics(*x, tau))) < 1e-9
+
+
+def dual_arm_doc(pairs=True) -> dict:
+    """A two-armed SEA robot: a torso column (the reference arm's yaw joint) carrying two arms of
+    yaw, shoulder and elbow joints; hands at the forearms' ends; capsules on the torso, upper arms
+    and forearms, the forearms paired with each other and with the torso."""
+    with open(ROOT / "problems" / "arm3.toml", "rb") as fh:
+        yaw, pitch, elbow = tomllib.load(fh)["joints"]
+    joints = [dict(yaw, name="torso")]
+    for side, y in (("left", 0.2), ("right", -0.2)):
+        joints += [dict(copy.deepcopy(yaw), name=f"{side}_yaw", parent="torso", origin_xyz=[0.0, y, 0.25],
+                        link={"mass": 1.0, "com": [0.0, 0.0, 0.02], "inertia": [0.002, 0.002, 0.001, 0.0, 0.0, 0.0]}),
+                   dict(copy.deepcopy(pitch), name=f"{side}_pitch", parent=f"{side}_yaw", origin_xyz=[0.0, 0.0, 0.05]),
+                   dict(copy.deepcopy(elbow), name=f"{side}_elbow", parent=f"{side}_pitch")]
+    capsules = [{"frame": "torso", "a": [0.0, 0.0, 0.0], "b": [0.0, 0.0, 0.3], "radius": 0.06}]
+    for side in ("left", "right"):
+        capsules += [{"frame": f"{side}_pitch", "a": [0.05, 0.0, 0.0], "b": [0.35, 0.0, 0.0], "radius": 0.04},
+                     {"frame": f"{side}_elbow", "a": [0.05, 0.0, 0.0], "b": [0.35, 0.0, 0.0], "radius": 0.035}]
+    collision = {"margin": 0.01, "capsules": capsules}
+    if pairs:
+        collision["pairs"] = [["left_elbow", "right_elbow"], ["left_elbow", "torso"], ["right_elbow", "torso"]]
+    return {"name": "dual-arm-sea", "gravity": [0.0, 0.0, -9.81], "joints": joints, "collision": collision,
+            "frames": {"left_hand": {"parent": "left_elbow", "xyz": [0.35, 0.0, 0.0]},
+                       "right_hand": {"parent": "right_elbow", "xyz": [0.35, 0.0, 0.0]}}}
+
+
+def test_paired_capsules_keep_apart_by_a_conservative_smooth_clearance_and_an_exact_one(tmp_path):
+    """Between the paired capsules of the two arms and the torso, at random poses: the exact
+    clearance the verification measures equals coal's capsule-to-capsule distance (to the
+    sampling, 1/8 of a radius), and the optimiser's smooth clearance never exceeds it; a pair on
+    one link, or naming no frame, is refused by name."""
+    import coal
+    from rscasadi.dynamics.collision import clearance_function, exact_clearance
+    from rscasadi.dynamics.kinematics import body_poses
+    from rscasadi.model.collision import capsule_pairs
+    arm = rscasadi.load(write_arm(tmp_path, dual_arm_doc(), "dual.toml"))
+    pairs = capsule_pairs(arm.model)
+    assert len(pairs) == 3
+    smooth, exact = clearance_function(arm.model, []), exact_clearance(arm.model, [])
+    place = ca.Function("poses", [th := ca.SX.sym("th", arm.n)],
+                        [ca.horzcat(*[ca.horzcat(R, o) for R, o in body_poses(arm.model, th)])])
+
+    def shape(c, P):
+        a, b = (np.asarray(v, float) for v in (c.a, c.b))
+        R, o = P[:, 4 * c.body:4 * c.body + 3], P[:, 4 * c.body + 3]
+        axis = b - a
+        z = axis / np.linalg.norm(axis)
+        x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
+        x /= np.linalg.norm(x)
+        frame = R @ np.column_stack([x, np.cross(z, x), z])
+        return coal.Capsule(c.radius, float(np.linalg.norm(axis))), coal.Transform3s(frame, o + R @ ((a + b) / 2))
+    rng, closest = np.random.default_rng(0), np.inf
+    for _ in range(60):
+        theta = rng.uniform(-1.5, 1.5, arm.n)
+        P = np.array(place(theta))
+        truth = min(coal.distance(*shape(c, P), *shape(d, P), coal.DistanceRequest(), coal.DistanceResult())
+                    for c, d in pairs) - 0.01
+        measured = float(exact(theta))
+        assert abs(measured - truth) < 0.035 / 8 * 1.01, (measured, truth)
+        assert float(np.min(np.array(smooth(theta)))) <= measured + 1e-9
+        closest = min(closest, truth)
+    assert closest < 0                           # the poses drawn include arms that touch
+    doc = dual_arm_doc()
+    for bad, words in (([["left_elbow", "left_elbow"]], "same link"), ([["left_elbow", "nose"]], "no frame 'nose'"),
+                       ([["left_elbow", "left_hand"]], "same link")):
+        doc["collision"]["pairs"] = bad
+        with pytest.raises(ModelFileError, match=rf"field 'collision.pairs\[0\]'.*{words}"):
+            rscasadi.load(write_arm(tmp_path, doc, "bad.toml"))
+
+
+def test_two_hands_meet_at_a_handover_with_the_arms_kept_apart(tmp_path):
+    """The OCP with a goal for each hand ([[goal]] twice: 10 cm apart in front of the torso),
+    the forearms paired with each other and the torso: solved on one coarse mesh, replayed on the
+    complete model and verified, both hands within a millimetre, no pair closer than the margin between the nodes
+    either (and at the end the forearms within 3 cm of it: the pairing is what holds them)."""
+    from rscasadi.ocp import load_problem, run
+    write_arm(tmp_path, dual_arm_doc(), "dual.toml")
+    (tmp_path / "handover.toml").write_text(
+        'model = "dual.toml"\nobjective = "min_effort"\ntheta_start = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]\n'
+        'duration = 1.5\n[transcription]\nintervals = 40\ncompiled = false\nlimit_margin = 0.005\n[refinement]\nrounds = 1\n'
+        '[verification]\nfinal_speed_tol = 0.05\nfinal_angle_tol = 1e-3\n'    # one coarse mesh: the end's rest to 0.05 rad/s
+        '[[goal]]\nframe = "left_hand"\nposition = [0.45, 0.05, 0.45]\n'
+        '[[goal]]\nframe = "right_hand"\nposition = [0.45, -0.05, 0.45]\n')
+    problem = load_problem(tmp_path / "handover.toml")
+    assert [g.frame for g in problem.task.goals] == ["left_hand", "right_hand"]
+    solution = run(problem, tmp_path / "out", log=lambda m: None, print_level=0)
+    report = solution["verification"]
+    assert report["passed"], report
+    assert report["goal_position_error"] < 1e-3 and report["min_clearance"] > -1e-4
+    assert [g["frame"] for g in solution["goal"]] == ["left_hand", "right_hand"]
+    from rscasadi.dynamics.collision import exact_clearance
+    arm = rscasadi.load(tmp_path / "dual.toml")
+    assert float(exact_clearance(arm.model, [])(np.array(solution["theta"])[:, -1])) < 0.03

@@ -1,5 +1,6 @@
 """Clearance between the arm's capsules (the [collision] table's and the payload's sphere,
-rscasadi.model.collision.capsules) and obstacles (spheres, axis-aligned boxes).
+rscasadi.model.collision.capsules) and obstacles (spheres, axis-aligned boxes), and between the
+capsules of the links the [collision] table pairs (two arms of a tree, an arm and the torso).
 
 For the optimiser, smooth and conservative: each capsule is covered by spheres centred along
 its segment, spaced s <= max(r, 3 cm) and of radius sqrt(r^2 + (s/2)^2) (the union contains
@@ -7,8 +8,10 @@ the capsule);
 a sphere's distance to an obstacle sphere is |p - c| - R, to a box the norm of softplus(|p - c|
 - h) per axis less its largest excess over max(., 0): never more than the true distance outside
 the box and <= 0 inside, so a clearance the optimiser sees as positive is a true one.
+Two paired capsules' covering spheres keep |p - q| - rho_p - rho_q apart: never more than the
+capsules' distance.
 For the verification, exact up to sampling: the segment sampled every r / 8, each point's
-exact distance to the obstacle less r.
+exact distance to the obstacle (or to the paired capsule's segment) less the radii.
 """
 from __future__ import annotations
 
@@ -19,7 +22,7 @@ import numpy as np
 
 from rscasadi.dynamics.kinematics import body_poses
 from rscasadi.interrupt import raise_if_interrupted
-from rscasadi.model.collision import capsules, margin
+from rscasadi.model.collision import capsule_pairs, capsules, margin
 from rscasadi.model.limits import limit_arrays
 
 MIN_SPACING = 0.03           # m: the covering spheres' spacing on capsules thinner than that
@@ -53,18 +56,27 @@ def _sphere_distance(p, rho, obstacle):
     return ca.norm_2(_softplus(q, beta)) - math.sqrt(3) * (math.log(2) / beta + 1e-6) - rho
 
 
+def _spheres(capsule, poses) -> tuple:
+    """The covering spheres' centres in the world at `poses`, and their radius."""
+    R, o = poses[capsule.body]
+    centres, rho = covering_spheres(capsule)
+    return [o + R @ ca.DM(centre) for centre in centres], rho
+
+
 def clearances(model, obstacles, theta):
-    """Every covering sphere's smooth clearance to every obstacle, less the margin (>= 0: clear)."""
-    if not capsules(model) or not obstacles:
+    """Every covering sphere's smooth clearance to every obstacle, then between the spheres of every
+    paired capsules, less the margin (>= 0: clear)."""
+    pairs = capsule_pairs(model)
+    if not (capsules(model) and obstacles) and not pairs:
         return ca.DM.zeros(0)
     poses = body_poses(model, theta)
     rows = []
-    for capsule in capsules(model):
-        R, o = poses[capsule.body]
-        centres, rho = covering_spheres(capsule)
-        for centre in centres:
-            p = o + R @ ca.DM(centre)
-            rows += [_sphere_distance(p, rho, obstacle) - margin(model) for obstacle in obstacles]
+    for capsule in capsules(model) if obstacles else ():
+        centres, rho = _spheres(capsule, poses)
+        rows += [_sphere_distance(p, rho, obstacle) - margin(model) for p in centres for obstacle in obstacles]
+    for a, b in pairs:
+        (pa, ra), (pb, rb) = _spheres(a, poses), _spheres(b, poses)
+        rows += [ca.norm_2(p - q) - ra - rb - margin(model) for p in pa for q in pb]
     return ca.vertcat(*rows)
 
 
@@ -83,10 +95,11 @@ _KEPT = 16
 
 
 def _geometry_key(model, obstacles) -> tuple:
-    """What the clearance Functions depend on: the chain's joint frames, the capsules, the margin
-    and the obstacles."""
-    return (tuple((tuple(np.ravel(jt.origin_xyz)), tuple(np.ravel(jt.R))) for jt in model.joints),
+    """What the clearance Functions depend on: the tree's joint frames, the capsules and their
+    pairs, the margin and the obstacles."""
+    return (tuple((tuple(np.ravel(jt.origin_xyz)), tuple(np.ravel(jt.R))) for jt in model.joints), model.parent,
             tuple((c.body, tuple(np.ravel(c.a)), tuple(np.ravel(c.b)), float(c.radius)) for c in capsules(model)),
+            model.collision.pairs if model.collision is not None else (),
             margin(model), tuple((o.kind, tuple(np.ravel(o.center)), float(o.radius),
                                   None if o.size is None else tuple(np.ravel(o.size))) for o in obstacles))
 
@@ -116,17 +129,34 @@ def exact_clearance(model, obstacles) -> ca.Function:
     return _once("exact", model, obstacles, lambda: _exact_clearance(model, obstacles))
 
 
+def _samples(capsule, poses) -> list:
+    """Points along the capsule's segment every r / 8, in the world at `poses`."""
+    R, o = poses[capsule.body]
+    k = max(2, math.ceil(8 * np.linalg.norm(np.asarray(capsule.b) - capsule.a) / capsule.radius) + 1)
+    return [o + R @ ca.DM(point) for point in np.linspace(capsule.a, capsule.b, k)]
+
+
+def _segment_distance(point, a, b):
+    """Exact distance of a point to the segment from a to b (fmin and fmax: for evaluation)."""
+    d = b - a
+    t = ca.fmin(ca.fmax(ca.dot(point - a, d) / ca.fmax(ca.dot(d, d), 1e-300), 0), 1)
+    return ca.norm_2(point - a - t * d)
+
+
 def _exact_clearance(model, obstacles) -> ca.Function:
     theta = ca.SX.sym("theta", model.n)
-    if not capsules(model) or not obstacles:
+    pairs = capsule_pairs(model)
+    if not (capsules(model) and obstacles) and not pairs:
         return ca.Function("exact_clearance", [theta], [ca.SX(np.inf)])
     poses = body_poses(model, theta)
     gaps = []
-    for capsule in capsules(model):
-        R, o = poses[capsule.body]
-        k = max(2, math.ceil(8 * np.linalg.norm(np.asarray(capsule.b) - capsule.a) / capsule.radius) + 1)
-        for point in np.linspace(capsule.a, capsule.b, k):
-            gaps += [_exact_distance(o + R @ ca.DM(point), obstacle) - capsule.radius for obstacle in obstacles]
+    for capsule in capsules(model) if obstacles else ():
+        gaps += [_exact_distance(point, obstacle) - capsule.radius
+                 for point in _samples(capsule, poses) for obstacle in obstacles]
+    for a, b in pairs:                              # a's segment sampled, b's exact
+        R, o = poses[b.body]
+        ends = o + R @ ca.DM(np.asarray(b.a, float)), o + R @ ca.DM(np.asarray(b.b, float))
+        gaps += [_segment_distance(point, *ends) - a.radius - b.radius for point in _samples(a, poses)]
     return ca.Function("exact_clearance", [theta], [ca.mmin(ca.vertcat(*gaps)) - margin(model)])
 
 

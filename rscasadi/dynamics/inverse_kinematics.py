@@ -30,30 +30,43 @@ def inverse_kinematics(arm, frame: str, *, position, R=None, theta_guess=None, p
     only), within the joint limits.  Returns {theta, success, status, position_error,
     angle_error, iterations}; success only if the pose is reached within `position_tol` (m) and
     `angle_tol` (rad) and the limits hold."""
-    p = position
-    if np.size(p) != 3 or (R is not None and np.shape(R) != (3, 3)):
-        raise InvalidArgument(f"inverse_kinematics: position must be 3 numbers and R 3 x 3 "
-                         f"(got {np.shape(p)} and {np.shape(R) if R is not None else None})")
+    return reach(arm, [(frame, position, R)], theta_guess, position_tol, angle_tol, max_iter)
+
+
+def reach(arm, targets, theta_guess=None, position_tol: float = 1e-6, angle_tol: float = 1e-6,
+          max_iter: int = 200) -> dict:
+    """`inverse_kinematics` for several frames at once: targets, a list of (frame, position, R or
+    None); every frame at its pose in one configuration (two hands at a handover, a head looking
+    on).  position_error and angle_error are the largest over the targets."""
+    for frame, p, R in targets:
+        if np.size(p) != 3 or (R is not None and np.shape(R) != (3, 3)):
+            raise InvalidArgument(f"inverse_kinematics: {frame}: position must be 3 numbers and R 3 x 3 "
+                                  f"(got {np.shape(p)} and {np.shape(R) if R is not None else None})")
     n = arm.n
     lo = np.array([jt.limits.get("theta", (-np.inf, np.inf))[0] for jt in arm.model.joints], float)
     hi = np.array([jt.limits.get("theta", (-np.inf, np.inf))[1] for jt in arm.model.joints], float)
     if theta_guess is None:
         theta_guess = np.where(np.isfinite(lo) & np.isfinite(hi), (lo + hi) / 2, 0.0)
     guess = np.clip(np.asarray(theta_guess, float).ravel(), lo, hi)
-    p_t = np.asarray(p, float).ravel()
     theta = ca.SX.sym("theta", n)
-    R_f, p_f = arm.frame_placement(frame)(theta)
-    g, lbg, ubg = [p_f - p_t], [0.0] * 3, [0.0] * 3
-    if R is not None:
-        R_t = ca.DM(np.asarray(R, float))
-        E = R_t.T @ R_f                                              # the rotation error
-        g += [_vee(E - E.T) / 2, ca.trace(E)]
-        lbg += [0.0] * 3 + [1.0]
-        ubg += [0.0] * 3 + [np.inf]         # not 3: met with a zero gradient at the pose, a degenerate row
-    if len(lbg) - (1 if R is not None else 0) > n:
+    g: list = []
+    lbg: list = []
+    ubg: list = []
+    err: list = []
+    for frame, p, R in targets:
+        R_f, p_f = arm.frame_placement(frame)(theta)
+        p_t = ca.DM(np.asarray(p, float).ravel())
+        g, lbg, ubg, err = g + [p_f - p_t], lbg + [0.0] * 3, ubg + [0.0] * 3, err + [p_f - p_t]
+        if R is not None:
+            R_t = ca.DM(np.asarray(R, float))
+            E = R_t.T @ R_f                                          # the rotation error
+            g += [_vee(E - E.T) / 2, ca.trace(E)]
+            lbg += [0.0] * 3 + [1.0]
+            ubg += [0.0] * 3 + [np.inf]     # not 3: met with a zero gradient at the pose, a degenerate row
+            err.append(ca.vec(R_f - R_t))
+    if len(lbg) - sum(R is not None for *_, R in targets) > n:
         # fewer joints than pose conditions: the pose, where reachable, is isolated; the least
         # squares of its error finds it (and says how far it stays where it is not)
-        err = [p_f - p_t] + ([ca.vec(R_f - ca.DM(np.asarray(R, float)))] if R is not None else [])
         nlp = {"x": theta, "f": ca.sumsqr(ca.vertcat(*err)) + 1e-12 * ca.sumsqr(theta - guess)}
         g, lbg, ubg = [], [], []
     else:
@@ -66,12 +79,13 @@ def inverse_kinematics(arm, frame: str, *, position, R=None, theta_guess=None, p
     stats = solver.stats()
     raise_if_interrupted(stats)
     th = np.array(res["x"]).ravel()
-    R_got, p_got = (np.array(v) for v in arm.frame_placement(frame)(th))
-    position_error = float(np.linalg.norm(p_got.ravel() - p_t))
-    angle_error = 0.0
-    if R is not None:
-        c = (np.trace(np.asarray(R, float).T @ R_got) - 1) / 2
-        angle_error = float(np.arccos(np.clip(c, -1.0, 1.0)))
+    position_error = angle_error = 0.0
+    for frame, p, R in targets:
+        R_got, p_got = (np.array(v) for v in arm.frame_placement(frame)(th))
+        position_error = max(position_error, float(np.linalg.norm(p_got.ravel() - np.asarray(p, float).ravel())))
+        if R is not None:
+            c = (np.trace(np.asarray(R, float).T @ R_got) - 1) / 2
+            angle_error = max(angle_error, float(np.arccos(np.clip(c, -1.0, 1.0))))
     within = bool(np.all(th >= lo - 1e-9) and np.all(th <= hi + 1e-9))
     reached = position_error <= position_tol and angle_error <= angle_tol
     return {"theta": th, "success": bool(reached and within), "status": stats["return_status"],

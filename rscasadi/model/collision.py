@@ -4,11 +4,16 @@
     margin = 0.02                                # m, kept from every obstacle
     tip = "tool"                                 # where the last link's default capsule ends
     links = { upper_arm = 0.05, hand = "urdf" }  # per link: a capsule radius, or "urdf"
+    pairs = [["left_forearm", "right_forearm"], ["left_hand", "torso"]]   # links kept apart
     [[collision.capsules]]                       # added on any link, in a frame's coordinates
     frame = "tool"
     a = [0.0, 0.0, 0.0]
     b = [0.0, 0.0, 0.12]
     radius = 0.03
+
+`pairs` names links (by a frame on each) whose capsules must keep the margin from each other as
+well as from the obstacles: two arms of a tree, an arm and the torso.  Each link of a pair must
+move relative to the other (not both on the base) and have capsules.
 
 A link given a radius has one capsule from its joint's origin to the next joint's origin (the
 last link's to `tip`); a link given "urdf" has the URDF's collision geometry of every URDF link
@@ -38,7 +43,7 @@ from rscasadi.model.meshes import bounding_capsule, mesh_file, vertices
 from rscasadi.model.types import Capsule, Collision
 from rscasadi.errors import InvalidArgument
 
-COLLISION_KEYS = {"margin", "tip", "links", "capsules"}
+COLLISION_KEYS = {"margin", "tip", "links", "capsules", "pairs"}
 CAPSULE_KEYS = {"frame", "a", "b", "radius"}
 MAX_BOX_CAPSULES = 4
 
@@ -133,7 +138,28 @@ def collision(ctx, raw, joints, frames: tuple, default_tip, urdf: dict | None = 
     if not capsules:
         ctx.fail("collision", "no link has geometry: give `links` (a capsule radius or \"urdf\" per link) or "
                               "[[collision.capsules]]")
-    return Collision(margin, tuple(capsules), tip, links, tuple(notes))
+    return Collision(margin, tuple(capsules), tip, links, tuple(notes), _pairs(ctx, t.get("pairs", []), known, capsules))
+
+
+def _pairs(ctx, raw, known: dict, capsules: list) -> tuple:
+    """collision.pairs: [[frame, frame], ...], two links with capsules, not the same link, not both
+    on the base."""
+    out = []
+    if not isinstance(raw, list):
+        ctx.fail("collision.pairs", f"expected a list of [frame, frame] pairs, got {raw!r}")
+    for i, pair in enumerate(raw):
+        fld = f"collision.pairs[{i}]"
+        if not isinstance(pair, list) or len(pair) != 2 or not all(isinstance(f, str) for f in pair):
+            ctx.fail(fld, f"expected two frame names, got {pair!r}")
+        for name in pair:
+            if name not in known:
+                ctx.fail(fld, f"no frame {name!r} (frames: {', '.join(known)})")
+            if not any(c.body == known[name].body for c in capsules):
+                ctx.fail(fld, f"the link of {name!r} has no capsule: give it geometry under links or capsules")
+        if known[pair[0]].body == known[pair[1]].body:
+            ctx.fail(fld, f"{pair[0]!r} and {pair[1]!r} are on the same link")
+        out.append((pair[0], pair[1]))
+    return tuple(out)
 
 
 def _held(piece, capsule) -> bool:
@@ -245,7 +271,7 @@ def collision_document(model) -> dict | None:
         f = known[cap.link]
         out.append({"frame": cap.link, "a": [float(v) for v in f.R.T @ (cap.a - f.p)],
                     "b": [float(v) for v in f.R.T @ (cap.b - f.p)], "radius": float(cap.radius)})
-    return {"margin": c.margin, "links": {}, "capsules": out}
+    return {"margin": c.margin, "links": {}, "capsules": out, **({"pairs": [list(p) for p in c.pairs]} if c.pairs else {})}
 
 
 def with_collision(model, raw: dict, where):
@@ -268,6 +294,19 @@ def capsules(model) -> tuple:
         f = model.frame(held.frame)
         centre = f.R @ np.asarray(held.body.com, float) + f.p
         out += (Capsule(f"payload ({held.frame})", f.body, centre, centre.copy(), float(held.radius)),)
+    return out
+
+
+def capsule_pairs(model) -> list:
+    """Every pair of capsules that must keep the margin from each other: those on the two links of
+    each of [collision] pairs."""
+    if model.collision is None or not model.collision.pairs:
+        return []
+    caps = capsules(model)
+    out = []
+    for a, b in model.collision.pairs:
+        body_a, body_b = model.frame(a).body, model.frame(b).body
+        out += [(c, d) for c in caps if c.body == body_a for d in caps if d.body == body_b]
     return out
 
 

@@ -151,12 +151,14 @@ class Capsule:
 
 @dataclass(frozen=True)
 class Collision:
-    """The arm's collision geometry: capsules, and the clearance `margin` (m) every obstacle must keep."""
+    """The arm's collision geometry: capsules, the clearance `margin` (m) every obstacle must keep,
+    and the `pairs` of links (named by a frame on each) whose capsules must keep it from each other."""
     margin: float
     capsules: tuple
     tip: str | list | None
     links: dict = field(default_factory=dict, compare=False)     # as the [collision] table gave them
     notes: tuple = field(default=(), compare=False)              # URDF shapes added, or not readable
+    pairs: tuple = ()                    # ((frame, frame), ...): links whose capsules keep the margin apart
 
 
 @dataclass(frozen=True)

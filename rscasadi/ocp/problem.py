@@ -102,7 +102,7 @@ class Task:
     """What the arm must do.  `model`: the model file; `objective`: min_time | min_effort |
     tracking; `duration` (s): fixed, or min_time's first guess; the rest poses `theta_start`,
     `theta_end` (not for tracking) or the `trajectory` file to track; `goal`: a `Goal` for a
-    frame instead of theta_end; `design`: parameter name -> (lower, upper), chosen by the
+    frame instead of theta_end, or a tuple of them for several frames at once (`goals`); `design`: parameter name -> (lower, upper), chosen by the
     optimiser; `parameters`: name -> value, set (sweeps); `terms`: more costs and constraints
     (`rscasadi.task.terms.Term` objects, Python only: docs/user-guide/problems.md, "Terms")."""
     model: Path
@@ -115,7 +115,7 @@ class Task:
     effort_weight: float = 1e-3                     # min_time, tracking: weight of the integral of tau^2
     design: dict = field(default_factory=dict)
     parameters: dict = field(default_factory=dict)
-    goal: Goal | None = None
+    goal: Goal | tuple | None = None
     obstacles: tuple = ()
     payload: dict | None = None                     # frame, mass, com, inertia: the model's payload set or changed
     path: ToolPath | None = None
@@ -130,6 +130,13 @@ class Task:
                 setattr(self, key, np.asarray(getattr(self, key), float))
         self.design = {k: (float(lo), float(hi)) for k, (lo, hi) in self.design.items()}
         self.terms = tuple(self.terms)
+        if isinstance(self.goal, (list, tuple)):
+            self.goal = tuple(self.goal) or None
+
+    @property
+    def goals(self) -> tuple:
+        """The goals: none, the one `goal`, or the several."""
+        return () if self.goal is None else self.goal if isinstance(self.goal, tuple) else (self.goal,)
 
 
 @dataclass
@@ -277,14 +284,17 @@ class Problem:
                 number(fail, "path.speed", pa.speed, True)
                 if abs(t.duration - pa.duration) > 1e-9 * pa.duration:
                     fail("duration", f"the path's length and speed make it {pa.duration:.6g} s (leave duration out)")
-        if t.goal is not None:
-            g = t.goal
+        for i, g in enumerate(t.goals):
+            fld = "goal" if len(t.goals) == 1 else f"goal[{i}]"
             if g.position.shape != (3,) or not np.all(np.isfinite(g.position)):
-                fail("goal.position", f"expected 3 finite numbers, got {g.position!r}")
+                fail(f"{fld}.position", f"expected 3 finite numbers, got {g.position!r}")
             if g.R is not None and (g.R.shape != (3, 3) or not np.allclose(g.R.T @ g.R, np.eye(3), atol=1e-9)):
-                fail("goal.rpy", "not a rotation")
+                fail(f"{fld}.rpy", "not a rotation")
             for key in ("position_tol", "angle_tol"):
-                number(fail, f"goal.tolerance.{key.split('_')[0]}", getattr(g, key), True)
+                number(fail, f"{fld}.tolerance.{key.split('_')[0]}", getattr(g, key), True)
+        frames = [g.frame for g in t.goals]
+        if len(set(frames)) != len(frames):
+            fail("goal", f"a frame has two goals: {frames}")
         for name, bounds in t.design.items():
             if len(bounds) != 2 or not bounds[0] < bounds[1]:
                 fail(f"design.{name}", f"expected [lower, upper] with lower < upper, got {bounds!r}")
@@ -346,8 +356,9 @@ def load_problem(path) -> Problem:
     task = {"model": (path.parent / str(d["model"])).resolve(), "objective": d["objective"],
             "duration": number(fail, "duration", d["duration"], True) if not timed_path else tool_path.duration,
             "path": tool_path}
-    if "goal" in d and not isinstance(d["goal"], dict):
-        fail("goal", "expected a table")
+    if "goal" in d and not isinstance(d["goal"], dict) and not (
+            isinstance(d["goal"], list) and d["goal"] and all(isinstance(g, dict) for g in d["goal"])):
+        fail("goal", "expected a table ([goal]), or tables ([[goal]]) for several frames")
     if "trajectory" in d and d["objective"] == "tracking":
         task["trajectory"] = (path.parent / str(d["trajectory"])).resolve()
     for key in ("theta_start", "theta_end"):
@@ -360,8 +371,10 @@ def load_problem(path) -> Problem:
         task["max_duration"] = number(fail, "max_duration", d["max_duration"], True)
     if "effort_weight" in d:
         task["effort_weight"] = number(fail, "effort_weight", d["effort_weight"], False)
-    if "goal" in d:
+    if isinstance(d.get("goal"), dict):
         task["goal"] = read_goal(fail, table("goal"))
+    elif "goal" in d:
+        task["goal"] = tuple(read_goal(fail, g, f"goal[{i}]") for i, g in enumerate(d["goal"]))
     if "obstacles" in d:
         task["obstacles"] = read_obstacles(fail, d["obstacles"])
     if "collision" in d:
@@ -400,8 +413,12 @@ def check_against_model(problem: Problem, model):
         model = with_collision(model, t.collision, where if where is not None else "<Problem>")
     for ob in t.obstacles:
         ob.check(model, where)
-    if t.goal is not None:
-        t.goal.check(model, where)
+    for i, g in enumerate(t.goals):
+        g.check(model, where, "goal" if len(t.goals) == 1 else f"goal[{i}]")
+    rows = sum(3 if g.R is None else 6 for g in t.goals)
+    if len(t.goals) > 1 and rows > model.n:
+        raise ModelFileError(f"{where}: field 'goal': the goals are {rows} conditions, more than the {model.n} "
+                             "joints can meet in general")
     if t.terms:
         from rscasadi.dynamics.arm import Arm
         from rscasadi.task.terms import check_terms

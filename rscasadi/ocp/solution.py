@@ -25,6 +25,7 @@ from rscasadi.model.parameters import with_values
 from rscasadi.sim.simulation import simulate_held
 from rscasadi.sim.trajectory import load_trajectory
 from rscasadi.model.limits import violation
+from rscasadi.task.objects import goals_of
 
 STATE = ("theta", "phi", "dtheta", "dphi")
 
@@ -138,19 +139,22 @@ def verify(solution: dict, substeps: int = 20, tol: float = 1e-10, terms=()) -> 
     if solution.get("trajectory"):                                     # between the nodes too
         ref = load_trajectory(solution["trajectory"])(sim["t"])[0]
         report["tracking_error"] = float(np.max(np.abs(sim["theta"] - ref)))
-    if solution.get("goal"):                                           # the replay's end at the goal
-        g = solution["goal"]
+    for g in goals_of(solution):                                       # the replay's end at the goals
         R, p = (np.array(v) for v in arm.frame_placement(g["frame"])(sim["theta"][:, -1]))
-        report["goal_position_error"] = float(np.linalg.norm(p.ravel() - np.asarray(g["position"])))
+        error = float(np.linalg.norm(p.ravel() - np.asarray(g["position"])))
+        report["goal_position_error"] = max(report.get("goal_position_error", 0.0), error)
         if g["R"] is not None:
             c = (np.trace(np.asarray(g["R"]).T @ R) - 1) / 2
-            report["goal_angle_error"] = float(np.arccos(np.clip(c, -1.0, 1.0)))
-    if solution.get("obstacles"):                                      # clear of them, between the nodes too
-        from rscasadi.task.objects import Obstacle
-        obstacles = [Obstacle.from_dict(o) for o in solution["obstacles"]]
+            angle = float(np.arccos(np.clip(c, -1.0, 1.0)))
+            report["goal_angle_error"] = max(report.get("goal_angle_error", 0.0), angle)
+    from rscasadi.model.collision import capsule_pairs
+    if solution.get("obstacles") or capsule_pairs(arm.model):         # clear of them and of each other, between
+        from rscasadi.task.objects import Obstacle                      # the nodes too
+        obstacles = [Obstacle.from_dict(o) for o in solution.get("obstacles") or []]
         gap = np.array(exact_clearance(arm.model, obstacles).map(sim["theta"].shape[1])(sim["theta"])).ravel()
         report["min_clearance"] = float(gap.min())
         report["interval_clearance"] = gap[1:].reshape(len(t) - 1, substeps).min(axis=1).tolist()
+    if solution.get("obstacles"):                                      # the URDF's own shapes, by coal
         from rscasadi.dynamics.shapes_clearance import shapes_clearance
         from rscasadi.model.collision import margin
         urdf_gap = shapes_clearance(arm.model, obstacles, sim["theta"]) - margin(arm.model)

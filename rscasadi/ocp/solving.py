@@ -171,9 +171,10 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
             if why:
                 raise ModelFileError(f"{problem.path}: field '{key}': the arm cannot rest there: {why}")
     tr = Transcription(problem, Arm(base), N=len(w))
-    goal = problem.task.goal if path is None else Goal(path.frame, path.end, position_tol=path.tolerance)
-    if goal is not None and problem.task.theta_end is None:        # the guess's end: inverse kinematics
-        problem = problem.replace(theta_end=goal_configuration(arm, goal, problem.task.theta_start, problem.path))
+    goals = problem.task.goals if path is None else (Goal(path.frame, path.end, position_tol=path.tolerance),)
+    goal = goals or None
+    if goals and problem.task.theta_end is None:                   # the guess's end: inverse kinematics
+        problem = problem.replace(theta_end=goal_configuration(arm, goals, problem.task.theta_start, problem.path))
         why = None if problem.task.design or warm else unheld(arm, problem.task.theta_end)
         if why:                                  # the solver may find another configuration at the goal (said once)
             log(f"note: the arm cannot rest at the goal in the first configuration found for it: {why}")
@@ -236,7 +237,7 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
             "path": None if path is None else path.to_dict(),
             "path_arc": None if out["arc"] is None else out["arc"].tolist(),
             "obstacles": [o.to_dict() for o in problem.task.obstacles],
-            "goal": None if goal is None else goal.to_dict()})
+            "goal": None if not goals else goals[0].to_dict() if len(goals) == 1 else [g.to_dict() for g in goals]})
 
 
 # fatrop 1.1.8's return flags (IpSolverReturnFlag, include/fatrop/ip_algorithm/ip_algorithm.hpp in
@@ -278,16 +279,18 @@ def unheld(arm: Arm, theta) -> str | None:
     return None
 
 
-def goal_configuration(arm: Arm, goal, theta_guess, where) -> np.ndarray:
-    """A configuration at the goal within the joint limits (inverse kinematics from the start),
-    for the initial guess; the solver then chooses its own.  Unreachable: an error naming it."""
-    from rscasadi.dynamics.inverse_kinematics import inverse_kinematics
-    res = inverse_kinematics(arm, goal.frame, position=goal.position, R=goal.R, theta_guess=theta_guess)
+def goal_configuration(arm: Arm, goals, theta_guess, where) -> np.ndarray:
+    """A configuration at the goals (each frame at its pose, all at once) within the joint limits
+    (inverse kinematics from the start), for the initial guess; the solver then chooses its own.
+    Unreachable: an error naming the frames."""
+    from rscasadi.dynamics.inverse_kinematics import reach
+    res = reach(arm, [(g.frame, g.position, g.R) for g in goals], theta_guess=theta_guess)
     where = where if where is not None else "<Problem>"
     if not res["success"]:
-        raise ModelFileError(f"{where}: field 'goal': frame {goal.frame!r} cannot reach it within the joint limits "
-                             f"(inverse kinematics: {res['status']}, {res['position_error']:.3g} m, "
-                             f"{res['angle_error']:.3g} rad away)")
+        frames = ", ".join(repr(g.frame) for g in goals)
+        raise ModelFileError(f"{where}: field 'goal': {'frame' if len(goals) == 1 else 'frames'} {frames} cannot reach "
+                             f"it within the joint limits (inverse kinematics: {res['status']}, "
+                             f"{res['position_error']:.3g} m, {res['angle_error']:.3g} rad away)")
     return res["theta"]
 
 
@@ -295,8 +298,9 @@ def failures(problem: Problem, report: dict) -> dict:
     """The verification's failures: {check: readable string} (empty: passed)."""
     tols = {"final_angle_error": problem.verification.final_angle_tol, "final_speed_error": problem.verification.final_speed_tol,
             "tracking_error": problem.verification.tracking_tol, "max_limit_violation": problem.verification.limit_tol}
-    if problem.task.goal is not None:
-        tols.update(goal_position_error=problem.task.goal.position_tol, goal_angle_error=problem.task.goal.angle_tol)
+    if problem.task.goals:
+        tols.update(goal_position_error=min(g.position_tol for g in problem.task.goals),
+                    goal_angle_error=min(g.angle_tol for g in problem.task.goals))
     if problem.task.path is not None:
         tols.update(path_error=problem.task.path.tolerance)
     tols.update({f"term.{t.name}": t.tolerance for t in problem.task.terms if t.constraint})

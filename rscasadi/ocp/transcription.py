@@ -46,6 +46,7 @@ from rscasadi.ocp.condensing import Condensed, cached_kernel, condense
 from rscasadi.ocp.problem import Goal, Problem
 from rscasadi.task.objects import Limits
 from rscasadi.task.terms import Clearance, objective_terms
+from rscasadi.model.collision import capsule_pairs
 
 
 # the stage pieces (fn, derivatives or None) by the stage's serialisation (the few most recent)
@@ -87,11 +88,12 @@ class Transcription:
         # with the projections, 26 332 through the forward dynamics; n = 3)
         self.dynamics = "implicit" if self.condensed else problem.transcription.dynamics
         self.tracking = problem.task.objective == "tracking"
-        self.goal = problem.task.goal if self.tool_path is None else Goal(self.tool_path.frame, self.tool_path.end)
+        self.goals = problem.task.goals if self.tool_path is None else (Goal(self.tool_path.frame, self.tool_path.end),)
         # what the arm must do, as terms (rscasadi.task.terms): the objective's costs (with the
         # power of effort_weight each weight takes), the problem's own, and the constraints
         self.costs = objective_terms(problem.task.objective, n) + [(t, 0) for t in problem.task.terms if not t.constraint]
-        self.constraints = ([Clearance(problem.task.obstacles)] if problem.task.obstacles else []) + \
+        kept_apart = problem.task.obstacles or capsule_pairs(arm.model)       # from obstacles, and from each other
+        self.constraints = ([Clearance(problem.task.obstacles)] if kept_apart else []) + \
             [t for t in problem.task.terms if t.constraint]
         self.row_bounds = [t.bounds(self.arm) for t in self.constraints]
         self.constraint_calls = [t.of_angles(self.arm) for t in self.constraints]     # None: inlined
@@ -138,14 +140,16 @@ class Transcription:
         return ca.vertcat(*([] if theta is None else [q[0] - theta]), *rows)
 
     def goal_rows(self, theta, goal):
-        """The goal frame at its pose: p - p_goal (3); with a rotation, the skew part of
+        """Each goal's frame at its pose: p - p_goal (3); with a rotation, the skew part of
         R_goal^T R (3) and its trace (>= 1: within 90 degrees, away from the half-turns).
-        goal: the NLP parameter [p_goal; vec(R_goal)]."""
-        R, p = self.arm.frame_placement(self.goal.frame)(theta)
-        rows = [p - goal[:3]]
-        if self.goal.R is not None:
-            E = ca.reshape(goal[3:12], 3, 3).T @ R
-            rows += [ca.vertcat(E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]) / 2, ca.trace(E)]
+        goal: the NLP parameter [p_goal; vec(R_goal)] of each goal in turn."""
+        rows = []
+        for i, g in enumerate(self.goals):
+            R, p = self.arm.frame_placement(g.frame)(theta)
+            rows.append(p - goal[12 * i:12 * i + 3])
+            if g.R is not None:
+                E = ca.reshape(goal[12 * i + 3:12 * i + 12], 3, 3).T @ R
+                rows += [ca.vertcat(E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]) / 2, ca.trace(E)]
         return rows
 
     def _end_bounds(self):
@@ -155,14 +159,16 @@ class Transcription:
         psi_max, dphi_max = self._limit("psi"), self._limit("dphi")[self.geared]
         if self.tracking:
             rest_lo = rest_hi = np.zeros(0)
-        elif self.goal is None:
+        elif not self.goals:
             rest_lo = rest_hi = np.zeros(4 * n)
         else:
-            rest_lo = np.r_[np.zeros(3 * n + 3), [0.0, 0.0, 0.0, 1.0] if self.goal.R is not None else []]
             # the trace's upper end open: trace(E) <= 3 holds for every rotation, with equality
             # exactly at the goal, where its gradient is zero; as a bound it is an active row
             # without a gradient, whose multiplier the interior point follows away
-            rest_hi = np.r_[np.zeros(3 * n + 3), [0.0, 0.0, 0.0, np.inf] if self.goal.R is not None else []]
+            rest_lo = np.r_[np.zeros(3 * n), *[np.r_[0.0, 0.0, 0.0, [0.0, 0.0, 0.0, 1.0] if g.R is not None else []]
+                                               for g in self.goals]]
+            rest_hi = np.r_[np.zeros(3 * n), *[np.r_[0.0, 0.0, 0.0, [0.0, 0.0, 0.0, np.inf] if g.R is not None else []]
+                                               for g in self.goals]]
         ends = [b for t, b in zip(self.constraints, self.row_bounds) if t.at_end]
         s = np.zeros(self.ns)                                              # at the path's end: s_N = L
         return (np.concatenate([rest_lo, s, -psi_max, -dphi_max, *[lo for lo, _ in ends]]),
@@ -239,7 +245,7 @@ class Transcription:
         n, N = self.n, self.N
         sizes = [("theta_start", n), ("theta_end", n), ("duration", 1), ("effort_weight", 1), ("scale", 1),
                  ("w", N), ("theta_ref", n * N if self.tracking else 0), ("p_fixed", self.n_pfix),
-                 ("goal", 12 if self.goal is not None else 0),
+                 ("goal", 12 * len(self.goals)),
                  ("path_target", 3 * N if self.tool_path and not self.ns else 0)]
         out, i = {}, 0
         for key, size in sizes:
@@ -306,8 +312,8 @@ class Transcription:
         theta_end, or at rest with the goal frame at its pose, unless tracking; the SEA
         deflection within its limit) of x_0 or x_N.  `theta`: theta_start, theta_end or the goal."""
         n = self.n
-        goal_end = end and self.goal is not None
-        x, theta = ca.SX.sym("x", self.nx), ca.SX.sym("theta", 12 if goal_end else n)
+        goal_end = end and bool(self.goals)
+        x, theta = ca.SX.sym("x", self.nx), ca.SX.sym("theta", 12 * len(self.goals) if goal_end else n)
         pfix, scale = ca.SX.sym("p_fixed", self.n_pfix), ca.SX.sym("scale")
         pf = self._pf(x[4 * n + self.nT:] if self.design else None, pfix)
         if end:
@@ -375,7 +381,7 @@ class Transcription:
                        (("value", "rows"), ("first", "first"), ("objective", "objective"), ("second", "second"))}
         else:
             derivatives = built()
-        target = "goal" if self.goal is not None else "theta_end"
+        target = "goal" if self.goals else "theta_end"
         self.pieces = [
             Piece(stage, np.arange(N)[:, None] * stride + np.arange(stride + nx), stage_rows, stage_args, derivatives,
                   self.kernel.library if self.kernel else None, symbols, stage_places),
@@ -453,8 +459,8 @@ class Transcription:
         """The NLP's parameter vector (the goal's pose and the path's targets, if any, from the problem)."""
         layout, n_par = self.parameter_layout()
         P = np.zeros(n_par)
-        goal = None if self.goal is None else np.r_[self.goal.position,
-                                                    (self.goal.R if self.goal.R is not None else np.eye(3)).ravel("F")]
+        goal = np.concatenate([np.r_[g.position, (g.R if g.R is not None else np.eye(3)).ravel("F")]
+                               for g in self.goals]) if self.goals else None
         for key, value in (("theta_start", theta_start), ("theta_end", theta_end), ("duration", duration),
                            ("effort_weight", effort_weight), ("scale", scale), ("w", w),
                            ("theta_ref", theta_ref), ("goal", goal),

@@ -43,14 +43,14 @@ class Goal:
         from rscasadi.model.types import rpy_matrix
         return cls(frame, position, None if rpy is None else rpy_matrix(np.asarray(rpy, float)), **tolerances)
 
-    def check(self, model, where="<task>") -> "Goal":
+    def check(self, model, where="<task>", fld: str = "goal") -> "Goal":
         """The frame exists on `model` and the goal is not more conditions than its joints."""
         if self.frame not in _frame_names(model):
-            raise ModelFileError(f"{where}: field 'goal.frame': {model.path} has no frame {self.frame!r} "
+            raise ModelFileError(f"{where}: field '{fld}.frame': {model.path} has no frame {self.frame!r} "
                                  f"(frames: {', '.join(_frame_names(model))})")
         rows = 3 if self.R is None else 6
         if rows > model.n:
-            raise ModelFileError(f"{where}: field 'goal': {'a position' if self.R is None else 'a pose'} is "
+            raise ModelFileError(f"{where}: field '{fld}': {'a position' if self.R is None else 'a pose'} is "
                                  f"{rows} conditions, more than the {model.n} joints can meet "
                                  "in general" + ("; give the position alone (no rpy)" if model.n >= 3 else ""))
         return self
@@ -64,6 +64,12 @@ class Goal:
     @staticmethod
     def from_dict(d: dict) -> "Goal":
         return Goal(d["frame"], d["position"], d.get("R"), d.get("position_tol", 1e-3), d.get("angle_tol", 1e-2))
+
+
+def goals_of(data) -> list:
+    """The goal dicts of a solution.json's "goal": none, one (a dict) or several (a list)."""
+    goal = data.get("goal") if isinstance(data, dict) else None
+    return [] if not goal else [goal] if isinstance(goal, dict) else list(goal)
 
 
 @dataclass

@@ -58,22 +58,25 @@ def read_path(fail, t: dict) -> ToolPath:
     return ToolPath(t["frame"], points, speed, tolerance)
 
 
-def read_goal(fail, t: dict) -> Goal:
-    """The [goal] table: frame, position, optional rpy (URDF convention) and tolerance."""
+def read_goal(fail, t: dict, fld: str = "goal") -> Goal:
+    """A [goal] table (or one of [[goal]], named `fld`): frame, position, optional rpy (URDF
+    convention) and tolerance."""
+    if not isinstance(t, dict):
+        fail(fld, f"expected a table, got {t!r}")
     for key in t:
         if key not in GOAL_KEYS:
-            fail(f"goal.{key}", f"unknown key (allowed: {', '.join(sorted(GOAL_KEYS))})")
+            fail(f"{fld}.{key}", f"unknown key (allowed: {', '.join(sorted(GOAL_KEYS))})")
     for key in ("frame", "position"):
         if key not in t:
-            fail(f"goal.{key}", "missing required field")
+            fail(f"{fld}.{key}", "missing required field")
     if not isinstance(t["frame"], str):
-        fail("goal.frame", f"expected the name of a frame, got {t['frame']!r}")
-    vec = {key: vector3(fail, f"goal.{key}", t[key]) for key in ("position", "rpy") if key in t}
+        fail(f"{fld}.frame", f"expected the name of a frame, got {t['frame']!r}")
+    vec = {key: vector3(fail, f"{fld}.{key}", t[key]) for key in ("position", "rpy") if key in t}
     tol = t.get("tolerance", {})
     if not isinstance(tol, dict) or set(tol) - {"position", "angle"}:
-        fail("goal.tolerance", f"expected {{ position = m, angle = rad }}, got {tol!r}")
+        fail(f"{fld}.tolerance", f"expected {{ position = m, angle = rad }}, got {tol!r}")
     return Goal.from_rpy(t["frame"], vec["position"], vec.get("rpy"),
-                         **{f"{k}_tol": number(fail, f"goal.tolerance.{k}", v, True) for k, v in tol.items()})
+                         **{f"{k}_tol": number(fail, f"{fld}.tolerance.{k}", v, True) for k, v in tol.items()})
 
 
 def read_obstacles(fail, raw) -> tuple:

@@ -93,10 +93,10 @@ def commands(scene) -> list:
     if scene.target is not None:
         out.append(SetObject(g.Line(g.PointsGeometry(scene.target.T), g.LineBasicMaterial(color=COLOURS["goal"])),
                              path=_path("world", "target_path")))
-    if scene.goal is not None:
+    for i, where in enumerate(np.atleast_2d(scene.goal) if scene.goal is not None else []):
         T = np.eye(4)
-        T[:3, 3] = scene.goal
-        put(g.Sphere(0.015), COLOURS["goal"], _path("world", "goal"), T)
+        T[:3, 3] = where
+        put(g.Sphere(0.015), COLOURS["goal"], _path("world", "goal" if i == 0 else f"goal{i}"), T)
     for i, ob in enumerate(scene.obstacles):
         T = np.eye(4)
         T[:3, 3] = ob["center"]

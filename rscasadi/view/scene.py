@@ -16,6 +16,7 @@ from rscasadi.dynamics.collision import exact_clearance
 from rscasadi.dynamics.kinematics import body_poses, frame_pose
 from rscasadi.model.meshes import mesh_file
 from rscasadi.model.types import ModelFileError
+from rscasadi.task.objects import goals_of
 
 FPS = 30
 
@@ -37,7 +38,7 @@ class Scene:
     rotors: list
     broken: np.ndarray
     path: np.ndarray | None = None
-    goal: np.ndarray | None = None
+    goal: np.ndarray | None = None            # (k x 3) the goals' positions
     obstacles: list = field(default_factory=list)
     payload: tuple | None = None
     target: np.ndarray | None = None
@@ -171,14 +172,14 @@ def scene_of(path, model=None) -> Scene:
     scene = Scene(f"{path.parent.name}/{path.name}" if text is not None else path.name, times, _poses(arm, thetas),
                   _links(arm), _rotors(arm), _broken(arm, thetas, data), visuals=visuals,
                   skipped=[(name, why) for name, why, _ in skipped], incomplete={body for *_, body in skipped})
-    if data:                                            # the tool's path: the goal's frame, else the arm's tip
-        goal = data.get("goal")
-        if goal:
+    if data:                                            # the tool's path: the (first) goal's frame, else the arm's tip
+        goals = goals_of(data)
+        if goals:
             import casadi as ca
             th = ca.SX.sym("theta", arm.n)
-            place = ca.Function("p", [th], [frame_pose(arm.model, arm.model.frame(goal["frame"]), th)[1]])
+            place = ca.Function("p", [th], [frame_pose(arm.model, arm.model.frame(goals[0]["frame"]), th)[1]])
             scene.path = np.array(place.map(thetas.shape[1])(thetas)).T
-            scene.goal = np.asarray(goal["position"], float)
+            scene.goal = np.array([g["position"] for g in goals], float)
         else:
             tip = np.r_[scene.links[arm.n][-1][1], 1.0]
             scene.path = (scene.poses[:, arm.n] @ tip)[:, :3]
@@ -238,9 +239,11 @@ def _checked_arm(path: Path, data: dict, model) -> Arm:
             arm = solution_arm(data)
     goal = data.get("goal")
     if goal:
-        if not isinstance(goal, dict) or goal.get("frame") not in [f.name for f in arm.model.frames] \
-                or np.shape(goal.get("position")) != (3,):
-            raise ModelFileError(f"{path}: field 'goal': expected a frame of {arm.model.path} and a position (3)")
+        if not (isinstance(goal, dict) or isinstance(goal, list) and all(isinstance(g, dict) for g in goal)) or any(
+                g.get("frame") not in [f.name for f in arm.model.frames] or np.shape(g.get("position")) != (3,)
+                for g in goals_of(data)):
+            raise ModelFileError(f"{path}: field 'goal': expected a frame of {arm.model.path} and a position (3), "
+                                 "or a list of them")
     with _field(path, "obstacles"):
         from rscasadi.task.objects import Obstacle
         for o in data.get("obstacles") or []:
