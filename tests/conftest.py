@@ -84,6 +84,36 @@ def with_kinds(doc, kinds, rng=None):
     return doc
 
 
+def check_against_pinocchio(arm, route, rng, frames_of=None):
+    """Forward and inverse dynamics, mass matrix, centre of mass, each link's placement and
+    Jacobian (frames_of: the frames at the links, default the joints' names), equal to
+    Pinocchio's with the rotors as bodies (reference.pinocchio_route) at random states, to 1e-9."""
+    import pinocchio as pin
+    n, m = arm.n, arm.m
+    fd, inv, mass, com = arm.forward_dynamics(), arm.inverse_dynamics(), arm.mass_matrix(), arm.center_of_mass()
+    names = frames_of or [jt.name for jt in arm.model.joints]
+    place = [arm.frame_placement(f) for f in names]
+    jac = [arm.frame_jacobian(f) for f in names]
+    rel = lambda a, b: np.max(np.abs(np.asarray(a) - b)) / max(np.max(np.abs(b)), 1e-300)   # noqa: E731
+    for _ in range(3):
+        x = [rng.uniform(-np.pi, np.pi, n), rng.uniform(-np.pi, np.pi, m), 2 * rng.normal(size=n), 2 * rng.normal(size=m)]
+        tau = rng.normal(size=arm.u)
+        ddq = np.concatenate([dm(v) for v in fd(*x, tau)])
+        assert rel(ddq, np.concatenate(route.forward_dynamics(*x, tau))) < 1e-9
+        M, _ = route.mass_bias(*x)
+        assert rel(np.array(mass(x[0], x[1])), M) < 1e-9
+        assert rel(dm(inv(*x, ddq[:n], ddq[n:])[0]), tau) < 1e-9
+        q = route.G @ np.r_[x[0], x[1]]
+        pin.computeJointJacobians(route.model, route.data, q)
+        assert rel(dm(com(x[0], x[1])), pin.centerOfMass(route.model, route.data, q)) < 1e-9
+        for j, jid in enumerate(route.link_ids):
+            R, p = (np.array(v) for v in place[j](x[0]))
+            oMi = route.data.oMi[jid]
+            assert np.max(np.abs(R - oMi.rotation)) < 1e-9 and np.max(np.abs(p.ravel() - oMi.translation)) < 1e-9
+            J = pin.getJointJacobian(route.model, route.data, jid, pin.LOCAL_WORLD_ALIGNED) @ route.G[:, :n]
+            assert np.max(np.abs(np.array(jac[j](x[0])) - J)) < 1e-9 * max(1.0, np.max(np.abs(J)))
+
+
 def write_arm(tmp_path, doc, name="arm.toml"):
     path = Path(tmp_path) / name
     path.write_text(to_toml(doc))

@@ -191,6 +191,16 @@ def test_the_mujoco_tutorial_s_example_does_what_the_page_says(tmp_path):
 
 
 
+def test_the_whole_robot_tutorial_s_example_does_what_the_page_says(tmp_path):
+    """docs/tutorials/whole-robot.md: Baxter's tree of three kinds in C (equal to the Function) and
+    in MuJoCo (its mass matrix the model's), then a verified two-handed handover."""
+    pytest.importorskip("mujoco")
+    out = example("whole_robot").main(["--out", str(tmp_path)])
+    assert out["c_error"] < 1e-9 and out["mujoco_mismatch"] < 1e-12
+    report = out["solution"]["verification"]
+    assert report["passed"] and report["goal_position_error"] < 1e-3
+
+
 def test_the_readme_api_lines_run(tmp_path, monkeypatch):
     """The README's ten API lines, as a user pastes them (from the repository's directory)."""
     readme = (ROOT / "README.md").read_text()

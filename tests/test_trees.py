@@ -16,7 +16,7 @@ from rscasadi import ModelFileError
 from rscasadi.model.modelfile import document, parse
 from rscasadi.reference.pinocchio_route import PinocchioRoute, urdf_model
 
-from conftest import ROOT, dm, random_state, random_tree_doc, to_toml, write_arm
+from conftest import ROOT, check_against_pinocchio, dm, random_state, random_tree_doc, to_toml, write_arm
 
 BAXTER = ROOT / "tests" / "data" / "baxter_description" / "urdf" / "baxter.urdf"
 G1 = ROOT / "tests" / "data" / "g1_description" / "urdf" / "g1_29dof_rev_1_0.urdf"
@@ -55,33 +55,6 @@ def rel(a, b):
     return np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300)
 
 
-def check_against(arm, route, rng, frames_of=None):
-    """Forward and inverse dynamics, mass matrix, centre of mass, each link's placement and
-    Jacobian, equal to Pinocchio's with the rotors as bodies, at random states."""
-    n = arm.n
-    fd, inv, mass, com = arm.forward_dynamics(), arm.inverse_dynamics(), arm.mass_matrix(), arm.center_of_mass()
-    names = frames_of or [jt.name for jt in arm.model.joints]
-    place = [arm.frame_placement(f) for f in names]
-    jac = [arm.frame_jacobian(f) for f in names]
-    for _ in range(3):
-        x, tau = random_state(rng, n, 2.0), rng.normal(size=n)
-        ddq = np.concatenate([dm(v) for v in fd(*x, tau)])
-        assert rel(ddq, np.concatenate(route.forward_dynamics(*x, tau))) < 1e-9
-        M, _ = route.mass_bias(*x)
-        assert rel(np.array(mass(x[0], x[1])), M) < 1e-9
-        assert rel(dm(inv(*x, ddq[:n], ddq[n:])[0]), tau) < 1e-9
-        q = route.G @ np.r_[x[0], x[1]]
-        pin.computeJointJacobians(route.model, route.data, q)
-        pin.updateFramePlacements(route.model, route.data)
-        assert rel(dm(com(x[0], x[1])), pin.centerOfMass(route.model, route.data, q)) < 1e-9
-        for j, jid in enumerate(route.link_ids):
-            R, p = (np.array(v) for v in place[j](x[0]))
-            oMi = route.data.oMi[jid]
-            assert np.max(np.abs(R - oMi.rotation)) < 1e-9 and np.max(np.abs(p.ravel() - oMi.translation)) < 1e-9
-            J = pin.getJointJacobian(route.model, route.data, jid, pin.LOCAL_WORLD_ALIGNED) @ route.G[:, :n]
-            assert np.max(np.abs(np.array(jac[j](x[0])) - J)) < 1e-9 * max(1.0, np.max(np.abs(J)))
-
-
 @pytest.mark.parametrize("seed,n", [(1, 5), (2, 8), (3, 12)])
 def test_random_trees_equal_pinocchio_with_rotors_as_bodies(tmp_path, seed, n):
     """Random trees (several joints on the base and on one link, axes at any angle, unbalanced
@@ -89,7 +62,7 @@ def test_random_trees_equal_pinocchio_with_rotors_as_bodies(tmp_path, seed, n):
     arm = random_tree(tmp_path, seed, n)
     parent = arm.model.parent
     assert not arm.model.is_chain and len(set(parent)) < n
-    check_against(arm, PinocchioRoute(arm.model), np.random.default_rng(seed))
+    check_against_pinocchio(arm, PinocchioRoute(arm.model), np.random.default_rng(seed))
 
 
 @pytest.mark.parametrize("name", ROBOTS)
@@ -104,7 +77,7 @@ def test_whole_robots_from_their_urdf_equal_pinocchio_s_own_parse(tmp_path, name
     assert [jt.name for jt in arm.model.joints] == joints and not arm.model.is_chain
     route = PinocchioRoute.from_urdf(arm.model)
     rng = np.random.default_rng(5)
-    check_against(arm, route, rng, [links[0] for links in arm.model.extra["links"][1:]])
+    check_against_pinocchio(arm, route, rng, [links[0] for links in arm.model.extra["links"][1:]])
     reduced = urdf_model(arm.model)
     data = reduced.createData()
     for _ in range(2):

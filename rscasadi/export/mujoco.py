@@ -365,7 +365,8 @@ def export_mujoco(model_file, out, log=print, variant: str = "complete") -> Path
         write_text(tmp / "model.xml", text)
     what = {"armature": "rigid joints with the rotors as armature (for comparison)",
             "reduced": "the DLR/Spong reduced model: rotors welded, each motor coordinate a joint of its own",
-            "complete": "each a link, a slow and a fast rotor, the gear an equality, the spring a tendon"}[variant]
+            "complete": "each a link, a slow and a fast rotor, the gear an equality, the spring a tendon"
+            if arm.model.all_sea else "the rotors as bodies, each gear an equality, each SEA's spring a tendon"}[variant]
     theta, _, tau = rest_state(arm.model, variant)
     weak = [f"{arm.model.joints[j].name} ({abs(t):.3g} N m, limit {lim:g})"
             for j, t, lim in zip(arm.model.actuated, tau, _torque_limits(arm.model))
