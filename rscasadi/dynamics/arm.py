@@ -152,7 +152,7 @@ class Arm:
         """The entries of tau that drive the motors (all of tau when every joint is an SEA)."""
         if self.u == self.m:
             return tau
-        at = {j: i for i, j in enumerate(self.model.actuated)}
+        at = self.model.input_of
         return tau[[at[j] for j in self.model.motors]]
 
     def _theta_force(self, phys, x, tau):
@@ -164,7 +164,7 @@ class Arm:
         if self.m:
             T = self.sea_torque(*x, phys=phys)
             Q = Q + (T if self.m == self.n else ca.sparsify(ca.DM(_scatter(self.model.motors, self.n))) @ T)
-        kinds, mu, at = self.model.kinds, phys.columns["gear_ratio"], {j: i for i, j in enumerate(self.model.actuated)}
+        kinds, mu, at = self.model.kinds, phys.columns["gear_ratio"], self.model.input_of
         geared = [j for j, k in enumerate(kinds) if k.rotors == "link"]
         direct = [j for j, k in enumerate(kinds) if k.actuated and not k.rotors]
         if geared:
@@ -176,9 +176,6 @@ class Arm:
         return Q
 
     # -- plumbing ---------------------------------------------------------------------------
-    def _symbols(self, *names):
-        return [ca.SX.sym(name, self.n) for name in names]
-
     def _function(self, name, ins, outs, build, parametric=False, key=None):
         """The Function `name` built once: build(phys, *inputs); the parametric twin adds p.
         Inputs named f_* are wrenches (6 x 1), the others columns (`_size`)."""
@@ -244,7 +241,7 @@ class Arm:
             tau_m = -(Qi_phi + T_s + self.gear_loss(x[3], phys, T_s)) / self._at_motors(mu)
             if self.m == self.u:
                 return tau_m
-            parts.update({j: tau_m[i] for i, j in enumerate(self.model.motors)})
+            parts.update({j: tau_m[i] for j, i in self.model.motor_of.items()})
         for j in self.model.actuated:
             if self.model.joints[j].joint_kind.rotors == "link":
                 parts[j] = -(T[j] + self.gear_loss(x[2][j], phys, 0.0, [j])) / mu[j]
@@ -429,7 +426,7 @@ class Arm:
         """dQ/dtau ((n + m) x u): the generalised forces' derivative by the inputs, given the gear
         ratios mu (n): -mu on a motor's phi row (sea) or on theta's row (geared), 1 on theta's
         row (direct)."""
-        at_motor, kinds = {j: i for i, j in enumerate(self.model.motors)}, self.model.kinds
+        at_motor, kinds = self.model.motor_of, self.model.kinds
         place = np.zeros((self.n + self.m, self.u))
         for col, j in enumerate(self.model.actuated):
             place[self.n + at_motor[j] if kinds[j].motor else j, col] = 1.0

@@ -62,7 +62,7 @@ def rotor_frame_angle(gear, spins, phi):
 def segments(model, phys, reduced: bool = False) -> list:
     """The tree of the complete model, or of the DLR reduced model, with the inertias of `phys`
     (numbers, or expressions of the parameters: then every rotor spins in its own frame)."""
-    segs, motors = [], {j: i for i, j in enumerate(model.motors)}
+    segs, motors = [], model.motor_of
     for j, (jt, parent) in enumerate(zip(model.joints, model.parent)):
         M, mu, kind = phys.inertias[j], phys.columns["gear_ratio"][j], jt.joint_kind   # mu: a number, or free
         rotors = [(gear, M[part], (phys.symbolic and (jt.name, part) not in phys.balanced)

@@ -196,7 +196,7 @@ def mujoco_xml(model, variant: str = "complete") -> str:
              '  <worldbody>']
     lines += _attached(model, 0, "    ")
 
-    motor_of = {j: i for i, j in enumerate(model.motors)}
+    motor_of = model.motor_of
 
     def joint_bodies(j: int, indent: str) -> list:
         jt, name, kind = model.joints[j], names[j], model.joints[j].joint_kind
@@ -279,7 +279,7 @@ def gear_map(arm, m) -> np.ndarray:
     geared joint's theta)."""
     n, model = arm.n, arm.model
     T = np.zeros((m.nv, n + arm.m))
-    motor_of = {j: i for i, j in enumerate(model.motors)}
+    motor_of = model.motor_of
     names = {m.joint(i).name for i in range(m.njnt)}
     for j, jt in enumerate(model.joints):
         name = safe_name(jt.name)

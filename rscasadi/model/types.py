@@ -225,6 +225,16 @@ class ArmModel:
         return [j for j, jt in enumerate(self.joints) if jt.joint_kind.actuated]
 
     @property
+    def motor_of(self) -> dict:
+        """Joint index -> the index of its motor coordinate in phi (the joints that have one)."""
+        return {j: i for i, j in enumerate(self.motors)}
+
+    @property
+    def input_of(self) -> dict:
+        """Joint index -> the index of its input in tau (the actuated joints)."""
+        return {j: i for i, j in enumerate(self.actuated)}
+
+    @property
     def all_sea(self) -> bool:
         """Whether every joint is an SEA (the arm of the paper)."""
         return all(jt.kind == "sea" for jt in self.joints)
