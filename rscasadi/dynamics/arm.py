@@ -191,6 +191,7 @@ class Arm:
         return self._functions[key]
 
     def _segments(self, reduced, phys):
+        self._fixed_base()
         if reduced:
             unbalanced = [f"joint {i + 1} ({jt.name!r}) {part}" for i, jt in enumerate(self.model.joints)
                           for part in ("slow_rotor", "fast_rotor") if not getattr(jt, part).balanced]
@@ -199,6 +200,13 @@ class Arm:
                                  f"(com on the axis, ixx = iyy, no products of inertia); unbalanced: "
                                  + ", ".join(unbalanced))
         return rec.segments(self.model, phys, reduced)
+
+    def _fixed_base(self) -> None:
+        """Refuse a floating model: its dynamics need the base's coordinates (FloatingRobot)."""
+        if self.model.floating:
+            raise InvalidArgument(f"{self.model.path}: the base floats (floating = true): its dynamics, frames and "
+                                  "contacts are rscasadi.FloatingRobot's (rscasadi.load_robot); this capability "
+                                  "takes robots on a fixed base")
 
     def _kin(self, reduced, phys, x):
         segs = self._segments(reduced, phys)
@@ -284,6 +292,7 @@ class Arm:
 
     def _kinematic(self, name, frame, ins, outs, build, parametric, reference=None):
         """A kinematic Function of one frame, named name_<frame>[_<reference>] (C identifiers)."""
+        self._fixed_base()
         fr = self.model.frame(frame)
         if reference is not None and reference not in kinematics.REFERENCES:
             raise InvalidArgument(f"reference {reference!r}: choose one of {', '.join(kinematics.REFERENCES)}")

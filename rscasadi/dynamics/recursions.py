@@ -13,6 +13,10 @@ joint's rotors turn with its motor coordinate phi (`Segment.leaves`: a one-degre
 leaf of the parent, paper eq. 23); a geared joint's turn with its link coordinate theta through
 the gear (`Segment.geared`: one cluster with the link, one coordinate, as GRBDA's); the other
 kinds have none (rscasadi.model.kinds).
+A floating base (`Base`) is body 0 of the tree, moved by a six-degree-of-freedom joint from the
+world: its velocity V0 starts the forward loops, its articulated inertia ends the backward one,
+and its acceleration alpha0 (classical, gravity as an acceleration of the world as everywhere
+here) is then solved from it before the forward loop (Featherstone's floating-base ABA).
 The DLR/Spong reduced model uses the same code: rotors merged rigidly into the
 parent link, and a spin inertia on the coordinate they turn with (`B_spin` on phi, `B_link` on
 theta).
@@ -20,6 +24,7 @@ theta).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -40,6 +45,16 @@ class Segment:
     motor: int | None = None  # the index of joint j's motor coordinate in phi, if it has one
     geared: list = field(default_factory=list)   # [(gear, M, spins)] rotors turning with theta_j
     B_link: float = 0.0      # reduced model only: the spin inertia of geared rotors on theta_j
+
+
+@dataclass
+class Base:
+    """A floating base: its spatial inertia M (its frame), its velocity V = [w; v] (its frame) and
+    its pose in the world, rotation R and origin p (for gravity's potential)."""
+    M: Any
+    V: Any
+    R: Any = None
+    p: Any = None
 
 
 @dataclass
@@ -83,11 +98,12 @@ def segments(model, phys, reduced: bool = False) -> list:
     return segs
 
 
-def kinematics(segs, theta, phi, dtheta, dphi) -> list:
-    """Eqs. (1), (9), (18): velocities and Coriolis terms, base to leaves."""
+def kinematics(segs, theta, phi, dtheta, dphi, base: Base | None = None) -> list:
+    """Eqs. (1), (9), (18): velocities and Coriolis terms, base to leaves (from a floating base's V)."""
     kin: list = []
+    V0 = base.V if base is not None else ca.DM.zeros(6)
     for j, seg in enumerate(segs):
-        V_p = kin[seg.parent].V if seg.parent >= 0 else ca.DM.zeros(6)
+        V_p = kin[seg.parent].V if seg.parent >= 0 else V0
         R = joint_rotation(seg.R, theta[j])
         X = Xup(R, seg.l)
         m = seg.motor
@@ -107,13 +123,15 @@ def _rotor(seg, V_p, rotor, angle, rate) -> tuple:
     return gear, M, Xr, Xr @ V_p + H * gear * rate, coriolis(Rr, seg.l, V_p[:3], gear * rate)
 
 
-def accelerations(segs, kin, ddtheta, ddphi, gravity):
-    """Eqs. (2), (18): spatial accelerations of links, motor rotors and geared rotors, base to leaves."""
+def accelerations(segs, kin, ddtheta, ddphi, gravity, alpha0=None):
+    """Eqs. (2), (18): spatial accelerations of links, motor rotors and geared rotors, base to leaves
+    (alpha0: a floating base's acceleration, gravity included; default the fixed base's, -g)."""
     alpha: list = []
     alpha_r: list = []
     alpha_g: list = []
+    alpha_base = base_acceleration(gravity) if alpha0 is None else alpha0
     for j, (seg, k) in enumerate(zip(segs, kin)):
-        alpha_p = alpha[seg.parent] if seg.parent >= 0 else base_acceleration(gravity)
+        alpha_p = alpha[seg.parent] if seg.parent >= 0 else alpha_base
         alpha_r.append([Xr @ alpha_p + H * gear * ddphi[seg.motor] + ar for gear, _, Xr, _, ar in k.leaves])
         alpha_g.append([Xr @ alpha_p + H * gear * ddtheta[j] + ar for gear, _, Xr, _, ar in k.geared])
         alpha.append(k.X @ alpha_p + H * ddtheta[j] + k.a)
@@ -125,13 +143,15 @@ def rotor_force(M, V, alpha):
     return M @ alpha + gyroscopic(M, V[:3])
 
 
-def inverse_dynamics(segs, kin, ddtheta, ddphi, gravity, f_ext=None):
+def inverse_dynamics(segs, kin, ddtheta, ddphi, gravity, f_ext=None, base: Base | None = None, alpha0=None):
     """Eqs. (2), (3), (25), (26): T = theta rows of M ddq + c; Qphi = phi rows (rotor inertia).
-    f_ext: per link the spatial force the environment applies to it (link frame), or None."""
+    f_ext: per link the spatial force the environment applies to it (link frame), or None.
+    With a floating `base` moving at alpha0 (gravity included) a third output: the wrench the
+    base needs (base frame, [moment; force]): its own inertial force and the tree's on it."""
     n = len(segs)
-    alpha, alpha_r, alpha_g = accelerations(segs, kin, ddtheta, ddphi, gravity)
+    alpha, alpha_r, alpha_g = accelerations(segs, kin, ddtheta, ddphi, gravity, alpha0)
     T, Qphi = [None] * n, {}
-    f_child = [ca.DM.zeros(6) for _ in range(n)]   # force of the outboard joints on link j
+    f_child = [ca.DM.zeros(6) for _ in range(n + 1)]   # force of the outboard joints on link j (n: the base)
     for j in reversed(range(n)):
         seg = segs[j]
         f = rotor_force(seg.M, kin[j].V, alpha[j]) + f_child[j]        # eq. (25)
@@ -146,10 +166,12 @@ def inverse_dynamics(segs, kin, ddtheta, ddphi, gravity, f_ext=None):
             T[j] = T[j] + seg.B_link * ddtheta[j]
         if seg.motor is not None:
             Qphi[seg.motor] = seg.B_spin * ddphi[seg.motor] + _spin(kin[j].leaves, rotor_f)
-        if seg.parent >= 0:
-            f_child[seg.parent] = (f_child[seg.parent] + kin[j].X.T @ f
-                                   + _carried(kin[j].leaves, rotor_f) + _carried(kin[j].geared, geared_f))
-    return ca.vertcat(*T), _column([Qphi[m] for m in sorted(Qphi)])
+        f_child[seg.parent] = (f_child[seg.parent] + kin[j].X.T @ f        # parent -1: the base, f_child[n]
+                               + _carried(kin[j].leaves, rotor_f) + _carried(kin[j].geared, geared_f))
+    out = ca.vertcat(*T), _column([Qphi[m] for m in sorted(Qphi)])
+    if base is None:
+        return out
+    return out + (rotor_force(base.M, base.V, alpha0) + f_child[n],)
 
 
 def _spin(rotors, forces):
@@ -209,13 +231,16 @@ def geared_cluster(seg, k, P, z, torque):
     return D, U, u, P_add - U @ U.T / D, z_add + U * u / D
 
 
-def forward_dynamics(segs, kin, Qtheta, Qphi, gravity, f_ext=None):
+def forward_dynamics(segs, kin, Qtheta, Qphi, gravity, f_ext=None, base: Base | None = None):
     """The complete model solved in one O(n) sweep: eqs. (4)-(6) with each SEA's rotor pair a leaf
     (eq. 23) and each geared joint's link and rotors one cluster (`geared_cluster`).
-    f_ext: per link the spatial force the environment applies to it (link frame), or None."""
+    f_ext: per link the spatial force the environment applies to it (link frame), or None.
+    With a floating `base` a third output: its acceleration alpha0 (gravity as an acceleration of
+    the world: the base's classical acceleration less gravity), from P0 alpha0 + z0 = 0."""
     n = len(segs)
-    P_c, z_c = [ca.DM.zeros(6, 6)] * n, [ca.DM.zeros(6)] * n     # what children hand to link j
-    solve, leaf = [None] * n, [None] * n                           # theta_j'' from the parent's alpha
+    P_c, z_c = [ca.DM.zeros(6, 6)] * (n + 1), [ca.DM.zeros(6)] * (n + 1)   # what children hand to link j (n: base)
+    solve: list[Any] = [None] * n                                  # theta_j'' from the parent's alpha
+    leaf: list[Any] = [None] * n
     for j in reversed(range(n)):                                   # paper k = 1..n
         seg, k = segs[j], kin[j]
         P = seg.M + P_c[j]                                         # eq. (4)
@@ -232,21 +257,24 @@ def forward_dynamics(segs, kin, Qtheta, Qphi, gravity, f_ext=None):
         if seg.motor is not None:
             leaf[j] = leaf_articulated(seg, k, Qphi[seg.motor])
             P_add, z_add = P_add + leaf[j][3], z_add + leaf[j][4]
-        if seg.parent >= 0:
-            P_c[seg.parent] = P_c[seg.parent] + P_add
-            z_c[seg.parent] = z_c[seg.parent] + z_add
+        P_c[seg.parent] = P_c[seg.parent] + P_add                  # parent -1: the base, P_c[n]
+        z_c[seg.parent] = z_c[seg.parent] + z_add
+    alpha0 = base_acceleration(gravity)
+    if base is not None:                                           # the base: one 6-dof joint to the world
+        alpha0 = -ca.solve(as_casadi(base.M) + P_c[n], gyroscopic(base.M, base.V[:3]) + z_c[n])
     ddtheta: list = []
     ddphi: list = []
     alpha: list = []
     for j in range(n):                                             # eq. (6), paper k = n..1
-        alpha_p = alpha[segs[j].parent] if segs[j].parent >= 0 else base_acceleration(gravity)
+        alpha_p = alpha[segs[j].parent] if segs[j].parent >= 0 else alpha0
         if leaf[j] is not None:
             D_r, U_r, eps_r = leaf[j][:3]
             ddphi.append((eps_r - U_r.T @ alpha_p) / D_r)          # eq. (23)
         alpha_plus = kin[j].X @ alpha_p
         ddtheta.append(solve[j](alpha_p, alpha_plus))
         alpha.append(alpha_plus + H * ddtheta[j] + kin[j].a)
-    return ca.vertcat(*ddtheta), _column(ddphi)
+    out = ca.vertcat(*ddtheta), _column(ddphi)
+    return out if base is None else out + (alpha0,)
 
 
 def joint_forward_dynamics(segs, kin, ddtheta, Qphi, gravity):
@@ -323,20 +351,50 @@ def arm_forward_dynamics(segs, kin, T, ddphi, ddtheta_guess, gravity):
     return ca.vertcat(*ddtheta)
 
 
-def energy(segs, kin, gravity):
-    """Kinetic (0.5 V^T M V per body) plus gravitational (-m g . p_com, eq. 12 for the poses)."""
-    E, g, poses = 0, as_casadi(gravity), []
+def body_states(segs, kin, base: Base | None = None):
+    """Every body (a floating base, then per joint its link, its motor's and its geared rotors):
+    (M, V, R, o), its spatial inertia and velocity in its frame, and the frame's rotation and origin
+    in the world (eq. 12; a fixed base is the world)."""
+    poses: list = []
+    root = (ca.DM.eye(3), ca.DM.zeros(3)) if base is None else (base.R, base.p)
+    if base is not None:
+        yield base.M, base.V, base.R, base.p
     for seg, k in zip(segs, kin):
         theta = k.q[0]
-        R_p, o_p = poses[seg.parent] if seg.parent >= 0 else (ca.DM.eye(3), ca.DM.zeros(3))
+        R_p, o_p = poses[seg.parent] if seg.parent >= 0 else root
         bodies = [(seg.M, k.V, joint_rotation(seg.R, theta))]
         bodies += [(M, Vr, joint_rotation(seg.R, rotor_frame_angle(gear, spins, k.q[1])))
                    for (gear, M, _, Vr, _), (_, _, spins) in zip(k.leaves, seg.leaves)]
         bodies += [(M, Vr, joint_rotation(seg.R, rotor_frame_angle(gear, spins, theta)))
                    for (gear, M, _, Vr, _), (_, _, spins) in zip(k.geared, seg.geared)]
         for M, V, R in bodies:
-            R_b, o = base_pose(R_p, o_p, R, seg.l)                  # eq. (12): the body in the base frame
-            m, mp = M[3, 3], ca.vertcat(M[2, 4], M[0, 5], M[1, 3])
-            E += 0.5 * V.T @ as_casadi(M) @ V - g.T @ (m * o + R_b @ mp)
+            yield (M, V) + base_pose(R_p, o_p, R, seg.l)
         poses.append(base_pose(R_p, o_p, bodies[0][2], seg.l))
+
+
+def energy(segs, kin, gravity, base: Base | None = None):
+    """Kinetic (0.5 V^T M V per body) plus gravitational (-m g . p_com) of every body."""
+    E, g = 0, as_casadi(gravity)
+    for M, V, R, o in body_states(segs, kin, base):
+        m, mp = M[3, 3], ca.vertcat(M[2, 4], M[0, 5], M[1, 3])        # eq. (11): m and m c
+        E += 0.5 * V.T @ as_casadi(M) @ V - g.T @ (m * o + R @ mp)
     return E
+
+
+def momentum(segs, kin, base: Base | None = None):
+    """The momentum of every body about the world origin, world axes: [linear; angular]."""
+    lin, ang = ca.DM.zeros(3), ca.DM.zeros(3)
+    for M, V, R, o in body_states(segs, kin, base):
+        h = as_casadi(M) @ V                                          # [moment about its origin; force]
+        p = R @ h[3:]
+        lin, ang = lin + p, ang + R @ h[:3] + ca.cross(o, p)
+    return ca.vertcat(lin, ang)
+
+
+def mass_and_moment(segs, kin, base: Base | None = None):
+    """The total mass and its first moment sum m c (world): the centre of mass is their ratio."""
+    mass, moment = 0, ca.DM.zeros(3)
+    for M, _, R, o in body_states(segs, kin, base):
+        m, mp = M[3, 3], ca.vertcat(M[2, 4], M[0, 5], M[1, 3])
+        mass, moment = mass + m, moment + m * o + R @ mp
+    return mass, moment

@@ -71,11 +71,24 @@ def parse(data: dict, path: str = "<memory>") -> ArmModel:
     joints: list = []
     for idx, raw in enumerate(raw_joints):
         joints.append(_joint(path, idx, raw, {jt.name for jt in joints} | {BASE}))
-    model = ArmModel(data["name"], gravity, tuple(joints), path, parents=_parents(path, raw_joints, joints))
+    model = ArmModel(data["name"], gravity, tuple(joints), path, parents=_parents(path, raw_joints, joints),
+                     base=_floating_base(ctx, data))
     frames = user_frames(ctx, data.get("frames"), link_frames(model))
     return dataclasses.replace(model, frames=frames, payload=payload(ctx, data.get("payload"), frames),
                                collision=collision(ctx, data.get("collision"), model.joints, frames, None,
                                                    parents=model.parents))
+
+
+def _floating_base(ctx, data: dict) -> Body | None:
+    """The [base] body of a model with `floating = true`; None for a fixed base."""
+    floating = data.get("floating", False)
+    if not isinstance(floating, bool):
+        ctx.fail("floating", f"expected true or false, got {floating!r}")
+    if floating and "base" not in data:
+        ctx.fail("base", "a floating base needs its body: [base] mass, com, inertia (in the base frame)")
+    if "base" in data and not floating:
+        ctx.fail("base", "a [base] body is only read with floating = true (a fixed base is the world)")
+    return _body(ctx, "base", data["base"]) if floating else None
 
 
 _READ: dict = {}       # (path, resolved) -> (the files' stamps, the model): read once while unchanged
@@ -244,5 +257,7 @@ def document(model: ArmModel) -> dict:
                        **{b: body_document(getattr(jt, b)) for b in BODIES
                           if b == "link" or jt.joint_kind.rotors}})
     frames, held, shape = frames_document(model), payload_document(model), collision_document(model)
-    return {"name": model.name, "gravity": [float(g) for g in model.gravity], **({"frames": frames} if frames else {}),
+    floating = {"floating": True, "base": body_document(model.base)} if model.base is not None else {}
+    return {"name": model.name, "gravity": [float(g) for g in model.gravity], **floating,
+            **({"frames": frames} if frames else {}),
             **({"payload": held} if held else {}), **({"collision": shape} if shape else {}), "joints": joints}

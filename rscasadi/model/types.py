@@ -13,7 +13,7 @@ import numpy as np
 from rscasadi.errors import Error, NotFound
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
-TOP_KEYS = {"name", "gravity", "joints", "frames", "payload", "collision"}
+TOP_KEYS = {"name", "gravity", "joints", "frames", "payload", "collision", "floating", "base"}
 JOINT_KEYS = {"name", "kind", "spring", "parent", "origin_xyz", "origin_rpy", "origin_R", "gear_ratio", "sea", "gear_loss", "limits",
               "link", "slow_rotor", "fast_rotor", "link_loss", "counterbalance", "torque_constant"}
 BODY_KEYS = {"mass", "com", "inertia"}
@@ -184,12 +184,18 @@ class ArmModel:
     payload: Payload | None = None
     collision: Collision | None = field(default=None, compare=False)
     parents: tuple = ()
+    base: Body | None = None             # a floating base's body (its own frame); None: the base is fixed
 
     def __post_init__(self):
         if self.parents and (len(self.parents) != len(self.joints)
                              or any(not -1 <= p < j for j, p in enumerate(self.parents))):
             raise ModelFileError(f"{self.path}: parents {list(self.parents)} is not a tree of {len(self.joints)} "
                                  "joints each after its parent (-1: the base)")
+
+    @property
+    def floating(self) -> bool:
+        """Whether the base is a free-flying body (docs/user-guide/floating.md), not the fixed world."""
+        return self.base is not None
 
     @property
     def parent(self) -> tuple:
@@ -264,17 +270,19 @@ class ArmModel:
         return np.array([getattr(jt, attr) for jt in self.joints], dtype=float)
 
 
-def inertia_problem(inertia: np.ndarray, rtol: float = 1e-12, point_mass: bool = False) -> str | None:
+def inertia_problem(inertia: np.ndarray, rtol: float = 1e-12, point_mass: bool = False,
+                    triangle: bool = True) -> str | None:
     """Why a 3x3 inertia about the centre of mass is not physical, or None: not finite, a
     principal moment <= 0 (< 0 where `point_mass` allows a URDF link's point mass or a tool frame
-    of no size: zero moments), or moments breaking the triangle inequality (no body has them)."""
+    of no size: zero moments), or (with `triangle`) moments breaking the triangle inequality (no
+    body has them)."""
     if not np.all(np.isfinite(inertia)):
         return "has a value that is not finite"
     eig = np.linalg.eigvalsh(inertia)
     if eig[0] < -rtol * max(abs(eig[-1]), 1e-300) if point_mass else eig[0] <= 0.0:
         return (f"not positive semidefinite (principal moments {eig.tolist()})" if point_mass
                 else f"not positive definite (principal moments {eig.tolist()})")
-    if eig[2] > eig[0] + eig[1] + rtol * eig[-1]:
+    if triangle and eig[2] > eig[0] + eig[1] + rtol * eig[-1]:
         return f"principal moments {eig.tolist()} break the triangle inequality"
     return None
 

@@ -13,6 +13,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from typing import Any
+import warnings
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -24,7 +26,7 @@ from rscasadi.model.kinds import KINDS
 from rscasadi.model.types import DEFAULT_GRAVITY, ArmModel, Body, Frame, Joint, ModelFileError, inertia_problem, rpy_of
 
 URDF_TOP_KEYS = {"name", "urdf", "tip", "tips", "locked", "lock_others", "gravity", "joints", "frames", "payload",
-                 "collision"}
+                 "collision", "floating"}
 MOVING = ("revolute", "continuous")
 
 
@@ -95,8 +97,10 @@ def _load(path, ctx):
         ctx.fail("urdf", f"{path} is not a valid URDF: {type(exc).__name__}: {exc}")
 
 
-def _link_spatial(urdf_path, link) -> np.ndarray:
-    """A URDF link's spatial inertia about its frame origin (6x6); zero if it has no mass."""
+def _link_spatial(urdf_path, link, odd: list | None = None) -> np.ndarray:
+    """A URDF link's spatial inertia about its frame origin (6x6); zero if it has no mass.  A link
+    whose moments break the triangle inequality (no rigid body has them: a CAD export's round
+    numbers) is kept as given, its name added to `odd`."""
     inertial = link.inertial
     if inertial is None or inertial.mass is None or inertial.mass == 0.0:
         return np.zeros((6, 6))
@@ -104,9 +108,11 @@ def _link_spatial(urdf_path, link) -> np.ndarray:
     if not np.isfinite(inertial.mass) or inertial.mass < 0.0:
         raise ModelFileError(f"{where}: mass must be >= 0, got {inertial.mass!r}")
     I = np.asarray(inertial.inertia if inertial.inertia is not None else np.zeros((3, 3)), float)
-    problem = inertia_problem(I, point_mass=True)          # the merged body's is checked positive definite
+    problem = inertia_problem(I, point_mass=True, triangle=False)   # the merged body's is checked whole
     if problem:
         raise ModelFileError(f"{where}: inertia {problem}")
+    if odd is not None and inertia_problem(I, point_mass=True):
+        odd.append(link.name)
     T = np.asarray(inertial.origin if inertial.origin is not None else np.eye(4), float)
     if T.shape != (4, 4) or not np.all(np.isfinite(T)):
         raise ModelFileError(f"{where}: <origin> is not finite numbers")
@@ -237,9 +243,26 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
                                    if (shapes := _collision_shapes(urdf_path, links_by_name[lk]))}
     tree = () if parents == list(range(-1, len(order) - 1)) else tuple(parents)
     return ArmModel(data["name"], gravity, tuple(joints), path, extra, frames=frames,
+                    base=_base_body(ctx, data.get("floating", False), bodies[0], urdf_path),
                     payload=payload(ctx, data.get("payload"), frames), parents=tree,
                     collision=collision(ctx, data.get("collision"), joints, frames, tip_link,
                                         extra["collision_geometry"], urdf_path, parents=tree))
+
+
+def _base_body(ctx, floating, body: dict, urdf_path) -> Body | None:
+    """With `floating = true`, the root link and the links fixed to it as the base's body."""
+    if not isinstance(floating, bool):
+        ctx.fail("floating", f"expected true or false, got {floating!r}")
+    if not floating:
+        return None
+    if body["M"][3, 3] <= 0.0:
+        ctx.fail("floating", f"the base ({', '.join(body['links'])} in {urdf_path}) has no mass: a floating base "
+                             "needs an <inertial>")
+    base = Body.from_spatial(body["M"])
+    problem = inertia_problem(base.inertia, 1e-9)
+    if problem:
+        ctx.fail("floating", f"merged inertia of the base ({', '.join(body['links'])}) {problem}")
+    return base
 
 
 def _collision_shapes(urdf_path, link) -> list:
@@ -339,13 +362,13 @@ def _cut_tree(robot, urdf_path, joints_by_name, links_by_name, locked, actuators
     bodies: list[dict[str, Any]] = [{"M": np.zeros((6, 6)), "links": [], "T_links": []} for _ in range(len(index) + 1)]
     placement, held_at = {}, {}                               # held_at: every held moving joint's position
     stack = [(roots[0], 0, np.eye(4))]                        # (link, tree body, transform body frame -> link)
+    odd: list = []                                            # links whose moments no rigid body has
     while stack:
         link_name, b, T = stack.pop()
         bodies[b]["links"].append(link_name)
         bodies[b]["T_links"].append(T)
-        if b > 0:
-            bodies[b]["M"] = bodies[b]["M"] + transform_inertia(_link_spatial(urdf_path, links_by_name[link_name]),
-                                                                T[:3, :3], T[:3, 3])
+        bodies[b]["M"] = bodies[b]["M"] + transform_inertia(_link_spatial(urdf_path, links_by_name[link_name], odd),
+                                                            T[:3, :3], T[:3, 3])
         for jt in children.get(link_name, []):
             origin = _origin(urdf_path, jt)
             if jt.name in locked and jt.type not in MOVING + ("prismatic",):
@@ -361,4 +384,8 @@ def _cut_tree(robot, urdf_path, joints_by_name, links_by_name, locked, actuators
                 continue
             placement[jt.name] = (b, T @ origin)
             stack.append((jt.child, index[jt.name], np.eye(4)))
+    if odd:
+        warnings.warn(f"{urdf_path}: the inertias of links {', '.join(repr(n) for n in odd)} break the triangle "
+                      "inequality (no rigid body has such principal moments); kept as given, merged into the "
+                      "bodies that carry them, which are checked whole", stacklevel=3)
     return placement, bodies, held_at

@@ -24,9 +24,11 @@ from rscasadi.errors import InvalidArgument
 class PinocchioRoute:
     """The arm as a Pinocchio tree with the rotors as bodies of their own: the independent oracle."""
 
-    def __init__(self, model, stages=None, gravity=None):
+    def __init__(self, model, stages=None, gravity=None, base_inertia=None):
         """stages: per joint (placement SE3 in the parent joint frame, joint model, link Inertia,
-        rotation from the joint frame to J_j, whose z is the axis); default: from `model`."""
+        rotation from the joint frame to J_j, whose z is the axis); default: from `model`.  A
+        floating model's base is a free-flyer joint first (its Inertia: `base_inertia`, default
+        the model's); q = (base, ...) and v = (base, ...) as docs/user-guide/floating.md."""
         self.arm_model, n = model, model.n
         if stages is None:
             stages = [(pin.SE3(jt.R, np.asarray(jt.origin_xyz, float)), pin.JointModelRZ(),
@@ -35,12 +37,19 @@ class PinocchioRoute:
         self.model.gravity.linear = np.asarray(model.gravity if gravity is None else gravity, float)
         motors = [j for j, jt in enumerate(model.joints) if jt.kind == "sea"]
         with_rotors = [j for j, jt in enumerate(model.joints) if jt.kind in ("sea", "geared")]
-        G, link_id = np.zeros((n + 2 * len(with_rotors), n + len(motors))), {-1: 0}
+        self.nb = 6 if model.base is not None else 0          # a floating base's velocities, first
+        G, link_id = np.zeros((self.nb + n + 2 * len(with_rotors), self.nb + n + len(motors))), {-1: 0}
+        if self.nb:
+            link_id[-1] = self.model.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), "base")
+            self.model.appendBodyToJoint(link_id[-1], base_inertia if base_inertia is not None
+                                         else _inertia(model.base, np.eye(3)), pin.SE3.Identity())
+            G[:6, :6] = np.eye(6)
         for j in _depth_first(model.parent):
             (placement, jmodel, link_inertia, R_a), jt = stages[j], model.joints[j]
-            turns = n + motors.index(j) if jt.kind == "sea" else j        # the coordinate the rotors follow
+            turns = self.nb + (n + motors.index(j) if jt.kind == "sea" else j)   # the coordinate the rotors follow
             bodies = [(_inertia(jt.slow_rotor, R_a), turns, 1.0), (_inertia(jt.fast_rotor, R_a), turns, -jt.gear_ratio)]
-            for k, (inertia, col, gear) in enumerate((bodies if j in with_rotors else []) + [(link_inertia, j, 1.0)]):
+            for k, (inertia, col, gear) in enumerate((bodies if j in with_rotors else [])
+                                                     + [(link_inertia, self.nb + j, 1.0)]):
                 jid = self.model.addJoint(link_id[model.parent[j]], jmodel, placement, f"joint{j}_{k}")
                 self.model.appendBodyToJoint(jid, inertia, pin.SE3.Identity())
                 G[self.model.joints[jid].idx_v, col] = gear
@@ -49,6 +58,11 @@ class PinocchioRoute:
             if held is not None and model.frame(held.frame).body == j + 1:   # a payload on this link
                 f = model.frame(held.frame)
                 self.model.appendBodyToJoint(jid, _inertia(held.body, np.eye(3)), pin.SE3(R_a @ f.R, R_a @ f.p))
+        self.axes = [np.eye(3)] + [stage[3] for stage in stages]         # J_j = the Pinocchio joint frame R_a
+        for f in model.frames:                                   # our frames, on Pinocchio's joints
+            parent = link_id[f.body - 1]
+            self.model.addFrame(pin.Frame(f.name, parent, pin.SE3(self.axes[f.body] @ f.R, self.axes[f.body] @ f.p),
+                                          pin.FrameType.OP_FRAME))
         self.G, self.data, self.motors = G, self.model.createData(), motors
         self.kinds = [jt.kind for jt in model.joints]
         self.actuated = [j for j, k in enumerate(self.kinds) if k in ("sea", "geared", "direct")]
@@ -61,9 +75,10 @@ class PinocchioRoute:
         """The link tree from Pinocchio's own URDF parser (fixed links merged, locked joints
         removed by buildReducedModel at their locked values); rotors from our model file."""
         reduced = urdf_model(model)
-        names = [reduced.names[i] for i in range(1, reduced.njoints)]
+        first = 2 if model.floating else 1                  # joint 1 of a floating robot: Pinocchio's root_joint
+        names = [reduced.names[i] for i in range(first, reduced.njoints)]
         ours = [jt.name for jt in model.joints]
-        parents = [ours.index(reduced.names[reduced.parents[i]]) if reduced.parents[i] else -1
+        parents = [ours.index(reduced.names[reduced.parents[i]]) if reduced.parents[i] >= first else -1
                    for i in (reduced.getJointId(name) for name in ours if name in names)]
         if sorted(names) != sorted(ours) or tuple(parents) != model.parent:
             raise InvalidArgument(f"Pinocchio's tree {names} differs from the model's joints {ours}")
@@ -72,14 +87,37 @@ class PinocchioRoute:
             axis = _axis(reduced.joints[i])
             stages.append((reduced.jointPlacements[i], pin.JointModelRevoluteUnaligned(*axis),
                            reduced.inertias[i], axis_rotation(axis)))
-        return cls(model, stages)
+        return cls(model, stages, base_inertia=reduced.inertias[1] if model.floating else None)
+
+    def tree_state(self, q, v) -> tuple:
+        """Pinocchio's (q, v) of the tree from ours: q = (base, theta, phi), v likewise."""
+        nb = 7 if self.nb else 0
+        q_tree = np.r_[np.asarray(q[:nb], float), self.G[self.nb:, self.nb:] @ np.asarray(q[nb:], float)]
+        return q_tree, self.G @ np.asarray(v, float)
+
+    def dynamics(self, q, v) -> tuple:
+        """M and h = C v + g (Pinocchio's nle) on our v at our (q, v)."""
+        qt, vt = self.tree_state(q, v)
+        M = pin.crba(self.model, self.data, qt)
+        M = np.triu(M) + np.triu(M, 1).T                  # crba fills the upper triangle
+        return self.G.T @ M @ self.G, self.G.T @ pin.rnea(self.model, self.data, qt, vt, np.zeros(self.model.nv))
+
+    def frame_motion(self, name, q, v, reference) -> tuple:
+        """The frame's Jacobian on our v and its classical acceleration at a = 0 (J-dot v), [linear;
+        angular], in `reference` (a pin.ReferenceFrame), and its spatial acceleration at a = 0."""
+        qt, vt = self.tree_state(q, v)
+        fid = self.model.getFrameId(name)
+        pin.forwardKinematics(self.model, self.data, qt, vt, np.zeros(self.model.nv))
+        pin.computeJointJacobians(self.model, self.data, qt)
+        pin.updateFramePlacements(self.model, self.data)
+        J = pin.getFrameJacobian(self.model, self.data, fid, reference) @ self.G
+        classical = pin.getFrameClassicalAcceleration(self.model, self.data, fid, reference).vector
+        spatial = pin.getFrameAcceleration(self.model, self.data, fid, reference).vector
+        return J, classical, spatial, self.data.oMf[fid]
 
     def mass_bias(self, theta, phi, dtheta, dphi):
-        q, v = self.G @ np.r_[theta, phi], self.G @ np.r_[dtheta, dphi]
-        M = pin.crba(self.model, self.data, q)
-        M = np.triu(M) + np.triu(M, 1).T                  # crba fills the upper triangle
-        c = pin.rnea(self.model, self.data, q, v, np.zeros(self.model.nv))
-        return self.G.T @ M @ self.G, self.G.T @ c
+        """M and c on (theta, phi) of a fixed-base robot."""
+        return self.dynamics(np.r_[theta, phi], np.r_[dtheta, dphi])
 
     def forward_dynamics(self, theta, phi, dtheta, dphi, tau):
         M, c = self.mass_bias(theta, phi, dtheta, dphi)
@@ -116,7 +154,8 @@ def urdf_model(model) -> "pin.Model":
     """Pinocchio's own model of a URDF-based model's URDF, the held joints (locked, and those off
     the chain at lock_others) removed at their values (buildReducedModel): the links only, its
     frames the URDF's links."""
-    full = pin.buildModelFromUrdf(model.extra["urdf"])
+    full = (pin.buildModelFromUrdf(model.extra["urdf"], pin.JointModelFreeFlyer()) if model.floating
+            else pin.buildModelFromUrdf(model.extra["urdf"]))
     q0, lock_ids = pin.neutral(full), []
     for name, value in model.extra["locked"].items():
         jid = full.getJointId(name)

@@ -1,0 +1,157 @@
+"""Contacts of a floating robot (docs/user-guide/floating.md, "Contacts"): their Jacobians and
+drifts, the contact forward dynamics (KKT), the inverse dynamics with contact forces, the impact.
+
+A contact holds a frame of the robot still: a `point` contact its origin (3 rows: the velocity of
+the origin in world axes, forces [fx, fy, fz] in world axes), a `flat` contact the whole frame (6
+rows: its velocity [v; w] in its own axes, the wrench [force; moment] in its own axes, as a foot
+sole's).  The rows' acceleration at a = 0, J-dot v (the drift gamma), is the classical
+acceleration of the origin in world axes for a point, the spatial acceleration in the frame's
+axes (classical less w x v) for a flat contact: the time derivatives of the rows' velocities.
+
+With the contacts held (J a + gamma = -damping J v, damping >= 0 pulling the contacts' velocity
+to zero), M a + h = Q + J^T f; solved as Pinocchio's contact dynamics: a_free = M^-1 (Q - h),
+f = -(J M^-1 J^T)^-1 (J a_free + gamma + damping J v), a = a_free + M^-1 J^T f (LDL^T solves at
+run time in the generated code).  `robot` is a rscasadi.dynamics.floating.FloatingRobot.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from rscasadi.errors import InvalidArgument
+from rscasadi.model.checks import identifier
+
+KINDS = {"point": 3, "flat": 6}
+
+
+@dataclass(frozen=True)
+class Contact:
+    """A contact at a frame: `point` (3 rows) or `flat` (6 rows)."""
+    frame: str
+    kind: str = "point"
+
+    @property
+    def rows(self) -> int:
+        return KINDS[self.kind]
+
+
+def contact_set(model, contacts) -> tuple:
+    """Contacts from frame names (point contacts), (frame, kind) pairs, Contact objects or a
+    {frame: kind} table; every unknown frame or kind and every frame given twice, in one message."""
+    if isinstance(contacts, dict):
+        contacts = list(contacts.items())
+    if isinstance(contacts, (str, Contact)) or not contacts:
+        raise InvalidArgument(f"contacts: expected a list of frames (or of (frame, kind) pairs), got {contacts!r}")
+    out: list = []
+    bad: list = []
+    names = {f.name for f in model.frames}
+    for c in contacts:
+        c = c if isinstance(c, Contact) else Contact(c) if isinstance(c, str) else Contact(*c)
+        if c.frame not in names:
+            bad.append(f"no frame {c.frame!r}")
+        elif c.kind not in KINDS:
+            bad.append(f"{c.frame!r}: kind {c.kind!r} is not one of {', '.join(KINDS)}")
+        elif c.frame in [o.frame for o in out]:
+            bad.append(f"{c.frame!r} given twice")
+        out.append(c)
+    if bad:
+        raise InvalidArgument(f"{model.path}: contacts: " + "; ".join(bad) + f" (frames: {', '.join(sorted(names))})")
+    return tuple(out)
+
+
+def _name(what: str, contacts) -> str:
+    return what + "_" + "_".join(f"{identifier(c.frame)}{'' if c.kind == 'point' else '_flat'}" for c in contacts)
+
+
+def _rows(robot, contacts, q, v, a=None) -> tuple:
+    """The contacts' rows' velocity (and with `a`, their acceleration), stacked."""
+    vel, acc = [], []
+    for c, (R, _, v_loc, a_loc) in zip(contacts, robot._frame_motions([c.frame for c in contacts], q, v, a)):
+        if c.kind == "point":
+            vel.append(R @ v_loc[:3])
+            acc += [R @ a_loc[:3]] if a is not None else []
+        else:
+            vel.append(v_loc)
+            acc += [ca.vertcat(a_loc[:3] - ca.cross(v_loc[3:], v_loc[:3]), a_loc[3:])] if a is not None else []
+    return ca.vertcat(*vel), (ca.vertcat(*acc) if a is not None else None)
+
+
+def jacobian(robot, contacts) -> ca.Function:
+    """q -> J (nc x nv)."""
+    def build(q):
+        v = ca.SX.sym("v", robot.nv)
+        return [ca.jacobian(_rows(robot, contacts, q, v)[0], v)]
+    return robot._function(_name("contact_jacobian", contacts), ["q"], ["J"], build)
+
+
+def drift(robot, contacts) -> ca.Function:
+    """q, v -> gamma (nc): the rows' acceleration at a = 0."""
+    return robot._function(_name("contact_drift", contacts), ["q", "v"], ["gamma"],
+                           lambda q, v: [_rows(robot, contacts, q, v, ca.DM.zeros(robot.nv))[1]])
+
+
+def _parts(robot, contacts, q, v):
+    """M, J and gamma at (q, v) (MX)."""
+    return robot.mass_matrix()(q), jacobian(robot, contacts)(q), drift(robot, contacts)(q, v)
+
+
+def forward(robot, contacts, damping: float = 0.0) -> ca.Function:
+    """q, v, tau -> a (nv), f (nc): the contact forward dynamics (module docstring)."""
+    if not damping >= 0:
+        raise InvalidArgument(f"contact damping {damping!r}: expected a number >= 0 (1/s)")
+    name = _name("contact_dynamics", contacts) + (f"_damped_{damping:g}".replace(".", "p") if damping else "")
+    if name not in robot._functions:
+        q, v, tau = ca.MX.sym("q", robot.nq), ca.MX.sym("v", robot.nv), ca.MX.sym("tau", robot.u)
+        M, J, gamma = _parts(robot, contacts, q, v)
+        rhs = robot.generalized_forces()(q, v, tau) - robot.nonlinear_effects()(q, v)
+        sol = ca.solve(M, ca.horzcat(rhs, J.T), "ldl")                  # M^-1 (Q - h), M^-1 J^T
+        a_free, MiJt = sol[:, 0], sol[:, 1:]
+        f = -ca.solve(J @ MiJt, J @ a_free + gamma + damping * (J @ v), "ldl")
+        robot._functions[name] = ca.Function(name, [q, v, tau], [a_free + MiJt @ f, f], ["q", "v", "tau"], ["a", "f"])
+    return robot._functions[name]
+
+
+def inverse(robot, contacts) -> ca.Function:
+    """q, v, a, f -> tau, T, base: the inputs with the contact forces f applied (base: the wrench
+    the base still lacks, zero when a and f are consistent)."""
+    nc = sum(c.rows for c in contacts)
+
+    def build(q, v, a, f):
+        J = jacobian(robot, contacts)(q)
+        return robot.inputs_for(q, v, robot._inverse(q, v, a) - J.T @ f)
+    return robot._function(_name("contact_inverse_dynamics", contacts), ["q", "v", "a", "f"],
+                           ["tau", "T", "base"], build, {"f": nc})
+
+
+def impact(robot, contacts) -> ca.Function:
+    """q, v -> v_plus, impulse: the plastic impact, M (v_plus - v) = J^T impulse, J v_plus = 0."""
+    name = _name("impact", contacts)
+    if name not in robot._functions:
+        q, v = ca.MX.sym("q", robot.nq), ca.MX.sym("v", robot.nv)
+        M, J = robot.mass_matrix()(q), jacobian(robot, contacts)(q)
+        MiJt = ca.solve(M, J.T, "ldl")
+        impulse = -ca.solve(J @ MiJt, J @ v, "ldl")
+        robot._functions[name] = ca.Function(name, [q, v], [v + MiJt @ impulse, impulse], ["q", "v"],
+                                             ["v_plus", "impulse"])
+    return robot._functions[name]
+
+
+def check(robot, contacts, q, rtol: float = 1e-9) -> None:
+    """Refuse, naming them, contacts whose rows depend on the others' at q (the contact dynamics'
+    KKT system is then singular and its forces undetermined): a flat contact and a point contact
+    on the same leg, two contacts on one link, a leg with fewer joints than its contact has rows."""
+    J = np.asarray(jacobian(robot, contacts)(np.asarray(q, float)))
+    scale, rows = max(np.max(np.abs(J)), 1e-300), 0
+    held: list = []
+    for c in contacts:
+        block = J[:rows + c.rows]
+        s = np.linalg.svd(block / scale, compute_uv=False)
+        if s[-1] < rtol:
+            raise InvalidArgument(f"{robot.model.path}: contacts: the rows of {c.frame!r} ({c.kind}) depend on "
+                                  + (f"those of {', '.join(repr(h) for h in held)}" if held else "each other")
+                                  + " at this configuration: the contact forces are undetermined (a singular KKT "
+                                  "system); drop that contact, make it a point contact, or move the robot")
+        rows += c.rows
+        held.append(c.frame)

@@ -1,0 +1,291 @@
+"""Floating bases and contacts (docs/user-guide/floating.md) against Pinocchio with a free-flyer
+and the rotors as bodies (reference.pinocchio_route: its crba, rnea, frame Jacobians, classical
+and spatial frame accelerations, centroidal momentum and integrate; the KKT system solved here in
+numpy as one dense system), on random floating trees of every kind and on public robots parsed
+by Pinocchio itself: ANYmal C and Solo-12 (quadrupeds) and the Unitree G1 (humanoid); then
+physics: momentum and energy conserved in flight, contacts held still, impacts."""
+from __future__ import annotations
+
+import tomllib
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from conftest import ROOT, random_tree_doc, to_toml, with_kinds, write_arm
+import rscasadi
+from rscasadi.dynamics.floating import FloatingRobot, from_mujoco, to_mujoco
+from rscasadi.errors import InvalidArgument, NotFound
+from rscasadi.model.modelfile import ModelFileError, parse, read
+from rscasadi.reference.pinocchio_route import PinocchioRoute
+
+DATA = ROOT / "tests" / "data"
+ANYMAL = DATA / "anymal_c_sea.toml"
+FEET = ["LF_FOOT", "RF_FOOT", "LH_FOOT", "RH_FOOT"]
+G1_LEG = ("hip_pitch", "hip_roll", "hip_yaw", "knee", "ankle_pitch", "ankle_roll")
+G1_ARM = ("shoulder_pitch", "shoulder_roll", "shoulder_yaw", "elbow", "wrist_roll", "wrist_pitch", "wrist_yaw")
+
+
+def rel(a, b):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300)
+
+
+def col(x):
+    return np.asarray(x, float).ravel()
+
+
+def random_q(robot, rng, spread=np.pi):
+    quat = rng.normal(size=4)
+    return np.r_[rng.normal(size=3), quat / np.linalg.norm(quat), rng.uniform(-spread, spread, robot.n + robot.m)]
+
+
+def floating_tree(seed, n, kinds=None):
+    rng = np.random.default_rng(seed)
+    doc = random_tree_doc(rng, n)
+    if kinds:
+        doc = with_kinds(doc, kinds, rng)
+    doc.update(floating=True, base={"mass": 6.0, "com": [0.03, -0.01, 0.02], "inertia": [0.12, 0.15, 0.09, 0.01, 0.0, -0.004]})
+    return FloatingRobot(parse(tomllib.loads(to_toml(doc))))
+
+
+def g1_doc():
+    rng = np.random.default_rng(29)
+
+    def rotor(m, i):
+        return {"mass": m, "com": list(rng.uniform(-2e-3, 2e-3, 3)), "inertia": [i, 1.1 * i, 1.6 * i, 1e-2 * i, 0, 0]}
+    joints = ([f"{s}_{j}_joint" for s in ("left", "right") for j in G1_LEG] + ["waist_yaw_joint", "waist_roll_joint",
+              "waist_pitch_joint"] + [f"{s}_{j}_joint" for s in ("left", "right") for j in G1_ARM])
+    entries = []
+    for name in joints:                   # SEA legs, geared waist and shoulders, direct wrists and elbows
+        kind = ("sea" if "hip" in name or "knee" in name or "ankle" in name else
+                "geared" if "waist" in name or "shoulder" in name else "direct")
+        e = {"name": name, **({} if kind == "sea" else {"kind": kind})}
+        if kind != "direct":
+            e.update(gear_ratio=float(rng.uniform(30, 120)), gear_loss={"b": 0.5}, slow_rotor=rotor(0.2, 1e-4),
+                     fast_rotor=rotor(0.1, 1e-5))
+        if kind == "sea":
+            e["sea"] = {"k1": 1500.0, "d": 1.0}
+        entries.append(e)
+    return {"name": "g1-floating", "urdf": str(DATA / "g1_description" / "urdf" / "g1_29dof_rev_1_0.urdf"),
+            "floating": True, "joints": entries}
+
+
+def solo_doc():
+    joints = [f"{leg}_{j}" for leg in ("FL", "FR", "HL", "HR") for j in ("HAA", "HFE", "KFE")]
+    rotor = {"mass": 0.05, "com": [0.0, 0.0, 0.0], "inertia": [2e-6, 2e-6, 3e-6, 0.0, 0.0, 0.0]}
+    return {"name": "solo12-sea", "urdf": str(DATA / "solo_description" / "robots" / "solo12.urdf"), "floating": True,
+            "joints": [{"name": j, "gear_ratio": 9.0, "sea": {"k1": 40.0, "d": 0.05}, "gear_loss": {"b": 0.001},
+                        "slow_rotor": rotor, "fast_rotor": rotor} for j in joints]}
+
+
+def public(tmp_path, name):
+    if name == "anymal":
+        return FloatingRobot(read(ANYMAL))
+    doc = g1_doc() if name == "g1" else solo_doc()
+    return FloatingRobot(rscasadi.load(write_arm(tmp_path, doc, f"{name}.toml")).model)
+
+
+def pinocchio_kkt(route, q, v, Q, contacts):
+    """a and f from Pinocchio's M, nle, frame Jacobians and drifts: one dense KKT solve."""
+    M, h = route.dynamics(q, v)
+    J, gamma = [], []
+    for frame, kind in contacts:
+        if kind == "point":      # the origin's velocity and classical acceleration, world axes
+            Jf, classical, _, _ = route.frame_motion(frame, q, v, pin.LOCAL_WORLD_ALIGNED)
+            J.append(Jf[:3]), gamma.append(classical[:3])
+        else:                    # the frame's velocity and spatial acceleration, its own axes
+            Jf, _, spatial, _ = route.frame_motion(frame, q, v, pin.LOCAL)
+            J.append(Jf), gamma.append(spatial)
+    J, gamma = np.vstack(J), np.concatenate(gamma)
+    K = np.block([[M, -J.T], [J, np.zeros((len(gamma), len(gamma)))]])
+    sol = np.linalg.solve(K, np.r_[Q - h, -gamma])
+    return sol[:len(v)], sol[len(v):], J, gamma, M, h
+
+
+def check(robot, route, rng, frames, contacts, states=2):
+    """Every Function against the Pinocchio route at random states, to 1e-9."""
+    fd, inv, mass, nle, forces = (robot.forward_dynamics(), robot.inverse_dynamics(), robot.mass_matrix(),
+                                  robot.nonlinear_effects(), robot.generalized_forces())
+    cd, cinv, imp = robot.contact_dynamics(contacts), robot.contact_inverse_dynamics(contacts), robot.impact(contacts)
+    for _ in range(states):
+        q, v, tau = random_q(robot, rng, 1.0), rng.normal(size=robot.nv), rng.normal(size=robot.u)
+        qt, vt = route.tree_state(q, v)
+        Q = col(forces(q, v, tau))
+        a_ref, f_ref, J, gamma, M, h = pinocchio_kkt(route, q, v, Q, contacts)
+        assert rel(mass(q), M) < 1e-9 and rel(col(nle(q, v)), h) < 1e-9
+        a_free = col(fd(q, v, tau))
+        assert rel(a_free, np.linalg.solve(M, Q - h)) < 1e-9
+        tau_back, _, base = inv(q, v, a_free)
+        assert rel(col(tau_back), tau) < 1e-9 and np.max(np.abs(col(base))) < 1e-9 * max(1, np.max(np.abs(h)))
+        assert rel(np.asarray(robot.contact_jacobian(contacts)(q)), J) < 1e-9
+        assert rel(col(robot.contact_drift(contacts)(q, v)), gamma) < 1e-9
+        a, f = (col(x) for x in cd(q, v, tau))
+        assert rel(a, a_ref) < 1e-9 and rel(f, f_ref) < 1e-9
+        tau_c, _, base_c = cinv(q, v, a, f)
+        assert rel(col(tau_c), tau) < 1e-8 and np.max(np.abs(col(base_c))) < 1e-8 * max(1, np.max(np.abs(h)))
+        v_plus, impulse = (col(x) for x in imp(q, v))
+        assert np.max(np.abs(J @ v_plus)) < 1e-9 * max(1, np.max(np.abs(v)))
+        assert rel(M @ (v_plus - v), J.T @ impulse) < 1e-9
+        pin.computeCentroidalMomentum(route.model, route.data, qt, vt)
+        assert rel(col(robot.centroidal_momentum()(q, v)), route.data.hg.vector) < 1e-9
+        assert rel(col(robot.center_of_mass()(q)), pin.centerOfMass(route.model, route.data, qt)) < 1e-9
+        A = pin.ccrba(route.model, route.data, qt, vt) @ route.G
+        assert rel(np.asarray(robot.centroidal_momentum_matrix()(q)), A) < 1e-9
+        for frame in frames:
+            for ref, pref in (("local", pin.LOCAL), ("local_world_aligned", pin.LOCAL_WORLD_ALIGNED)):
+                Jf, classical, _, oMf = route.frame_motion(frame, q, v, pref)
+                assert rel(np.asarray(robot.frame_jacobian(frame, ref)(q)), Jf) < 1e-9
+                got = col(robot.frame_classical_acceleration(frame, ref)(q, v, np.zeros(robot.nv)))
+                assert np.max(np.abs(got - classical)) < 1e-9 * max(1, np.max(np.abs(classical)))
+            R, p = robot.frame_placement(frame)(q)
+            assert np.max(np.abs(np.asarray(R) - oMf.rotation)) < 1e-9
+            assert np.max(np.abs(col(p) - oMf.translation)) < 1e-9
+        dt = rng.uniform(0.01, 0.5)
+        q_next = col(robot.integrate()(q, v, dt))
+        assert np.max(np.abs(q_next[:7] - pin.integrate(route.model, qt, vt * dt)[:7])) < 1e-12
+        assert abs(np.linalg.norm(q_next[3:7]) - 1) < 1e-14
+
+
+@pytest.mark.parametrize("seed,kinds", [(1, None), (2, ["sea", "geared", "spring", "sea", "free", "direct", "geared", "sea"])])
+def test_random_floating_trees_equal_pinocchio(seed, kinds):
+    """Random trees on a free-flyer (branching on the base and on links, random axes, unbalanced
+    rotors, random gravity, every joint kind): M, h, the free and the contact dynamics (a point
+    and a flat contact), the inverse dynamics with and without contact forces, the impact, the
+    frames, the centre of mass, the centroidal momentum and its matrix, integrate."""
+    robot = floating_tree(seed, 8, kinds)
+    rng = np.random.default_rng(seed)
+    leaves = [f"j{j + 1}" for j in range(robot.n) if not robot.model.children(j)]
+    contacts, q = [], random_q(robot, rng, 1.0)
+    for frame, kind in [(leaves[0], "flat")] + [(f, "point") for f in leaves[1:]]:   # those the tree can hold
+        try:
+            robot.check_contacts(contacts + [(frame, kind)], q)
+            contacts.append((frame, kind))
+        except InvalidArgument as err:
+            assert "undetermined" in str(err) and repr(frame) in str(err)
+    assert len(contacts) >= 2 and contacts[0][1] == "flat"
+    check(robot, PinocchioRoute(robot.model), rng, leaves + ["base"], contacts)
+
+
+@pytest.mark.parametrize("name", ["anymal", "solo", "g1"])
+def test_public_legged_robots_equal_pinocchio_s_own_urdf_parse(tmp_path, name):
+    """ANYmal C and Solo-12 (SEAs in all 12 joints, four point feet) and the Unitree G1 (29 joints:
+    SEA legs, geared waist and shoulders, direct elbows and wrists; two flat feet) with a
+    free-flyer at the URDF's root: Pinocchio parses the URDF itself (fixed links merged into the
+    base and the links), our rotors added as bodies."""
+    robot = public(tmp_path, name)
+    route = PinocchioRoute.from_urdf(robot.model)
+    if name == "g1":
+        feet = ["left_ankle_roll_link", "right_ankle_roll_link"]
+        contacts = [(f, "flat") for f in feet]
+    else:
+        feet = FEET if name == "anymal" else ["FL_FOOT", "FR_FOOT", "HL_FOOT", "HR_FOOT"]
+        contacts = [(f, "point") for f in feet]
+    assert robot.model.floating and robot.n == (29 if name == "g1" else 12)
+    check(robot, route, np.random.default_rng(7), feet[:2] + ["base" if name == "anymal" else robot.frames()[0]],
+          contacts, states=1)
+
+
+def test_momentum_and_energy_are_conserved_in_flight():
+    """No losses, no input: along the flight's flow (central differences on the manifold), the
+    energy is constant, the momentum about the world origin (rotors' spin included) changes as
+    gravity says (d/dt linear = m g, angular = c x m g) and, without gravity, not at all: the
+    articulated sweep's accelerations against momentum and energy summed body by body."""
+    robot = floating_tree(4, 6)
+    doc = tomllib.loads(to_toml(rscasadi.model.modelfile.document(robot.model)))
+    for jt in doc["joints"]:
+        jt["gear_loss"] = {"b": 0.0, "c": 0.0, "eps": 0.01}
+        jt["sea"]["d"] = 0.0
+    rng = np.random.default_rng(4)
+    for gravity in ([0.0, 0.0, 0.0], [0.5, -1.0, -9.81]):
+        robot = FloatingRobot(parse({**doc, "gravity": gravity}))
+        fd, step, h, E, com = (robot.forward_dynamics(), robot.integrate(), robot.centroidal_momentum(),
+                               robot.energy(), robot.center_of_mass())
+        mass = sum(b.mass for jt in robot.model.joints for b in (jt.link, jt.slow_rotor, jt.fast_rotor)) + 6.0
+
+        def world(q, v):               # momentum about the world origin: centroidal + c x linear
+            hg, c = col(h(q, v)), col(com(q))
+            return np.r_[hg[:3], hg[3:] + np.cross(c, hg[:3])]
+        for _ in range(3):
+            q, v = random_q(robot, rng, 0.5), 0.5 * rng.normal(size=robot.nv)
+            q[7 + robot.n:] = q[7:7 + robot.n] + 0.05 * rng.normal(size=robot.n)     # springs near rest
+            a, eps = col(fd(q, v, np.zeros(robot.u))), 1e-6
+            ahead, back = (col(step(q, v, eps)), v + eps * a), (col(step(q, v, -eps)), v - eps * a)
+            dh = (world(*ahead) - world(*back)) / (2 * eps)
+            dE = (float(E(*ahead)) - float(E(*back))) / (2 * eps)
+            g = mass * np.array(gravity)
+            expected = np.r_[g, np.cross(col(com(q)), g)]
+            scale = max(np.max(np.abs(world(q, v))), np.max(np.abs(g)), 1.0)
+            assert np.max(np.abs(dh - expected)) < 1e-6 * scale
+            assert abs(dE) < 1e-6 * max(abs(float(E(q, v))), 1.0)
+
+
+def test_the_rotors_spin_is_in_the_centroidal_momentum():
+    """ANYmal with its base and links still and every motor turning at 10 rad/s: the centroidal
+    momentum is the rotors' spin alone, sum over joints of (I_slow - mu I_fast) 10 rad/s about
+    each joint's axis in the world (the fast rotor turns at -mu dphi), and no linear momentum:
+    what an armature model (the links' momentum only) leaves out and what turns a flying base."""
+    robot = FloatingRobot(read(ANYMAL))
+    rng = np.random.default_rng(8)
+    q = np.r_[0.1, -0.2, 0.5, 0.0, 0.0, np.sin(0.3), np.cos(0.3), 0.3 * rng.normal(size=robot.n), np.zeros(robot.m)]
+    v = np.zeros(robot.nv)
+    v[6 + robot.n:] = 10.0
+    hg = col(robot.centroidal_momentum()(q, v))
+    expected = np.zeros(3)
+    for j, jt in enumerate(robot.model.joints):
+        frame = next(f for f in robot.model.frames if f.body == j + 1)
+        axis = (np.asarray(robot.frame_placement(frame.name)(q)[0]) @ frame.R.T)[:, 2]   # the link frame's z
+        spin = jt.slow_rotor.inertia_origin[2, 2] - jt.gear_ratio * jt.fast_rotor.inertia_origin[2, 2]
+        expected += axis * spin * 10.0
+    assert np.max(np.abs(hg[:3])) < 1e-12 and np.linalg.norm(expected) > 0.1
+    assert np.max(np.abs(hg[3:] - expected)) < 1e-12
+
+
+def test_contacts_are_held_and_the_base_is_pinocchio_s_and_mujoco_s():
+    """ANYmal standing on four point feet: 0.2 s of contact dynamics keeps the feet within 1e-6 m
+    of where they started (the KKT with a small damping); the conversions to MuJoCo's free joint
+    and back are exact and rotate the linear velocity into world axes."""
+    robot = FloatingRobot(read(ANYMAL))
+    rng = np.random.default_rng(3)
+    q = np.r_[0, 0, 0.6, 0, 0, 0, 1, 0.1 * rng.normal(size=robot.n), np.zeros(robot.m)]
+    q[7 + robot.n:] = q[7:7 + robot.n]
+    v = np.zeros(robot.nv)
+    cd, step = robot.contact_dynamics(FEET, damping=20.0), robot.integrate()
+    feet = [robot.frame_placement(f) for f in FEET]
+    p0 = np.concatenate([col(f(q)[1]) for f in feet])
+    tau, dt = np.zeros(robot.u), 5e-4
+    for _ in range(400):
+        a, _ = cd(q, v, tau)
+        v = v + dt * col(a)
+        q = col(step(q, v, dt))
+    p1 = np.concatenate([col(f(q)[1]) for f in feet])
+    assert np.max(np.abs(p1 - p0)) < 1e-6 and np.max(np.abs(q[:3] - [0, 0, 0.6])) > 1e-3   # it moved
+    quat = rng.normal(size=4)
+    qb, vb = np.r_[rng.normal(size=3), quat / np.linalg.norm(quat)], rng.normal(size=6)
+    qpos, qvel = to_mujoco(qb, vb)
+    assert np.allclose(qpos[3:], np.r_[qb[6], qb[3:6]]) and np.isclose(np.linalg.norm(qvel[:3]), np.linalg.norm(vb[:3]))
+    back = from_mujoco(qpos, qvel)
+    assert np.allclose(back[0], qb, atol=1e-15) and np.allclose(back[1], vb, atol=1e-14)
+
+
+def test_bad_floating_input_is_named(tmp_path):
+    """A [base] without floating, floating without a [base], a floating flag that is no bool, an
+    unknown contact frame or kind, a frame given twice, a fixed-base model given to FloatingRobot:
+    clear errors naming the field or the frame."""
+    doc = random_tree_doc(np.random.default_rng(1), 3)
+    base = {"mass": 1.0, "com": [0, 0, 0], "inertia": [0.1, 0.1, 0.1, 0, 0, 0]}
+    for change, words in (({"base": base}, "floating = true"), ({"floating": True}, "[base]"),
+                          ({"floating": "yes", "base": base}, "'floating'")):
+        with pytest.raises(ModelFileError, match=None) as err:
+            parse(tomllib.loads(to_toml({**doc, **change})), "legs.toml")
+        assert words in str(err.value) and "legs.toml" in str(err.value)
+    with pytest.raises(InvalidArgument, match="floating = true"):
+        FloatingRobot(parse(tomllib.loads(to_toml(doc))))
+    robot = floating_tree(1, 4)
+    with pytest.raises(InvalidArgument) as err:
+        robot.contact_dynamics(["j2", ("nowhere", "point"), ("j3", "line"), "j2"])
+    assert all(w in str(err.value) for w in ("'nowhere'", "'line'", "'j2' given twice"))
+    with pytest.raises(NotFound):
+        robot.frame_placement("nowhere")
+    with pytest.raises(InvalidArgument, match="reference"):
+        robot.frame_jacobian("j2", "world")
