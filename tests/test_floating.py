@@ -281,6 +281,12 @@ def test_bad_floating_input_is_named(tmp_path):
         assert words in str(err.value) and "legs.toml" in str(err.value)
     with pytest.raises(InvalidArgument, match="floating = true"):
         FloatingRobot(parse(tomllib.loads(to_toml(doc))))
+    with pytest.raises(ModelFileError, match="floating robot's"):
+        parse(tomllib.loads(to_toml({**doc, "contacts": [{"frame": "j2"}]})), "legs.toml")
+    contacts = [{"frame": "j2"}, {"frame": "toe"}, {"frame": "j3", "kind": "line"}, {"frame": "j2"}]
+    with pytest.raises(ModelFileError) as err:
+        parse(tomllib.loads(to_toml({**doc, "floating": True, "base": base, "contacts": contacts})), "legs.toml")
+    assert all(w in str(err.value) for w in ("'toe'", "'line'", "'j2' given twice", "legs.toml"))
     robot = floating_tree(1, 4)
     with pytest.raises(InvalidArgument) as err:
         robot.contact_dynamics(["j2", ("nowhere", "point"), ("j3", "line"), "j2"])
@@ -289,3 +295,53 @@ def test_bad_floating_input_is_named(tmp_path):
         robot.frame_placement("nowhere")
     with pytest.raises(InvalidArgument, match="reference"):
         robot.frame_jacobian("j2", "world")
+
+
+def test_contact_dynamics_jacobian_equals_finite_differences_on_the_manifold():
+    """ANYmal on its four feet (damping 5/s): the implicit-function Jacobian of the contact
+    dynamics by (dq, v, tau), dq moving q along integrate(q, dq), equals central differences of
+    the contact dynamics themselves to 1e-6."""
+    robot = FloatingRobot(read(ANYMAL))
+    rng = np.random.default_rng(1)
+    quat = rng.normal(size=4)
+    q = np.r_[0, 0, 0.6, quat / np.linalg.norm(quat), 0.3 * rng.normal(size=robot.n + robot.m)]
+    v, tau = rng.normal(size=robot.nv), rng.normal(size=robot.u)
+    da, df = (np.asarray(x) for x in robot.contact_dynamics_jacobian(damping=5.0)(q, v, tau))
+    cd, step, eps = robot.contact_dynamics(damping=5.0), robot.integrate(), 1e-6
+    for i in rng.choice(2 * robot.nv + robot.u, 12, replace=False):
+        e = np.zeros(2 * robot.nv + robot.u)
+        e[i] = eps
+        ahead = [col(x) for x in cd(col(step(q, e[:robot.nv], 1.0)), v + e[robot.nv:-robot.u], tau + e[-robot.u:])]
+        back = [col(x) for x in cd(col(step(q, -e[:robot.nv], 1.0)), v - e[robot.nv:-robot.u], tau - e[-robot.u:])]
+        assert np.max(np.abs(da[:, i] - (ahead[0] - back[0]) / (2 * eps))) < 1e-6 * max(1, np.max(np.abs(da)))
+        assert np.max(np.abs(df[:, i] - (ahead[1] - back[1]) / (2 * eps))) < 1e-6 * max(1, np.max(np.abs(df)))
+
+
+def test_generated_c_of_a_floating_robot_equals_its_functions(tmp_path):
+    """A floating tree with two contacts in its model file, through codegen: every Function of
+    the library (the contact dynamics and its Jacobian included) equals the symbolic one, and the
+    header gives the sizes."""
+    from rscasadi.codegen import load_compiled
+    from rscasadi.codegen.generate import generate
+    rng = np.random.default_rng(5)
+    doc = random_tree_doc(rng, 4)
+    doc["joints"][3]["parent"] = "base"
+    doc.update(floating=True, base={"mass": 3.0, "com": [0, 0, 0.01], "inertia": [0.05, 0.06, 0.04, 0, 0, 0]},
+               contacts=[{"frame": "j3", "kind": "point"}, {"frame": "j4"}])
+    path = write_arm(tmp_path, doc, "legs.toml")
+    manifest = generate(path, tmp_path / "c", frames=["j3"], opt="-O1", log=lambda *a: None)
+    robot, lib = rscasadi.load_robot(path), load_compiled(tmp_path / "c")
+    assert {"contact_dynamics", "contact_dynamics_jacobian", "impact", "integrate"} <= set(manifest["functions"])
+    header = (tmp_path / "c" / manifest["header"]).read_text()
+    assert f"#define ROBOT_NQ {robot.nq} " in header and "#define ROBOT_NC 6 " in header
+    q, v, tau = random_q(robot, rng, 1.0), rng.normal(size=robot.nv), rng.normal(size=robot.u)
+    given = {"q": q, "v": v, "tau": tau, "a": rng.normal(size=robot.nv), "f": rng.normal(size=6), "dt": 0.01}
+    ours = {name: getattr(robot, name)() for name in manifest["functions"] if hasattr(robot, name)}
+    ours["frame_placement_j3"] = robot.frame_placement("j3")
+    ours["frame_jacobian_j3_local"] = robot.frame_jacobian("j3", "local")
+    ours["frame_jacobian_j3_local_world_aligned"] = robot.frame_jacobian("j3")
+    assert set(ours) == set(manifest["functions"])
+    for name, f in ours.items():
+        args = [given[i] for i in f.name_in()]
+        for a, b in zip(lib[name].call(args), f.call(args)):
+            assert np.max(np.abs(np.asarray(a) - np.asarray(b))) <= 1e-12 * max(1, np.max(np.abs(np.asarray(b))))

@@ -17,7 +17,8 @@ import casadi as ca
 import numpy as np
 
 from rscasadi.dynamics.feedforward import feedforward_functions
-from rscasadi.dynamics.arm import Arm, load
+from rscasadi.dynamics.arm import Arm
+from rscasadi.dynamics.floating import FloatingRobot, load_robot
 from rscasadi.model.parameters import PARAMETRIC, tied_balanced
 from rscasadi.dynamics.kinematics import REFERENCES
 from rscasadi.model.parameters import gear_ratios
@@ -245,6 +246,41 @@ def feedforward_controller(arm: Arm, fns: dict, prefix: str) -> dict:
             for name in (FEEDFORWARD + ".h", FEEDFORWARD + ".c")} | guard_source()
 
 
+def floating_functions(robot: FloatingRobot, prefix: str = "", frames=()) -> tuple[dict, dict]:
+    """A floating robot's Functions to generate (docs/user-guide/floating.md), by public name: the
+    free and contact dynamics and their parts, the contact dynamics' Jacobian, momentum, integrate,
+    and per frame its placement and Jacobians; the contacts are the model file's [[contacts]]."""
+    p = f"{prefix}_" if prefix else ""
+    names = ["forward_dynamics", "inverse_dynamics", "mass_matrix", "nonlinear_effects", "generalized_forces",
+             "energy", "integrate", "center_of_mass", "centroidal_momentum", "centroidal_momentum_matrix"]
+    fns = {name: getattr(robot, name)() for name in names}
+    omitted = {"step": "a floating robot's steps depend on its contacts: integrate its contact dynamics",
+               "feedforward_init": "the paper's feedforward drives a fixed-base arm of SEAs"}
+    if robot.model.contacts:
+        for name in ("contact_dynamics", "contact_dynamics_jacobian", "contact_jacobian", "contact_drift",
+                     "contact_inverse_dynamics", "impact"):
+            fns[name] = getattr(robot, name)()
+    else:
+        omitted["contact_dynamics"] = "the model file has no [[contacts]]"
+    for frame in frames:
+        for f in (robot.frame_placement(frame), *[robot.frame_jacobian(frame, ref) for ref in ("local", "local_world_aligned")]):
+            fns[f.name()] = f
+    return {name: _renamed(f, p + name) for name, f in fns.items()}, omitted
+
+
+def floating_macros(robot: FloatingRobot, prefix: str) -> str:
+    """A floating robot's sizes as C macros: PREFIX_ROBOT_NQ (q), _NV (v), _NU (tau), _NC (contact rows)."""
+    from rscasadi.dynamics.contacts import contact_set
+    p = f"{prefix}_" if prefix else ""
+    nc = sum(c.rows for c in contact_set(robot.model)) if robot.model.contacts else 0
+    return (f"\n/* The robot on its floating base: its sizes (docs/user-guide/floating.md). */\n"
+            f"#define {p}ROBOT_NQ {robot.nq}                 /* q = (base xyz, quaternion xyzw, theta, phi) */\n"
+            f"#define {p}ROBOT_NV {robot.nv}                 /* v = (base [v; w] in its frame, dtheta, dphi) */\n"
+            f"#define {p}ROBOT_NU {robot.u}                 /* torque inputs tau (the actuated joints) */\n"
+            f"#define {p}ROBOT_NC {nc}                 /* contact rows of the model file's [[contacts]] */\n"
+            f"#define {p}ROBOT_NJ {robot.n}                 /* joints */\n\n")
+
+
 def arm_macros(arm: Arm, prefix: str) -> str:
     """The arm's size and the model file's numbers as C macros, so programs are written for any
     arm: PREFIX_ARM_NQ (joints), _NX (state entries), and initialisers of ARM_NQ numbers."""
@@ -265,13 +301,14 @@ def arm_macros(arm: Arm, prefix: str) -> str:
             "torque limit, N m; 0: none */\n\n")
 
 
-def arm_header(arm: Arm, prefix: str, declarations: list) -> str:
+def arm_header(arm: Arm | FloatingRobot, prefix: str, declarations: list) -> str:
     """The library's header (templates/rscasadi_arm.h): CasADi's declarations included, the arm's
     macros (arm_macros) and the structured kernels' `declarations`."""
     from string import Template
+    macros = floating_macros(arm, prefix) if isinstance(arm, FloatingRobot) else arm_macros(arm, prefix)
     return Template((TEMPLATES / HEADER).read_text()).substitute(
         model=safe_name(Path(str(arm.model.path)).name), GUARD=f"{prefix.upper()}_RSCASADI_ARM_H" if prefix
-        else "RSCASADI_ARM_H", casadi_header=CASADI_HEADER, macros=arm_macros(arm, prefix),
+        else "RSCASADI_ARM_H", casadi_header=CASADI_HEADER, macros=macros,
         declarations="".join(declarations))
 
 
@@ -299,13 +336,20 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
         raise CodegenError(f"prefix {prefix!r} is not a C identifier ([A-Za-z_][A-Za-z0-9_]*, at most 63)")
     if opt not in OPT_LEVELS:
         raise CodegenError(f"optimisation flag {opt!r} not one of {' '.join(OPT_LEVELS)}")
-    arm = model if isinstance(model, Arm) else load(model)
+    arm = model if isinstance(model, (Arm, FloatingRobot)) else load_robot(model)
     if isinstance(parametric, bool) or parametric not in PARAMETRIC:
         raise CodegenError(f"parametric {parametric!r} not one of {', '.join(PARAMETRIC)}")
-    if parametric == "family":
-        arm = Arm.family(arm.model)
     frames, external = list(frames), list(external)
-    check_frames(arm, frames, external)
+    if isinstance(arm, FloatingRobot):
+        if parametric != "none" or external:
+            raise CodegenError(f"{arm.model.path}: a floating robot's C takes the model's numbers (no --parametric) "
+                               "and no --external wrenches (its contacts are the model file's [[contacts]])")
+        for frame in frames:
+            arm.model.frame(frame)
+    else:
+        if parametric == "family":
+            arm = Arm.family(arm.model)
+        check_frames(arm, frames, external)
     out = Path(out).resolve()
     try:
         cc = compiler()
@@ -313,14 +357,15 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
         raise CodegenError(str(exc)) from None
     flags = [opt, "-std=c99"] + (native_flags() if native else [])
     takes_p = parametric != "none"
-    fns, omitted = functions(arm, prefix, takes_p, frames, external)
+    fns, omitted = (floating_functions(arm, prefix, frames) if isinstance(arm, FloatingRobot)
+                    else functions(arm, prefix, takes_p, frames, external))
     header_gen = ca.CodeGenerator(CASADI_HEADER.removesuffix(".h"), {"with_header": True})
     texts: dict[str, str] = {}
     kernels = {}                                    # name -> step_kernel.Kernel
     with tempfile.TemporaryDirectory() as d:
         for name, f in fns.items():
             gen = ca.CodeGenerator(f"{f.name()}.c", {"with_header": False})
-            if name == "step_jacobian" and not f.is_a("SXFunction") and arm.model.all_sea:   # the C kernel
+            if name == "step_jacobian" and isinstance(arm, Arm) and not f.is_a("SXFunction") and arm.model.all_sea:
                 kernels[name] = kernel_source(arm, f.name(), takes_p)
                 for g in kernels[name].functions:
                     gen.add(g)
@@ -333,7 +378,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
         texts[CASADI_HEADER] = (Path(d) / CASADI_HEADER).read_text()
     sources = [file for file in texts if file.endswith(".c")]
     texts[HEADER] = arm_header(arm, prefix, [k.header for k in kernels.values()])
-    guarded = not takes_p and arm.model.all_sea     # the feedforward as a guarded controller
+    guarded = not takes_p and isinstance(arm, Arm) and arm.model.all_sea   # the feedforward, guarded
     if guarded:
         texts.update(feedforward_controller(arm, fns, prefix))
     manifest = {

@@ -37,9 +37,14 @@ class Contact:
         return KINDS[self.kind]
 
 
-def contact_set(model, contacts) -> tuple:
+def contact_set(model, contacts=None) -> tuple:
     """Contacts from frame names (point contacts), (frame, kind) pairs, Contact objects or a
-    {frame: kind} table; every unknown frame or kind and every frame given twice, in one message."""
+    {frame: kind} table (None: the model file's [[contacts]]); every unknown frame or kind and
+    every frame given twice, in one message."""
+    if contacts is None:
+        if not model.contacts:
+            raise InvalidArgument(f"{model.path}: no contacts given and the model file has no [[contacts]]")
+        contacts = list(model.contacts)
     if isinstance(contacts, dict):
         contacts = list(contacts.items())
     if isinstance(contacts, (str, Contact)) or not contacts:
@@ -101,7 +106,7 @@ def forward(robot, contacts, damping: float = 0.0) -> ca.Function:
     """q, v, tau -> a (nv), f (nc): the contact forward dynamics (module docstring)."""
     if not damping >= 0:
         raise InvalidArgument(f"contact damping {damping!r}: expected a number >= 0 (1/s)")
-    name = _name("contact_dynamics", contacts) + (f"_damped_{damping:g}".replace(".", "p") if damping else "")
+    name = _name("contact_dynamics", contacts) + _damped(damping)
     if name not in robot._functions:
         q, v, tau = ca.MX.sym("q", robot.nq), ca.MX.sym("v", robot.nv), ca.MX.sym("tau", robot.u)
         M, J, gamma = _parts(robot, contacts, q, v)
@@ -155,3 +160,46 @@ def check(robot, contacts, q, rtol: float = 1e-9) -> None:
                                   "system); drop that contact, make it a point contact, or move the robot")
         rows += c.rows
         held.append(c.frame)
+
+
+def residual_jacobian(robot, contacts, damping: float = 0.0) -> ca.Function:
+    """q, v, tau, a, f -> dr/d(dq, v, tau) ((nv + nc) x (2 nv + u)) of the contact dynamics'
+    residual r = [M a + h - Q - J^T f; J a + gamma + damping J v], dq the tangent displacement of q
+    (q moved to integrate(q, dq)); an SX Function of the recursions' derivatives."""
+    nc = sum(c.rows for c in contacts)
+
+    def build(q, v, tau, a, f):
+        dq = ca.SX.sym("dq", robot.nv)
+        moved = robot.integrate()(q, dq, 1.0)
+        w = ca.SX.sym("w", robot.nv)
+        vel, acc = _rows(robot, contacts, moved, v, a)
+        J = ca.jacobian(_rows(robot, contacts, moved, w)[0], w)
+        r = ca.vertcat(robot._inverse(moved, v, a) - robot.generalized_forces()(moved, v, tau) - J.T @ f,
+                       acc + damping * vel)
+        D = ca.jacobian(r, ca.vertcat(dq, v, tau))
+        return [ca.cse(ca.substitute(D, dq, ca.DM.zeros(robot.nv)))]
+    return robot._function(_name("contact_residual_jacobian", contacts) + _damped(damping),
+                           ["q", "v", "tau", "a", "f"], ["jacobian"], build, {"f": nc})
+
+
+def _damped(damping) -> str:
+    return f"_damped_{damping:g}".replace(".", "p") if damping else ""
+
+
+def forward_jacobian(robot, contacts, damping: float = 0.0) -> ca.Function:
+    """q, v, tau -> da (nv x (2 nv + u)), df (nc x (2 nv + u)): the contact dynamics' derivatives
+    by (dq, v, tau), dq the tangent displacement of q, by the implicit-function theorem on the KKT
+    system: [M -J^T; J 0] [da; df] = -dr/d(dq, v, tau), solved as the dynamics themselves."""
+    name = _name("contact_dynamics_jacobian", contacts) + _damped(damping)
+    if name not in robot._functions:
+        q, v, tau = ca.MX.sym("q", robot.nq), ca.MX.sym("v", robot.nv), ca.MX.sym("tau", robot.u)
+        a, f = forward(robot, contacts, damping)(q, v, tau)
+        D = -residual_jacobian(robot, contacts, damping)(q, v, tau, a, f)
+        M, J = robot.mass_matrix()(q), jacobian(robot, contacts)(q)
+        R1, R2 = D[:robot.nv, :], D[robot.nv:, :]
+        sol = ca.solve(M, ca.horzcat(R1, J.T), "ldl")                   # M^-1 R1, M^-1 J^T
+        MiR1, MiJt = sol[:, :R1.shape[1]], sol[:, R1.shape[1]:]
+        df = ca.solve(J @ MiJt, R2 - J @ MiR1, "ldl")
+        robot._functions[name] = ca.Function(name, [q, v, tau], [MiR1 + MiJt @ df, df], ["q", "v", "tau"],
+                                             ["da", "df"])
+    return robot._functions[name]

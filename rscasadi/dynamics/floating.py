@@ -226,21 +226,26 @@ class FloatingRobot:
         return self._function("integrate", ["q", "v", "dt"], ["q_next"], build)
 
     # -- frames, momentum -----------------------------------------------------------------------
-    # -- contacts (rscasadi.dynamics.contacts) ----------------------------------------------------
-    def contact_jacobian(self, contacts) -> ca.Function:
+    # -- contacts (rscasadi.dynamics.contacts; `contacts` None: the model file's [[contacts]]) ------
+    def contact_jacobian(self, contacts=None) -> ca.Function:
         """q -> J (nc x nv): the contacts' rows (docs/user-guide/floating.md, "Contacts")."""
         return ct.jacobian(self, ct.contact_set(self.model, contacts))
 
-    def contact_drift(self, contacts) -> ca.Function:
+    def contact_drift(self, contacts=None) -> ca.Function:
         """q, v -> gamma (nc): J-dot v, the contacts' acceleration at a = 0."""
         return ct.drift(self, ct.contact_set(self.model, contacts))
 
-    def contact_dynamics(self, contacts, damping: float = 0.0) -> ca.Function:
+    def contact_dynamics(self, contacts=None, damping: float = 0.0) -> ca.Function:
         """q, v, tau -> a, f: the motion and the contact forces with the contacts held (J a + gamma
         = -damping J v), from the KKT system of the complete model."""
         return ct.forward(self, ct.contact_set(self.model, contacts), damping)
 
-    def contact_inverse_dynamics(self, contacts) -> ca.Function:
+    def contact_dynamics_jacobian(self, contacts=None, damping: float = 0.0) -> ca.Function:
+        """q, v, tau -> da, df: the contact dynamics' derivatives by (dq, v, tau), dq the tangent
+        displacement of q (integrate(q, dq)), by the implicit-function theorem."""
+        return ct.forward_jacobian(self, ct.contact_set(self.model, contacts), damping)
+
+    def contact_inverse_dynamics(self, contacts=None) -> ca.Function:
         """q, v, a, f -> tau, T, base: inverse dynamics with the contact forces f applied."""
         return ct.inverse(self, ct.contact_set(self.model, contacts))
 
@@ -249,7 +254,7 @@ class FloatingRobot:
         contact dynamics would have no unique forces)."""
         ct.check(self, ct.contact_set(self.model, contacts), q)
 
-    def impact(self, contacts) -> ca.Function:
+    def impact(self, contacts=None) -> ca.Function:
         """q, v -> v_plus, impulse: a plastic impact on the contacts (J v_plus = 0)."""
         return ct.impact(self, ct.contact_set(self.model, contacts))
 

@@ -93,6 +93,37 @@ def payload(ctx, raw, frames: tuple) -> Payload | None:
     return Payload(t["frame"], _body(ctx, "payload", {k: t[k] for k in BODY_KEYS}), radius)
 
 
+CONTACT_KINDS = ("point", "flat")
+
+
+def contacts(ctx, raw, frames: tuple, floating: bool) -> tuple:
+    """The [[contacts]] tables of a floating robot: `frame` (any frame) and `kind`, point (the
+    default) or flat (docs/user-guide/floating.md); every bad entry named in one message."""
+    if raw is None:
+        return ()
+    if not floating:
+        ctx.fail("contacts", "contacts are a floating robot's (floating = true); a fixed base is the world")
+    if not isinstance(raw, list) or not all(isinstance(c, dict) for c in raw):
+        ctx.fail("contacts", f"expected [[contacts]] tables (frame, kind), got {raw!r}")
+    known, out, bad = {f.name for f in frames}, [], []
+    for i, c in enumerate(raw):
+        extra = set(c) - {"frame", "kind"}
+        frame, kind = c.get("frame"), c.get("kind", "point")
+        if extra:
+            bad.append(f"contacts[{i}]: unknown keys {sorted(extra)} (frame, kind)")
+        elif frame not in known:
+            bad.append(f"contacts[{i}]: no frame {frame!r}")
+        elif kind not in CONTACT_KINDS:
+            bad.append(f"contacts[{i}] ({frame!r}): kind {kind!r} is not point or flat")
+        elif frame in [f for f, _ in out]:
+            bad.append(f"contacts[{i}]: {frame!r} given twice")
+        else:
+            out.append((frame, kind))
+    if bad:
+        ctx.fail("contacts", "; ".join(bad))
+    return tuple(out)
+
+
 def payload_document(model) -> dict | None:
     """The [payload] table of `model`, or None."""
     if model.payload is None:

@@ -19,7 +19,7 @@ from rscasadi.files import cache_dir, sources_digest
 from rscasadi.model.checks import (ACTUATOR_KEYS, _body, _Ctx, _number, _table, _vector,  # noqa: F401
                                    actuator, field_checker, joint_context, orientation, read_toml)
 from rscasadi.model.collision import collision, collision_document
-from rscasadi.model.frames import frames_document, link_frames, payload, payload_document, user_frames
+from rscasadi.model.frames import contacts, frames_document, link_frames, payload, payload_document, user_frames
 from rscasadi.model.types import (BASE, BODIES, BODY_KEYS, DEFAULT_GRAVITY, JOINT_KEYS, TOP_KEYS, ArmModel,  # noqa: F401
                                   Body, Joint, ModelFileError, inertia_problem, rotation_document, rpy_matrix,
                                   rpy_of)
@@ -75,6 +75,7 @@ def parse(data: dict, path: str = "<memory>") -> ArmModel:
                      base=_floating_base(ctx, data))
     frames = user_frames(ctx, data.get("frames"), link_frames(model))
     return dataclasses.replace(model, frames=frames, payload=payload(ctx, data.get("payload"), frames),
+                               contacts=contacts(ctx, data.get("contacts"), frames, model.floating),
                                collision=collision(ctx, data.get("collision"), model.joints, frames, None,
                                                    parents=model.parents))
 
@@ -258,6 +259,8 @@ def document(model: ArmModel) -> dict:
                           if b == "link" or jt.joint_kind.rotors}})
     frames, held, shape = frames_document(model), payload_document(model), collision_document(model)
     floating = {"floating": True, "base": body_document(model.base)} if model.base is not None else {}
+    if model.contacts:
+        floating["contacts"] = [{"frame": f, "kind": k} for f, k in model.contacts]
     return {"name": model.name, "gravity": [float(g) for g in model.gravity], **floating,
             **({"frames": frames} if frames else {}),
             **({"payload": held} if held else {}), **({"collision": shape} if shape else {}), "joints": joints}

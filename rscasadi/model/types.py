@@ -13,7 +13,7 @@ import numpy as np
 from rscasadi.errors import Error, NotFound
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
-TOP_KEYS = {"name", "gravity", "joints", "frames", "payload", "collision", "floating", "base"}
+TOP_KEYS = {"name", "gravity", "joints", "frames", "payload", "collision", "floating", "base", "contacts"}
 JOINT_KEYS = {"name", "kind", "spring", "parent", "origin_xyz", "origin_rpy", "origin_R", "gear_ratio", "sea", "gear_loss", "limits",
               "link", "slow_rotor", "fast_rotor", "link_loss", "counterbalance", "torque_constant"}
 BODY_KEYS = {"mass", "com", "inertia"}
@@ -185,6 +185,7 @@ class ArmModel:
     collision: Collision | None = field(default=None, compare=False)
     parents: tuple = ()
     base: Body | None = None             # a floating base's body (its own frame); None: the base is fixed
+    contacts: tuple = ()                 # ((frame, "point" | "flat"), ...): where a floating robot may touch
 
     def __post_init__(self):
         if self.parents and (len(self.parents) != len(self.joints)

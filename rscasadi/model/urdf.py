@@ -21,12 +21,12 @@ from scipy.spatial.transform import Rotation
 from rscasadi.spatial import spatial_inertia, transform_inertia
 from rscasadi.model.checks import ACTUATOR_KEYS, _Ctx, _number, _table, _vector, actuator, joint_context
 from rscasadi.model.collision import collision
-from rscasadi.model.frames import payload, user_frames
+from rscasadi.model.frames import contacts, payload, user_frames
 from rscasadi.model.kinds import KINDS
 from rscasadi.model.types import DEFAULT_GRAVITY, ArmModel, Body, Frame, Joint, ModelFileError, inertia_problem, rpy_of
 
 URDF_TOP_KEYS = {"name", "urdf", "tip", "tips", "locked", "lock_others", "gravity", "joints", "frames", "payload",
-                 "collision", "floating"}
+                 "collision", "floating", "contacts"}
 MOVING = ("revolute", "continuous")
 
 
@@ -244,6 +244,7 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
     tree = () if parents == list(range(-1, len(order) - 1)) else tuple(parents)
     return ArmModel(data["name"], gravity, tuple(joints), path, extra, frames=frames,
                     base=_base_body(ctx, data.get("floating", False), bodies[0], urdf_path),
+                    contacts=contacts(ctx, data.get("contacts"), frames, data.get("floating") is True),
                     payload=payload(ctx, data.get("payload"), frames), parents=tree,
                     collision=collision(ctx, data.get("collision"), joints, frames, tip_link,
                                         extra["collision_geometry"], urdf_path, parents=tree))
