@@ -345,3 +345,99 @@ def test_generated_c_of_a_floating_robot_equals_its_functions(tmp_path):
         args = [given[i] for i in f.name_in()]
         for a, b in zip(lib[name].call(args), f.call(args)):
             assert np.max(np.abs(np.asarray(a) - np.asarray(b))) <= 1e-12 * max(1, np.max(np.abs(np.asarray(b))))
+
+
+def anymal_crouch():
+    """ANYmal's links in a crouch: hips 0.5 rad, knees 1 rad, front and hind legs mirrored."""
+    theta = np.zeros(12)
+    theta[[1, 4]], theta[[2, 5]], theta[[7, 10]], theta[[8, 11]] = 0.5, -1.0, -0.5, 1.0
+    return theta
+
+
+def test_mujoco_s_floating_robot_is_the_model_and_flies_as_it():
+    """ANYmal C exported: at random states MuJoCo's mass matrix and generalised forces, mapped to
+    our v (the free joint's linear velocity in world axes), equal the model's to 1e-12; from a
+    spinning throw, 1 s of flight in MuJoCo (RK4, 1 ms) ends where CVODES integrating our
+    forward dynamics with the quaternion's kinematics ends, to 1e-7 rad and 1e-6 rad/s."""
+    import casadi as ca
+    import mujoco
+    from rscasadi.dynamics.floating import _quaternion_product, rotation
+    from rscasadi.export.mujoco import gear_map, mujoco_state, mujoco_xml, state_from_mujoco
+    robot = FloatingRobot(read(ANYMAL))
+    m = mujoco.MjModel.from_xml_string(mujoco_xml(robot.model))
+    d, rng = mujoco.MjData(m), np.random.default_rng(2)
+    mass, fd = robot.mass_matrix(), robot.forward_dynamics()
+    for _ in range(3):
+        q = random_q(robot, rng, 1.0)
+        q[7 + robot.n:] = q[7:7 + robot.n] + rng.uniform(-0.05, 0.05, robot.m)
+        v, tau = rng.normal(size=robot.nv), rng.uniform(-1, 1, robot.u)
+        d.qpos[:], d.qvel[:] = mujoco_state(robot, m, q, v)
+        d.ctrl[:] = tau
+        mujoco.mj_forward(m, d)
+        M = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, d, M)
+        R = np.asarray(ca.DM(rotation(ca.DM(q[3:7]))))
+        T = np.c_[np.zeros((m.nv, 6)), gear_map(robot, m)]
+        T[:3, :3], T[3:6, 3:6] = R, np.eye(3)
+        Tdot_v = np.r_[R @ np.cross(v[3:6], v[:3]), np.zeros(m.nv - 3)]     # d/dt (R v) = R (dv + w x v)
+        ours = np.asarray(mass(q))
+        forces = ours @ col(fd(q, v, tau))
+        assert rel(T.T @ M @ T, ours) < 1e-12
+        assert rel(T.T @ (d.qfrc_passive + d.qfrc_actuator - d.qfrc_bias - M @ Tdot_v), forces) < 1e-12
+    theta = 0.1 * rng.normal(size=robot.n)
+    q0, v0 = np.r_[0, 0, 5.0, 0, 0, 0, 1, theta, theta], np.r_[0.5, 0, 3.0, rng.normal(size=3), 0.2 * rng.normal(size=robot.nv - 6)]
+    d = mujoco.MjData(m)
+    d.qpos[:], d.qvel[:] = mujoco_state(robot, m, q0, v0)
+    for _ in range(1000):
+        mujoco.mj_step(m, d)
+    x = ca.SX.sym("x", robot.nq + robot.nv)
+    q, v = x[:robot.nq], x[robot.nq:]
+    qdot = ca.vertcat(rotation(q[3:7]) @ v[:3], 0.5 * _quaternion_product(q[3:7], ca.vertcat(v[3:6], 0)), v[6:])
+    ode = {"x": x, "ode": ca.vertcat(qdot, fd(q, v, np.zeros(robot.u)))}
+    xf = col(ca.integrator("flight", "cvodes", ode, 0, 1.0, {"abstol": 1e-11, "reltol": 1e-11})(x0=np.r_[q0, v0])["xf"])
+    q_ours, v_ours = xf[:robot.nq], xf[robot.nq:]
+    q_ours[3:7] /= np.linalg.norm(q_ours[3:7])
+    q_mj, v_mj = state_from_mujoco(robot, m, d.qpos, d.qvel)
+    q_mj[3:7] *= np.sign(q_mj[6] * q_ours[6])
+    assert np.max(np.abs(q_ours[:3] - q0[:3])) > 0.5 and np.max(np.abs(q_ours[3:7] - q0[3:7])) > 0.3
+    assert np.max(np.abs(q_mj - q_ours)) < 1e-7 and np.max(np.abs(v_mj - v_ours)) < 1e-6
+
+
+def test_standing_statics_hold_in_the_model_and_on_mujoco_s_floor():
+    """ANYmal crouching on its four feet: `stand` finds the motors' deflections, the inputs of
+    least effort and forces inside the friction cones (mu 0.7) that the contact dynamics hold at
+    a = 0 with exactly those forces; in MuJoCo, on the floor, the motors held by a PD about that
+    posture, after 2 s the base has settled within 3 cm and MuJoCo's foot forces equal the model's
+    contact forces at MuJoCo's own state within 1 % of the weight, the normal ones the posture's."""
+    import mujoco
+    from rscasadi.dynamics.stance import stand
+    from rscasadi.export.mujoco import mujoco_state, mujoco_xml, standing_height, state_from_mujoco
+    robot = FloatingRobot(read(ANYMAL))
+    theta = anymal_crouch()
+    s = stand(robot, theta, np.r_[0, 0, standing_height(robot.model, theta), 0, 0, 0, 1], mu=0.7)
+    f = s.f.reshape(4, 3)
+    assert np.all(f[:, 2] > 0) and np.all(np.hypot(f[:, 0], f[:, 1]) <= 0.7 * f[:, 2] + 1e-6)
+    a, f_kkt = robot.contact_dynamics()(s.q, np.zeros(robot.nv), s.tau)
+    assert np.max(np.abs(col(a))) < 1e-8 and rel(col(f_kkt), s.f) < 1e-8
+    weight = float(np.sum(f[:, 2]))
+    m = mujoco.MjModel.from_xml_string(mujoco_xml(robot.model))
+    d = mujoco.MjData(m)
+    d.qpos[:], d.qvel[:] = mujoco_state(robot, m, s.q, np.zeros(robot.nv))
+    phi = s.q[7 + robot.n:]
+    for _ in range(2000):                     # motor PD: 20 N m/rad and 0.5 N m s/rad at the fast side
+        q, v = state_from_mujoco(robot, m, d.qpos, d.qvel)
+        d.ctrl[:] = s.tau + 20.0 * (q[7 + robot.n:] - phi) + 0.5 * v[6 + robot.n:]
+        mujoco.mj_step(m, d)
+    q, v = state_from_mujoco(robot, m, d.qpos, d.qvel)
+    assert np.max(np.abs(q[:3] - s.q[:3])) < 0.03 and np.max(np.abs(v)) < 0.1
+    feet = {}
+    for i in range(d.ncon):
+        c, f6 = d.contact[i], np.zeros(6)
+        mujoco.mj_contactForce(m, d, i, f6)
+        foot = c.geom2 if m.geom(c.geom2).name.startswith("contact_") else c.geom1
+        sign = 1.0 if foot == c.geom2 else -1.0            # the force on geom2, from geom1
+        feet[m.geom(foot).name] = feet.get(m.geom(foot).name, 0) + sign * c.frame.reshape(3, 3).T @ f6[:3]
+    f_mj = np.concatenate([feet[f"contact_{name}"] for name in FEET])
+    f_model = col(robot.contact_dynamics()(q, v, d.ctrl)[1])
+    assert np.max(np.abs(f_mj - f_model)) < 0.01 * weight
+    assert np.max(np.abs(f_mj[2::3] - s.f[2::3])) < 0.01 * weight

@@ -30,6 +30,12 @@ The model starts at rest: every hinge's `ref` (MuJoCo's qpos0, with its body's f
 it, so that qpos stays the model's angle) is the rest pose, the links at the angle nearest 0
 inside their range (`rest_pose`) and the rotors where the springs hold them statically, and the
 keyframe "rest" adds the motor torques that hold it (mj_resetDataKeyframe(m, d, 0)).
+A floating robot (floating = true) is one body `base` on a free joint (MuJoCo's qpos [x, y, z,
+qw, qx, qy, qz], qvel [v in world axes; w in the base frame]: rscasadi.dynamics.floating.to_mujoco)
+carrying the tree; the world gets a floor (a plane at z = 0) and each point contact a sphere of
+FOOT_RADIUS at its frame's origin that touches the floor and nothing else (contype and conaffinity
+4 on the floor, the feet only colliding with it); the base starts level, the lowest foot on the
+floor, the links at their rest pose and the springs relaxed.
 MuJoCo keeps the gear only as a constraint it solves softly: the file asks for RK4 at 1 ms and
 an equality nearly hard (solimp 0.9999), under which its motion follows the complete model
 (tests/test_mujoco.py). Not expressed, and refused by name: a cubic spring term (k3), Coulomb
@@ -46,6 +52,8 @@ from rscasadi.errors import InvalidArgument
 from rscasadi.files import fresh_directory, safe_name, write_text
 
 TIMESTEP = 1e-3
+FOOT_RADIUS = 0.005                         # m: the sphere of a point contact in MuJoCo
+FLOOR = '<geom name="floor" type="plane" size="0 0 1" contype="4" conaffinity="4"/>'
 SOLIMP = "0.9999 0.9999 0.001 0.5 2"       # the gear's equality, nearly hard
 SOLREF = "0.002 1"
 
@@ -113,6 +121,25 @@ def rest_state(model, variant: str = "complete") -> tuple:
     return theta, theta[model.motors], np.where(geared, -T / model.column("gear_ratio")[model.actuated], T)
 
 
+def floating_rest(model) -> tuple:
+    """(theta, phi, tau) a floating robot's export starts in: the links at `rest_pose`, the SEAs'
+    springs relaxed (phi = theta), no torque."""
+    theta = rest_pose(model)
+    return theta, theta[model.motors], np.zeros(len(model.actuated))
+
+
+def standing_height(model, theta) -> float:
+    """The base's height, level, at which the lowest point contact's sphere touches the floor
+    (0 without contacts)."""
+    from rscasadi.dynamics.floating import FloatingRobot
+    if not model.contacts:
+        return 0.0
+    robot = FloatingRobot(model)
+    q = np.r_[0, 0, 0, 0, 0, 0, 1, theta, theta[model.motors]]
+    low = min(float(np.asarray(robot.frame_placement(f)(q)[1])[2, 0]) for f, _ in model.contacts)
+    return FOOT_RADIUS - low
+
+
 def _torque_limits(model) -> np.ndarray:
     """Each input's torque limit (the actuated joints'; N m; inf where the model file gives none)."""
     return np.array([model.joints[j].limits.get("tau", np.inf) for j in model.actuated], float)
@@ -145,6 +172,11 @@ def _attached(model, body: int, indent: str) -> list:
                  f'type="capsule" fromto="{_numbers(np.r_[c.a, c.b])}"')
         out.append(f'{indent}<geom name={quoteattr(safe_name(f"capsule{i}_{c.link}"))} {shape} '
                    f'size="{float(c.radius)!r}" contype="2" conaffinity="1" group="3"/>')
+    for frame, _ in model.contacts:                           # the feet: they touch the floor alone
+        f = model.frame(frame)
+        if f.body == body:
+            out.append(f'{indent}<geom name={quoteattr(safe_name("contact_" + frame))} type="sphere" '
+                       f'pos="{_numbers(f.p)}" size="{FOOT_RADIUS!r}" contype="4" conaffinity="0"/>')
     held = model.payload
     if held is not None and model.frame(held.frame).body == body:
         f = model.frame(held.frame)
@@ -164,6 +196,8 @@ def check_exportable(model) -> None:
                  for jt in model.joints if jt.c1]
     problems += [f"{jt.name}: gear_loss stribeck = {jt.stribeck:g} (static friction falling with speed; MJCF has none)"
                  for jt in model.joints if jt.stribeck]
+    problems += [f"contact {frame}: a flat contact (a sole's size and shape are not in the model; export point "
+                 "contacts at its corners)" for frame, kind in model.contacts if kind == "flat"]
     if problems:
         raise InvalidArgument(f"{model.path}: cannot be exported to MuJoCo exactly: " + "; ".join(problems))
 
@@ -188,13 +222,18 @@ def mujoco_xml(model, variant: str = "complete") -> str:
         from rscasadi.dynamics.arm import Arm
         Arm(model).mass_matrix(reduced=True)
     names = [safe_name(jt.name) for jt in model.joints]
-    theta0, phi0, tau0 = rest_state(model, variant)
+    theta0, phi0, tau0 = floating_rest(model) if model.floating else rest_state(model, variant)
     g = np.asarray(model.gravity, float)
     lines = [f'<mujoco model={quoteattr(safe_name(model.name))}>',
              f'  <option timestep="{TIMESTEP!r}" integrator="RK4" gravity="{_numbers(g)}"/>',
              '  <compiler angle="radian" autolimits="true" inertiafromgeom="false"/>',
              '  <worldbody>']
-    lines += _attached(model, 0, "    ")
+    inner = "    "
+    if model.floating:                 # the base: a body on a free joint, the tree inside it
+        lines += ["    " + FLOOR, f'    <body name="base" pos="0 0 {standing_height(model, theta0)!r}">',
+                  '      <freejoint name="base"/>', _inertial(model.base, "      ").rstrip("\n")]
+        inner = "      "
+    lines += _attached(model, 0, inner)
 
     motor_of = model.motor_of
 
@@ -228,7 +267,9 @@ def mujoco_xml(model, variant: str = "complete") -> str:
         return out
 
     for root in model.children(-1):
-        lines += joint_bodies(root, "    ")
+        lines += joint_bodies(root, inner)
+    if model.floating:
+        lines.append("    </body>")
     if reduced:                         # each motor coordinate on its own, its spin inertia B_j
         for i, j in enumerate(model.motors):
             n, jt = names[j], model.joints[j]
@@ -291,6 +332,27 @@ def gear_map(arm, m) -> np.ndarray:
         elif name + "_motor" in names:
             T[m.joint(name + "_motor").dofadr[0], col] = 1.0
     return T
+
+
+def mujoco_state(robot, m, q, v) -> tuple:
+    """MuJoCo's qpos and qvel of a floating robot's q and v (rscasadi.dynamics.floating) in the
+    file `mujoco_xml` wrote: the free joint's by `to_mujoco`, the hinges' through `gear_map`."""
+    from rscasadi.dynamics.floating import to_mujoco
+    q, v = np.asarray(q, float), np.asarray(v, float)
+    T = gear_map(robot, m)
+    qpos, qvel = np.zeros(m.nq), T @ v[6:]
+    qpos[:7], qvel[:6] = to_mujoco(q[:7], v[:6])
+    qpos[7:] = (T @ q[7:])[6:]                     # each hinge's qpos follows its dof (after the free joint's)
+    return qpos, qvel
+
+
+def state_from_mujoco(robot, m, qpos, qvel) -> tuple:
+    """The inverse of `mujoco_state`: q and v from MuJoCo's qpos and qvel (the hinges' by the
+    least-squares inverse of `gear_map`, exact while the gear's equality holds)."""
+    from rscasadi.dynamics.floating import from_mujoco
+    back = np.linalg.pinv(gear_map(robot, m))
+    base_q, base_v = from_mujoco(qpos[:7], qvel[:6])
+    return np.r_[base_q, back @ np.r_[np.zeros(6), qpos[7:]]], np.r_[base_v, back @ qvel]
 
 
 def with_world(xml: str, world: str) -> str:
