@@ -379,7 +379,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
     sources = [file for file in texts if file.endswith(".c")]
     texts[HEADER] = arm_header(arm, prefix, [k.header for k in kernels.values()])
     guarded = not takes_p and isinstance(arm, Arm) and arm.model.all_sea   # the feedforward, guarded
-    if guarded:
+    if guarded and isinstance(arm, Arm):
         texts.update(feedforward_controller(arm, fns, prefix))
     manifest = {
         "model": str(getattr(arm.model, "path", "")),
@@ -400,7 +400,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
         "frames": {name: identifier(name) for name in frames},
         "external": {"frames": external, "wrench": "[force; moment] at the frame's origin, world axes"}
                     if external else None,
-        "parameters": _parameters(arm) if takes_p else None,
+        "parameters": _parameters(arm) if takes_p and isinstance(arm, Arm) else None,
         "prefix": prefix,
     }
     # the library is built from the functions' sources (and the feedforward's, which includes the

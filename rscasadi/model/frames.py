@@ -105,7 +105,9 @@ def contacts(ctx, raw, frames: tuple, floating: bool) -> tuple:
         ctx.fail("contacts", "contacts are a floating robot's (floating = true); a fixed base is the world")
     if not isinstance(raw, list) or not all(isinstance(c, dict) for c in raw):
         ctx.fail("contacts", f"expected [[contacts]] tables (frame, kind), got {raw!r}")
-    known, out, bad = {f.name for f in frames}, [], []
+    known = {f.name for f in frames}
+    out: list = []
+    bad: list = []
     for i, c in enumerate(raw):
         extra = set(c) - {"frame", "kind"}
         frame, kind = c.get("frame"), c.get("kind", "point")
