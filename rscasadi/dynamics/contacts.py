@@ -83,6 +83,16 @@ def _rows(robot, contacts, q, v, a=None) -> tuple:
     return ca.vertcat(*vel), (ca.vertcat(*acc) if a is not None else None)
 
 
+def wrenches(robot, contacts, q, f) -> list:
+    """The contact forces f as spatial forces on the bodies (FloatingRobot.body_wrenches): a
+    point's [fx, fy, fz] in world axes, a flat contact's [force; moment] in its frame's axes."""
+    applied, row = [], 0
+    for c in contacts:
+        applied.append((c.frame, f[row:row + c.rows], c.kind == "point"))
+        row += c.rows
+    return robot.body_wrenches(q, applied)
+
+
 def jacobian(robot, contacts) -> ca.Function:
     """q -> J (nc x nv)."""
     def build(q):
@@ -124,8 +134,7 @@ def inverse(robot, contacts) -> ca.Function:
     nc = sum(c.rows for c in contacts)
 
     def build(q, v, a, f):
-        J = jacobian(robot, contacts)(q)
-        return robot.inputs_for(q, v, robot._inverse(q, v, a) - J.T @ f)
+        return robot.inputs_for(q, v, robot._inverse(q, v, a, wrenches=wrenches(robot, contacts, q, f)))
     return robot._function(_name("contact_inverse_dynamics", contacts), ["q", "v", "a", "f"],
                            ["tau", "T", "base"], build, {"f": nc})
 
@@ -165,17 +174,16 @@ def check(robot, contacts, q, rtol: float = 1e-9) -> None:
 def residual_jacobian(robot, contacts, damping: float = 0.0) -> ca.Function:
     """q, v, tau, a, f -> dr/d(dq, v, tau) ((nv + nc) x (2 nv + u)) of the contact dynamics'
     residual r = [M a + h - Q - J^T f; J a + gamma + damping J v], dq the tangent displacement of q
-    (q moved to integrate(q, dq)); an SX Function of the recursions' derivatives."""
+    (q moved to integrate(q, dq)); an SX Function of the recursions' derivatives, J^T f as the
+    contact wrenches applied in the inverse dynamics."""
     nc = sum(c.rows for c in contacts)
 
     def build(q, v, tau, a, f):
         dq = ca.SX.sym("dq", robot.nv)
         moved = robot.integrate()(q, dq, 1.0)
-        w = ca.SX.sym("w", robot.nv)
         vel, acc = _rows(robot, contacts, moved, v, a)
-        J = ca.jacobian(_rows(robot, contacts, moved, w)[0], w)
-        r = ca.vertcat(robot._inverse(moved, v, a) - robot.generalized_forces()(moved, v, tau) - J.T @ f,
-                       acc + damping * vel)
+        r = ca.vertcat(robot._inverse(moved, v, a, wrenches=wrenches(robot, contacts, moved, f))
+                       - robot.generalized_forces()(moved, v, tau), acc + damping * vel)
         D = ca.jacobian(r, ca.vertcat(dq, v, tau))
         return [ca.cse(ca.substitute(D, dq, ca.DM.zeros(robot.nv)))]
     return robot._function(_name("contact_residual_jacobian", contacts) + _damped(damping),

@@ -145,16 +145,44 @@ class FloatingRobot:
         Q_phi = self.arm._phi_force(self.physics, x, tau) if self.m else ca.DM.zeros(0, 1)
         return ca.vertcat(ca.DM.zeros(6), self.arm._theta_force(self.physics, x, tau), Q_phi)
 
-    def _inverse(self, q, v, a, reduced=False, gravity=True):
-        """The generalised inertial and gravity forces M a + h on v (base rows [force; moment])."""
+    def _inverse(self, q, v, a, reduced=False, gravity=True, wrenches=None):
+        """The generalised inertial and gravity forces M a + h on v (base rows [force; moment]),
+        less those of `wrenches` (`body_wrenches`: what the environment applies, J^T f)."""
         segs, kin, base, x = self._tree(q, v, reduced)
         a_base, ddtheta, ddphi = self.split_v(a)
         g = self.physics.gravity if gravity else np.zeros(3)
         alpha0 = self._alpha0(base, a_base)
         if not gravity:
             alpha0 = alpha0 + ca.vertcat(ca.DM.zeros(3), base.R.T @ ca.DM(self.physics.gravity))
-        T, Q_phi, f0 = rec.inverse_dynamics(segs, kin, ddtheta, ddphi, g, None, base, alpha0)
+        T, Q_phi, f0 = rec.inverse_dynamics(segs, kin, ddtheta, ddphi, g, wrenches and wrenches[1:], base, alpha0)
+        if wrenches:
+            f0 = f0 - wrenches[0]
         return ca.vertcat(f0[3:], f0[:3], T, Q_phi)
+
+    def body_poses(self, q) -> list:
+        """(R, o) of every body in the world: the base (0) and each joint's link (1..n)."""
+        (bq, theta, _) = self.split_q(q)
+        poses = [(rotation(bq[3:]), bq[:3])]
+        for j, jt in enumerate(self.model.joints):
+            R_p, o_p = poses[self.model.parent[j] + 1]
+            poses.append(base_pose(R_p, o_p, joint_rotation(jt.R, theta[j]), jt.origin_xyz))
+        return poses
+
+    def body_wrenches(self, q, applied) -> list:
+        """Per body (the base, then each link) the spatial force [moment about its origin; force],
+        its own axes, of `applied`: (frame, wrench, world) with wrench [force; moment] at the
+        frame's origin, in world axes (world True) or the frame's own."""
+        poses = self.body_poses(q)
+        out = [ca.DM.zeros(6) for _ in poses]
+        for frame, w, world in applied:
+            fr = self.model.frame(frame)
+            Rf = ca.DM(fr.R)
+            R_b = poses[fr.body][0]
+            to_body = R_b.T if world else Rf                              # the wrench's axes -> the body's
+            force = to_body @ w[:3]
+            moment = (to_body @ w[3:] if w.shape[0] == 6 else ca.DM.zeros(3)) + ca.cross(ca.DM(fr.p), force)
+            out[fr.body] = out[fr.body] + ca.vertcat(moment, force)
+        return out
 
     # -- dynamics ---------------------------------------------------------------------------------
     def forward_dynamics(self, *, reduced: bool = False) -> ca.Function:

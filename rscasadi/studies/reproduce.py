@@ -168,6 +168,18 @@ def run(out, log=print) -> list:
                 f"{max(r['complete'] for r in res['exports'].values()):.1e} rad of the model, "
                 f"the impedance's contact force within {max(abs(r['error_percent']) for r in res['impedance']):.2f} %")
 
+    def floating():
+        from rscasadi.studies.rotor_spin import report, study
+        r = study(PROBLEMS / "anymal_c_sea.toml", log=log)
+        (out / "floating").mkdir(parents=True, exist_ok=True)
+        write_json(out / "floating" / "rotor_spin.json", {"run": run_stamp(), **r})
+        write_text(out / "floating" / "rotor_spin.md", report(r, run_stamp()))
+        held = max(r["angular_momentum_at_end_Nms"][k] for k in ("complete", "rigid"))
+        if not held < 1e-6 or not r["rigid_vs_armature_deg"] > 0.01:
+            raise PartFailed(f"momentum not conserved ({held:.2e} N m s) or no spin effect")
+        return (f"{out / 'floating'}/rotor_spin.md: in flight the armature model's base ends "
+                f"{r['rigid_vs_armature_deg']:.2f} deg from the rotors-as-bodies model's")
+
     def mpc_task(name, problem, limits_kept=True):
         def work():
             import dataclasses
@@ -206,7 +218,7 @@ def run(out, log=print) -> list:
                   ("ocp panda_shelf",))]
     schedule += [(f"interaction {name}", functools.partial(interaction_study, name, out / "interaction", log), ())
                  for name in INTERACTION_ARMS]
-    schedule += [("mujoco", mujoco, ("identification",))]
+    schedule += [("mujoco", mujoco, ("identification",)), ("floating rotor spin", floating, ())]
     parts = len(schedule)
     for name, work, needs in schedule:
         part(name, work, needs)
