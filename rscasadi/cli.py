@@ -184,7 +184,7 @@ def _cmd_codegen(args):
     t0 = time.perf_counter()
     manifest = generate(args.model, args.out, prefix=args.prefix, opt=args.opt,
                         log=lambda msg: print(msg, flush=True), parametric=args.parametric, native=args.native,
-                        frames=args.frames, external=args.external)
+                        frames=args.frames, external=args.external, only=args.only)
     for name, info in manifest["functions"].items():
         print(f"  {info['symbol']:40s} n_instructions {info['n_instructions']}")
     for name, why in manifest["omitted"].items():
@@ -284,6 +284,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--external", type=names_list, default=[],
                    help="comma-separated frames at which the dynamics take a wrench [force; moment] "
                         "(forward_dynamics_external, inverse_dynamics_external)")
+    p.add_argument("--only", type=names_list, default=None,
+                   help="comma-separated names of the functions to generate (default: all of them)")
     p.set_defaults(func=_cmd_codegen)
     p = sub.add_parser("paper", help="reproduce the paper's simulation (Figs. 5-11), the cascade study and sweeps")
     p.add_argument("--trajectory", default=str(TRAJECTORY), help="expected-trajectory file (names its model)")

@@ -201,6 +201,15 @@ def test_the_whole_robot_tutorial_s_example_does_what_the_page_says(tmp_path):
     assert report["passed"] and report["goal_position_error"] < 1e-3
 
 
+def test_the_legs_tutorial_s_example_does_what_the_page_says(tmp_path):
+    """docs/tutorials/legs.md: ANYmal C stands on its four feet (a = 0 there), its contact
+    dynamics in C equal the Function, and on MuJoCo's floor its foot forces are the model's."""
+    pytest.importorskip("mujoco")
+    out = example("legs").main(["--out", str(tmp_path)])
+    assert out["verified"] and out["stance"].residual < 1e-9 and out["c_error"] < 1e-9
+    assert out["force_gap"] < 0.01 * np.sum(out["stance"].f[2::3])
+
+
 def test_the_readme_api_lines_run(tmp_path, monkeypatch):
     """The README's ten API lines, as a user pastes them (from the repository's directory)."""
     readme = (ROOT / "README.md").read_text()

@@ -321,7 +321,7 @@ def _io(f: ca.Function, out: bool):
 
 
 def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print, parametric: str = "none",
-             native: bool = False, frames=(), external=()) -> dict:
+             native: bool = False, frames=(), external=(), only=None) -> dict:
     """Write C sources, one header, one shared library and manifest.json into `out`.
     parametric (model.parameters.PARAMETRIC): "none", the model's numbers in the C; "all", every
     function takes the parameter vector p (manifest "parameters") last, so one library serves
@@ -330,7 +330,9 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
     about the constant C's speed (Compiled.parameters_of checks an arm against it).
     native: compile for this machine's processor (native_flags()); the sources stay portable C99.
     frames, external: frame names whose kinematics, and at which wrenches, the library gets
-    (frame_functions); a frame's name enters C only as a C identifier (model.checks.identifier)."""
+    (frame_functions); a frame's name enters C only as a C identifier (model.checks.identifier).
+    only: the public names of the Functions to generate (default: all), for a controller that
+    needs a few; an unknown name is refused, listing those there are."""
     prefix = prefix or ""
     if prefix and not C_IDENTIFIER.match(prefix):
         raise CodegenError(f"prefix {prefix!r} is not a C identifier ([A-Za-z_][A-Za-z0-9_]*, at most 63)")
@@ -359,6 +361,13 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
     takes_p = parametric != "none"
     fns, omitted = (floating_functions(arm, prefix, frames) if isinstance(arm, FloatingRobot)
                     else functions(arm, prefix, takes_p, frames, external))
+    if only is not None:
+        unknown = [name for name in only if name not in fns]
+        if unknown or not only:
+            raise CodegenError(f"only: {', '.join(map(repr, unknown)) or 'nothing'} is not a Function of "
+                               f"{arm.model.path} (there are: {', '.join(fns)})")
+        omitted.update({name: "not asked for (only)" for name in fns if name not in only})
+        fns = {name: f for name, f in fns.items() if name in only}
     header_gen = ca.CodeGenerator(CASADI_HEADER.removesuffix(".h"), {"with_header": True})
     texts: dict[str, str] = {}
     kernels = {}                                    # name -> step_kernel.Kernel
@@ -378,7 +387,8 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
         texts[CASADI_HEADER] = (Path(d) / CASADI_HEADER).read_text()
     sources = [file for file in texts if file.endswith(".c")]
     texts[HEADER] = arm_header(arm, prefix, [k.header for k in kernels.values()])
-    guarded = not takes_p and isinstance(arm, Arm) and arm.model.all_sea   # the feedforward, guarded
+    guarded = (not takes_p and isinstance(arm, Arm) and arm.model.all_sea     # the feedforward, guarded
+               and {"feedforward_init", "feedforward_step", "inverse_dynamics"} <= set(fns))
     if guarded and isinstance(arm, Arm):
         texts.update(feedforward_controller(arm, fns, prefix))
     manifest = {

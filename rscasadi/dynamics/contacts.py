@@ -197,7 +197,7 @@ def _damped(damping) -> str:
 def forward_jacobian(robot, contacts, damping: float = 0.0) -> ca.Function:
     """q, v, tau -> da (nv x (2 nv + u)), df (nc x (2 nv + u)): the contact dynamics' derivatives
     by (dq, v, tau), dq the tangent displacement of q, by the implicit-function theorem on the KKT
-    system: [M -J^T; J 0] [da; df] = -dr/d(dq, v, tau), solved as the dynamics themselves."""
+    system: K (da, df) = -dr/d(dq, v, tau) with K = ((M, -J^T), (J, 0)), solved as the dynamics themselves."""
     name = _name("contact_dynamics_jacobian", contacts) + _damped(damping)
     if name not in robot._functions:
         q, v, tau = ca.MX.sym("q", robot.nq), ca.MX.sym("v", robot.nv), ca.MX.sym("tau", robot.u)

@@ -35,7 +35,9 @@ qw, qx, qy, qz], qvel [v in world axes; w in the base frame]: rscasadi.dynamics.
 carrying the tree; the world gets a floor (a plane at z = 0) and each point contact a sphere of
 FOOT_RADIUS at its frame's origin that touches the floor and nothing else (contype and conaffinity
 4 on the floor, the feet only colliding with it); the base starts level, the lowest foot on the
-floor, the links at their rest pose and the springs relaxed.
+floor, the links at their rest pose, standing (`floating_rest`): the keyframe's torques hold it
+for an instant, but an SEA under a constant motor torque has no stiffness, so standing longer
+takes a controller.
 MuJoCo keeps the gear only as a constraint it solves softly: the file asks for RK4 at 1 ms and
 an equality nearly hard (solimp 0.9999), under which its motion follows the complete model
 (tests/test_mujoco.py). Not expressed, and refused by name: a cubic spring term (k3), Coulomb
@@ -122,9 +124,18 @@ def rest_state(model, variant: str = "complete") -> tuple:
 
 
 def floating_rest(model) -> tuple:
-    """(theta, phi, tau) a floating robot's export starts in: the links at `rest_pose`, the SEAs'
-    springs relaxed (phi = theta), no torque."""
+    """(theta, phi, tau) a floating robot's export starts in: the links at `rest_pose`; standing
+    on its point contacts where it can (dynamics.stance.stand: the springs deflected, the torques
+    that hold it, level at `standing_height`), else the springs relaxed and no torque."""
+    from rscasadi.dynamics.floating import FloatingRobot
+    from rscasadi.dynamics.stance import StandingError, stand
     theta = rest_pose(model)
+    if model.contacts and all(kind == "point" for _, kind in model.contacts):
+        try:
+            s = stand(FloatingRobot(model), theta, np.r_[0, 0, standing_height(model, theta), 0, 0, 0, 1])
+            return theta, s.q[7 + model.n:], s.tau
+        except StandingError:
+            pass
     return theta, theta[model.motors], np.zeros(len(model.actuated))
 
 
@@ -423,6 +434,13 @@ def export_mujoco(model_file, out, log=print, variant: str = "complete") -> Path
     from rscasadi.dynamics.arm import load
     arm = load(model_file)
     text = mujoco_xml(arm.model, variant)
+    if arm.model.floating:
+        with fresh_directory(Path(out)) as tmp:
+            write_text(tmp / "model.xml", text)
+        log(f"wrote {Path(out) / 'model.xml'}: {arm.n} joints on a free-flying base, a floor, "
+            f"{len(arm.model.contacts)} feet (RK4 at {TIMESTEP * 1e3:g} ms); starts standing where it can "
+            "(keyframe 'rest': the torques that hold the rest pose)")
+        return Path(out) / "model.xml"
     with fresh_directory(Path(out)) as tmp:
         write_text(tmp / "model.xml", text)
     what = {"armature": "rigid joints with the rotors as armature (for comparison)",
