@@ -293,6 +293,14 @@ def test_bad_floating_input_is_named(tmp_path):
     assert all(w in str(err.value) for w in ("'nowhere'", "'line'", "'j2' given twice"))
     with pytest.raises(NotFound):
         robot.frame_placement("nowhere")
+    from rscasadi.dynamics.floating import unit_configuration
+    q = random_q(robot, np.random.default_rng(0))
+    with pytest.warns(UserWarning, match="norm 2"):
+        assert np.allclose(unit_configuration(robot, np.r_[q[:3], 2 * q[3:7], q[7:]], "q0"), q)
+    with pytest.raises(InvalidArgument, match="zero"):
+        unit_configuration(robot, np.r_[q[:3], np.zeros(4), q[7:]], "q0")
+    with pytest.raises(InvalidArgument, match="finite"):
+        unit_configuration(robot, q[:-1], "q0")
     with pytest.raises(InvalidArgument, match="reference"):
         robot.frame_jacobian("j2", "world")
 
@@ -453,3 +461,38 @@ def test_the_rotor_spin_study_conserves_momentum_and_finds_the_armature_model_of
     assert held["complete"] < 1e-6 and held["rigid"] < 1e-6
     assert held["reduced"] > 1e-3 and held["armature"] > 1e-3
     assert r["rigid_vs_armature_deg"] > 0.01 and r["complete_vs_reduced_deg"] > 0.01
+
+
+def test_a_drop_through_a_contact_schedule_lands_plastically_and_holds_the_feet():
+    """ANYmal dropped 2 cm above its crouch, the motors held by a PD about the stance: in flight
+    (the first phase, no contacts) the base falls as gravity says; at touchdown (the second
+    phase, four feet) the plastic impact stops the feet (J v = 0), the impulse is the change of
+    the momentum, kinetic energy is lost, not made; then the feet stay within 1e-6 m and push
+    (no pulling force)."""
+    from rscasadi.dynamics.stance import stand
+    from rscasadi.export.mujoco import standing_height
+    from rscasadi.sim.legged import simulate_schedule
+    robot = FloatingRobot(read(ANYMAL))
+    theta = anymal_crouch()
+    s = stand(robot, theta, np.r_[0, 0, standing_height(robot.model, theta), 0, 0, 0, 1])
+    q0 = s.q.copy()
+    q0[2] += 0.02
+    phi, n = s.q[7 + robot.n:], robot.n
+
+    def pd(t, q, v):
+        return s.tau + 20.0 * (q[7 + n:] - phi) + 0.5 * v[6 + n:]
+    t_down = float(np.sqrt(2 * 0.02 / 9.81))
+    r = simulate_schedule(robot, q0, np.zeros(robot.nv), [(0.0, ()), (t_down, FEET)], pd, duration=0.2, dt=5e-4)
+    (t_hit, frames, impulse, before, after), = r["impacts"]
+    k = int(round(t_hit / 5e-4))
+    assert frames == sorted(FEET) and abs(t_hit - t_down) < 5e-4 and after < before
+    assert abs(r["v"][k, 2] + 9.81 * t_hit) < 0.02                      # free fall until then
+    q_hit, v_before = r["q"][k], r["v"][k]
+    v_after = col(robot.impact(FEET)(q_hit, v_before)[0])
+    assert np.max(np.abs(np.asarray(robot.contact_jacobian(FEET)(q_hit)) @ v_after)) < 1e-9
+    h = robot.centroidal_momentum()
+    assert rel(col(h(q_hit, v_after))[:3] - col(h(q_hit, v_before))[:3], impulse.reshape(4, 3).sum(axis=0)) < 1e-9
+    feet = [robot.frame_placement(f) for f in FEET]
+    landed = np.concatenate([col(f(r["q"][k + 1])[1]) for f in feet])
+    end = np.concatenate([col(f(r["q"][-1])[1]) for f in feet])
+    assert np.max(np.abs(end - landed)) < 1e-6 and r["pulling"] == 0.0

@@ -10,8 +10,9 @@ axes (classical less w x v) for a flat contact: the time derivatives of the rows
 
 With the contacts held (J a + gamma = -damping J v, damping >= 0 pulling the contacts' velocity
 to zero), M a + h = Q + J^T f; solved as Pinocchio's contact dynamics: a_free = M^-1 (Q - h),
-f = -(J M^-1 J^T)^-1 (J a_free + gamma + damping J v), a = a_free + M^-1 J^T f (LDL^T solves at
-run time in the generated code).  `robot` is a rscasadi.dynamics.floating.FloatingRobot.
+f = -(J M^-1 J^T)^-1 (J a_free + gamma + damping J v), a = a_free + M^-1 J^T f, both inverses by
+symbolic LDL^T factorisations: straight-line code that skips the mass matrix's structural zeros
+(a leg's joints do not couple with another leg's).  `robot` is a rscasadi.dynamics.floating.FloatingRobot.
 """
 from __future__ import annotations
 
@@ -108,24 +109,41 @@ def drift(robot, contacts) -> ca.Function:
 
 
 def _parts(robot, contacts, q, v):
-    """M, J and gamma at (q, v) (MX)."""
+    """M, J and gamma at (q, v)."""
     return robot.mass_matrix()(q), jacobian(robot, contacts)(q), drift(robot, contacts)(q, v)
+
+
+def _solver(M, J):
+    """Solves with M and with the contacts' inverse inertia J M^-1 J^T, both by a symbolic LDL^T
+    (ca.ldl: straight-line code that skips M's structural zeros, the tree's legs apart)."""
+    D, LT, p = ca.ldl(M)
+
+    def by_M(b):
+        return ca.ldl_solve(b, D, LT, p)
+    MiJt = by_M(J.T)
+    D2, LT2, p2 = ca.ldl(J @ MiJt)
+    return by_M, MiJt, lambda b: ca.ldl_solve(b, D2, LT2, p2)
+
+
+def _kkt(robot, contacts, q, v, tau, damping):
+    """a and f of the contact dynamics (SX), and the solves that gave them."""
+    M, J, gamma = _parts(robot, contacts, q, v)
+    by_M, MiJt, by_L = _solver(M, J)
+    a_free = by_M(robot.generalized_forces()(q, v, tau) - robot.nonlinear_effects()(q, v))
+    f = -by_L(J @ a_free + gamma + damping * (J @ v))
+    return a_free + MiJt @ f, f, (J, by_M, MiJt, by_L)
 
 
 def forward(robot, contacts, damping: float = 0.0) -> ca.Function:
     """q, v, tau -> a (nv), f (nc): the contact forward dynamics (module docstring)."""
     if not damping >= 0:
         raise InvalidArgument(f"contact damping {damping!r}: expected a number >= 0 (1/s)")
-    name = _name("contact_dynamics", contacts) + _damped(damping)
-    if name not in robot._functions:
-        q, v, tau = ca.MX.sym("q", robot.nq), ca.MX.sym("v", robot.nv), ca.MX.sym("tau", robot.u)
-        M, J, gamma = _parts(robot, contacts, q, v)
-        rhs = robot.generalized_forces()(q, v, tau) - robot.nonlinear_effects()(q, v)
-        sol = ca.solve(M, ca.horzcat(rhs, J.T), "ldl")                  # M^-1 (Q - h), M^-1 J^T
-        a_free, MiJt = sol[:, 0], sol[:, 1:]
-        f = -ca.solve(J @ MiJt, J @ a_free + gamma + damping * (J @ v), "ldl")
-        robot._functions[name] = ca.Function(name, [q, v, tau], [a_free + MiJt @ f, f], ["q", "v", "tau"], ["a", "f"])
-    return robot._functions[name]
+
+    def build(q, v, tau):
+        a, f, _ = _kkt(robot, contacts, q, v, tau, damping)
+        return ca.cse([a, f])
+    return robot._function(_name("contact_dynamics", contacts) + _damped(damping), ["q", "v", "tau"], ["a", "f"],
+                           build)
 
 
 def inverse(robot, contacts) -> ca.Function:
@@ -141,15 +159,12 @@ def inverse(robot, contacts) -> ca.Function:
 
 def impact(robot, contacts) -> ca.Function:
     """q, v -> v_plus, impulse: the plastic impact, M (v_plus - v) = J^T impulse, J v_plus = 0."""
-    name = _name("impact", contacts)
-    if name not in robot._functions:
-        q, v = ca.MX.sym("q", robot.nq), ca.MX.sym("v", robot.nv)
+    def build(q, v):
         M, J = robot.mass_matrix()(q), jacobian(robot, contacts)(q)
-        MiJt = ca.solve(M, J.T, "ldl")
-        impulse = -ca.solve(J @ MiJt, J @ v, "ldl")
-        robot._functions[name] = ca.Function(name, [q, v], [v + MiJt @ impulse, impulse], ["q", "v"],
-                                             ["v_plus", "impulse"])
-    return robot._functions[name]
+        _, MiJt, by_L = _solver(M, J)
+        impulse = -by_L(J @ v)
+        return ca.cse([v + MiJt @ impulse, impulse])
+    return robot._function(_name("impact", contacts), ["q", "v"], ["v_plus", "impulse"], build)
 
 
 def check(robot, contacts, q, rtol: float = 1e-9) -> None:
@@ -198,16 +213,12 @@ def forward_jacobian(robot, contacts, damping: float = 0.0) -> ca.Function:
     """q, v, tau -> da (nv x (2 nv + u)), df (nc x (2 nv + u)): the contact dynamics' derivatives
     by (dq, v, tau), dq the tangent displacement of q, by the implicit-function theorem on the KKT
     system: K (da, df) = -dr/d(dq, v, tau) with K = ((M, -J^T), (J, 0)), solved as the dynamics themselves."""
-    name = _name("contact_dynamics_jacobian", contacts) + _damped(damping)
-    if name not in robot._functions:
-        q, v, tau = ca.MX.sym("q", robot.nq), ca.MX.sym("v", robot.nv), ca.MX.sym("tau", robot.u)
-        a, f = forward(robot, contacts, damping)(q, v, tau)
+    def build(q, v, tau):
+        a, f, (J, by_M, MiJt, by_L) = _kkt(robot, contacts, q, v, tau, damping)
         D = -residual_jacobian(robot, contacts, damping)(q, v, tau, a, f)
-        M, J = robot.mass_matrix()(q), jacobian(robot, contacts)(q)
         R1, R2 = D[:robot.nv, :], D[robot.nv:, :]
-        sol = ca.solve(M, ca.horzcat(R1, J.T), "ldl")                   # M^-1 R1, M^-1 J^T
-        MiR1, MiJt = sol[:, :R1.shape[1]], sol[:, R1.shape[1]:]
-        df = ca.solve(J @ MiJt, R2 - J @ MiR1, "ldl")
-        robot._functions[name] = ca.Function(name, [q, v, tau], [MiR1 + MiJt @ df, df], ["q", "v", "tau"],
-                                             ["da", "df"])
-    return robot._functions[name]
+        MiR1 = by_M(R1)
+        df = by_L(R2 - J @ MiR1)
+        return ca.cse([MiR1 + MiJt @ df, df])
+    return robot._function(_name("contact_dynamics_jacobian", contacts) + _damped(damping), ["q", "v", "tau"],
+                           ["da", "df"], build)

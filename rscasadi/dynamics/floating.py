@@ -380,6 +380,26 @@ class FloatingRobot:
         return self._function("centroidal_momentum_matrix", ["q"], ["A"], build)
 
 
+QUATERNION_TOL = 1e-6      # |q| - 1 beyond this is said when a configuration is normalised
+
+
+def unit_configuration(robot: FloatingRobot, q, where: str) -> np.ndarray:
+    """q (nq finite numbers) with its base quaternion normalised: a zero quaternion is refused,
+    one that is not unit to QUATERNION_TOL is normalised with a warning naming `where`."""
+    import warnings
+    q = np.array(q, float).ravel()
+    if q.shape != (robot.nq,) or not np.all(np.isfinite(q)):
+        raise InvalidArgument(f"{where}: q must be {robot.nq} finite numbers ({', '.join(robot.coordinates[:7])}, "
+                              f"...), got shape {q.shape}")
+    norm = float(np.linalg.norm(q[3:7]))
+    if norm < 1e-9:
+        raise InvalidArgument(f"{where}: the base quaternion {q[3:7].tolist()} is zero: no orientation")
+    if abs(norm - 1.0) > QUATERNION_TOL:
+        warnings.warn(f"{where}: the base quaternion has norm {norm:.6g}; normalised", stacklevel=3)
+    q[3:7] /= norm
+    return q
+
+
 def load_robot(path) -> Arm | FloatingRobot:
     """Read a model file: a FloatingRobot when its base floats (floating = true), else an Arm."""
     from rscasadi.model.modelfile import read

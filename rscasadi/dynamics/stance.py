@@ -45,11 +45,13 @@ def stand(robot, theta, base=None, contacts=None, mu: float = 0.7, tol: float = 
     `base` = [x, y, z, qx, qy, qz, qw] (default: level at the origin), on `contacts` (default: the
     model file's), friction coefficient `mu`; module docstring."""
     cs = ct.contact_set(robot.model, contacts)
+    from rscasadi.dynamics.floating import unit_configuration
     theta = np.asarray(theta, float)
     base = np.r_[0, 0, 0, 0, 0, 0, 1.0] if base is None else np.asarray(base, float)
     if theta.shape != (robot.n,) or base.shape != (7,) or not np.all(np.isfinite(np.r_[theta, base])):
         raise InvalidArgument(f"stand: theta must be {robot.n} finite angles and base 7 finite numbers "
                               f"(got shapes {theta.shape}, {base.shape})")
+    base = unit_configuration(robot, np.r_[base, theta, theta[robot.model.motors]], "stand: base")[:7]
     if not mu > 0:
         raise InvalidArgument(f"stand: mu = {mu!r}; the friction coefficient must be > 0")
     q0 = np.r_[base, theta, theta[robot.model.motors]]
