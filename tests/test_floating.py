@@ -305,24 +305,61 @@ def test_bad_floating_input_is_named(tmp_path):
         robot.frame_jacobian("j2", "world")
 
 
-def test_contact_dynamics_jacobian_equals_finite_differences_on_the_manifold():
-    """ANYmal on its four feet (damping 5/s): the implicit-function Jacobian of the contact
-    dynamics by (dq, v, tau), dq moving q along integrate(q, dq), equals central differences of
-    the contact dynamics themselves to 1e-6."""
+@pytest.mark.parametrize("stiffness", [0.0, 100.0])
+def test_contact_dynamics_jacobian_equals_finite_differences_on_the_manifold(stiffness):
+    """ANYmal on its four feet (damping 5/s; and a Baumgarte stiffness towards anchors 1 cm off):
+    the implicit-function Jacobian of the contact dynamics by
+    (dq, v, tau), dq moving q along integrate(q, dq), equals central differences of the contact
+    dynamics themselves to 1e-6."""
     robot = FloatingRobot(read(ANYMAL))
     rng = np.random.default_rng(1)
     quat = rng.normal(size=4)
     q = np.r_[0, 0, 0.6, quat / np.linalg.norm(quat), 0.3 * rng.normal(size=robot.n + robot.m)]
     v, tau = rng.normal(size=robot.nv), rng.normal(size=robot.u)
-    da, df = (np.asarray(x) for x in robot.contact_dynamics_jacobian(damping=5.0)(q, v, tau))
-    cd, step, eps = robot.contact_dynamics(damping=5.0), robot.integrate(), 1e-6
+    anchors = [np.concatenate([col(robot.frame_placement(f)(q)[1]) + 0.01 for f in FEET])] if stiffness else []
+    da, df = (np.asarray(x) for x in robot.contact_dynamics_jacobian(damping=5.0, stiffness=stiffness)(q, v, tau, *anchors))
+    cd, step, eps = robot.contact_dynamics(damping=5.0, stiffness=stiffness), robot.integrate(), 1e-6
     for i in rng.choice(2 * robot.nv + robot.u, 12, replace=False):
         e = np.zeros(2 * robot.nv + robot.u)
         e[i] = eps
-        ahead = [col(x) for x in cd(col(step(q, e[:robot.nv], 1.0)), v + e[robot.nv:-robot.u], tau + e[-robot.u:])]
-        back = [col(x) for x in cd(col(step(q, -e[:robot.nv], 1.0)), v - e[robot.nv:-robot.u], tau - e[-robot.u:])]
+        ahead = [col(x) for x in cd(col(step(q, e[:robot.nv], 1.0)), v + e[robot.nv:-robot.u], tau + e[-robot.u:],
+                                    *anchors)]
+        back = [col(x) for x in cd(col(step(q, -e[:robot.nv], 1.0)), v - e[robot.nv:-robot.u], tau - e[-robot.u:],
+                                   *anchors)]
         assert np.max(np.abs(da[:, i] - (ahead[0] - back[0]) / (2 * eps))) < 1e-6 * max(1, np.max(np.abs(da)))
         assert np.max(np.abs(df[:, i] - (ahead[1] - back[1]) / (2 * eps))) < 1e-6 * max(1, np.max(np.abs(df)))
+
+
+def test_baumgarte_gains_pull_the_feet_back_to_their_anchors():
+    """ANYmal standing with its feet 5 mm from where they are held (anchors), damping 20/s and
+    stiffness 100/s^2 (critically damped at 10 rad/s): over 1 s of contact dynamics the feet's
+    errors (contacts.errors, as the constraint sees them) shrink a hundredfold and more, a flat
+    contact's rotation error too; without the stiffness they stay."""
+    from rscasadi.dynamics.contacts import contact_set, errors
+    from rscasadi.dynamics.stance import stand
+    from rscasadi.export.mujoco import standing_height
+    import casadi as ca
+    robot = FloatingRobot(read(ANYMAL))
+    theta = anymal_crouch()
+    s = stand(robot, theta, np.r_[0, 0, standing_height(robot.model, theta), 0, 0, 0, 1])
+    cs = [("LF_FOOT", "point"), ("RF_FOOT", "flat"), ("LH_FOOT", "point"), ("RH_FOOT", "point")]
+    R, p = (np.asarray(x) for x in robot.frame_placement("RF_FOOT")(s.q))
+    from scipy.spatial.transform import Rotation
+    turned = (Rotation.from_matrix(R) * Rotation.from_rotvec([0.0, 0.0, 0.01])).as_quat()     # xyzw
+    anchors = np.concatenate([col(robot.frame_placement(f)(s.q)[1]) + [0.005, 0, 0] for f in ("LF_FOOT",)]
+                             + [p.ravel() + [0.005, 0, 0], turned]
+                             + [col(robot.frame_placement(f)(s.q)[1]) + [0.005, 0, 0] for f in ("LH_FOOT", "RH_FOOT")])
+    q_sym = ca.SX.sym("q", robot.nq)
+    error = ca.Function("e", [q_sym], [errors(robot, contact_set(robot.model, cs), q_sym, anchors)])
+    for stiffness in (100.0, 0.0):
+        cd, q, v = robot.contact_dynamics(cs, damping=20.0, stiffness=stiffness), s.q.copy(), np.zeros(robot.nv)
+        e0 = np.max(np.abs(col(error(q))))
+        for _ in range(1000):
+            a = col(cd(q, v, s.tau, *([anchors] if stiffness else []))[0])
+            v = v + 1e-3 * a
+            q = col(robot.integrate()(q, v, 1e-3))
+        e1 = np.max(np.abs(col(error(q))))
+        assert e0 > 4e-3 and (e1 < 1e-2 * e0 if stiffness else e1 > 0.9 * e0)
 
 
 def test_generated_c_of_a_floating_robot_equals_its_functions(tmp_path):

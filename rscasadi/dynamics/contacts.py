@@ -8,9 +8,10 @@ sole's).  The rows' acceleration at a = 0, J-dot v (the drift gamma), is the cla
 acceleration of the origin in world axes for a point, the spatial acceleration in the frame's
 axes (classical less w x v) for a flat contact: the time derivatives of the rows' velocities.
 
-With the contacts held (J a + gamma = -damping J v, damping >= 0 pulling the contacts' velocity
-to zero), M a + h = Q + J^T f; solved as Pinocchio's contact dynamics: a_free = M^-1 (Q - h),
-f = -(J M^-1 J^T)^-1 (J a_free + gamma + damping J v), a = a_free + M^-1 J^T f, both inverses by
+With the contacts held (J a + gamma = -damping J v - stiffness e, Baumgarte's gains >= 0 pulling
+the contacts' velocity and, with a stiffness, their position errors e from given anchors to
+zero: `errors`), M a + h = Q + J^T f; solved as Pinocchio's contact dynamics: a_free = M^-1 (Q - h),
+f = -(J M^-1 J^T)^-1 (J a_free + gamma + damping J v + stiffness e), a = a_free + M^-1 J^T f, both inverses by
 symbolic LDL^T factorisations: straight-line code that skips the mass matrix's structural zeros
 (a leg's joints do not couple with another leg's).  `robot` is a rscasadi.dynamics.floating.FloatingRobot.
 """
@@ -125,25 +126,67 @@ def _solver(M, J):
     return by_M, MiJt, lambda b: ca.ldl_solve(b, D2, LT2, p2)
 
 
-def _kkt(robot, contacts, q, v, tau, damping):
+def anchor_size(contacts) -> int:
+    """The length of the anchors input: 3 per point contact (where its origin is held, world),
+    7 per flat contact (its origin, world, and its orientation, a quaternion xyzw)."""
+    return sum(3 if c.kind == "point" else 7 for c in contacts)
+
+
+def errors(robot, contacts, q, anchors):
+    """The rows' position errors from their anchors: a point's p - p_ref (world axes); a flat
+    contact's R^T (p - p_ref) and vee(R_ref^T R - R^T R_ref) / 2 (its axes; the rotation vector
+    to first order)."""
+    from rscasadi.dynamics.floating import rotation
+    out, at = [], 0
+    for c, (R, p, _, _) in zip(contacts, robot._frame_motions([c.frame for c in contacts], q, ca.DM.zeros(robot.nv))):
+        if c.kind == "point":
+            out.append(p - anchors[at:at + 3])
+            at += 3
+        else:
+            R0 = rotation(anchors[at + 3:at + 7])
+            S = (R0.T @ R - R.T @ R0) / 2
+            out += [R.T @ (p - anchors[at:at + 3]), ca.vertcat(S[2, 1], S[0, 2], S[1, 0])]
+            at += 7
+    return ca.vertcat(*out)
+
+
+def _stabilised(robot, contacts, q, vel, gains, anchors=None):
+    """The Baumgarte terms the contact rows' acceleration is held to less: damping J v + stiffness e."""
+    damping, stiffness = gains
+    return damping * vel + (stiffness * errors(robot, contacts, q, anchors) if stiffness else 0)
+
+
+def _kkt(robot, contacts, q, v, tau, gains, anchors=None):
     """a and f of the contact dynamics (SX), and the solves that gave them."""
     M, J, gamma = _parts(robot, contacts, q, v)
     by_M, MiJt, by_L = _solver(M, J)
     a_free = by_M(robot.generalized_forces()(q, v, tau) - robot.nonlinear_effects()(q, v))
-    f = -by_L(J @ a_free + gamma + damping * (J @ v))
+    f = -by_L(J @ a_free + gamma + _stabilised(robot, contacts, q, J @ v, gains, anchors))
     return a_free + MiJt @ f, f, (J, by_M, MiJt, by_L)
 
 
-def forward(robot, contacts, damping: float = 0.0) -> ca.Function:
-    """q, v, tau -> a (nv), f (nc): the contact forward dynamics (module docstring)."""
-    if not damping >= 0:
-        raise InvalidArgument(f"contact damping {damping!r}: expected a number >= 0 (1/s)")
+def _gains(damping, stiffness) -> tuple:
+    if not (damping >= 0 and stiffness >= 0):
+        raise InvalidArgument(f"contact damping {damping!r} (1/s) and stiffness {stiffness!r} (1/s^2): expected "
+                              "numbers >= 0")
+    return float(damping), float(stiffness)
 
-    def build(q, v, tau):
-        a, f, _ = _kkt(robot, contacts, q, v, tau, damping)
+
+def _inputs(contacts, stiffness, *names) -> tuple:
+    """The Function's input names (anchors last with a stiffness) and the sizes of the odd ones."""
+    return list(names) + (["anchors"] if stiffness else []), {"anchors": anchor_size(contacts)}
+
+
+def forward(robot, contacts, damping: float = 0.0, stiffness: float = 0.0) -> ca.Function:
+    """q, v, tau[, anchors] -> a (nv), f (nc): the contact forward dynamics (module docstring);
+    with a stiffness, J a + gamma = -damping J v - stiffness e, e the rows' errors from `anchors`."""
+    gains = _gains(damping, stiffness)
+    ins, sizes = _inputs(contacts, stiffness, "q", "v", "tau")
+
+    def build(q, v, tau, *anchors):
+        a, f, _ = _kkt(robot, contacts, q, v, tau, gains, *anchors)
         return ca.cse([a, f])
-    return robot._function(_name("contact_dynamics", contacts) + _damped(damping), ["q", "v", "tau"], ["a", "f"],
-                           build)
+    return robot._function(_name("contact_dynamics", contacts) + _damped(*gains), ins, ["a", "f"], build, sizes)
 
 
 def inverse(robot, contacts) -> ca.Function:
@@ -186,39 +229,47 @@ def check(robot, contacts, q, rtol: float = 1e-9) -> None:
         held.append(c.frame)
 
 
-def residual_jacobian(robot, contacts, damping: float = 0.0) -> ca.Function:
+def residual_jacobian(robot, contacts, damping: float = 0.0, stiffness: float = 0.0) -> ca.Function:
     """q, v, tau, a, f -> dr/d(dq, v, tau) ((nv + nc) x (2 nv + u)) of the contact dynamics'
-    residual r = [M a + h - Q - J^T f; J a + gamma + damping J v], dq the tangent displacement of q
+    residual r = [M a + h - Q - J^T f; J a + gamma + damping J v + stiffness e], dq the tangent displacement of q
     (q moved to integrate(q, dq)); an SX Function of the recursions' derivatives, J^T f as the
     contact wrenches applied in the inverse dynamics."""
-    nc = sum(c.rows for c in contacts)
+    nc, gains = sum(c.rows for c in contacts), _gains(damping, stiffness)
+    ins, sizes = _inputs(contacts, stiffness, "q", "v", "tau", "a", "f")
 
-    def build(q, v, tau, a, f):
+    def build(q, v, tau, a, f, *anchors):
         dq = ca.SX.sym("dq", robot.nv)
         moved = robot.integrate()(q, dq, 1.0)
         vel, acc = _rows(robot, contacts, moved, v, a)
         r = ca.vertcat(robot._inverse(moved, v, a, wrenches=wrenches(robot, contacts, moved, f))
-                       - robot.generalized_forces()(moved, v, tau), acc + damping * vel)
+                       - robot.generalized_forces()(moved, v, tau),
+                       acc + _stabilised(robot, contacts, moved, vel, gains, *anchors))
         D = ca.jacobian(r, ca.vertcat(dq, v, tau))
         return [ca.cse(ca.substitute(D, dq, ca.DM.zeros(robot.nv)))]
-    return robot._function(_name("contact_residual_jacobian", contacts) + _damped(damping),
-                           ["q", "v", "tau", "a", "f"], ["jacobian"], build, {"f": nc})
+    return robot._function(_name("contact_residual_jacobian", contacts) + _damped(*gains), ins, ["jacobian"], build,
+                           {"f": nc, **sizes})
 
 
-def _damped(damping) -> str:
-    return f"_damped_{damping:g}".replace(".", "p") if damping else ""
+def _damped(damping, stiffness=0.0) -> str:
+    """The Function name's suffix for Baumgarte gains."""
+    tag = (f"_damped_{damping:g}" if damping else "") + (f"_stiff_{stiffness:g}" if stiffness else "")
+    return tag.replace(".", "p").replace("+", "").replace("-", "m")
 
 
-def forward_jacobian(robot, contacts, damping: float = 0.0) -> ca.Function:
-    """q, v, tau -> da (nv x (2 nv + u)), df (nc x (2 nv + u)): the contact dynamics' derivatives
-    by (dq, v, tau), dq the tangent displacement of q, by the implicit-function theorem on the KKT
-    system: K (da, df) = -dr/d(dq, v, tau) with K = ((M, -J^T), (J, 0)), solved as the dynamics themselves."""
-    def build(q, v, tau):
-        a, f, (J, by_M, MiJt, by_L) = _kkt(robot, contacts, q, v, tau, damping)
-        D = -residual_jacobian(robot, contacts, damping)(q, v, tau, a, f)
+def forward_jacobian(robot, contacts, damping: float = 0.0, stiffness: float = 0.0) -> ca.Function:
+    """q, v, tau[, anchors] -> da (nv x (2 nv + u)), df (nc x (2 nv + u)): the contact dynamics'
+    derivatives by (dq, v, tau), dq the tangent displacement of q, by the implicit-function theorem
+    on the KKT system: K (da, df) = -dr/d(dq, v, tau) with K = ((M, -J^T), (J, 0)), solved as the
+    dynamics themselves."""
+    gains = _gains(damping, stiffness)
+    ins, sizes = _inputs(contacts, stiffness, "q", "v", "tau")
+
+    def build(q, v, tau, *anchors):
+        a, f, (J, by_M, MiJt, by_L) = _kkt(robot, contacts, q, v, tau, gains, *anchors)
+        D = -residual_jacobian(robot, contacts, *gains)(q, v, tau, a, f, *anchors)
         R1, R2 = D[:robot.nv, :], D[robot.nv:, :]
         MiR1 = by_M(R1)
         df = by_L(R2 - J @ MiR1)
         return ca.cse([MiR1 + MiJt @ df, df])
-    return robot._function(_name("contact_dynamics_jacobian", contacts) + _damped(damping), ["q", "v", "tau"],
-                           ["da", "df"], build)
+    return robot._function(_name("contact_dynamics_jacobian", contacts) + _damped(*gains), ins, ["da", "df"], build,
+                           sizes)

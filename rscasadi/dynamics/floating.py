@@ -263,15 +263,16 @@ class FloatingRobot:
         """q, v -> gamma (nc): J-dot v, the contacts' acceleration at a = 0."""
         return ct.drift(self, ct.contact_set(self.model, contacts))
 
-    def contact_dynamics(self, contacts=None, damping: float = 0.0) -> ca.Function:
-        """q, v, tau -> a, f: the motion and the contact forces with the contacts held (J a + gamma
-        = -damping J v), from the KKT system of the complete model."""
-        return ct.forward(self, ct.contact_set(self.model, contacts), damping)
+    def contact_dynamics(self, contacts=None, damping: float = 0.0, stiffness: float = 0.0) -> ca.Function:
+        """q, v, tau[, anchors] -> a, f: the motion and the contact forces with the contacts held
+        (J a + gamma = -damping J v - stiffness e; with a stiffness, one more input: the anchors
+        the errors e are taken from, `contacts.anchor_size`), from the KKT system of the complete model."""
+        return ct.forward(self, ct.contact_set(self.model, contacts), damping, stiffness)
 
-    def contact_dynamics_jacobian(self, contacts=None, damping: float = 0.0) -> ca.Function:
-        """q, v, tau -> da, df: the contact dynamics' derivatives by (dq, v, tau), dq the tangent
-        displacement of q (integrate(q, dq)), by the implicit-function theorem."""
-        return ct.forward_jacobian(self, ct.contact_set(self.model, contacts), damping)
+    def contact_dynamics_jacobian(self, contacts=None, damping: float = 0.0, stiffness: float = 0.0) -> ca.Function:
+        """q, v, tau[, anchors] -> da, df: the contact dynamics' derivatives by (dq, v, tau), dq the
+        tangent displacement of q (integrate(q, dq)), by the implicit-function theorem."""
+        return ct.forward_jacobian(self, ct.contact_set(self.model, contacts), damping, stiffness)
 
     def contact_inverse_dynamics(self, contacts=None) -> ca.Function:
         """q, v, a, f -> tau, T, base: inverse dynamics with the contact forces f applied."""
