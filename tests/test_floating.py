@@ -283,10 +283,12 @@ def test_bad_floating_input_is_named(tmp_path):
         FloatingRobot(parse(tomllib.loads(to_toml(doc))))
     with pytest.raises(ModelFileError, match="floating robot's"):
         parse(tomllib.loads(to_toml({**doc, "contacts": [{"frame": "j2"}]})), "legs.toml")
-    contacts = [{"frame": "j2"}, {"frame": "toe"}, {"frame": "j3", "kind": "line"}, {"frame": "j2"}]
+    contacts = [{"frame": "j2"}, {"frame": "toe"}, {"frame": "j3", "kind": "line"}, {"frame": "j2"},
+                {"frame": "j1", "size": [0.1, 0.05]}, {"frame": "base", "kind": "flat", "size": [0.1, -1.0]}]
     with pytest.raises(ModelFileError) as err:
         parse(tomllib.loads(to_toml({**doc, "floating": True, "base": base, "contacts": contacts})), "legs.toml")
-    assert all(w in str(err.value) for w in ("'toe'", "'line'", "'j2' given twice", "legs.toml"))
+    assert all(w in str(err.value) for w in ("'toe'", "'line'", "'j2' given twice", "legs.toml", "('j1'): size",
+                                             "('base'): size"))
     robot = floating_tree(1, 4)
     with pytest.raises(InvalidArgument) as err:
         robot.contact_dynamics(["j2", ("nowhere", "point"), ("j3", "line"), "j2"])
@@ -533,3 +535,57 @@ def test_a_drop_through_a_contact_schedule_lands_plastically_and_holds_the_feet(
     landed = np.concatenate([col(f(r["q"][k + 1])[1]) for f in feet])
     end = np.concatenate([col(f(r["q"][-1])[1]) for f in feet])
     assert np.max(np.abs(end - landed)) < 1e-6 and r["pulling"] == 0.0
+
+
+def test_a_humanoid_on_two_soles_stands_in_the_model_and_on_mujoco_s_floor(tmp_path):
+    """The G1 (29 joints: SEA legs, geared waist and shoulders, direct elbows and wrists) on two
+    flat contacts at sole frames under its ankles, soles 17 x 5 cm: `stand` keeps each centre of
+    pressure on its sole; exported, each sole a sphere at each corner, MuJoCo holds it 20 ms
+    for 1.5 s on the stance's torques and a PD about it (each geared or SEA joint's motor
+    coordinate 500 N m/rad and 10 N m s/rad at the link, a direct joint 20 and 0.2: the wrists are
+    light) still, at least six corners down, and its two feet's summed wrenches
+    (force and moment about the sole's origin, sole axes) equal the model's flat contact forces
+    at MuJoCo's state within 1 % of the weight (moments: of the weight times 10 cm)."""
+    import mujoco
+    from rscasadi.dynamics.stance import stand
+    from rscasadi.export.mujoco import mujoco_state, mujoco_xml, standing_height, state_from_mujoco
+    doc = g1_doc()
+    doc["frames"] = {f"{s}_sole": {"parent": f"{s}_ankle_roll_link", "xyz": [0.035, 0.0, -0.035], "rpy": [0.0, 0.0, 0.0]}
+                     for s in ("left", "right")}
+    doc["contacts"] = [{"frame": f"{s}_sole", "kind": "flat", "size": [0.17, 0.05]} for s in ("left", "right")]
+    robot = FloatingRobot(rscasadi.load(write_arm(tmp_path, doc, "g1.toml")).model)
+    theta = np.zeros(robot.n)
+    s = stand(robot, theta, np.r_[0, 0, standing_height(robot.model, theta), 0, 0, 0, 1])
+    f = s.f.reshape(2, 6)
+    assert np.all(np.abs(f[:, 3]) <= 0.025 * f[:, 2] + 1e-9) and np.all(np.abs(f[:, 4]) <= 0.085 * f[:, 2] + 1e-9)
+    weight = float(np.sum(f[:, 2]))
+    m = mujoco.MjModel.from_xml_string(mujoco_xml(robot.model))
+    d = mujoco.MjData(m)
+    d.qpos[:], d.qvel[:] = mujoco_state(robot, m, s.q, np.zeros(robot.nv))
+    model, n = robot.model, robot.n
+    held = np.array([7 + n + model.motor_of[j] if model.joints[j].kind == "sea" else 7 + j for j in model.actuated])
+    rate = held - 1
+    geared = np.array([bool(model.joints[j].joint_kind.rotors) for j in model.actuated])
+    mu = np.where(geared, [model.joints[j].gear_ratio for j in model.actuated], -1.0)
+    kp, kd = np.where(geared, 500.0, 20.0), np.where(geared, 10.0, 0.2)      # the direct wrists are light
+    for _ in range(1500):                                 # through a gear the input acts as -mu tau
+        q, v = state_from_mujoco(robot, m, d.qpos, d.qvel)
+        d.ctrl[:] = s.tau + (kp * (q[held] - s.q[held]) + kd * v[rate]) / mu
+        mujoco.mj_step(m, d)
+    q, v = state_from_mujoco(robot, m, d.qpos, d.qvel)
+    assert d.ncon >= 6 and abs(q[2] - s.q[2]) < 0.02 and np.max(np.abs(v)) < 0.05
+    ours = col(robot.contact_dynamics()(q, v, d.ctrl)[1]).reshape(2, 6)
+    for k, side in enumerate(("left", "right")):
+        R, o = (np.asarray(x) for x in robot.frame_placement(f"{side}_sole")(q))
+        force, moment = np.zeros(3), np.zeros(3)
+        for i in range(d.ncon):
+            c, f6 = d.contact[i], np.zeros(6)
+            if not m.geom(c.geom1 if m.geom(c.geom1).name.startswith("contact_") else c.geom2).name.startswith(
+                    f"contact_{side}_sole"):
+                continue
+            mujoco.mj_contactForce(m, d, i, f6)
+            foot = c.geom2 if m.geom(c.geom2).name.startswith("contact_") else c.geom1
+            fw = (1.0 if foot == c.geom2 else -1.0) * c.frame.reshape(3, 3).T @ f6[:3]
+            force, moment = force + fw, moment + np.cross(c.pos - o.ravel(), fw)
+        assert np.max(np.abs(R.T @ force - ours[k, :3])) < 0.01 * weight
+        assert np.max(np.abs(R.T @ moment - ours[k, 3:])) < 0.01 * weight * 0.1

@@ -10,7 +10,8 @@ base's pose and the links' angles, `stand` finds the motor angles (the springs d
 what they carry), the inputs and the contact forces of least effort (sum of the inputs squared,
 scaled by their limits) with every contact force inside its friction cone: for a point contact
 f_z >= 0 and |f_xy| <= mu f_z in world axes; for a flat contact the same for its force in its
-own axes (its moments are free: the sole's size is not in the model).  The answer is checked: the
+own axes and, where the model gives its sole (`size = [lx, ly]`), the centre of pressure on it:
+|m_x| <= ly/2 f_z, |m_y| <= lx/2 f_z (its twist about z stays free).  The answer is checked: the
 contact dynamics at it give a = 0 (`StandingError` otherwise, naming the largest residual row).
 """
 from __future__ import annotations
@@ -63,11 +64,15 @@ def stand(robot, theta, base=None, contacts=None, mu: float = 0.7, tol: float = 
     zero = ca.DM.zeros(robot.nv)
     J = ct.jacobian(robot, cs)(q)
     opti.subject_to(robot.nonlinear_effects()(q, zero) == robot.generalized_forces()(q, zero, tau) + J.T @ f)
-    row = 0
+    row, soles = 0, {frame: (lx, ly) for frame, lx, ly in robot.model.soles}
     for c in cs:                                    # the normal is world z (point) or the frame's z (flat)
         fx, fy, fz = f[row], f[row + 1], f[row + 2]
         opti.subject_to(fz >= FORCE_FLOOR)
         opti.subject_to(fx ** 2 + fy ** 2 <= (mu * fz) ** 2)
+        if c.kind == "flat" and c.frame in soles:   # the centre of pressure on the sole
+            lx, ly = soles[c.frame]
+            opti.subject_to(opti.bounded(-ly / 2 * fz, f[row + 3], ly / 2 * fz))
+            opti.subject_to(opti.bounded(-lx / 2 * fz, f[row + 4], lx / 2 * fz))
         row += c.rows
     limits = np.array([robot.model.joints[j].limits.get("tau", 1.0) for j in robot.model.actuated], float)
     opti.minimize(ca.sumsqr(tau / limits) + 1e-9 * ca.sumsqr(f))

@@ -33,8 +33,9 @@ keyframe "rest" adds the motor torques that hold it (mj_resetDataKeyframe(m, d, 
 A floating robot (floating = true) is one body `base` on a free joint (MuJoCo's qpos [x, y, z,
 qw, qx, qy, qz], qvel [v in world axes; w in the base frame]: rscasadi.dynamics.floating.to_mujoco)
 carrying the tree; the world gets a floor (a plane at z = 0) and each point contact a sphere of
-FOOT_RADIUS at its frame's origin that touches the floor and nothing else (contype and conaffinity
-4 on the floor, the feet only colliding with it); the base starts level, the lowest foot on the
+FOOT_RADIUS at its frame's origin, each flat contact one at each corner of its sole (`size`), that
+touch the floor and nothing else (contype and conaffinity 4 on the floor, the feet only colliding
+with it); the base starts level, the lowest foot on the
 floor, the links at their rest pose, standing (`floating_rest`): the keyframe's torques hold it
 for an instant, but an SEA under a constant motor torque has no stiffness, so standing longer
 takes a controller.
@@ -130,7 +131,7 @@ def floating_rest(model) -> tuple:
     from rscasadi.dynamics.floating import FloatingRobot
     from rscasadi.dynamics.stance import StandingError, stand
     theta = rest_pose(model)
-    if model.contacts and all(kind == "point" for _, kind in model.contacts):
+    if model.contacts:
         try:
             s = stand(FloatingRobot(model), theta, np.r_[0, 0, standing_height(model, theta), 0, 0, 0, 1])
             return theta, s.q[7 + model.n:], s.tau
@@ -183,11 +184,17 @@ def _attached(model, body: int, indent: str) -> list:
                  f'type="capsule" fromto="{_numbers(np.r_[c.a, c.b])}"')
         out.append(f'{indent}<geom name={quoteattr(safe_name(f"capsule{i}_{c.link}"))} {shape} '
                    f'size="{float(c.radius)!r}" contype="2" conaffinity="1" group="3"/>')
-    for frame, _ in model.contacts:                           # the feet: they touch the floor alone
+    soles = {frame: (lx, ly) for frame, lx, ly in model.soles}
+    for frame, kind in model.contacts:                        # the feet: they touch the floor alone
         f = model.frame(frame)
-        if f.body == body:
-            out.append(f'{indent}<geom name={quoteattr(safe_name("contact_" + frame))} type="sphere" '
-                       f'pos="{_numbers(f.p)}" size="{FOOT_RADIUS!r}" contype="4" conaffinity="0"/>')
+        if f.body != body:
+            continue
+        corners = ([np.zeros(3)] if kind == "point" else       # a sole: a sphere at each corner
+                   [np.array([sx * soles[frame][0] / 2, sy * soles[frame][1] / 2, 0.0]) for sx in (1, -1) for sy in (1, -1)])
+        for i, corner in enumerate(corners):
+            name = "contact_" + frame + (f"_{i}" if kind == "flat" else "")
+            out.append(f'{indent}<geom name={quoteattr(safe_name(name))} type="sphere" pos="{_numbers(f.p + f.R @ corner)}" '
+                       f'size="{FOOT_RADIUS!r}" contype="4" conaffinity="0"/>')
     held = model.payload
     if held is not None and model.frame(held.frame).body == body:
         f = model.frame(held.frame)
@@ -207,8 +214,9 @@ def check_exportable(model) -> None:
                  for jt in model.joints if jt.c1]
     problems += [f"{jt.name}: gear_loss stribeck = {jt.stribeck:g} (static friction falling with speed; MJCF has none)"
                  for jt in model.joints if jt.stribeck]
-    problems += [f"contact {frame}: a flat contact (a sole's size and shape are not in the model; export point "
-                 "contacts at its corners)" for frame, kind in model.contacts if kind == "flat"]
+    soles = {frame for frame, _, _ in model.soles}
+    problems += [f"contact {frame}: a flat contact without its sole's size (give [[contacts]] size = [lx, ly])"
+                 for frame, kind in model.contacts if kind == "flat" and frame not in soles]
     if problems:
         raise InvalidArgument(f"{model.path}: cannot be exported to MuJoCo exactly: " + "; ".join(problems))
 

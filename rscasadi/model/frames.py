@@ -98,9 +98,11 @@ CONTACT_KINDS = ("point", "flat")
 
 def contacts(ctx, raw, frames: tuple, floating: bool) -> tuple:
     """The [[contacts]] tables of a floating robot: `frame` (any frame) and `kind`, point (the
-    default) or flat (docs/user-guide/floating.md); every bad entry named in one message."""
+    default) or flat, a flat one optionally its sole's `size = [lx, ly]` (m, along the frame's x
+    and y, centred on its origin) (docs/user-guide/floating.md); every bad entry named in one
+    message.  Returns the contacts ((frame, kind), ...) and the soles ((frame, lx, ly), ...)."""
     if raw is None:
-        return ()
+        return (), ()
     if not floating:
         ctx.fail("contacts", "contacts are a floating robot's (floating = true); a fixed base is the world")
     if not isinstance(raw, list) or not all(isinstance(c, dict) for c in raw):
@@ -108,11 +110,17 @@ def contacts(ctx, raw, frames: tuple, floating: bool) -> tuple:
     known = {f.name for f in frames}
     out: list = []
     bad: list = []
+    soles: list = []
     for i, c in enumerate(raw):
-        extra = set(c) - {"frame", "kind"}
-        frame, kind = c.get("frame"), c.get("kind", "point")
+        extra = set(c) - {"frame", "kind", "size"}
+        frame, kind, size = c.get("frame"), c.get("kind", "point"), c.get("size")
+        sized = (isinstance(size, list) and len(size) == 2
+                 and all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 and np.isfinite(x)
+                         for x in size))
         if extra:
-            bad.append(f"contacts[{i}]: unknown keys {sorted(extra)} (frame, kind)")
+            bad.append(f"contacts[{i}]: unknown keys {sorted(extra)} (frame, kind, size)")
+        elif size is not None and (kind != "flat" or not sized):
+            bad.append(f"contacts[{i}] ({frame!r}): size is a flat contact's sole, two lengths > 0 (m), got {size!r}")
         elif frame not in known:
             bad.append(f"contacts[{i}]: no frame {frame!r}")
         elif kind not in CONTACT_KINDS:
@@ -121,9 +129,11 @@ def contacts(ctx, raw, frames: tuple, floating: bool) -> tuple:
             bad.append(f"contacts[{i}]: {frame!r} given twice")
         else:
             out.append((frame, kind))
+            if size is not None:
+                soles.append((frame, float(size[0]), float(size[1])))
     if bad:
         ctx.fail("contacts", "; ".join(bad))
-    return tuple(out)
+    return tuple(out), tuple(soles)
 
 
 def payload_document(model) -> dict | None:

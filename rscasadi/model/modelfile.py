@@ -74,8 +74,9 @@ def parse(data: dict, path: str = "<memory>") -> ArmModel:
     model = ArmModel(data["name"], gravity, tuple(joints), path, parents=_parents(path, raw_joints, joints),
                      base=_floating_base(ctx, data))
     frames = user_frames(ctx, data.get("frames"), link_frames(model))
+    touching, soles = contacts(ctx, data.get("contacts"), frames, model.floating)
     return dataclasses.replace(model, frames=frames, payload=payload(ctx, data.get("payload"), frames),
-                               contacts=contacts(ctx, data.get("contacts"), frames, model.floating),
+                               contacts=touching, soles=soles,
                                collision=collision(ctx, data.get("collision"), model.joints, frames, None,
                                                    parents=model.parents))
 
@@ -260,7 +261,9 @@ def document(model: ArmModel) -> dict:
     frames, held, shape = frames_document(model), payload_document(model), collision_document(model)
     floating = {"floating": True, "base": body_document(model.base)} if model.base is not None else {}
     if model.contacts:
-        floating["contacts"] = [{"frame": f, "kind": k} for f, k in model.contacts]
+        size = {f: [lx, ly] for f, lx, ly in model.soles}
+        floating["contacts"] = [{"frame": f, "kind": k, **({"size": size[f]} if f in size else {})}
+                                for f, k in model.contacts]
     return {"name": model.name, "gravity": [float(g) for g in model.gravity], **floating,
             **({"frames": frames} if frames else {}),
             **({"payload": held} if held else {}), **({"collision": shape} if shape else {}), "joints": joints}

@@ -186,6 +186,7 @@ class ArmModel:
     parents: tuple = ()
     base: Body | None = None             # a floating base's body (its own frame); None: the base is fixed
     contacts: tuple = ()                 # ((frame, "point" | "flat"), ...): where a floating robot may touch
+    soles: tuple = ()                    # ((frame, lx, ly), ...): a flat contact's sole, lx by ly about its origin
 
     def __post_init__(self):
         if self.parents and (len(self.parents) != len(self.joints)

@@ -242,9 +242,10 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
     extra["collision_geometry"] = {lk: shapes for b in bodies for lk in b["links"]
                                    if (shapes := _collision_shapes(urdf_path, links_by_name[lk]))}
     tree = () if parents == list(range(-1, len(order) - 1)) else tuple(parents)
+    touching, soles = contacts(ctx, data.get("contacts"), frames, data.get("floating") is True)
     return ArmModel(data["name"], gravity, tuple(joints), path, extra, frames=frames,
                     base=_base_body(ctx, data.get("floating", False), bodies[0], urdf_path),
-                    contacts=contacts(ctx, data.get("contacts"), frames, data.get("floating") is True),
+                    contacts=touching, soles=soles,
                     payload=payload(ctx, data.get("payload"), frames), parents=tree,
                     collision=collision(ctx, data.get("collision"), joints, frames, tip_link,
                                         extra["collision_geometry"], urdf_path, parents=tree))
