@@ -85,3 +85,17 @@ def base_acceleration(gravity):
 def base_pose(R_parent, o_parent, R, l):
     """Eq. (12): a body frame's rotation and origin in the base frame from its parent's."""
     return R_parent @ R, o_parent + R_parent @ ca.DM(l)
+
+
+def quaternion_rotation(quat):
+    """The rotation of a quaternion [x, y, z, w] (normalised here: any nonzero one is a rotation):
+    R = 1 + 2 (w [u]x + [u]x^2) / |q|^2, u = (x, y, z)."""
+    u, w = quat[:3], quat[3]
+    U = skew(u)
+    return ca.DM.eye(3) + 2 * (w * U + U @ U) / ca.sumsqr(quat)
+
+
+def quaternion_product(a, b):
+    """a b for quaternions [x, y, z, w] (the rotation of b, then a's: R(a b) = R(a) R(b))."""
+    va, wa, vb, wb = a[:3], a[3], b[:3], b[3]
+    return ca.vertcat(wa * vb + wb * va + ca.cross(va, vb), wa * wb - ca.dot(va, vb))

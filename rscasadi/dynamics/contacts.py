@@ -24,6 +24,7 @@ import numpy as np
 
 from rscasadi.errors import InvalidArgument
 from rscasadi.model.checks import identifier
+from rscasadi.spatial import quaternion_rotation
 
 KINDS = {"point": 3, "flat": 6}
 
@@ -136,14 +137,13 @@ def errors(robot, contacts, q, anchors):
     """The rows' position errors from their anchors: a point's p - p_ref (world axes); a flat
     contact's R^T (p - p_ref) and vee(R_ref^T R - R^T R_ref) / 2 (its axes; the rotation vector
     to first order)."""
-    from rscasadi.dynamics.floating import rotation
     out, at = [], 0
     for c, (R, p, _, _) in zip(contacts, robot._frame_motions([c.frame for c in contacts], q, ca.DM.zeros(robot.nv))):
         if c.kind == "point":
             out.append(p - anchors[at:at + 3])
             at += 3
         else:
-            R0 = rotation(anchors[at + 3:at + 7])
+            R0 = quaternion_rotation(anchors[at + 3:at + 7])
             S = (R0.T @ R - R.T @ R0) / 2
             out += [R.T @ (p - anchors[at:at + 3]), ca.vertcat(S[2, 1], S[0, 2], S[1, 0])]
             at += 7

@@ -22,25 +22,12 @@ from rscasadi.dynamics.arm import Arm
 from rscasadi.model.checks import identifier
 from rscasadi.model.modelfile import ArmModel
 from rscasadi.errors import InvalidArgument
-from rscasadi.spatial import base_pose, joint_rotation, skew, spatial_inertia, transform_inertia
+from rscasadi.spatial import (base_pose, joint_rotation, quaternion_product as _quaternion_product,
+                              quaternion_rotation as rotation, skew, spatial_inertia, transform_inertia)
 
 BASE_Q = ["base.x", "base.y", "base.z", "base.qx", "base.qy", "base.qz", "base.qw"]
 BASE_V = ["base.vx", "base.vy", "base.vz", "base.wx", "base.wy", "base.wz"]
 REFERENCES = ("local", "local_world_aligned")
-
-
-def rotation(quat):
-    """The rotation of a quaternion [x, y, z, w] (normalised here: any nonzero one is a rotation):
-    R = 1 + 2 (w [u]x + [u]x^2) / |q|^2, u = (x, y, z)."""
-    u, w = quat[:3], quat[3]
-    U = skew(u)
-    return ca.DM.eye(3) + 2 * (w * U + U @ U) / ca.sumsqr(quat)
-
-
-def _quaternion_product(a, b):
-    """a b for quaternions [x, y, z, w] (the rotation of b, then a's: R(a b) = R(a) R(b))."""
-    va, wa, vb, wb = a[:3], a[3], b[:3], b[3]
-    return ca.vertcat(wa * vb + wb * va + ca.cross(va, vb), wa * wb - ca.dot(va, vb))
 
 
 def exp_se3(xi):
