@@ -286,10 +286,7 @@ class FloatingRobot:
         """Per frame its rotation R and origin p in the world, its velocity [v; w] and (with `a`)
         its classical acceleration [a; dw], both in its own axes (local), from one sweep."""
         segs, kin, base, x = self._tree(q, v)
-        poses = [(base.R, base.p)]
-        for j, seg in enumerate(segs):
-            R_p, o_p = poses[seg.parent + 1]
-            poses.append(base_pose(R_p, o_p, joint_rotation(seg.R, x[0][j]), seg.l))
+        poses = self.body_poses(q)
         if a is not None:
             a_base, ddtheta, ddphi = self.split_v(a)
             alpha0 = self._alpha0(base, a_base) + ca.vertcat(ca.DM.zeros(3), base.R.T @ ca.DM(self.physics.gravity))
