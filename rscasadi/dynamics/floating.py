@@ -17,13 +17,13 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from rscasadi.dynamics import contacts as ct, recursions as rec
+from rscasadi.dynamics import contacts as ct, kinematics, recursions as rec
 from rscasadi.dynamics.arm import Arm
 from rscasadi.model.checks import identifier
 from rscasadi.model.modelfile import ArmModel
 from rscasadi.errors import InvalidArgument
-from rscasadi.spatial import (base_pose, joint_rotation, quaternion_product as _quaternion_product,
-                              quaternion_rotation as rotation, skew, spatial_inertia, transform_inertia)
+from rscasadi.spatial import (quaternion_product as _quaternion_product, quaternion_rotation as rotation, skew,
+                              spatial_inertia, transform_inertia)
 
 BASE_Q = ["base.x", "base.y", "base.z", "base.qx", "base.qy", "base.qz", "base.qw"]
 BASE_V = ["base.vx", "base.vy", "base.vz", "base.wx", "base.wy", "base.wz"]
@@ -149,11 +149,7 @@ class FloatingRobot:
     def body_poses(self, q) -> list:
         """(R, o) of every body in the world: the base (0) and each joint's link (1..n)."""
         (bq, theta, _) = self.split_q(q)
-        poses = [(rotation(bq[3:]), bq[:3])]
-        for j, jt in enumerate(self.model.joints):
-            R_p, o_p = poses[self.model.parent[j] + 1]
-            poses.append(base_pose(R_p, o_p, joint_rotation(jt.R, theta[j]), jt.origin_xyz))
-        return poses
+        return kinematics.body_poses(self.model, theta, (rotation(bq[3:]), bq[:3]))
 
     def body_wrenches(self, q, applied) -> list:
         """Per body (the base, then each link) the spatial force [moment about its origin; force],

@@ -27,9 +27,10 @@ from rscasadi.errors import InvalidArgument
 REFERENCES = ("local_world_aligned", "local", "world")
 
 
-def body_poses(model, theta) -> list:
-    """(R, o) of every body in the world frame: the base (0) and each joint's link (1..n), eq. (12)."""
-    poses = [(ca.DM.eye(3), ca.DM.zeros(3))]
+def body_poses(model, theta, root=None) -> list:
+    """(R, o) of every body in the world frame: the base (0) and each joint's link (1..n), eq. (12);
+    `root`: a floating base's (R, o) (default: the fixed base, the world itself)."""
+    poses = [(ca.DM.eye(3), ca.DM.zeros(3)) if root is None else root]
     for j, (jt, parent) in enumerate(zip(model.joints, model.parent)):
         R_p, o_p = poses[parent + 1]
         poses.append(base_pose(R_p, o_p, joint_rotation(jt.R, theta[j]), jt.origin_xyz))
