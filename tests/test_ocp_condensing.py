@@ -14,17 +14,22 @@ from rscasadi.ocp import load_problem, solve_once
 from rscasadi.ocp.solving import guess
 from rscasadi.ocp.transcription import Transcription
 from rscasadi.dynamics.arm import Arm
+from rscasadi.model.collision import with_collision
 from rscasadi.model.modelfile import ModelFileError, read
 
 from conftest import REFERENCE, problem
 
 QUIET = {"print_level": 0, "log": lambda m: None}
+# the reference arm's hand kept from its first link: a [collision] table whose clearance is one row
+PAIRED = {"margin": 0.01, "tip": "tool", "links": {"shoulder_yaw": 0.05, "elbow_pitch": 0.03},
+          "pairs": [["elbow_pitch", "shoulder_yaw"]]}
 
 
 def _pair(name, N=4, **over):
     """The lifted (explicit) and the condensed transcription of one problem, built."""
     base = load_problem(REFERENCE.parent / f"{name}.toml").replace(intervals=N, **over)
-    arm = Arm(read(base.task.model))
+    model = read(base.task.model)
+    arm = Arm(with_collision(model, base.task.collision, "<test>") if base.task.collision else model)
     lifted = Transcription(base.replace(condense=False, dynamics="explicit"), arm, N=N)
     condensed = Transcription(base.replace(condense=True), arm, N=N)
     return base, arm, lifted, lifted.nlp(), condensed, condensed.nlp(log=lambda m: None)
@@ -60,6 +65,7 @@ def _instance_args(piece, P, P_sym, k):
     ("ocp_min_effort", {"parameters": {"elbow_pitch.sea.k1": 700.0, "elbow_pitch.gear_ratio": 90.0}}),
     ("ocp_min_time", {"method": "legendre"}),
     ("ocp_reach_around", {}),               # clearance rows: a recorded call, its Jacobian formed in C
+    ("ocp_min_effort", {"model": REFERENCE.parent / "arm3_tool.toml", "collision": PAIRED}),   # one row: a 1 x n Jacobian
 ])
 def test_kernel_equals_casadi_rootfinder_and_its_ad(name, over):
     _kernel_equals_reference(name, over)

@@ -207,8 +207,10 @@ def dual_arm_doc(pairs=True) -> dict:
 def test_paired_capsules_keep_apart_by_a_conservative_smooth_clearance_and_an_exact_one(tmp_path):
     """Between the paired capsules of the two arms and the torso, at random poses: the exact
     clearance the verification measures equals coal's capsule-to-capsule distance (to the
-    sampling, 1/8 of a radius), and the optimiser's smooth clearance never exceeds it; a pair on
-    one link, or naming no frame, is refused by name."""
+    sampling, 1/8 of a radius); the optimiser's row of each pair of links never exceeds it and
+    stays within its bound below it (half the 1 cm sampling and the soft minima's log(count) /
+    beta), with several capsules on a link too; a pair on one link, or naming no frame, is
+    refused by name."""
     import coal
     from rscasadi.dynamics.collision import clearance_function, exact_clearance
     from rscasadi.dynamics.kinematics import body_poses
@@ -237,9 +239,24 @@ def test_paired_capsules_keep_apart_by_a_conservative_smooth_clearance_and_an_ex
                     for c, d in pairs) - 0.01
         measured = float(exact(theta))
         assert abs(measured - truth) < 0.035 / 8 * 1.01, (measured, truth)
-        assert float(np.min(np.array(smooth(theta)))) <= measured + 1e-9
+        assert -0.005 - np.log(31) / 2000 - 1e-9 <= float(np.min(np.array(smooth(theta)))) - truth <= 1e-9
         closest = min(closest, truth)
     assert closest < 0                           # the poses drawn include arms that touch
+    doc = dual_arm_doc()                         # the forearms in three capsules each: one row
+    for side in ("left", "right"):
+        doc["collision"]["capsules"] += [{"frame": f"{side}_elbow", "a": [0.1, 0.0, 0.05], "b": [0.3, 0.0, 0.05],
+                                          "radius": 0.02}, {"frame": f"{side}_elbow", "a": [0.2, 0.05, 0.0],
+                                                            "b": [0.2, -0.05, 0.0], "radius": 0.03}]
+    doc["collision"]["pairs"] = [["left_elbow", "right_elbow"]]
+    arm = rscasadi.load(write_arm(tmp_path, doc, "many.toml"))
+    pairs, smooth = capsule_pairs(arm.model), clearance_function(arm.model, [])
+    assert len(pairs) == 9 and smooth.size1_out(0) == 1
+    for _ in range(30):
+        theta = rng.uniform(-1.5, 1.5, arm.n)
+        P = np.array(place(theta))
+        truth = min(coal.distance(*shape(c, P), *shape(d, P), coal.DistanceRequest(), coal.DistanceResult())
+                    for c, d in pairs) - 0.01
+        assert -0.005 - np.log(31 * 9) / 2000 - 1e-9 <= float(smooth(theta)) - truth <= 1e-9
     doc = dual_arm_doc()
     for bad, words in (([["left_elbow", "left_elbow"]], "same link"), ([["left_elbow", "nose"]], "no frame 'nose'"),
                        ([["left_elbow", "left_hand"]], "same link")):

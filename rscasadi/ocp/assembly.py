@@ -195,7 +195,7 @@ def chain_rule_derivatives(fn: ca.Function, z, args, rows, f, calls: Calls, spli
                    ca.Function(name + "_d2", [z, *args, lam, lam_f], out[4:], opts))
     if not split:
         return derivatives
-    flat = lambda ms: ca.vertcat(*[m.nz[:] if m.nnz() else ca.SX(0, 1) for m in ms]) if ms else ca.SX(0, 1)
+    flat = lambda ms: ca.vertcat(*[ca.vec(m.nz[:]) if m.nnz() else ca.SX(0, 1) for m in ms]) if ms else ca.SX(0, 1)
     Fy_all, C_all = ca.SX.sym("Fy", int(offsets[2])), ca.SX.sym("C", int(offsets[3]))
     H_flat, rows_flat, J_flat = ca.substitute([H, rows, J], [ca.vertcat(flat(Fy_syms), flat(C_syms))],
                                               [ca.vertcat(Fy_all, C_all)])
