@@ -213,30 +213,126 @@ def test_generated_c_of_a_robot_of_every_kind_equals_its_functions(tmp_path):
 
 
 def test_what_takes_only_seas_refuses_other_kinds_by_name(tmp_path):
-    """Optimal control, the MPC, simulation, identification, the frequency response and the
-    interaction controllers are written for robots of SEAs: given a geared joint, each refuses
-    before any work, naming the joint and its kind."""
+    """Identification, the frequency response and the interaction controllers are written for
+    robots of SEAs: given a geared joint, each refuses before any work, naming the joint and its
+    kind."""
     from rscasadi.errors import InvalidArgument
     from rscasadi.identification import frf, identify
     from rscasadi.identification.excitation import design
     from rscasadi.interaction import generate_observer
-    from rscasadi.mpc.problem import MPCProblem, mpc_model
-    from rscasadi.ocp.problem import check_against_model, load_problem
-    from rscasadi.sim.simulation import simulate
     doc = with_kinds(random_tree_doc(np.random.default_rng(1), 3), ["sea", "geared", "sea"])
     for jt in doc["joints"]:
         jt["limits"] = {"tau": 1.0}
     path = write_arm(tmp_path, doc, "geared.toml")
     arm = rscasadi.load(path)
-    problem = load_problem(ROOT / "problems" / "ocp_min_time.toml")
-    calls = [lambda: simulate(arm, np.zeros(2 * arm.nq), np.linspace(0, 0.1, 3), np.zeros((arm.u, 3))),
-             lambda: design(arm, period=1.0, harmonics=1),
+    calls = [lambda: design(arm, period=1.0, harmonics=1),
              lambda: identify.run(path, [tmp_path / "none.csv"], tmp_path / "id"),
              lambda: frf.run(path, tmp_path / "frf"),
              lambda: generate_observer(path, tmp_path / "obs", 10.0),
-             lambda: mpc_model(MPCProblem(path, None)),
-             lambda: check_against_model(problem, arm.model)]
+             ]
     for call in calls:
         with pytest.raises(InvalidArgument, match=r"all SEAs; joints of other kinds: j2 \(geared\)"):
             call()
     assert not (tmp_path / "id").exists() and not (tmp_path / "frf").exists() and not (tmp_path / "obs").exists()
+
+
+def test_simulation_of_every_kind_follows_pinocchio(tmp_path):
+    """simulate (CVODES on the model's forward dynamics) on a tree of every kind under varying
+    torques = scipy's integrator on Pinocchio's M, h and the kinds' forces (no shared code)."""
+    from scipy.integrate import solve_ivp
+    from rscasadi.sim.simulation import simulate
+    arm = rscasadi.Arm(mixed(4, 5, ["sea", "geared", "direct", "spring", "free"]))
+    route, rng = PinocchioRoute(arm.model), np.random.default_rng(4)
+    x0 = [0.3 * v for v in state(rng, arm, 0.3)[0]]
+    t = np.linspace(0.0, 0.05, 11)
+    tau = rng.normal(size=(arm.u, len(t)))
+    sim = simulate(arm, np.concatenate(x0), t, tau, tol=1e-11)
+    n, q = arm.n, arm.nq
+    def f(s, z):
+        u = np.array([np.interp(s, t, row) for row in tau])
+        a, b = route.forward_dynamics(z[:n], z[n:q], z[q:q + n], z[q + n:], u)
+        return np.r_[z[q:], a, b]
+    ref = solve_ivp(f, (0.0, 0.05), np.concatenate(x0), t_eval=t, rtol=1e-11, atol=1e-11, method="DOP853").y
+    assert sim["phi"].shape == (arm.m, len(t)) and sim["psi"].shape == (arm.m, len(t))
+    assert np.max(np.abs(sim["x"] - ref)) < 1e-8 * np.max(np.abs(ref))
+
+
+def test_optimal_control_of_every_kind_is_verified_and_rests_where_it_hangs(tmp_path):
+    """A minimum-time motion of a tree with an SEA, a geared joint (speed-limited), a direct
+    drive and a passive spring: the condensed implicit form with fatrop and the lifted explicit
+    form with IPOPT find the same duration; the torques replayed on the complete model verify;
+    the geared joint's speed limit is what sets the time; the passive joint starts and ends
+    balanced by its spring and gravity (Pinocchio's M, h and forces, to 1e-6 of gravity)."""
+    import dataclasses
+    from rscasadi.ocp.problem import load_problem
+    from rscasadi.ocp.solving import solve
+    rng = np.random.default_rng(5)
+    doc = with_kinds(random_tree_doc(rng, 4), ["sea", "geared", "direct", "spring"], rng)
+    for jt in doc["joints"]:
+        jt["limits"] = {"tau": 50.0} if jt.get("kind") != "spring" else {}
+        if jt.get("kind") == "geared":
+            jt["limits"]["dphi"] = 1.0
+    write_arm(tmp_path, doc, "kinds.toml")
+    (tmp_path / "ocp.toml").write_text(
+        'model = "kinds.toml"\nobjective = "min_time"\ntheta_start = [0.0, 0.0, 0.0, 0.0]\n'
+        'theta_end = [0.5, -0.4, 0.3, 0.0]\nduration = 1.0\nmax_duration = 3.0\neffort_weight = 1e-3\n'
+        '[transcription]\nintervals = 20\n')
+    problem = load_problem(tmp_path / "ocp.toml")
+    fatrop = solve(problem, log=lambda m: None, print_level=0)
+    lifted = dataclasses.replace(problem.transcription, condense=False, dynamics="explicit")
+    ipopt = solve(problem.replace(solver="ipopt", transcription=lifted), log=lambda m: None, print_level=0)
+    assert fatrop.success and ipopt.success and fatrop.verified and ipopt.verified
+    assert abs(fatrop.t[-1] - ipopt.t[-1]) < 1e-6 * fatrop.t[-1]
+    arm = fatrop.arm()
+    assert fatrop.phi.shape[0] == arm.m == 1 and fatrop.tau.shape[0] == arm.u == 3
+    assert 0.4 <= fatrop.t[-1] < 0.45                        # 0.4 rad at the geared joint's 1 rad/s
+    speed = fatrop.sample("dtheta", np.linspace(0, fatrop.t[-1], 200))[1]
+    assert abs(np.abs(speed).max() - 1.0) < 5e-3
+    route = PinocchioRoute(arm.model)
+    for k in (0, -1):
+        th, ph = fatrop.theta[:, k], fatrop.phi[:, k]
+        M, h = route.mass_bias(th, ph, np.zeros(4), np.zeros(1))
+        Q = route.forces(th, ph, np.zeros(4), np.zeros(1), np.zeros(3))
+        assert abs((Q - h)[3]) < 1e-6 * np.abs(h).max()
+
+
+def test_the_c_mpc_drives_a_robot_of_every_kind_in_mujoco(tmp_path):
+    """The generated MPC of a tree with an SEA, a speed-limited geared joint, a direct drive and a
+    damped passive spring (its torques one per input, its state the 10 coordinates' and speeds),
+    closing the loop at 1 kHz on the MuJoCo export: from rest to rest at a pose (the passive
+    joint where it then hangs) in 1.5 s, every torque within its limit, the geared joint within
+    its speed limit."""
+    from rscasadi.dynamics.statics import rest, rest_state
+    from rscasadi.export.mujoco import mujoco_plant
+    from rscasadi.mpc.compiled import CompiledMPC
+    from rscasadi.mpc.generate import generate_mpc
+    from rscasadi.mpc.study import _MPC
+    from rscasadi.sim.loop import Encoders, limit_violation, run_loop
+    rng = np.random.default_rng(5)
+    doc = with_kinds(random_tree_doc(rng, 4), ["sea", "geared", "direct", "spring"], rng)
+    for jt in doc["joints"]:
+        kind = jt.get("kind", "sea")
+        jt["limits"] = {"tau": 20.0} if kind == "direct" else {} if kind == "spring" else {"tau": 0.5}
+        if kind == "sea":
+            jt["sea"]["k3"] = 0.0                                # MuJoCo's tendon is linear
+        if "gear_loss" in jt:
+            jt["gear_loss"] = {"b": jt["gear_loss"].get("b", 0.0)}   # and its friction another law
+        if kind == "geared":
+            jt["limits"]["dphi"] = 1.0
+        if kind == "spring":
+            jt["link_loss"] = {"b": 0.5}
+    write_arm(tmp_path, doc, "kinds.toml")
+    (tmp_path / "mpc.toml").write_text('model = "kinds.toml"\nsample_time = 0.001\nhorizon = 10\ninterval = 0.01\n'
+                                       'substeps = "auto"\n[weights]\ntheta = 1e5\ndtheta = 1.0\ntau = 1e-3\n'
+                                       'limits = 1e5\n')
+    manifest = generate_mpc(tmp_path / "mpc.toml", tmp_path / "mpc", opt="-O1", log=lambda m: None)
+    arm = rscasadi.load(tmp_path / "kinds.toml")
+    assert manifest["sizes"]["x"] == 2 * arm.nq == 10 and manifest["sizes"]["tau"] == arm.u == 3
+    target = rest(arm, np.array([0.4, -0.3, 0.3, 0.0]))[0]
+    dt = 0.001
+    run = run_loop(arm, mujoco_plant(arm, dt), _MPC(CompiledMPC(tmp_path / "mpc"), target=target),
+                   rest_state(arm, np.zeros(4)), 1500, dt, sensors=Encoders(arm, dt, exact=True))
+    error = np.abs(run.x[:arm.n, -1] - target)
+    assert np.all(error[:3] < 1e-3) and error[3] < 5e-3, error
+    assert np.all(np.abs(run.tau) <= np.array([0.5, 0.5, 20.0])[:, None] + 1e-12)
+    assert np.abs(run.x[arm.nq + 1]).max() < 1.0 * 1.01 and limit_violation(arm, run) < 0.01

@@ -22,7 +22,8 @@ from rscasadi.dynamics.statics import rest_state
 @dataclass(frozen=True)
 class Mode:
     """One eigenvalue of the linearised arm: `eigenvalue` (1/s), its `hz` and `damping_ratio`,
-    and the `joint` whose spring deflection (phi - theta) dominates its shape."""
+    and the `joint` whose spring deflection (phi - theta; a joint without a motor: its angle)
+    dominates its shape."""
     eigenvalue: complex
     hz: float
     damping_ratio: float
@@ -31,12 +32,12 @@ class Mode:
 
 def linear_modes(arm: Arm, theta) -> list[Mode]:
     """The modes of the complete model at rest at `theta`, fastest first (one of each complex pair)."""
-    n = arm.n
+    n, nq, motors = arm.n, arm.nq, arm.model.motors
     x0 = rest_state(arm, np.asarray(theta, float))
-    z = np.zeros(n)
-    tau = np.array(arm.inverse_dynamics()(x0[:n], x0[n:2 * n], z, z, z, z)[0]).ravel()
-    xs = ca.SX.sym("x", 4 * n)
-    f = ca.vertcat(xs[2 * n:], *arm.forward_dynamics()(*ca.vertsplit(xs, n), tau))
+    z, zm = np.zeros(n), np.zeros(arm.m)
+    tau = np.array(arm.inverse_dynamics()(x0[:n], x0[n:nq], z, zm, z, zm)[0]).ravel()
+    xs = ca.SX.sym("x", 2 * nq)
+    f = ca.vertcat(xs[nq:], *arm.forward_dynamics()(*arm.split_state(xs), tau))
     A = np.array(ca.Function("A", [xs], [ca.jacobian(f, xs)])(x0))
     lam, V = np.linalg.eig(A)
     names = [jt.name for jt in arm.model.joints]
@@ -44,7 +45,8 @@ def linear_modes(arm: Arm, theta) -> list[Mode]:
     for i in np.argsort(-np.abs(lam)):
         if lam[i].imag < 0:
             continue
-        deflection = np.abs(V[n:2 * n, i] - V[:n, i])
+        deflection = np.abs(V[:n, i])                           # a joint's own motion, an SEA's deflection
+        deflection[motors] = np.abs(V[n:nq, i] - V[motors, i])
         w = abs(lam[i])
         modes.append(Mode(complex(lam[i]), w / (2 * np.pi), -lam[i].real / w if w > 0 else 1.0,
                           names[int(np.argmax(deflection))]))

@@ -78,7 +78,8 @@ class CompiledMPC(CompiledController):
         return self.fn["set_parameters"](self.c, self.ptr(self.array("parameters", p, len(self.manifest["parameters"]["names"]))))
 
     def set_posture(self, theta) -> int:
-        return self.fn["set_posture"](self.c, self.ptr(self.array("theta", theta, self.n)))
+        joints = self.sizes.get("joints", self.n)
+        return self.fn["set_posture"](self.c, self.ptr(self.array("theta", theta, joints)))
 
     def _call(self, fn, x, data):
         tau = np.zeros(self.n)

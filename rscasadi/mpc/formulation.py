@@ -79,7 +79,7 @@ def interval_functions(arm: Arm, h: float, substeps: int, step_jacobian: ca.Func
     (three outputs) it also steps and chains, `_chained_interval`."""
     from rscasadi.codegen.generate import step_functions
     from rscasadi.codegen.rosenbrock import ros2_functions
-    n, hs, parametric = arm.n, h / substeps, bool(arm.free)
+    nx, n, hs, parametric = 2 * arm.nq, arm.u, h / substeps, bool(arm.free)
     step, step_jac = (ros2_functions if integrator == "ros2" else step_functions)(arm, parametric=parametric)
     step_jac = step_jacobian if step_jacobian is not None and integrator == "rk4" else step_jac
     if step_jac.n_out() == 3:
@@ -87,7 +87,7 @@ def interval_functions(arm: Arm, h: float, substeps: int, step_jacobian: ca.Func
     sym = ca.SX if step_jac.is_a("SXFunction") else ca.MX
     if sym is ca.SX:
         step = step.expand()
-    z, tau, A, B = sym.sym("x", 4 * n), sym.sym("tau", n), sym.sym("A", 4 * n, 4 * n), sym.sym("B", 4 * n, n)
+    z, tau, A, B = sym.sym("x", nx), sym.sym("tau", n), sym.sym("A", nx, nx), sym.sym("B", nx, n)
     m = sym.sym("m", arm.n_p if parametric else 0)
     pm = [m] if parametric else []
     Ai, Bi = step_jac(z, tau, hs, *pm)
@@ -95,7 +95,7 @@ def interval_functions(arm: Arm, h: float, substeps: int, step_jacobian: ca.Func
     substep = ca.Function("substep", [z, tau, m, A, B], [step(z, tau, hs, *pm), ca.mtimes(Ai, A), ca.mtimes(Ai, B) + Bi], opts)
     first = ca.Function("first_substep", [z, tau, m], [step(z, tau, hs, *pm), Ai, Bi], opts)   # A_0 = I: no product
     substep_x = ca.Function("substep_x", [z, tau, m], [step(z, tau, hs, *pm)], opts)
-    x, u, mm = ca.MX.sym("x", 4 * n), ca.MX.sym("tau", n), ca.MX.sym("m", m.shape[0])
+    x, u, mm = ca.MX.sym("x", nx), ca.MX.sym("tau", n), ca.MX.sym("m", m.shape[0])
     zk, Ak, Bk = first(x, u, mm)
     z_only = substep_x(x, u, mm)
     for _ in range(substeps - 1):
@@ -108,7 +108,7 @@ def _chained_interval(step, kernel, arm: Arm, hs: float, substeps: int):
     """interval_functions' F and Fx with the chained kernel (codegen.step_kernel, chained=True):
     each substep's call returns the step and carries the interval's A and B through it, so
     neither a separate step nor CasADi's products remain."""
-    n, nx = arm.n, 4 * arm.n
+    n, nx = arm.u, 2 * arm.nq
     x, u, mm = ca.MX.sym("x", nx), ca.MX.sym("tau", n), ca.MX.sym("m", arm.n_p if arm.free else 0)
     pm = [mm] if arm.free else []
     z, A, B = x, ca.MX(ca.DM.eye(nx)), ca.MX(ca.DM.zeros(nx, n))
@@ -123,6 +123,11 @@ def limit_arrays(arm: Arm) -> dict:
     """The joints' limits (rscasadi.model.limits.limit_arrays: inf where none): tau, psi, dphi,
     theta_lo, theta_hi."""
     return model_limits(arm.model)
+
+
+def input_limits(arm: Arm) -> np.ndarray:
+    """The torque limit of each input (the actuated joints', in tau's order)."""
+    return model_limits(arm.model)["tau"][arm.model.actuated]
 
 
 def reference_rows(n: int, p: MPCProblem) -> int:
@@ -142,8 +147,8 @@ def mpc_terms(arm: Arm, p: MPCProblem, limits: dict) -> tuple:
     else:
         terms = [JointTracking(n, w["theta"], w["dtheta"])]
     ranged = np.isfinite(limits["theta_lo"]) & np.isfinite(limits["theta_hi"])
-    middle = np.where(ranged, (limits["theta_lo"] + limits["theta_hi"]) / 2, 0.0)
-    half = np.where(ranged, (limits["theta_hi"] - limits["theta_lo"]) / 2, np.inf)
+    lo, hi = np.where(ranged, limits["theta_lo"], 0.0), np.where(ranged, limits["theta_hi"], 0.0)
+    middle, half = (lo + hi) / 2, np.where(ranged, (hi - lo) / 2, np.inf)
     for quantity, limit, weight in (("psi", limits["psi"], w["limits"]), ("dphi", limits["dphi"], w["limits"]),
                                     ("theta", half, w["angle_limits"])):
         if np.isfinite(limit).any() and weight > 0:
@@ -159,7 +164,7 @@ def stage_residual(arm: Arm, p: MPCProblem, limits: dict) -> ca.Function:
     of `mpc_terms`' penalty residuals (a cost's sqrt(weight) r, a constraint's sqrt(weight)
     excess), each given the parameter it names."""
     n = arm.n
-    x, u = ca.SX.sym("x", 4 * n), ca.SX.sym("u", n)
+    x, u = ca.SX.sym("x", 2 * arm.nq), ca.SX.sym("u", arm.u)
     ref, posture = ca.SX.sym("reference", reference_rows(n, p)), ca.SX.sym("posture", n)
     supplied = {"reference": ref, "posture": posture, None: ca.SX(0, 1)}
     r = ca.vertcat(*[t.penalty_residual(arm, x, u, supplied[t.parameter]) for t in mpc_terms(arm, p, limits)])
@@ -183,11 +188,11 @@ def sample_ahead(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None = No
         return None
     h = p.interval / int(p.substeps)
     F, _ = interval_functions(arm, p.sample_time, int(np.ceil(p.sample_time / h - 1e-9)), step_jacobian, p.integrator)
-    n = arm.n
-    z, none = ca.SX.sym("z", 4 * n), ca.SX(0, 1)
+    nx, n = 2 * arm.nq, arm.u
+    z, none = ca.SX.sym("z", nx), ca.SX(0, 1)
     rows = ca.vertcat(*[b.penalty_residual(arm, z, ca.SX.zeros(n), none) for b in bounds])
     limit_rows = ca.Function("limit_rows", [z], [rows, ca.jacobian(rows, z)], {"cse": True})
-    x, u, m = ca.MX.sym("x", 4 * n), ca.MX.sym("tau", n), ca.MX.sym("m", F.size1_in(2))
+    x, u, m = ca.MX.sym("x", nx), ca.MX.sym("tau", n), ca.MX.sym("m", F.size1_in(2))
     xs, A, B = F(x, u, m)
     r, Jz = limit_rows(xs)
     return ca.Function(name, [x, u, m], [ca.densify(r), ca.densify(ca.mtimes(Jz, A)), ca.densify(ca.mtimes(Jz, B))],
@@ -281,7 +286,7 @@ def rollout(Fx, residual, p: MPCProblem, limits: dict, xm, ref, U, posture, mass
     if ahead is not None:
         total += 0.5 * ca.sumsqr(ahead(xm, U[:, 0], mass)[0])
     lo, hi = hard_range(limits) if p.angle_limits == "hard" else (None, None)
-    n = U.shape[0]
+    n = len(limits["theta_lo"])                                          # the link angles: x's first n
     for k in range(p.horizon):
         xs.append(Fx(xs[-1], U[:, k], mass))
         total += 0.5 * ca.sumsqr(residual(xs[-1], U[:, k], ref[:, k], posture)[0])
@@ -412,7 +417,7 @@ def rti_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None = No
     params: the posture (n) and the payload's mass (if `arm` takes it: `controller_arm`).
     step_jacobian: as `interval_functions`."""
     p = with_integrator(p, arm)
-    n, N, nx = arm.n, p.horizon, 4 * arm.n
+    n, N, nx, nu = arm.n, p.horizon, 2 * arm.nq, arm.u
     F, Fx = interval_functions(arm, p.interval, int(p.substeps), step_jacobian, p.integrator)
     limits = limit_arrays(arm)
     residual = stage_residual(arm, p, limits)
@@ -420,23 +425,23 @@ def rti_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None = No
     xm, ref = ca.MX.sym("x", nx), ca.MX.sym("reference", reference_rows(n, p), N)
     params = ca.MX.sym("params", n_params(arm))
     posture, mass = params[:n], params[n:]
-    X0, U0 = ca.MX.sym("X", nx, N + 1), ca.MX.sym("U", n, N)
+    X0, U0 = ca.MX.sym("X", nx, N + 1), ca.MX.sym("U", nu, N)
     X, U, phi0 = X0, U0, None
-    tau_max = np.tile(limits["tau"], N)
+    tau_max = np.tile(input_limits(arm), N)
     for _ in range(p.sqp_iterations):
         lin = _Linearisation(F, residual, p, xm, ref, X, U, posture, mass, ahead)
         rows = lin.angle_rows(X, limits) if p.angle_limits == "hard" else None
         dU = box_qp(lin.H, lin.g, -tau_max - ca.vec(U), tau_max - ca.vec(U), p.qp_iterations, rows, HARD_PRICE)
         dX = lin.step(dU)
         if p.sqp_iterations == 1:                                         # RTI: the full step
-            X, U = X + dX, U + ca.reshape(dU, n, N)
+            X, U = X + dX, U + ca.reshape(dU, nu, N)
             continue
         # step sizes tried in a fixed set (fixed work in C): the longest whose rollout lowers the
         # cost, else the shortest; the states become that rollout (the gaps close), and its cost
         # is the next iteration's reference
         if phi0 is None:
             phi0 = rollout(Fx, residual, p, limits, xm, ref, U, posture, mass, ahead)[0]
-        dU = ca.reshape(dU, n, N)
+        dU = ca.reshape(dU, nu, N)
         alpha = ca.MX(LINE_SEARCH[-1])
         phi_new, X_new = rollout(Fx, residual, p, limits, xm, ref, U + alpha * dU, posture, mass, ahead)
         for a in reversed(LINE_SEARCH[:-1]):
@@ -459,16 +464,16 @@ def prepare_function(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None 
     measurement (`_Linearisation` without xm): H, g0, M, the maps Eb, Phi, Gf of the plan's change and, with hard
     angle limits, the rows C, cl0, cu0, Cx (empty without).  Only for sqp_iterations = 1."""
     p = with_integrator(p, arm)
-    n, N, nx = arm.n, p.horizon, 4 * arm.n
+    n, N, nx = arm.n, p.horizon, 2 * arm.nq
     F, _ = interval_functions(arm, p.interval, int(p.substeps), step_jacobian, p.integrator)
     limits = limit_arrays(arm)
     ref = ca.MX.sym("reference", reference_rows(n, p), N)
     params = ca.MX.sym("params", n_params(arm))
-    X, U = ca.MX.sym("X", nx, N + 1), ca.MX.sym("U", n, N)
+    X, U = ca.MX.sym("X", nx, N + 1), ca.MX.sym("U", arm.u, N)
     prep = _Linearisation(F, stage_residual(arm, p, limits), p, None, ref, X, U, params[:n], params[n:],
                           sample_ahead(arm, p, step_jacobian))
     rows = prep.angle_rows(X, limits) if p.angle_limits == "hard" else None
-    rows = rows if rows is not None else (ca.MX(0, n * N), ca.MX(0, 1), ca.MX(0, 1), ca.MX(0, nx))
+    rows = rows if rows is not None else (ca.MX(0, arm.u * N), ca.MX(0, 1), ca.MX(0, 1), ca.MX(0, nx))
     return ca.Function(name, [ref, X, U, params], [prep.H, prep.g, prep.M, *prep.maps(), *rows],
                        ["reference", "X", "U", "params"], list(PREPARED))
 
@@ -477,11 +482,11 @@ def feedback_function(arm: Arm, p: MPCProblem, prepare: ca.Function, name: str =
     """mpc_feedback(x, X, U, prepared...) -> (tau, X_next, U_next): the QP of `prepare`'s outputs
     at the measured state (g = g0 + M dx_0, the rows' bounds moved), solved by `box_qp`, the plan
     stepped (Eb + Phi dx_0 + Gf dU) and shifted by one sample."""
-    n, N, nx = arm.n, p.horizon, 4 * arm.n
+    n, N, nx = arm.u, p.horizon, 2 * arm.nq
     xm, X0, U0 = ca.MX.sym("x", nx), ca.MX.sym("X", nx, N + 1), ca.MX.sym("U", n, N)
     got = {k: ca.MX.sym(k, prepare.sparsity_out(k)) for k in PREPARED}
     dx0 = xm - X0[:, 0]
-    tau_max = np.tile(limit_arrays(arm)["tau"], N)
+    tau_max = np.tile(input_limits(arm), N)
     shift = ca.mtimes(got["Cx"], dx0)
     rows = (got["C"], got["cl0"] - shift, got["cu0"] - shift) if got["C"].shape[0] else None
     dU = box_qp(got["H"], got["g0"] + ca.mtimes(got["M"], dx0), -tau_max - ca.vec(U0), tau_max - ca.vec(U0),
@@ -503,7 +508,7 @@ def stage_functions(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None =
     b_k, the residual at X_{k+1} + e_{k+1}, linear in (dx_k, du_k) through dx_{k+1} = A_k dx_k +
     B_k du_k + b_k."""
     p = with_integrator(p, arm)
-    n, nx = arm.n, 4 * arm.n
+    n, nx = arm.u, 2 * arm.nq
     F, _ = interval_functions(arm, p.interval, int(p.substeps), step_jacobian, p.integrator)
     x, u, m = ca.MX.sym("x", nx), ca.MX.sym("tau", n), ca.MX.sym("m", F.size1_in(2))
     interval = ca.Function(prefix + "interval", [x, u, m], [ca.densify(v) for v in F(x, u, m)],
@@ -518,9 +523,10 @@ def stage_functions(arm: Arm, p: MPCProblem, step_jacobian: ca.Function | None =
 def hold_function(arm: Arm, p: MPCProblem, name: str = "mpc_hold") -> ca.Function:
     """mpc_hold(x, params) -> (X, U): the initial plan, the arm held where it is over the horizon."""
     n = arm.n
-    x, params = ca.SX.sym("x", 4 * n), ca.SX.sym("params", n_params(arm))
-    z = ca.SX.zeros(n)
+    x, params = ca.SX.sym("x", 2 * arm.nq), ca.SX.sym("params", n_params(arm))
+    z, zm = ca.SX.zeros(n), ca.SX.zeros(arm.m)
     pm = [params[n:]] if arm.free else []
-    tau = arm.inverse_dynamics(parametric=bool(arm.free))(x[:n], x[n:2 * n], z, z, z, z, *pm)[0]
+    theta, phi, _, _ = arm.split_state(x)
+    tau = arm.inverse_dynamics(parametric=bool(arm.free))(theta, phi, z, zm, z, zm, *pm)[0]
     return ca.Function(name, [x, params], [ca.repmat(x, 1, p.horizon + 1), ca.repmat(tau, 1, p.horizon)],
                        ["x", "params"], ["X", "U"])

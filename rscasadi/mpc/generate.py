@@ -39,8 +39,8 @@ def step_kernel(arm, flags: list, cc: list, log=print, name: str = f"mpc_{KERNEL
     from rscasadi.codegen.generate import step_functions
     from rscasadi.codegen.step_kernel import kernel_source
     parametric = bool(arm.free)
-    if step_functions(arm, parametric=parametric)[1].is_a("SXFunction"):
-        return None, None
+    if step_functions(arm, parametric=parametric)[1].is_a("SXFunction") or not arm.model.all_sea:
+        return None, None                          # (the structured kernel is the SEA arm's)
     k = kernel_source(arm, name, parametric, chained=True)
     gen = ca.CodeGenerator(f"{name}.c", {"with_header": False})
     for g in k.functions:
@@ -179,13 +179,14 @@ def guard_bounds(model, p, rows: int) -> dict:
     state's box (model.limits.measurement_bounds) and a reference column's: in joint space the
     link angles' and speeds' boxes, in task space native.controller's."""
     x_lo, x_hi = measurement_bounds(model)
-    n = model.n
+    n, q = model.n, model.n + len(model.motors)
     if p.task_space:
         ref_lo, ref_hi = task_reference_bounds(rows)
     else:
-        ref_lo = np.concatenate([x_lo[:n], x_lo[2 * n:3 * n]])
-        ref_hi = np.concatenate([x_hi[:n], x_hi[2 * n:3 * n]])
-    return {"tau_max": limit_arrays(model)["tau"], "x_lo": x_lo, "x_hi": x_hi, "ref_lo": ref_lo, "ref_hi": ref_hi}
+        ref_lo = np.concatenate([x_lo[:n], x_lo[q:q + n]])
+        ref_hi = np.concatenate([x_hi[:n], x_hi[q:q + n]])
+    return {"tau_max": limit_arrays(model)["tau"][model.actuated], "x_lo": x_lo, "x_hi": x_hi,
+            "ref_lo": ref_lo, "ref_hi": ref_hi}
 
 
 def integrator_notes(arm, p, poses=None) -> list[str]:
@@ -236,7 +237,7 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
     name = lambda what: function_name("mpc", prefix, what)
     kernel, step_jacobian = step_kernel(arm, flags, cc, log, name(KERNEL)) if p.integrator == "rk4" else (None, None)
     split = p.sqp_iterations == 1                  # the real-time iteration: prepare, then feedback
-    qp = qp_of(p, arm.n)
+    qp = qp_of(p, arm.u)
     if p.threads > 1 and qp != "riccati":
         raise ModelFileError(f"{p.path or 'MPC problem'}: field 'threads': {p.threads} threads need the Riccati QP (qp = "
                              f"\"riccati\"; this problem's is {qp}, whose preparation is one function)")
@@ -257,7 +258,7 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
         ahead = sample_ahead(arm, p, step_jacobian, name("ahead"))
         functions, prepared = [interval, residual] + ([ahead] if ahead is not None else []), []
         nr, na = residual.size1_out(0), 0 if ahead is None else ahead.size1_out(0)
-        qp_words = hpipm_words(p.horizon, 4 * arm.n, arm.n, p.qp_iterations, cc, log)
+        qp_words = hpipm_words(p.horizon, 2 * arm.nq, arm.u, p.qp_iterations, cc, log)
     elif split:
         prepare = prepare_function(arm, p, step_jacobian, name("rti_prepare"))
         functions = [prepare, feedback_function(arm, p, prepare, name("rti_feedback"))]
@@ -277,14 +278,15 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
     else:
         reference, target, n_target = "theta_ref then dtheta_ref (2n)", f"{n} link angles", n
     guard = guard_bounds(model, p, rows)
-    header = dict(model=model_name, n=n, nx=4 * n, N=p.horizon, nref=rows * p.horizon, rows=rows, ts=p.sample_time,
+    nx, nu = 2 * arm.nq, arm.u
+    header = dict(model=model_name, n=n, nx=nx, nu=nu, N=p.horizon, nref=rows * p.horizon, rows=rows, ts=p.sample_time,
                   h=p.interval, iters=iters, reference=reference, target=target, ntarget=n_target,
                   nparams=n_params(arm), np=n_params(arm) - n, task=int(p.task_space), split=int(split),
                   nprep=max(offsets[-1], 1), **boxes(guard, words=True), tau_limits=c_words(guard["tau_max"]),
                   qp=("Riccati recursion (HPIPM)" if qp == "riccati" else "condensed onto the torques"),
                   riccati=int(qp == "riccati"), qp_words=qp_words, threads=p.threads,
-                  nfirst=(16 * n * n + 4 * n * n + 4 * n + n) if qp == "riccati" else 1,
-                  nlin=p.horizon * (20 * n * n + 4 * n) + 4 * n * (p.horizon + 1) if qp == "riccati" else 1)
+                  nfirst=(nx * nx + nu * nx + nx + nu) if qp == "riccati" else 1,
+                  nlin=p.horizon * (nx * nx + nx * nu + nx) + nx * (p.horizon + 1) if qp == "riccati" else 1)
     parameter_names, values = arm.parameters()
     free = arm.free or []
     nominal = [float(dict(zip(parameter_names, values))[k]) for k in free]
@@ -292,7 +294,7 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
                 mass_index=free.index("payload.mass") if "payload.mass" in free else -1, **boxes(guard),
                 nprepared=len(prepared), prep_offsets=", ".join(str(o) for o in offsets), nr=nr, na=na,
                 w_tau=repr(float(p.weights["tau"])), shift=repr(p.sample_time / p.interval),
-                qp_iterations=p.qp_iterations, blocks=riccati_blocks(p.horizon, 4 * n, n),
+                qp_iterations=p.qp_iterations, blocks=riccati_blocks(p.horizon, nx, nu),
                 blocks_apart=int(qp == "riccati" and p.threads > 1 and hpipm_blocks_apart()))
     manifest = {"model": str(p.model), "problem": None if p.path is None else str(p.path),
                 "api": {"sizeof": [], "init": ["c", "x_measured"], "init_parameters": ["c", "x_measured", "p"],
@@ -302,7 +304,7 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
                         "feedback_seconds": ["c"],
                         "set_payload_mass": ["c", "mass"], "set_posture": ["c", "theta"], "set_parameters": ["c", "p"]},
                 "parameters": {"names": free, "nominal": nominal, "parametric": p.parametric},
-                "sizes": {"x": 4 * n, "tau": n, "reference": [rows, p.horizon], "target": n_target},
+                "sizes": {"x": nx, "tau": nu, "joints": n, "reference": [rows, p.horizon], "target": n_target},
                 "task_space": {"frame": p.frame, "orientation": p.orientation} if p.task_space else None,
                 "payload_mass": None if model.payload is None else model.payload.body.mass,
                 "obstacles": len(p.obstacles),

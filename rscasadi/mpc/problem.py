@@ -14,7 +14,6 @@ from rscasadi.model.types import ModelFileError
 from rscasadi.task.objects import holding_payload
 from rscasadi.task.read import read_obstacles, read_path, read_payload
 from rscasadi.task.toolpath import ToolPath
-from rscasadi.model.kinds import require_sea
 
 TOP = {"model", "trajectory", "sample_time", "horizon", "interval", "substeps", "integrator", "qp", "sqp_iterations",
        "qp_iterations", "threads", "weights", "frame", "orientation", "path", "obstacles", "payload", "theta_start", "solution", "parametric", "angle_limits"}
@@ -221,8 +220,7 @@ def mpc_model(p: MPCProblem):
     from rscasadi.model.modelfile import read
     where = p.path if p.path is not None else "<MPCProblem>"
     model = holding_payload(read(p.model), p.payload, where)
-    require_sea(model, "the MPC")
-    unlimited = [jt.name for jt in model.joints if not np.isfinite(jt.limits.get("tau", np.inf))]
+    unlimited = [model.joints[j].name for j in model.actuated if not np.isfinite(model.joints[j].limits.get("tau", np.inf))]
     if unlimited:
         raise ModelFileError(f"{model.path}: joint {unlimited[0]!r}: limits.tau missing: the MPC commands motor "
                              f"torques within their limits (no limit would let it command any torque); give "

@@ -57,7 +57,7 @@ def reach_pose(problem, mpc_dir, theta_target, seconds: float = 1.0, plant: Arm 
     run = run_loop(arm, rk4_plant(arm, dt), _MPC(CompiledMPC(mpc_dir), target=target), x0,
                    int(round(seconds / dt)), dt, sensors=Encoders(arm, dt, exact=True))
     x = run.x[:, -1]
-    return {"final_angle_error": float(np.max(np.abs(x[:n] - target))), "final_speed": float(np.max(np.abs(x[2 * n:]))),
+    return {"final_angle_error": float(np.max(np.abs(x[:n] - target))), "final_speed": float(np.max(np.abs(x[arm.nq:]))),
             "max_limit_violation": limit_violation(arm, run), "tau": run.tau.T, **step_times(run)}
 
 

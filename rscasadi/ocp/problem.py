@@ -73,7 +73,6 @@ from rscasadi.task.objects import Goal, Obstacle, holding_payload  # noqa: F401 
 from rscasadi.task.read import number, read_goal, read_obstacles, read_path, read_payload
 from rscasadi.task.toolpath import ToolPath
 from rscasadi.errors import WrongType
-from rscasadi.model.kinds import require_sea
 
 OBJECTIVES = ("min_time", "min_effort", "tracking")
 METHODS = ("radau", "legendre", "hermite-simpson")
@@ -407,7 +406,6 @@ def check_against_model(problem: Problem, model):
     t = problem.task
     where = problem.path
     model = holding_payload(model, t.payload, where)          # its parameters (payload.*) named too
-    require_sea(model, "optimal control")
     if t.collision is not None:
         from rscasadi.model.collision import with_collision
         model = with_collision(model, t.collision, where if where is not None else "<Problem>")

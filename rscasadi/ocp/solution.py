@@ -24,7 +24,7 @@ from rscasadi.model.modelfile import read
 from rscasadi.model.parameters import with_values
 from rscasadi.sim.simulation import simulate_held
 from rscasadi.sim.trajectory import load_trajectory
-from rscasadi.model.limits import violation
+from rscasadi.model.limits import slow_sides, violation
 from rscasadi.task.objects import goals_of
 
 STATE = ("theta", "phi", "dtheta", "dphi")
@@ -53,10 +53,10 @@ class Solution(dict):
 
     t = property(lambda self: self._array("t"), doc="the mesh's times (s)")
     theta = property(lambda self: self._array("theta"), doc="link angles at the mesh (n x N+1, rad)")
-    phi = property(lambda self: self._array("phi"), doc="motor angles at the slow side (n x N+1, rad)")
+    phi = property(lambda self: self._array("phi"), doc="the SEAs' motor angles at the slow side (m x N+1, rad)")
     dtheta = property(lambda self: self._array("dtheta"), doc="link speeds (rad/s)")
-    dphi = property(lambda self: self._array("dphi"), doc="motor speeds at the slow side (rad/s)")
-    tau = property(lambda self: self._array("tau"), doc="motor torques, held on each interval (n x N+1, N m)")
+    dphi = property(lambda self: self._array("dphi"), doc="the SEAs' motor speeds at the slow side (rad/s)")
+    tau = property(lambda self: self._array("tau"), doc="the actuated joints' torques, held on each interval (u x N+1, N m)")
     success = property(lambda self: bool(self["success"]), doc="solved and, where a replay was done, verified")
     solved = property(lambda self: bool(self.get("solver_success", self["success"])), doc="the solver converged")
     verified = property(lambda self: bool((self.get("verification") or {}).get("passed", False)),
@@ -81,7 +81,8 @@ class Solution(dict):
     def sample(self, quantity: str, times, substeps: int = 20) -> np.ndarray:
         """`quantity` (theta, phi, dtheta, dphi, psi = phi - theta, or tau) at `times` (s) of the
         torques replayed on the complete model (CVODES, `substeps` per interval, interpolated
-        linearly between its samples; tau as held over each interval): n x len(times)."""
+        linearly between its samples; tau as held over each interval): a row per joint (theta,
+        dtheta), per SEA (phi, dphi, psi) or per input (tau), a column per time."""
         if quantity not in SAMPLED:
             raise InvalidArgument(f"sample: quantity {quantity!r} is not one of {', '.join(SAMPLED)}")
         times = np.atleast_1d(np.asarray(times, float))
@@ -127,15 +128,16 @@ def verify(solution: dict, substeps: int = 20, tol: float = 1e-10, terms=()) -> 
     and each of `terms` (the task's own, rscasadi.task.terms) as `term.<name>`: its replay
     metric on every sample (a constraint's largest violation)."""
     arm = solution_arm(solution)
-    n, t, tau = arm.n, np.asarray(solution["t"]), np.asarray(solution["tau"])
+    q, t, tau = arm.nq, np.asarray(solution["t"]), np.asarray(solution["tau"])
     x0 = np.concatenate([np.asarray(solution[k])[:, 0] for k in ("theta", "phi", "dtheta", "dphi")])
     sim = simulate_held(arm, x0, t, tau, substeps, tol, energy=False)
-    per_interval = violation(arm.model, sim["theta"], sim["phi"], sim["dphi"]).reshape(-1)[1:].reshape(len(t) - 1, substeps).max(axis=1)
+    per_interval = violation(arm.model, sim["theta"], sim["phi"], sim["dphi"], sim["dtheta"]
+                             ).reshape(-1)[1:].reshape(len(t) - 1, substeps).max(axis=1)
     report = {"max_limit_violation": max(float(per_interval.max()), 0.0), "substeps": substeps}
     if solution.get("target_state") is not None:
         err = np.abs(sim["x"][:, -1] - np.asarray(solution["target_state"]))
-        report["final_angle_error"] = float(np.max(err[:2 * n]))
-        report["final_speed_error"] = float(np.max(err[2 * n:]))
+        report["final_angle_error"] = float(np.max(err[:q]))
+        report["final_speed_error"] = float(np.max(err[q:]))
     if solution.get("trajectory"):                                     # between the nodes too
         ref = load_trajectory(solution["trajectory"])(sim["t"])[0]
         report["tracking_error"] = float(np.max(np.abs(sim["theta"] - ref)))
@@ -184,8 +186,11 @@ def plot_solution(sol: dict, arm: Arm, out: Path):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    t = np.asarray(sol["t"])
-    th, ph, dph, tau = (np.asarray(sol[k]) for k in ("theta", "phi", "dphi", "tau"))
+    t, model = np.asarray(sol["t"]), arm.model
+    th, ph, dth, dph, tau = (np.asarray(sol[k]) for k in ("theta", "phi", "dtheta", "dphi", "tau"))
+    ph, dph = slow_sides(model, th, ph, dth, dph)             # a row per joint: the link's own without a motor
+    tau = np.vstack([tau[model.input_of[j]] if j in model.input_of else np.full(len(t), np.nan)
+                     for j in range(arm.n)])
     panels = [("theta", th, "link angle theta (rad)", "theta"), ("psi", ph - th, "SEA deflection psi (rad)", "psi"),
               ("tau", tau, "motor torque tau (N m)", "tau"), ("dphi", dph, "slow-side speed dphi (rad/s)", "dphi")]
     fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)

@@ -49,7 +49,7 @@ def guess(tr: Transcription, problem: Problem, arm: Arm, t, warm: dict | None):
     torque; or a previous solution interpolated onto this mesh (states at every point, the
     torque of the old interval that holds each new interval's midpoint).  Accelerations at the
     collocation points: the forward dynamics there."""
-    n, N, m = tr.n, tr.N, tr.m
+    n, nq, N, m = tr.n, tr.nq, tr.N, tr.m
     T = t[-1]
     tc = (t[:-1, None] + np.diff(t)[:, None] * tr.fractions[None, :]).ravel()       # interval-major
     design = np.array([np.clip(v, *problem.task.design[k]) for k, v in _design_start(problem, arm).items()])
@@ -76,14 +76,15 @@ def guess(tr: Transcription, problem: Problem, arm: Arm, t, warm: dict | None):
         Xs, Xc = np.outer(x0, 1 - s) + np.outer(xe, s), np.outer(x0, 1 - sc) + np.outer(xe, sc)
         if tr.tracking:
             ref, refc = _reference(problem, t), _reference(problem, tc)
+            motors = arm.model.motors
             for X, r in ((Xs, ref), (Xc, refc)):
-                X[:n], X[n:2 * n] = r, r + (x0[n:2 * n] - x0[:n])[:, None]
-        z = np.zeros(n)
-        U = np.repeat(np.array(arm.inverse_dynamics()(Xs[:n, 0], Xs[n:2 * n, 0], z, z, z, z)[0]), N, axis=1)
+                X[:n], X[n:nq] = r, r[motors] + (x0[n:nq] - x0[motors])[:, None]
+        z, zm = np.zeros(n), np.zeros(arm.m)
+        U = np.repeat(np.array(arm.inverse_dynamics()(Xs[:n, 0], Xs[n:nq, 0], z, zm, z, zm)[0]), N, axis=1)
     u = np.repeat(U, m, axis=1)
     fd = arm.forward_dynamics().map(N * m)
-    acc = np.vstack([np.array(a) for a in fd(Xc[:n], Xc[n:2 * n], Xc[2 * n:3 * n], Xc[3 * n:], u)])
-    return tr.pack(Xs, U, T, design, acc.reshape(2 * n, N, m).transpose(0, 2, 1), arc, t)
+    acc = np.vstack([np.array(a) for a in fd(*np.split(Xc, [n, nq, nq + n]), u)])
+    return tr.pack(Xs, U, T, design, acc.reshape(nq, N, m).transpose(0, 2, 1), arc, t)
 
 
 def _along_path(tr: Transcription, problem: Problem, arm: Arm, t, tc):
@@ -124,13 +125,13 @@ def _moving_through(arm: Arm, theta, times, t, tc):
     """A guess through link angles theta at `times` (the nodes t and collocation points tc): the
     SEAs in their static deflection, the speeds of that motion and the torques holding each
     node still.  Returns Xs, Xc, U."""
-    n, z = arm.n, np.zeros(arm.n)
+    n, nq, z, zm = arm.n, arm.nq, np.zeros(arm.n), np.zeros(arm.m)
     dtheta = np.gradient(theta, times, axis=1)
     X = np.array([rest_state(arm, th) for th in theta.T]).T
-    X[2 * n:3 * n], X[3 * n:] = dtheta, dtheta
+    X[nq:nq + n], X[nq + n:] = dtheta, dtheta[arm.model.motors]
     at = lambda tt: X[:, np.searchsorted(times, tt)]
     Xs, Xc = at(t), at(tc)
-    U = np.array(arm.inverse_dynamics().map(len(t) - 1)(Xs[:n, :-1], Xs[n:2 * n, :-1], z, z, z, z)[0])
+    U = np.array(arm.inverse_dynamics().map(len(t) - 1)(Xs[:n, :-1], Xs[n:nq, :-1], z, zm, z, zm)[0])
     return Xs, Xc, U
 
 
@@ -228,7 +229,8 @@ def solve_once(problem: Problem, w=None, warm: dict | None = None, log=print, pr
             "success": solved, "solver_success": solved, "solve_time_s": solve_time, "setup_time_s": setup,
             "iterations": int(stats["iter_count"]), "objective": float(objective(res["x"], P)),
             "intervals": len(w), "mesh": (np.asarray(w) / np.sum(w)).tolist(), "t": t.tolist(),
-            **{k: Xs[i * n:(i + 1) * n].tolist() for i, k in enumerate(("theta", "phi", "dtheta", "dphi"))},
+            **{k: part.tolist() for k, part in zip(("theta", "phi", "dtheta", "dphi"),
+                                                   np.split(Xs, [n, arm.nq, arm.nq + n]))},
             "tau": np.hstack([U, U[:, -1:]]).tolist(), "tau_interpolation": "constant",
             "design": design, "parameters": dict(problem.task.parameters), "target_state": target,
             "trajectory": None if problem.task.trajectory is None else str(problem.task.trajectory),
@@ -268,12 +270,14 @@ def unheld(arm: Arm, theta) -> str | None:
     """Why the arm cannot rest at theta (a motor torque or a spring deflection beyond its limit,
     the task's payload included), or None if it can."""
     x = rest_state(arm, theta)
-    n = arm.n
-    tau = np.array(holding_torque(arm)(x[:n], x[n:2 * n])).ravel()
-    for j, jt in enumerate(arm.model.joints):
-        tau_max, psi_max, psi = jt.limits.get("tau", np.inf), jt.limits.get("psi", np.inf), x[n + j] - x[j]
-        if abs(tau[j]) > tau_max * (1 + 1e-9):
-            return f"joint {jt.name!r} needs {abs(tau[j]):.3g} N m at its motor to hold it (limit {tau_max:g})"
+    n, model = arm.n, arm.model
+    tau = np.array(holding_torque(arm)(x[:n], x[n:arm.nq])).ravel()
+    for j, jt in enumerate(model.joints):
+        tau_max, psi_max = jt.limits.get("tau", np.inf), jt.limits.get("psi", np.inf)
+        held = abs(tau[model.input_of[j]]) if j in model.input_of else 0.0
+        psi = x[n + model.motor_of[j]] - x[j] if j in model.motor_of else 0.0
+        if held > tau_max * (1 + 1e-9):
+            return f"joint {jt.name!r} needs {held:.3g} N m at its motor to hold it (limit {tau_max:g})"
         if abs(psi) > psi_max * (1 + 1e-9):
             return f"joint {jt.name!r}'s spring deflects {abs(psi):.3g} rad to hold it (limit {psi_max:g})"
     return None
@@ -328,7 +332,8 @@ def local_errors(problem: Problem, solution: dict) -> np.ndarray:
     ends = np.array(each(X[:, :N], np.vstack([np.asarray(solution["tau"])[:, :N], np.diff(t)])))
     err = np.abs(ends - X[:, 1:])
     angle_tol = problem.verification.tracking_tol if solution.get("trajectory") else problem.verification.final_angle_tol
-    return np.maximum(err[:2 * n].max(axis=0) / angle_tol, err[2 * n:].max(axis=0) / problem.verification.final_speed_tol)
+    q = arm.nq
+    return np.maximum(err[:q].max(axis=0) / angle_tol, err[q:].max(axis=0) / problem.verification.final_speed_tol)
 
 
 # failures the replay places in intervals (a limit, an obstacle's margin, the path), by the

@@ -8,12 +8,13 @@ points are then linear in them,
 
     v_j = v_k + h sum_l A_jl a_l,   q_j = q_k + h c_j v_k + h^2 sum_l (A A)_jl a_l,
 
-so an interval carries 2n m unknowns and 2n m dynamics equations instead of 4n m of each: the
+so an interval carries nq m unknowns and nq m dynamics equations instead of 2 nq m of each: the
 same polynomial solution as collocating the states, half the stage size (fatrop's Riccati
 recursion costs about the cube of it).
 
-Stage k = 0..N-1 has the state x_k = (theta, phi, dtheta, dphi, [T], [design]) and the
-"control" u_k = (tau_k, the accelerations at its m points, scaled).  Constraints in stage order:
+Stage k = 0..N-1 has the state x_k = (theta, phi, dtheta, dphi, [T], [design]) (theta: every
+joint's link, phi: the SEAs' motors, nq = n + m coordinates) and the "control" u_k = (tau_k: the
+actuated joints', the accelerations at its m points, scaled).  Constraints in stage order:
 
     x_{k+1} - F(x_k, u_k) = 0           gap closing: the interval's end point (T, design carried)
     c_k(x_k, u_k) (=, <=) 0             dynamics at the points (explicit: a_j = FD(q_j, v_j, tau);
@@ -26,8 +27,9 @@ A designed or swept gear ratio keeps the motor: its speed limit mu dphi is the m
 dphi's limit is a row (mu / mu_file) dphi within limits.dphi instead of a bound.  The NLP is
 built as stage, start and end pieces, whose own derivatives assembly.py places.
 
-Rest is the SEA's static equilibrium, stated as constraints (theta given, speeds zero, spring
-torque = gravity torque), so it holds for any designed or swept spring.  The mesh is the vector
+Rest is the static equilibrium, stated as constraints (the actuated joints' theta given, speeds
+zero, each SEA's spring torque = its gravity torque, each joint without an input balanced where
+it hangs), so it holds for any designed or swept spring.  The mesh is the vector
 of interval fractions w (sum 1, h_k = T w_k), an NLP parameter: refining a mesh with the same N
 reuses the compiled NLP.  NLP parameters P = (theta_start, theta_end, duration, effort_weight,
 objective scale, w, [theta_ref], [fixed model parameters]).
@@ -60,13 +62,20 @@ class Transcription:
     def __init__(self, problem: Problem, arm: Arm, N: int | None = None):
         self.p, self.model = problem, arm.model
         self.n, self.N = arm.n, N or problem.transcription.intervals
+        # coordinates (theta: every joint, phi: the SEAs' motors), motors and torque inputs
+        self.nq, self.motors, self.n_tau = arm.nq, list(arm.model.motors), arm.u
+        self.actuated, self.passive = list(arm.model.actuated), [j for j in range(arm.n) if j not in arm.model.actuated]
+        # each joint's slow side, whose speed `dphi` limits: an SEA's motor coordinate, a geared
+        # joint's link (its rotors turn with it); as indices into the speeds v = (dtheta, dphi)
+        self.slow = [(self.n + i, j) for i, j in enumerate(self.motors)] + \
+            [(j, j) for j, k in enumerate(arm.model.kinds) if k.rotors == "link"]
         self.design, self.fixed = list(problem.task.design), list(problem.task.parameters)
         free = self.design + self.fixed
         self.arm = Arm(arm.model, free=free, tie_balanced=problem.transcription.parametric == "family") if free else arm
-        # joints whose gear ratio is designed or swept: their motor speed limit mu dphi is the
-        # model's, so dphi's limit becomes a constraint row instead of a bound
-        self.geared = [j for j, jt in enumerate(arm.model.joints) if f"{jt.name}.gear_ratio" in free]
-        n = self.n
+        # SEAs whose gear ratio is designed or swept (indices into the motors): their motor speed
+        # limit mu dphi is the model's, so dphi's limit becomes a constraint row instead of a bound
+        self.geared = [i for i, j in enumerate(self.motors) if f"{arm.model.joints[j].name}.gear_ratio" in free]
+        n, nq = self.n, self.nq
         c = np.array([0.0, 0.5, 1.0]) if problem.transcription.method == "hermite-simpson" else \
             np.array(ca.collocation_points(problem.transcription.degree, problem.transcription.method))
         self.A, self.b = butcher(c)
@@ -77,12 +86,12 @@ class Transcription:
         self.tool_path = problem.task.path                  # its frame's position pinned at every node
         # min_time along a path: the path's arc length s is a state, its rate a control (>= 0)
         self.ns = 1 if self.tool_path is not None and self.nT else 0
-        self.nx = 4 * n + self.nz + self.ns
-        self.nu_lifted = n + self.ns + 2 * n * self.m
+        self.nx = 2 * nq + self.nz + self.ns
+        self.nu_lifted = self.n_tau + self.ns + nq * self.m
         # condensed: the accelerations are solved for inside the NLP's functions (condensing.py)
         self.condensed = problem.transcription.condense
-        self.nu = n + self.ns if self.condensed else self.nu_lifted
-        self.n_start = 4 * n + self.ns                                       # the start's rows
+        self.nu = self.n_tau + self.ns if self.condensed else self.nu_lifted
+        self.n_start = 2 * nq + self.ns                                      # the start's rows
         # condensed, the collocation equations are solved exactly, so both forms give the same
         # NLP; the inverse dynamics' derivatives are the cheaper (Hessian 17 807 SX instructions
         # with the projections, 26 332 through the forward dynamics; n = 3)
@@ -118,26 +127,37 @@ class Transcription:
         return f(*args) if self.calls is None else self.calls(f, args)[0]
 
     def _f(self, x, u, pf):
-        q = ca.vertsplit(x, self.n)
+        q = self.arm.split_state(x)
         return ca.vertcat(q[2], q[3], *self._call("forward_dynamics", *q, u, pf=pf))
 
     def _residual(self, x, a, u, pf):
-        """Implicit dynamics: M ddq + c - Q = 0 (docs/user-guide/model.md section 3) from the inverse dynamics; the
-        rotor rows mu (u - tau_id) are generalized forces like the link rows (N m)."""
-        n, q = self.n, ca.vertsplit(x, self.n)
+        """Implicit dynamics: M ddq + c - Q = 0 (docs/user-guide/model.md section 3) from the
+        inverse dynamics (tau_id, T_id), one row per coordinate, each a generalised force (N m):
+        an SEA's link T_id - T and its motor mu (u - tau_id); a geared joint's mu (u - tau_id); a
+        direct joint's u - tau_id; a joint without an input T_id (its spring and loss are in it)."""
+        n, q = self.n, self.arm.split_state(x)
         tau_id, T_id = self._call("inverse_dynamics", *q, a[:n], a[n:], pf=pf)
         phys = self.arm.physics if pf is None else self.arm._physics_of(pf)
-        return ca.vertcat(T_id - self.arm.sea_torque(*q, phys=phys), phys.columns["gear_ratio"] * (u - tau_id))
+        mu, model = phys.columns["gear_ratio"], self.model
+        if self.n_tau == len(self.motors) == n:                          # every joint an SEA
+            return ca.vertcat(T_id - self.arm.sea_torque(*q, phys=phys), mu * (u - tau_id))
+        T_sea = self.arm.sea_torque(*q, phys=phys)
+        at, motor_of = model.input_of, model.motor_of
+        drive = lambda j: (mu[j] if model.kinds[j].rotors else 1) * (u[at[j]] - tau_id[at[j]])   # noqa: E731
+        rows = [T_id[j] - T_sea[motor_of[j]] if j in motor_of else drive(j) if j in at else T_id[j] for j in range(n)]
+        return ca.vertcat(*rows, *[drive(j) for j in self.motors])
 
     def rest_residual(self, x, theta, pf):
-        """At rest at theta in the SEA's static equilibrium: theta, speeds 0, T_K(psi) = gravity torque;
-        theta None: at rest wherever the arm is."""
-        n, q = self.n, ca.vertsplit(x[:4 * self.n], self.n)
-        z = ca.DM.zeros(n)
-        T_g = self._call("inverse_dynamics", q[0], q[1], z, z, z, z, pf=pf)[1]
+        """At rest at theta in the static equilibrium: the actuated joints at theta, speeds 0, each
+        SEA's T_K(psi) = its gravity torque, each joint without an input balanced (T_id = 0: where
+        it hangs); theta None: at rest wherever the arm is."""
+        n, q = self.n, self.arm.split_state(x[:2 * self.nq])
+        z, zm = ca.DM.zeros(n), ca.DM.zeros(len(self.motors))
+        T_g = self._call("inverse_dynamics", q[0], q[1], z, zm, z, zm, pf=pf)[1]
         phys = self.arm.physics if pf is None else self.arm._physics_of(pf)
-        rows = [q[2], q[3], self.arm.sea_torque(q[0], q[1], z, z, phys=phys) - T_g]
-        return ca.vertcat(*([] if theta is None else [q[0] - theta]), *rows)
+        held = self.arm.sea_torque(q[0], q[1], z, zm, phys=phys) - _take(T_g, self.motors)
+        rows = [q[2], q[3], held, _take(T_g, self.passive)]
+        return ca.vertcat(*([] if theta is None else [_take(q[0] - theta, self.actuated)]), *rows)
 
     def goal_rows(self, theta, goal):
         """Each goal's frame at its pose: p - p_goal (3); with a rotation, the skew part of
@@ -155,19 +175,19 @@ class Transcription:
     def _end_bounds(self):
         """Bounds of the end piece's rows: at rest (and at theta_end, or at the goal), then the
         SEA deflection and the geared joints' motor speeds."""
-        n = self.n
-        psi_max, dphi_max = self._limit("psi"), self._limit("dphi")[self.geared]
+        psi_max, dphi_max = self._limit("psi")[self.motors], self._limit("dphi")[self.motors][self.geared]
         if self.tracking:
             rest_lo = rest_hi = np.zeros(0)
         elif not self.goals:
-            rest_lo = rest_hi = np.zeros(4 * n)
+            rest_lo = rest_hi = np.zeros(2 * self.nq)
         else:
             # the trace's upper end open: trace(E) <= 3 holds for every rotation, with equality
             # exactly at the goal, where its gradient is zero; as a bound it is an active row
             # without a gradient, whose multiplier the interior point follows away
-            rest_lo = np.r_[np.zeros(3 * n), *[np.r_[0.0, 0.0, 0.0, [0.0, 0.0, 0.0, 1.0] if g.R is not None else []]
+            rest = 2 * self.nq - len(self.actuated)          # speeds and balances; no theta rows
+            rest_lo = np.r_[np.zeros(rest), *[np.r_[0.0, 0.0, 0.0, [0.0, 0.0, 0.0, 1.0] if g.R is not None else []]
                                                for g in self.goals]]
-            rest_hi = np.r_[np.zeros(3 * n), *[np.r_[0.0, 0.0, 0.0, [0.0, 0.0, 0.0, np.inf] if g.R is not None else []]
+            rest_hi = np.r_[np.zeros(rest), *[np.r_[0.0, 0.0, 0.0, [0.0, 0.0, 0.0, np.inf] if g.R is not None else []]
                                                for g in self.goals]]
         ends = [b for t, b in zip(self.constraints, self.row_bounds) if t.at_end]
         s = np.zeros(self.ns)                                              # at the path's end: s_N = L
@@ -180,24 +200,37 @@ class Transcription:
         return ca.vertcat(*parts) if parts else None
 
     def _speed_scale(self, pf):
-        """mu / mu_nominal per joint (1 where the gear ratio is the model's)."""
+        """mu / mu_nominal per motor (1 where the gear ratio is the model's)."""
         if not self.geared:
-            return ca.DM.ones(self.n)
-        return gear_ratios(self.model, self.design + self.fixed, pf) / ca.DM(self.model.column("gear_ratio"))
+            return ca.DM.ones(len(self.motors))
+        mu = gear_ratios(self.model, self.design + self.fixed, pf) / ca.DM(self.model.column("gear_ratio"))
+        return _take(mu, self.motors)
 
     def _geared_speeds(self, dphi, pf):
         """Rows of the geared joints' speed limits: their mu dphi / mu_nominal (none if none)."""
         return (self._speed_scale(pf) * dphi)[self.geared] if self.geared else ca.SX(0, 1)   # x[[]] of 1x1 is 1x1
+
+    def _slow_speeds(self, v, pf):
+        """Every slow side's speed (self.slow): the motors' mu dphi / mu_nominal, the geared
+        joints' dtheta."""
+        motors = self._speed_scale(pf) * v[self.n:]
+        return ca.vertcat(motors, *[v[i] for i, _ in self.slow[len(self.motors):]])
 
     def _acceleration_scale(self):
         """The accelerations are variables a = s * a_scaled, s per coordinate about the largest
         acceleration the torque and deflection limits can cause, so that every variable is O(1)
         (unscaled, the implicit form took 149 iterations where the explicit one took 18)."""
         theta = self.p.task.theta_start if self.p.task.theta_start is not None else np.zeros(self.n)
-        M = np.array(Arm(self.model).mass_matrix()(theta, theta))
-        tau = np.array([jt.limits.get("tau", 1.0) for jt in self.model.joints]) * self.model.column("gear_ratio")
-        k_psi = np.array([jt.k1 * jt.limits.get("psi", 0.1) for jt in self.model.joints])
-        force = np.concatenate([k_psi, tau + k_psi])
+        M = np.array(Arm(self.model).mass_matrix()(theta, theta[self.motors]))
+        jts, kinds = self.model.joints, self.model.kinds
+        drive = np.array([jt.limits.get("tau", 1.0) for jt in jts]) * np.where(
+            [bool(k.rotors) for k in kinds], self.model.column("gear_ratio"), 1.0)
+        k_psi = np.array([jt.k1 * jt.limits.get("psi", 0.1) for jt in jts])
+        # on a link: its SEA's spring, its geared or direct drive, or (no input) its spring's
+        # torque over 0.1 rad (at least 1 N m)
+        link = np.where([k.motor for k in kinds], k_psi, np.where(
+            [k.actuated for k in kinds], drive, np.maximum(0.1 * self.model.column("cb_k"), 1.0)))
+        force = np.concatenate([link, (drive + k_psi)[self.motors]])
         acc = np.abs(np.linalg.solve(M, np.diag(force))).max(axis=1)
         return np.maximum(acc, 1e-3)
 
@@ -210,13 +243,13 @@ class Transcription:
 
     def _stage(self, x, u, w, dur, pfix):
         """The stage's expressions (its model calls recorded if self.calls is a recorder)."""
-        n, m, A, b, c = self.n, self.m, self.A, self.b, self.fractions
-        q, v, z, arc = x[:2 * n], x[2 * n:4 * n], x[4 * n:4 * n + self.nz], x[4 * n + self.nz:]
+        n, nq, m, A, b, c = self.n, self.nq, self.m, self.A, self.b, self.fractions
+        q, v, z, arc = x[:nq], x[nq:2 * nq], x[2 * nq:2 * nq + self.nz], x[2 * nq + self.nz:]
         h = (z[0] if self.nT else dur) * w
         pf = self._pf(z[self.nT:self.nz] if self.design else None, pfix)
         s = pfix[len(self.fixed):] if self.family else ca.DM(self.acc_scale)
-        tau, a0 = u[:n], n + self.ns
-        acc = [s * u[a0 + 2 * n * j: a0 + 2 * n * (j + 1)] for j in range(m)]      # ddtheta, ddphi
+        tau, a0 = u[:self.n_tau], self.n_tau + self.ns
+        acc = [s * u[a0 + nq * j: a0 + nq * (j + 1)] for j in range(m)]      # ddtheta, ddphi
         AA = A @ A
         V = [v + h * sum(A[j, l] * acc[l] for l in range(m)) for j in range(m)]
         Q = [q + h * c[j] * v + h ** 2 * sum(AA[j, l] * acc[l] for l in range(m)) for j in range(m)]
@@ -226,18 +259,18 @@ class Transcription:
             if self.dynamics == "implicit":
                 dynamics.append(self._residual(xj, acc[j], tau, pf))
             else:
-                dynamics.append((acc[j] - self._f(xj, tau, pf)[2 * n:]) / s)
+                dynamics.append((acc[j] - self._f(xj, tau, pf)[nq:]) / s)
         x_end = ca.vertcat(q + h * v + h ** 2 * sum((b @ A)[l] * acc[l] for l in range(m)),
                            v + h * sum(b[l] * acc[l] for l in range(m)))
-        speed = self._speed_scale(pf)                      # dphi -> mu dphi / mu_nominal
-        limits = [q[n:] - q[:n], self._geared_speeds(v[n:], pf)]               # psi (geared dphi) at x_k
+        psi = lambda q: q[n:] - _take(q, self.motors)                                # noqa: E731
+        limits = [psi(q), self._geared_speeds(v[n:], pf)]                      # psi (geared dphi) at x_k
         for j in self.interior:                                                 # theta, psi, dphi inside
-            limits += [Q[j][:n], Q[j][n:] - Q[j][:n], speed * V[j][n:]]
+            limits += [Q[j][:n], psi(Q[j]), self._slow_speeds(V[j], pf)]
         for term, angles in zip(self.constraints, self.constraint_calls):      # the task's rows at x_k [and inside]
             points = [ca.vertcat(q, v)] + ([ca.vertcat(Q[j], V[j]) for j in self.interior] if term.inside else [])
             limits += [term.expression(self.arm, xj, tau, ca.SX(0, 1)) if angles is None else self._called(angles, [xj[:n]])
                        for xj in points]
-        arc_end = arc + h * u[n:n + self.ns]                                   # s_{k+1} = s_k + h ds_k
+        arc_end = arc + h * u[self.n_tau:self.n_tau + self.ns]                 # s_{k+1} = s_k + h ds_k
         return [ca.vertcat(x_end, z, arc_end), ca.vertcat(*dynamics, *limits)]
 
     # -- the NLP ----------------------------------------------------------------------------
@@ -258,7 +291,7 @@ class Transcription:
         variables z = (x_k, u_k, x_{k+1}): (fn, its key, derivatives()) with derivatives() their
         derivatives by the chain rule through the stage's model calls
         (assembly.chain_rule_derivatives: 2.4x fewer instructions than AD), built when asked."""
-        n, nx, nu = self.n, self.nx, self.nu_lifted
+        n, nq, nx, nu = self.n, self.nq, self.nx, self.nu_lifted
         z = ca.SX.sym("z", 2 * nx + nu)
         x, u, x1 = z[:nx], z[nx:nx + nu], z[nx + nu:]
         w, dur, pfix = ca.SX.sym("w"), ca.SX.sym("duration"), ca.SX.sym("p_fixed", self.n_pfix)
@@ -267,14 +300,14 @@ class Transcription:
         timed = self.tool_path is not None and not self.ns
         args = [w, dur, pfix, ew, scale] + ([ref] if self.tracking else []) + ([target] if timed else [])
 
-        h = (x[4 * n] if self.nT else dur) * w
+        h = (x[2 * nq] if self.nT else dur) * w
         supplied = {"reference": ref, None: ca.SX(0, 1)}
 
         def pieces(stage):
             x_next, path = stage(x, u, w, dur, pfix)
             # each cost term at the interval's end with the interval's torques, integrated
             f = sum(h * _power(ew, power) * term.stage_weight
-                    * ca.sumsqr(term.expression(self.arm, x1[:4 * n], u[:n], supplied[term.parameter]))
+                    * ca.sumsqr(term.expression(self.arm, x1[:2 * nq], u[:self.n_tau], supplied[term.parameter]))
                     for term, power in self.costs)
             # fatrop's stage k may constrain x_k and u_k only: the path holds at x_k (the first
             # stage's rows are left free: theta_start is on the path), and the end's is the goal
@@ -311,34 +344,35 @@ class Transcription:
         """The start (at rest at theta_start; T is the min-time objective) or the end (at rest at
         theta_end, or at rest with the goal frame at its pose, unless tracking; the SEA
         deflection within its limit) of x_0 or x_N.  `theta`: theta_start, theta_end or the goal."""
-        n = self.n
+        n, nq = self.n, self.nq
         goal_end = end and bool(self.goals)
         x, theta = ca.SX.sym("x", self.nx), ca.SX.sym("theta", 12 * len(self.goals) if goal_end else n)
         pfix, scale = ca.SX.sym("p_fixed", self.n_pfix), ca.SX.sym("scale")
-        pf = self._pf(x[4 * n + self.nT:] if self.design else None, pfix)
+        pf = self._pf(x[2 * nq + self.nT:] if self.design else None, pfix)
         if end:
             rest = [] if self.tracking else [self.rest_residual(x, None if goal_end else theta, pf)]
             rest += self.goal_rows(x[:n], theta) if goal_end else []
             rest += [x[self.nx - 1] - self.tool_path.length] if self.ns else []
-            rows = rest + [x[n:2 * n] - x[:n], self._geared_speeds(x[3 * n:4 * n], pf)]
-            rows += [t.expression(self.arm, x[:4 * n], ca.SX.zeros(n), ca.SX(0, 1)) for t in self.constraints if t.at_end]
+            rows = rest + [x[n:nq] - _take(x, self.motors), self._geared_speeds(x[nq + n:2 * nq], pf)]
+            rows += [t.expression(self.arm, x[:2 * nq], ca.SX.zeros(self.n_tau), ca.SX(0, 1))
+                     for t in self.constraints if t.at_end]
             f = ca.SX(0)
         else:
             rows = [self.rest_residual(x, theta, pf)] + ([x[self.nx - 1]] if self.ns else [])     # s_0 = 0
-            f = scale * x[4 * n] if self.p.task.objective == "min_time" else ca.SX(0)
+            f = scale * x[2 * nq] if self.p.task.objective == "min_time" else ca.SX(0)
         return ca.Function("end_piece" if end else "start_piece", [x, theta, pfix, scale], [ca.vertcat(*rows), f],
                            ["z", "theta", "p_fixed", "scale"], ["rows", "f"])
 
     def _n_path(self):
         """A stage's path rows (without the dynamics rows when condensed), and the path's frame's 3."""
-        return self.stage.size1_out(1) - (2 * self.n * self.m if self.condensed else 0) + (3 if self.tool_path else 0)
+        return self.stage.size1_out(1) - (self.nq * self.m if self.condensed else 0) + (3 if self.tool_path else 0)
 
     def _condensed(self, key, derivatives, log) -> Condensed:
         """The stage piece with its accelerations eliminated (condensing.py): kept z = (x_k, tau_k,
         x_{k+1}), solved rows = the dynamics at the points (the first path rows).  Found by the
         stage's key (this process's, or the cache's) without building its derivatives."""
-        n, nx, nul, na = self.n, self.nx, self.nu_lifted, 2 * self.n * self.m
-        nu = n + self.ns                                                      # tau, [ds]
+        nx, nul, na = self.nx, self.nu_lifted, self.nq * self.m
+        nu = self.n_tau + self.ns                                             # tau, [ds]
         keep = np.r_[np.arange(nx + nu), nx + nul + np.arange(nx)]
 
         def build():
@@ -408,12 +442,12 @@ class Transcription:
 
     def _path_bounds(self):
         """Bounds of one stage's path rows: gap rows and dynamics = 0, then the limits."""
-        n = self.n
         lo_th, hi_th = self._range()
-        psi, dphi = self._limit("psi"), self._limit("dphi")
-        eq = np.zeros(self.nx + (0 if self.condensed else 2 * n * self.m))
-        lo = [eq, -psi, -dphi[self.geared]] + [np.r_[lo_th, -psi, -dphi]] * len(self.interior)
-        hi = [eq, psi, dphi[self.geared]] + [np.r_[hi_th, psi, dphi]] * len(self.interior)
+        psi, dphi = self._limit("psi")[self.motors], self._limit("dphi")
+        slow = dphi[[j for _, j in self.slow]]
+        eq = np.zeros(self.nx + (0 if self.condensed else self.nq * self.m))
+        lo = [eq, -psi, -dphi[self.motors][self.geared]] + [np.r_[lo_th, -psi, -slow]] * len(self.interior)
+        hi = [eq, psi, dphi[self.motors][self.geared]] + [np.r_[hi_th, psi, slow]] * len(self.interior)
         for term, (t_lo, t_hi) in zip(self.constraints, self.row_bounds):   # at x_k [and inside]
             times = 1 + (len(self.interior) if term.inside else 0)
             lo, hi = lo + [np.tile(t_lo, times)], hi + [np.tile(t_hi, times)]
@@ -433,19 +467,21 @@ class Transcription:
 
     def bounds(self, max_duration: float):
         """Simple bounds: theta and dphi limits on every state point, tau limits, T and design boxes."""
-        n, N, jts = self.n, self.N, self.model.joints
-        lo_q, hi_q = np.full(4 * n, -np.inf), np.full(4 * n, np.inf)
+        n, nq, N, jts = self.n, self.nq, self.N, self.model.joints
+        lo_q, hi_q = np.full(2 * nq, -np.inf), np.full(2 * nq, np.inf)
         lo_q[:n], hi_q[:n] = self._range()
         dphi = self._limit("dphi")
-        for j, jt in enumerate(jts):
-            if "dphi" in jt.limits and j not in self.geared:             # geared: a row (_geared_speeds)
-                lo_q[3 * n + j], hi_q[3 * n + j] = -dphi[j], dphi[j]
+        designed = {self.n + i for i in self.geared}                      # a row (_geared_speeds)
+        for i, j in self.slow:
+            if "dphi" in jts[j].limits and i not in designed:
+                lo_q[nq + i], hi_q[nq + i] = -dphi[j], dphi[j]
         lo_z = ([1e-3] if self.nT else []) + [b[0] for b in self.p.task.design.values()] + [0.0] * self.ns
         hi_z = (([max_duration] if self.nT else []) + [b[1] for b in self.p.task.design.values()]
                 + ([self.tool_path.length] if self.ns else []))           # 0 <= s <= L
-        tau_max = np.array([jt.limits.get("tau", np.inf) for jt in jts])
-        lo_u = np.concatenate([-tau_max, np.zeros(self.ns), np.full(self.nu - n - self.ns, -np.inf)])   # ds >= 0
-        hi_u = np.concatenate([tau_max, np.full(self.nu - n, np.inf)])
+        tau_max = np.array([jts[j].limits.get("tau", np.inf) for j in self.actuated])
+        nt = self.n_tau
+        lo_u = np.concatenate([-tau_max, np.zeros(self.ns), np.full(self.nu - nt - self.ns, -np.inf)])   # ds >= 0
+        hi_u = np.concatenate([tau_max, np.full(self.nu - nt, np.inf)])
         lo_x, hi_x = np.concatenate([lo_q, lo_z]), np.concatenate([hi_q, hi_z])
         lb = np.concatenate([np.tile(np.concatenate([lo_x, lo_u]), N), lo_x])
         ub = np.concatenate([np.tile(np.concatenate([hi_x, hi_u]), N), hi_x])
@@ -473,27 +509,32 @@ class Transcription:
 
     # -- guesses and solutions --------------------------------------------------------------
     def pack(self, Xs, U, T, design, acc, arc=None, t=None):
-        """Stage-ordered vector from Xs (4n, N+1), U (n, N), T, design, acc (2n, m, N) unscaled,
+        """Stage-ordered vector from Xs (2 nq, N+1), U (u, N), T, design, acc (nq, m, N) unscaled,
         and (min_time along a path) the arc lengths s (N+1) at the node times t."""
-        n, N = self.n, self.N
+        N = self.N
         z = np.concatenate([[T] if self.nT else [], design])
         X = np.vstack([Xs, np.repeat(np.reshape(z, (-1, 1)), N + 1, axis=1)] + ([np.reshape(arc, (1, -1))] if self.ns else []))
         ds = [np.maximum(np.diff(arc), 0.0)[None, :] / np.diff(t)[None, :]] if self.ns else []
-        scaled = (np.asarray(acc) / self.acc_scale[:, None, None]).reshape(2 * n * self.m, N, order="F")
+        scaled = (np.asarray(acc) / self.acc_scale[:, None, None]).reshape(self.nq * self.m, N, order="F")
         body = [X[:, :N], U] + ds + ([] if self.condensed else [scaled])      # condensed: solved for inside
         return np.concatenate([np.vstack(body).ravel("F"), X[:, N]])
 
     def unpack(self, w) -> dict:
-        n, N = self.n, self.N
+        nq, N = self.nq, self.N
         w = np.asarray(w, float).ravel()
         body = w[:N * (self.nx + self.nu)].reshape(self.nx + self.nu, N, order="F")
         X = np.hstack([body[:self.nx], w[N * (self.nx + self.nu):, None]])
-        z = X[4 * n:4 * n + self.nz, 0]
-        a0 = self.nx + n + self.ns
-        acc = None if self.condensed else body[a0:].reshape(2 * n, self.m, N, order="F") * self.acc_scale[:, None, None]
-        return {"Xs": X[:4 * n], "U": body[self.nx:self.nx + n], "acc": acc,
+        z = X[2 * nq:2 * nq + self.nz, 0]
+        a0 = self.nx + self.n_tau + self.ns
+        acc = None if self.condensed else body[a0:].reshape(nq, self.m, N, order="F") * self.acc_scale[:, None, None]
+        return {"Xs": X[:2 * nq], "U": body[self.nx:self.nx + self.n_tau], "acc": acc,
                 "T": float(z[0]) if self.nT else None, "design": z[self.nT:],
                 "arc": X[self.nx - 1] if self.ns else None}
+
+
+def _take(v, index: list):
+    """v's entries at `index` (a column; CasADi gives a 1 x 1 v's [] back whole)."""
+    return v[index] if index else ca.DM(0, 1)
 
 
 def _power(ew, power: int):

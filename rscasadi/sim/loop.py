@@ -40,13 +40,13 @@ class Encoders:
     `exact`: the state itself.  Returns (theta, phi, dtheta, dphi) as the controllers read them."""
 
     def __init__(self, arm: Arm, dt: float, exact: bool = False):
-        self.n, self.dt, self.exact, self.prev = arm.n, dt, exact, None
-        self.q_link, self.q_motor = quanta(arm.model.column("gear_ratio"))
+        self.n, self.nq, self.dt, self.exact, self.prev = arm.n, arm.nq, dt, exact, None
+        self.q_link, self.q_motor = quanta(arm.model.column("gear_ratio")[arm.model.motors])
 
     def __call__(self, x) -> np.ndarray:
-        n = self.n
-        q = np.r_[np.round(x[:n] / self.q_link) * self.q_link, np.round(x[n:2 * n] / self.q_motor) * self.q_motor]
-        speeds = (q - self.prev) / self.dt if self.prev is not None else x[2 * n:]
+        n, nq = self.n, self.nq
+        q = np.r_[np.round(x[:n] / self.q_link) * self.q_link, np.round(x[n:nq] / self.q_motor) * self.q_motor]
+        speeds = (q - self.prev) / self.dt if self.prev is not None else x[nq:]
         self.prev = q
         return np.asarray(x, float).copy() if self.exact else np.r_[q, speeds]
 
@@ -54,11 +54,11 @@ class Encoders:
 def rk4_plant(arm: Arm, dt: float, substeps: int = 4) -> Callable:
     """(x, tau, t) -> (x after dt, no wrench): `substeps` RK4 steps of the arm's complete model."""
     from rscasadi.codegen import rk4
-    n, fd = arm.n, arm.forward_dynamics()
-    xs, us = ca.SX.sym("x", 4 * n), ca.SX.sym("u", n)
+    nq, fd = arm.nq, arm.forward_dynamics()
+    xs, us = ca.SX.sym("x", 2 * nq), ca.SX.sym("u", arm.u)
     z = xs
     for _ in range(substeps):
-        z = rk4(lambda v: ca.vertcat(v[2 * n:], *fd(*ca.vertsplit(v, n), us)), z, dt / substeps)[0]
+        z = rk4(lambda v: ca.vertcat(v[nq:], *fd(*arm.split_state(v), us)), z, dt / substeps)[0]
     advance = ca.Function("advance", [xs, us], [z])
     return lambda x, tau, t: (np.array(advance(x, tau)).ravel(), None)
 
@@ -77,8 +77,8 @@ def contact_plant(arm: Arm, world, dt: float, substeps: int = 8) -> Callable:
 
 @dataclass
 class Run:
-    """A closed loop's record: t (K + 1), the states x (4n x K + 1), the torques tau (n x K),
-    the measurements meas (4n x K), the controller's own step times (s; empty if it does not
+    """A closed loop's record: t (K + 1), the states x (2 nq x K + 1), the torques tau (u x K),
+    the measurements meas (2 nq x K), the controller's own step times (s; empty if it does not
     time itself) and the plant's wrenches after each sample (None for a plant without contacts)."""
     t: np.ndarray
     x: np.ndarray
@@ -97,7 +97,7 @@ def run_loop(arm: Arm, plant: Callable, controller: Controller, x0, samples: int
     if samples < 1 or not dt > 0:
         raise InvalidArgument(f"run_loop: samples must be >= 1 and dt > 0 (got {samples}, {dt})")
     sensors = Encoders(arm, dt) if sensors is None else sensors
-    limit = limit_arrays(arm.model)["tau"]
+    limit = limit_arrays(arm.model)["tau"][arm.model.actuated]
     x, tau, wrench = np.asarray(x0, float).copy(), None, None
     xs, taus, measured, seconds, wrenches = [x], [], [], [], []
     meas = sensors(x)
@@ -159,8 +159,8 @@ def tracking(t, error) -> dict:
 def limit_violation(arm: Arm, run: Run) -> float:
     """The largest limit violation over the run's samples after the start (fraction beyond the
     limit; 0 within every limit): deflections, slow-side speeds, link angles (rscasadi.model.limits)."""
-    n, x = arm.n, run.x[:, 1:]
-    v = violation(arm.model, x[:n], x[n:2 * n], x[3 * n:])
+    n, nq, x = arm.n, arm.nq, run.x[:, 1:]
+    v = violation(arm.model, x[:n], x[n:nq], x[nq + n:], x[nq:nq + n])
     return max(float(v.max()), 0.0) if v.size else 0.0
 
 

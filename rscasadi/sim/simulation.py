@@ -2,7 +2,8 @@
 paper's cascade of flexible-joint and whole-arm dynamics with an Adams predictor-corrector.
 
 Torques are samples tau[:, k] at uniform times t[k], linearly interpolated in between.
-States are x = (theta, phi, dtheta, dphi) stacked (4n).
+States are x = (theta, phi, dtheta, dphi) stacked (2 nq: every joint's link, then the SEAs'
+motors); torques tau have one row per actuated joint.
 """
 from __future__ import annotations
 
@@ -29,28 +30,27 @@ def _uniform_step(t):
 
 def _xdot(arm: Arm, reduced: bool):
     fd = arm.reduced_forward_dynamics() if reduced else arm.forward_dynamics()
-    return lambda x, tau: ca.vertcat(*ca.vertsplit(x, arm.n)[2:], *fd(*ca.vertsplit(x, arm.n), tau))
+    return lambda x, tau: ca.vertcat(*arm.split_state(x)[2:], *fd(*arm.split_state(x), tau))
 
 
 def simulate(arm: Arm, x0, t, tau, method: str = "cvodes", tol: float = 1e-10, substeps: int = 4,
              reduced: bool = False, interpolation: str = "linear") -> dict:
-    """Integrate from x0 over the uniform grid t with torque samples tau (n, len(t)),
+    """Integrate from x0 over the uniform grid t with torque samples tau (u, len(t)),
     interpolated "linear"ly or held "constant" on [t_k, t_k+1).
 
     method "cvodes": adaptive BDF/Adams (CasADi's CVODES) to relative/absolute `tol`;
     method "rk4": `substeps` classical RK4 steps per sample interval.
-    Returns t, theta, phi, dtheta, dphi (n, len(t)), psi = phi - theta, and energy."""
-    require_sea(arm.model, "simulate")
-    n, dt = arm.n, _uniform_step(t)
+    Returns t, theta, dtheta (n, len(t)), phi, dphi, psi = phi - theta (the SEAs'), and energy."""
+    n, nx, dt = arm.u, 2 * arm.nq, _uniform_step(t)
     tau = np.asarray(tau, float).reshape(n, len(t))
     if interpolation not in ("linear", "constant"):
         raise InvalidArgument(f"unknown interpolation {interpolation!r} (linear or constant)")
     slope = 1.0 if interpolation == "linear" else 0.0
-    x, p = ca.MX.sym("x", 4 * n), ca.MX.sym("p", 2 * n)
+    x, p = ca.MX.sym("x", nx), ca.MX.sym("p", 2 * n)
     f = _xdot(arm, reduced)
     torque = lambda s: p[:n] + slope * s / dt * (p[n:] - p[:n])      # within one interval
     if method == "cvodes":
-        xs, ps, ts = ca.SX.sym("x", 4 * n), ca.SX.sym("p", 2 * n), ca.SX.sym("t")
+        xs, ps, ts = ca.SX.sym("x", nx), ca.SX.sym("p", 2 * n), ca.SX.sym("t")
         fs = _xdot(arm, reduced)
         ode = {"x": xs, "p": ps, "t": ts, "ode": fs(xs, ps[:n] + slope * ts / dt * (ps[n:] - ps[:n]))}
         F = ca.integrator("F", "cvodes", ode, 0.0, dt, {"abstol": tol, "reltol": tol, "max_num_steps": 100000})
@@ -101,9 +101,9 @@ def held_ode(arm: Arm, log=None) -> ca.Function:
     from there on, the arm family's dynamics (Arm.family: the model's numbers as an input, so a
     payload or a swept parameter shares the library) and their Jacobian, compiled once into a
     cached library (`log` says so when it compiles)."""
-    n = arm.n
-    if n < COMPILED_FROM_JOINTS:
-        x, p = ca.SX.sym("x", 4 * n), ca.SX.sym("p", n + 1)
+    n, nx = arm.u, 2 * arm.nq
+    if arm.n < COMPILED_FROM_JOINTS:
+        x, p = ca.SX.sym("x", nx), ca.SX.sym("p", n + 1)
         return ca.Function("held_ode", [x, p], [p[n] * _xdot(arm, False)(x, p[:n])], ["x", "p"], ["ode"])
     digest = hashlib.sha256(pickle.dumps(arm.model)).hexdigest()
     if digest not in _ODES:
@@ -112,7 +112,7 @@ def held_ode(arm: Arm, log=None) -> ca.Function:
             _ODES.pop(next(iter(_ODES)))
     rhs, free = _ODES[digest]
     values = dict(zip(*Arm(arm.model).parameters()))
-    x, p = ca.MX.sym("x", 4 * n), ca.MX.sym("p", n + 1)
+    x, p = ca.MX.sym("x", nx), ca.MX.sym("p", n + 1)
     return ca.Function("held_ode", [x, p], [rhs(x, p, [float(values[k]) for k in free])], ["x", "p"], ["ode"])
 
 
@@ -120,25 +120,25 @@ def _compiled_rhs(arm: Arm, log) -> tuple:
     """(the external (x, p, q) -> h dx/dt, q's parameter names) of the arm's family, from the
     cache's index or compiled now."""
     from rscasadi.native.build import cached_library, casadi_c, compiler, indexed
-    n, family = arm.n, Arm.family(arm.model)
-    x, p, q = ca.SX.sym("x", 4 * n), ca.SX.sym("p", n + 1), ca.SX.sym("q", family.n_p)
-    xs = ca.vertsplit(x, n)
+    n, nx, family = arm.u, 2 * arm.nq, Arm.family(arm.model)
+    x, p, q = ca.SX.sym("x", nx), ca.SX.sym("p", n + 1), ca.SX.sym("q", family.n_p)
+    xs = family.split_state(x)
     rhs = p[n] * ca.vertcat(xs[2], xs[3], *family.forward_dynamics(parametric=True)(*xs, p[:n], q))
     name = "rsode" + hashlib.sha256(ca.Function("ode", [x, p, q], [rhs]).serialize().encode()).hexdigest()[:16]
     f = ca.Function(name, [x, p, q], [rhs], ["x", "p", "q"], ["ode"])
     # casadi.external's Jacobian, jac_<name>: with respect to x and p only (q always enters as the
     # model's numbers, a constant; its block is structurally zero): 27k instructions for the Panda
     # where the full Jacobian has 72k
-    out = ca.SX.sym("out_ode", 4 * n)
+    out = ca.SX.sym("out_ode", nx)
     J = ca.jacobian(rhs, ca.vertcat(x, p))
-    jac = ca.Function("jac_" + name, [x, p, q, out], [J[:, :4 * n], J[:, 4 * n:], ca.SX(ca.Sparsity(4 * n, family.n_p))],
+    jac = ca.Function("jac_" + name, [x, p, q, out], [J[:, :nx], J[:, nx:], ca.SX(ca.Sparsity(nx, family.n_p))],
                       ["x", "p", "q", "out_ode"], ["jac_ode_x", "jac_ode_p", "jac_ode_q"])
     key = "\n".join(["replay ode", name, *compiler(), ca.__version__, _GENERATOR])
     # no -march=native: CVODES is SSE code, and AVX code that returns with the vector registers'
     # upper halves in use slows every SSE instruction after it (docs/design/kernels.md)
     (lib, *_), _ = indexed(key, lambda: [cached_library(
         {f"{name}.c": casadi_c([f, jac], f"{name}.c")}, ["-O1"], name="ode",
-        what=f"the replay's dynamics of {arm.model.name!r} ({n} joints)", log=log or (lambda m: None))])
+        what=f"the replay's dynamics of {arm.model.name!r} ({arm.n} joints)", log=log or (lambda m: None))])
     return ca.external(name, lib), list(family.free)
 
 
@@ -146,14 +146,14 @@ def held_interval(arm: Arm, tol: float = 1e-10, substeps: int | None = None) -> 
     """(x, [tau; h]) -> x after h seconds of the complete model under the held torque tau (CVODES,
     time scaled to [0, 1] so that one Function serves every interval length); with `substeps`,
     (x, [tau; h]) -> (x at h, x at h/substeps, 2 h/substeps, ..., h as columns), one run."""
-    n = arm.n
+    n, nx = arm.u, 2 * arm.nq
     rhs = held_ode(arm)
     sym = ca.SX.sym if rhs.is_a("SXFunction") else ca.MX.sym
-    x, p = sym("x", 4 * n), sym("p", n + 1)
+    x, p = sym("x", nx), sym("p", n + 1)
     ode = {"x": x, "p": p, "ode": rhs(x, p)}
     grid = [1.0] if substeps is None else (np.arange(1, substeps + 1) / substeps).tolist()
     F = ca.integrator("F", "cvodes", ode, 0.0, grid, {"abstol": tol, "reltol": tol, "max_num_steps": 100000})
-    xs, ps = ca.MX.sym("x", 4 * n), ca.MX.sym("p", n + 1)
+    xs, ps = ca.MX.sym("x", nx), ca.MX.sym("p", n + 1)
     X = F(x0=xs, p=ps)["xf"]
     if substeps is None:
         return ca.Function("held", [xs, ps], [X])
@@ -161,12 +161,12 @@ def held_interval(arm: Arm, tol: float = 1e-10, substeps: int | None = None) -> 
 
 
 def trajectory_record(arm: Arm, t, X, energy: bool = True) -> dict:
-    """A simulated run as a record: t, theta, phi, dtheta, dphi, psi and (`energy`) the energy at
-    each sample."""
-    n = arm.n
-    theta, phi, dtheta, dphi = (X[i * n:(i + 1) * n] for i in range(4))
+    """A simulated run as a record: t, theta, phi, dtheta, dphi, psi (the SEAs': phi - their
+    theta) and (`energy`) the energy at each sample."""
+    n, q = arm.n, arm.nq
+    theta, phi, dtheta, dphi = X[:n], X[n:q], X[q:q + n], X[q + n:]
     record = {"t": np.asarray(t, float), "theta": theta, "phi": phi, "dtheta": dtheta, "dphi": dphi,
-              "psi": phi - theta, "x": X}
+              "psi": phi - theta[arm.model.motors], "x": X}
     if energy:
         record["energy"] = np.array(arm.energy().map(X.shape[1])(theta, phi, dtheta, dphi)).ravel()
     return record
@@ -193,6 +193,7 @@ def feedforward(arm: Arm, trajectory, t, reduced: bool = False) -> dict:
     Starts in the spring-consistent static equilibrium of theta(0) (the trajectory starts at rest).
     Returns tau (n, len(t)), the initial state x0, and the rotor motion phi, dphi, ddphi."""
     from rscasadi.dynamics.feedforward import feedforward_functions
+    require_sea(arm.model, "the feedforward")
     n, h, N = arm.n, _uniform_step(t), len(t)
     th, dth, ddth = trajectory(t)[:3]
     init, step = feedforward_functions(arm, reduced)
@@ -231,6 +232,7 @@ def cascade_simulate(arm: Arm, x0, t, tau, h: float, start_iterations: int = 6) 
     the predictor's evaluation for the corrector.  Start: three RK4 steps, in each stage the
     cascade iterated `start_iterations` times from the previous accelerations.
     Returns the states at the sample times t (t must be multiples of h)."""
+    require_sea(arm.model, "the paper's cascade simulation")
     n, dt = arm.n, _uniform_step(t)
     m = int(round(dt / h))
     if m < 1 or abs(m * h - dt) > 1e-9 * dt:

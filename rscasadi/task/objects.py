@@ -161,7 +161,7 @@ class Limits:
         `margin` of its width at both ends (the reserve an OCP holds at its collocation points);
         the motor torques keep theirs."""
         width = self.theta_hi - self.theta_lo
-        inset = np.where(np.isfinite(width), margin * width / 2, 0.0)
+        inset = margin * np.where(np.isfinite(width), width, 0.0) / 2
         return Limits(self.tau, (1 - margin) * self.psi, (1 - margin) * self.dphi,
                       self.theta_lo + inset, self.theta_hi - inset)
 

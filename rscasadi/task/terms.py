@@ -1,8 +1,9 @@
 """What the arm must do on a stage, as terms (Crocoddyl's cost and constraint models, rockit's
 `add_objective` / `subject_to`).
 
-A term is a CasADi expression of a stage's state x = (theta, phi, dtheta, dphi) (4n), its motor
-torques u = tau (n) and its parameters p (`n_p` numbers the problem supplies on each stage:
+A term is a CasADi expression of a stage's state x = (theta, phi, dtheta, dphi) (2 nq: every
+joint's link, then the SEAs' motors; `arm.split_state`), its motor torques u = tau (one per
+actuated joint) and its parameters p (`n_p` numbers the problem supplies on each stage:
 the reference, the posture; none for a term a user writes, whose numbers are its own):
 
 - a **cost** gives a residual r(x, u, p): the OCP adds the integral of weight |r|^2 over the
@@ -64,7 +65,7 @@ class Term:
         """The term fits the arm: a column of the right size from (x, u, p) of `arm`, finite
         bounds in order; an InvalidArgument names the term."""
         n = arm.n
-        x, u, p = ca.SX.sym("x", 4 * n), ca.SX.sym("u", n), ca.SX.sym("p", self.n_p)
+        x, u, p = ca.SX.sym("x", 2 * arm.nq), ca.SX.sym("u", arm.u), ca.SX.sym("p", self.n_p)
         try:
             r = ca.SX(self.expression(arm, x, u, p))
         except Exception as exc:                            # noqa: BLE001  (the user's code, named)
@@ -88,8 +89,7 @@ class Term:
 
     def function(self, arm) -> ca.Function:
         """(x, u, p) -> the expression, as a Function named after the term."""
-        n = arm.n
-        x, u, p = ca.SX.sym("x", 4 * n), ca.SX.sym("u", n), ca.SX.sym("p", self.n_p)
+        x, u, p = ca.SX.sym("x", 2 * arm.nq), ca.SX.sym("u", arm.u), ca.SX.sym("p", self.n_p)
         return ca.Function(f"term_{_c_name(self.name)}", [x, u, p], [self.expression(arm, x, u, p)],
                            ["x", "u", "p"], ["r"])
 
@@ -110,11 +110,10 @@ class Term:
         return np.sqrt(self.stage_weight) * part
 
     def replay_metric(self, arm, X, U) -> float:
-        """On replayed samples X (4n x K) with the torques U (n x K): a constraint's largest
+        """On replayed samples X (2 nq x K) with the torques U (u x K): a constraint's largest
         violation (its rows' largest distance outside their bounds; 0 inside), a cost's mean
         value of weight |r|^2."""
-        n = arm.n
-        x, u = ca.SX.sym("x", 4 * n), ca.SX.sym("u", n)
+        x, u = ca.SX.sym("x", 2 * arm.nq), ca.SX.sym("u", arm.u)
         p = ca.SX.zeros(self.n_p)
         out = self.excess(arm, x, u, p) if self.constraint else self.stage_weight * ca.sumsqr(self.expression(arm, x, u, p))
         f = ca.Function("metric", [x, u], [ca.fabs(out) if self.constraint else out])
@@ -171,9 +170,10 @@ class JointTracking(Term):
 
     def expression(self, arm, x, u, p):
         n = arm.n
-        rows = [np.sqrt(self.w_theta) * (x[:n] - p[:n])]
+        theta, _, dtheta, _ = arm.split_state(x)
+        rows = [np.sqrt(self.w_theta) * (theta - p[:n])]
         if self.w_dtheta is not None:
-            rows.append(np.sqrt(self.w_dtheta) * (x[2 * n:3 * n] - p[n:2 * n]))
+            rows.append(np.sqrt(self.w_dtheta) * (dtheta - p[n:2 * n]))
         return ca.vertcat(*rows)
 
 
@@ -195,8 +195,7 @@ class FrameTracking(Term):
         self.n_p = 6 if w_orientation is None else 15
 
     def expression(self, arm, x, u, p):
-        n = arm.n
-        theta, dtheta = x[:n], x[2 * n:3 * n]
+        theta, _, dtheta, _ = arm.split_state(x)
         R, pos = arm.frame_placement(self.frame)(theta)
         J = arm.frame_jacobian(self.frame, "local_world_aligned")(theta)
         rows = [np.sqrt(self.w[0]) * (pos - p[:3]), np.sqrt(self.w[1]) * (ca.mtimes(J[:3, :], dtheta) - p[3:6])]
@@ -220,13 +219,14 @@ class Posture(Term):
         self.n_p, self.weight = n, weight
 
     def expression(self, arm, x, u, p):
-        n = arm.n
-        return ca.vertcat(x[:n] - p, POSTURE_DAMPING * x[2 * n:3 * n])
+        theta, _, dtheta, _ = arm.split_state(x)
+        return ca.vertcat(theta - p, POSTURE_DAMPING * dtheta)
 
 
 class StateBound(Term):
     """A limit of the model as a constraint: `quantity` psi (phi - theta), dphi or theta (its
-    offset from `middle`) within -+`limit` per joint (rows only where it is finite)."""
+    offset from `middle`) within -+`limit` per joint (rows only where it is finite; psi of the
+    SEAs, dphi of every joint's slow side: an SEA's motor, a geared joint's link)."""
     constraint = True
 
     def __init__(self, quantity: str, limit, weight: float = 1.0, middle=None):
@@ -237,9 +237,13 @@ class StateBound(Term):
         self.middle = np.zeros_like(self.limit) if middle is None else np.asarray(middle, float)
 
     def expression(self, arm, x, u, p):
-        n = arm.n
-        c = {"psi": x[n:2 * n] - x[:n], "dphi": x[3 * n:], "theta": x[:n] - self.middle}[self.quantity]
-        return c[[j for j in range(n) if np.isfinite(self.limit[j])]]
+        theta, phi, dtheta, dphi = arm.split_state(x)
+        motors = arm.model.motors
+        slow = ca.vertcat(*[dphi[arm.model.motor_of[j]] if j in arm.model.motor_of else dtheta[j] for j in range(arm.n)])
+        psi = ca.vertcat(*[phi[arm.model.motor_of[j]] - theta[j] if j in arm.model.motor_of else 0 * theta[j]
+                           for j in range(arm.n)]) if len(motors) != arm.n else phi - theta
+        c = {"psi": psi, "dphi": slow if len(motors) != arm.n else dphi, "theta": theta - self.middle}[self.quantity]
+        return c[[j for j in range(arm.n) if np.isfinite(self.limit[j])]]
 
     def bounds(self, arm):
         finite = self.limit[np.isfinite(self.limit)]
@@ -256,7 +260,7 @@ class Clearance(Term):
         self.obstacles, self.weight, self.tolerance = tuple(obstacles), weight, tolerance
 
     def expression(self, arm, x, u, p):
-        return clearances(arm.model, self.obstacles, x[:arm.n])
+        return clearances(arm.model, self.obstacles, x[:arm.n])          # theta: x's first n
 
     def of_angles(self, arm) -> ca.Function:
         # inlined at a stage's three points, the Panda's clearances to two obstacles were 7 of

@@ -62,7 +62,7 @@ double ${sym}_feedback_seconds(const ${sym}_t *c) { return c ? c->last_feedback_
 int ${sym}_set_payload_mass(${sym}_t *c, double mass) {
   if (MASS_INDEX < 0) return ${SYM}_NO_PAYLOAD;
   if (!c || !isfinite(mass) || mass < 0) return ${SYM}_BAD_ARGUMENT;
-  c->params[${SYM}_NU + MASS_INDEX] = mass;
+  c->params[${SYM}_NJ + MASS_INDEX] = mass;
   return 0;
 }
 
@@ -75,13 +75,13 @@ static int finite_all(const double *v, int n) {
 
 int ${sym}_set_parameters(${sym}_t *c, const double *p) {
   if (${SYM}_NP == 0 || !c || !finite_all(p, ${SYM}_NP)) return ${SYM}_BAD_ARGUMENT;
-  for (int i = 0; i < ${SYM}_NP; ++i) c->params[${SYM}_NU + i] = p[i];
+  for (int i = 0; i < ${SYM}_NP; ++i) c->params[${SYM}_NJ + i] = p[i];
   return 0;
 }
 
 int ${sym}_set_posture(${sym}_t *c, const double *theta) {
-  if (!c || !rscasadi_within(theta, X_LO, X_HI, ${SYM}_NU)) return ${SYM}_BAD_ARGUMENT;
-  for (int i = 0; i < ${SYM}_NU; ++i) c->params[i] = theta[i];
+  if (!c || !rscasadi_within(theta, X_LO, X_HI, ${SYM}_NJ)) return ${SYM}_BAD_ARGUMENT;
+  for (int i = 0; i < ${SYM}_NJ; ++i) c->params[i] = theta[i];
   return 0;
 }
 
@@ -113,8 +113,8 @@ int ${sym}_init_parameters(${sym}_t *c, const double *x_measured, const double *
   c->last_step_seconds = c->last_feedback_seconds = 0.0;
   if (!finite_all(p, ${SYM}_NP)) return ${SYM}_BAD_ARGUMENT;
   if (!rscasadi_within(x_measured, X_LO, X_HI, ${SYM}_NX)) return ${SYM}_BAD_MEASUREMENT;
-  for (int i = 0; i < ${SYM}_NU; ++i) c->params[i] = x_measured[i];
-  for (int i = 0; i < ${SYM}_NP; ++i) c->params[${SYM}_NU + i] = p[i];
+  for (int i = 0; i < ${SYM}_NJ; ++i) c->params[i] = x_measured[i];
+  for (int i = 0; i < ${SYM}_NP; ++i) c->params[${SYM}_NJ + i] = p[i];
   const int code = hold(c, x_measured, c->X, c->U);
   if (code) return code;
   for (int i = 0; i < ${SYM}_NX; ++i) c->x_good[i] = x_measured[i];
@@ -259,7 +259,7 @@ static void residual_through(const double *J, const double *Mt, int m, double *o
  * the first interval's R, S and r_u */
 static int ahead(${sym}_t *c, const double *U, double *R, double *S, double *ru) {
   double r[NA], Jx[NA * NX], Ju[NA * NU], JuT[NU * NA], JxT[NX * NA], RA[NU * NU], SA[NU * NX], rA[NU];
-  const casadi_real *arg[${sym}_ahead_SZ_ARG + 1] = {c->X, U, c->params + NU};
+  const casadi_real *arg[${sym}_ahead_SZ_ARG + 1] = {c->X, U, c->params + ${SYM}_NJ};
   casadi_real *res[${sym}_ahead_SZ_RES + 1] = {r, Jx, Ju};
   if (${sym}_ahead(arg, res, IW(c), W(c), 0) != 0) return 1;
   transpose(Ju, NA, NU, JuT);
@@ -281,7 +281,7 @@ static int ahead(${sym}_t *c, const double *U, double *R, double *S, double *ru)
 
 static int linearise(${sym}_t *c, int k) {
   double *xn = LIN(c, k);
-  const casadi_real *arg[${sym}_interval_SZ_ARG + 1] = {c->X + NX * k, c->U + NU * k, c->params + NU};
+  const casadi_real *arg[${sym}_interval_SZ_ARG + 1] = {c->X + NX * k, c->U + NU * k, c->params + ${SYM}_NJ};
   casadi_real *res[${sym}_interval_SZ_RES + 1] = {xn, xn + NX, xn + NX + NX * NX};
   return ${sym}_interval(arg, res, IW(c), W(c), 0) != 0;
 }

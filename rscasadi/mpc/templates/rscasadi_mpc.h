@@ -4,7 +4,7 @@
  * state, then ${sym}_step (or ${sym}_step_to) every ${ts} s.
  * x: theta, phi, dtheta, dphi (${nx}); reference: ${nref} values, column-major ${rows} x N, a column
  * per interval end t + k * ${h} s, k = 1..${N}: ${reference}; target (${sym}_step_to, held):
- * ${target}; tau_out: ${n} motor torques, always finite and within the limits
+ * ${target}; tau_out: ${nu} motor torques (the actuated joints'), always finite and within the limits
  * (${tau_limits} N m).
  *
  * Failure policy (rscasadi_guard.h).  ${sym}_init refuses a measurement outside the box below
@@ -48,7 +48,8 @@
 #define ${SYM}_H
 #include <stddef.h>
 #define ${SYM}_NX ${nx}
-#define ${SYM}_NU ${n}
+#define ${SYM}_NU ${nu}
+#define ${SYM}_NJ ${n}
 #define ${SYM}_HORIZON ${N}
 #define ${SYM}_NREF ${nref}
 #define ${SYM}_NTARGET ${ntarget}
