@@ -193,12 +193,18 @@ def test_the_mujoco_tutorial_s_example_does_what_the_page_says(tmp_path):
 
 def test_the_whole_robot_tutorial_s_example_does_what_the_page_says(tmp_path):
     """docs/tutorials/whole-robot.md: Baxter's tree of three kinds in C (equal to the Function) and
-    in MuJoCo (its mass matrix the model's), then a verified two-handed handover."""
+    in MuJoCo (its mass matrix the model's), a verified two-handed handover of all 15 joints with
+    the forearms kept apart, and the generated MPC executing it (slowed twice) in MuJoCo to the
+    goals without leaving its measurement box."""
     pytest.importorskip("mujoco")
     out = example("whole_robot").main(["--out", str(tmp_path)])
     assert out["c_error"] < 1e-9 and out["mujoco_mismatch"] < 1e-12
     report = out["solution"]["verification"]
-    assert report["passed"] and report["goal_position_error"] < 1e-3
+    assert report["passed"] and report["goal_position_error"] < 1e-3 and report["min_clearance"] > -1e-4
+    assert out["solution"].theta.shape[0] == 15 and out["solution"].phi.shape[0] == 8
+    tracked = out["tracked"]
+    # measured 2026-11-29: 0.18 rad, 1.6 mm, 14 %: the MPC's tracking on this tree is loose (#68)
+    assert tracked["max_error"] < 0.3 and tracked["hand_error"] < 5e-3 and tracked["max_limit_violation"] < 0.3
 
 
 def test_the_legs_tutorial_s_example_does_what_the_page_says(tmp_path):

@@ -455,6 +455,11 @@ class Arm:
         return self._function(name, ["theta", "phi"], ["M"], build, parametric)
 
 
+Robot = Arm
+"""`Robot` and `Arm` name one class: a robot on a fixed base, a tree of joints of any kind (a serial
+arm is the tree with one branch)."""
+
+
 def _scatter(rows: list, n: int) -> np.ndarray:
     """The n x len(rows) matrix that places a short column's entries at `rows` of an n-column."""
     S = np.zeros((n, len(rows)))
