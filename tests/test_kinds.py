@@ -301,7 +301,8 @@ def test_the_c_mpc_drives_a_robot_of_every_kind_in_mujoco(tmp_path):
     damped passive spring (its torques one per input, its state the 10 coordinates' and speeds),
     closing the loop at 1 kHz on the MuJoCo export: from rest to rest at a pose (the passive
     joint where it then hangs) in 1.5 s, every torque within its limit, the geared joint within
-    its speed limit."""
+    its speed limit; fuzzed, bad measurements and targets refused by code with the holding
+    torque of the last good state."""
     from rscasadi.dynamics.statics import rest, rest_state
     from rscasadi.export.mujoco import mujoco_plant
     from rscasadi.mpc.compiled import CompiledMPC
@@ -336,3 +337,25 @@ def test_the_c_mpc_drives_a_robot_of_every_kind_in_mujoco(tmp_path):
     assert np.all(error[:3] < 1e-3) and error[3] < 5e-3, error
     assert np.all(np.abs(run.tau) <= np.array([0.5, 0.5, 20.0])[:, None] + 1e-12)
     assert np.abs(run.x[arm.nq + 1]).max() < 1.0 * 1.01 and limit_violation(arm, run) < 0.01
+    # fuzzed: a bad entry in 40 % of the measurements or targets is refused by its code (6, 7), the
+    # output stays finite and within the limits, and the next good sample is acted on
+    from rscasadi.dynamics.statics import holding_torque
+    limit = np.array([0.5, 0.5, 20.0])
+    hold = lambda x: np.clip(np.array(holding_torque(arm)(x[:4], x[4:5])).ravel(), -limit, limit)   # noqa: E731
+    mpc, x0 = CompiledMPC(tmp_path / "mpc"), rest_state(arm, np.zeros(4))
+    assert mpc.init(x0) == 0
+    codes, good = [], x0
+    for k in range(100):
+        x, goal = x0 + rng.normal(0, 1e-3, x0.size), target.copy()
+        bad = rng.choice(["good", "x", "target"], p=[0.6, 0.2, 0.2])
+        if bad != "good":
+            v = x if bad == "x" else goal
+            v[rng.integers(v.size)] = [np.nan, np.inf, -np.inf, 1e300, 1e3][rng.integers(5)]
+        tau, _, code = mpc.step_to(x, goal)
+        assert code == {"good": 0, "x": 6, "target": 7}[bad], (k, bad, code)
+        assert np.all(np.isfinite(tau)) and np.all(np.abs(tau) <= limit + 1e-12), k
+        good = good if bad == "x" else x
+        if bad != "good":                                # the holding torque of the last good state
+            assert np.max(np.abs(tau - hold(good))) < 1e-9, (k, bad)
+        codes.append(code)
+    assert {0, 6, 7} <= set(codes)

@@ -548,7 +548,7 @@ int ${sym}_step_to(${sym}_t *c, const double *x_measured, const double *target, 
       for (int i = 0; i < 3; ++i) col[i] = target[i];
       for (int i = 0; i < NROWS - 6; ++i) col[6 + i] = target[3 + i];
     } else {
-      for (int i = 0; i < ${SYM}_NU; ++i) col[i] = target[i];
+      for (int i = 0; i < ${SYM}_NJ; ++i) col[i] = target[i];
     }
   }
   return ${sym}_step(c, x_measured, c->target_reference, tau_out);
