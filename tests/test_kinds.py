@@ -212,6 +212,29 @@ def test_generated_c_of_a_robot_of_every_kind_equals_its_functions(tmp_path):
     assert rel(dm(compiled["step"](x, tau, h)), x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)) < 1e-12
 
 
+@pytest.mark.parametrize("seed,n", [(12, 7), (3, 9)])
+def test_the_mpc_step_kernel_of_every_kind_equals_the_implicit_function_graph(seed, n):
+    """The MPC's structured step-Jacobian kernel (codegen.step_kernel, chained: three substeps of
+    an interval) on trees of every kind (a state of 18 and 22 entries: not whole vectors of 4;
+    inputs on motor rows, geared links and direct joints) against interval_functions without
+    it (the RK4 step Function, the implicit-function graph's Jacobian chained by CasADi): the
+    state, A and B to 1e-12 of their size at random states and torques."""
+    from rscasadi.mpc.formulation import interval_functions
+    from rscasadi.mpc.generate import step_kernel
+    from rscasadi.native.build import compiler
+    arm = rscasadi.Arm(mixed(seed, n))
+    _, kernel = step_kernel(arm, ["-O1", "-std=c99"], compiler(), log=lambda m: None)
+    assert kernel is not None and kernel.size1_in(1) == arm.u
+    chained, _ = interval_functions(arm, 0.002, 3, kernel)
+    graph, _ = interval_functions(arm, 0.002, 3)
+    rng = np.random.default_rng(seed)
+    for _ in range(3):
+        x, tau = state(rng, arm, 0.05)
+        x = 0.05 * np.concatenate(x)
+        for a, b in zip(chained(x, tau, []), graph(x, tau, [])):
+            assert rel(np.array(a), np.array(b)) < 1e-12
+
+
 def test_what_takes_only_seas_refuses_other_kinds_by_name(tmp_path):
     """Identification, the frequency response and the interaction controllers are written for
     robots of SEAs: given a geared joint, each refuses before any work, naming the joint and its

@@ -374,7 +374,7 @@ def generate(model, out, prefix: str | None = None, opt: str = "-O3", log=print,
     with tempfile.TemporaryDirectory() as d:
         for name, f in fns.items():
             gen = ca.CodeGenerator(f"{f.name()}.c", {"with_header": False})
-            if name == "step_jacobian" and isinstance(arm, Arm) and not f.is_a("SXFunction") and arm.model.all_sea:
+            if name == "step_jacobian" and isinstance(arm, Arm) and not f.is_a("SXFunction"):
                 kernels[name] = kernel_source(arm, f.name(), takes_p)
                 for g in kernels[name].functions:
                     gen.add(g)

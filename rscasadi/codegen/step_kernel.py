@@ -10,9 +10,10 @@ The mathematics is step_functions' exactly: RK4's four stages, dk_i = [S_i; B_i]
 
 (the speed rows' sum, S_1 + 2 S_2 + 2 S_3 + S_4, folded: c = 0, 1/2, 1/2, 1).  What differs is
 how the linear algebra runs: CasADi's generated sparse products and LDL solve walk one column
-at a time through index arrays (n = 12: 19 us each per stage), while here every matrix of 5n
-columns is stored by rows, so each nonzero of dr/dx and of the LDL factor moves a whole row:
-a fixed-length inner loop the compiler turns into vector instructions, accumulated in blocks
+at a time through index arrays (n = 12: 19 us each per stage), while here every matrix of
+2 nq + u columns (5n on an SEA arm) is stored by rows, so each nonzero of dr/dx and of the LDL
+factor moves a whole row: a fixed-length inner loop the compiler turns into vector instructions,
+accumulated in blocks
 of RSK_BK columns that stay in registers.  The sparsity patterns and column blocks are known
 here, so the stage is generated unrolled, with constant offsets: no index arrays, no loop
 over nonzeros, no matrix to clear (1.4x faster than loops over index arrays at n = 12).
@@ -54,27 +55,38 @@ class Kernel(NamedTuple):
 
 def point_functions(arm, name: str, parametric: bool):
     """One stage point's two SX Functions, and M's LDL permutation:
-    fd (x, tau[, p]) -> (a, d, L', L, mu): the forward dynamics a = (ddtheta, ddphi), needed for
-    the next stage point, from M's sparse LDL^T factors, M(perm, perm) = L diag(d) L', and the
-    gear ratios;  jr (x, a[, p]) -> dr/dx' (4n x 2n, its columns dr/dx's rows), needed only by the
+    fd (x, tau[, p]) -> (a, d, L', L, mu): the forward dynamics a = ddq, needed for the next
+    stage point, from M's sparse LDL^T factors, M(perm, perm) = L diag(d) L', and the gear
+    ratios;  jr (x, a[, p]) -> dr/dx' (2 nq x nq, its columns dr/dx's rows), needed only by the
     linear algebra, so it runs once the four points are known, at all four at once (lanes)."""
-    n = arm.n
-    x, tau, acc = ca.SX.sym("x", 4 * n), ca.SX.sym("tau", n), ca.SX.sym("a", 2 * n)
+    nq = arm.nq
+    x, tau, acc = ca.SX.sym("x", 2 * nq), ca.SX.sym("tau", arm.u), ca.SX.sym("a", nq)
     p = [ca.SX.sym("p", arm.n_p)] if parametric else []
-    q, zero = ca.vertsplit(x, n), ca.DM.zeros(n)
+    q = arm.split_state(x)
     d, LT, perm = ca.ldl(arm.mass_matrix(parametric=parametric)(q[0], q[1], *p), True)
     mu = gear_ratios(arm.model, arm.free if parametric else None, *p)
-    # the forward dynamics from the same factors: the residual R(a) = M a + R(0) (docs/user-guide/model.md
-    # section 3) vanishes at a = -M^-1 R(0); 20 % faster than a separate articulated-body sweep
-    tau_id, T_id = arm.inverse_dynamics(parametric=parametric)(*q, zero, zero, *p)
-    phys = arm._physics_of(p[0]) if parametric else arm.physics
-    a = -ca.ldl_solve(ca.vertcat(T_id - arm.sea_torque(*q, phys=phys), mu * (tau - tau_id)), d, LT, perm)
+    # the forward dynamics from the same factors: the residual r(a) = M a + r(0) (docs/user-guide/model.md
+    # section 3) vanishes at a = -M^-1 r(0); 20 % faster than a separate articulated-body sweep
+    r0 = arm.residual(parametric=parametric)(*q, ca.DM.zeros(arm.n), ca.DM.zeros(arm.m), tau, *p)
+    a = -ca.ldl_solve(r0, d, LT, perm)
     names = ["p"] * len(p)
     fd = ca.Function(name + "_fd", [x, tau] + p, [a, d, LT, LT.T, ca.SX(mu)], ["x", "tau"] + names,
                      ["a", "d", "LT", "L", "mu"], {"cse": True})
-    Jr = arm.residual_jacobian(parametric=parametric)(*q, acc[:n], acc[n:], *p)
+    Jr = arm.residual_jacobian(parametric=parametric)(*q, acc[:arm.n], acc[arm.n:], *p)
     jr = ca.Function(name + "_jr", [x, acc] + p, [Jr.T], ["x", "a"] + names, ["JrT"], {"cse": True})
     return fd, jr, [int(i) for i in perm]
+
+
+def drives(arm) -> dict:
+    """Per coordinate driven by an input: (the input's column, its gain as C): dQ/dtau's nonzeros
+    (Arm.input_matrix), -mu[j] on a motor's phi row (sea) or theta's row (geared), 1 on theta's
+    row (direct)."""
+    model, out = arm.model, {}
+    for col, j in enumerate(model.actuated):
+        kind = model.kinds[j]
+        row = arm.n + model.motor_of[j] if kind.motor else j
+        out[row] = (col, f"-mu[{j}]" if kind.rotors else "1.0")
+    return out
 
 
 def kernel_source(arm, name: str, parametric: bool, chained: bool = False) -> Kernel:
@@ -84,20 +96,21 @@ def kernel_source(arm, name: str, parametric: bool, chained: bool = False) -> Ke
     A B0 + B, x_next): the interval's sensitivities so far carried through this step (A0 = I and
     B0 = 0 at the first substep, where no product is formed) and the step itself, from the
     stage points the Jacobian needs anyway (RK4's x + h/6 (k1 + 2 k2 + 2 k3 + k4))."""
-    n = arm.n
+    nq, u = arm.nq, arm.u
     fd, jr, perm = point_functions(arm, name, parametric)
     JrT, LT, L = jr.sparsity_out(0), fd.sparsity_out(2), fd.sparsity_out(3)
-    nq = [int(np.searchsorted(JrT.row()[JrT.colind()[r]:JrT.colind()[r + 1]], 2 * n)) + JrT.colind()[r]
-          for r in range(2 * n)]                                     # where a row's speed columns start
+    speeds = [int(np.searchsorted(JrT.row()[JrT.colind()[r]:JrT.colind()[r + 1]], nq)) + JrT.colind()[r]
+              for r in range(nq)]                                    # where a row's speed columns start
     n_in, n_out = (4 if parametric else 3) + 2 * chained, 2 + chained
-    stride = -(-5 * n // 4) * 4                                      # 5n columns padded to whole vectors
+    nc = 2 * nq + u
+    stride = -(-nc // 4) * 4                                         # (x, tau)'s columns padded to whole vectors
     njr, nlt = max(JrT.nnz(), 1), max(LT.nnz(), 1)
     sizes = {"SZ_ARG": n_in + fd.sz_arg(), "SZ_RES": n_out + fd.sz_res(), "SZ_IW": fd.sz_iw(),
-             "SZ_W": (fd.sz_w() + 6 * 4 * n + 9 * 2 * n + 8 * nlt + n + LANES * njr + 8
-                      + 4 * 2 * n * stride + chained * (4 * n + 4 * n * 5 * n))}     # as @NAME@_work below
+             "SZ_W": (fd.sz_w() + 6 * 2 * nq + 9 * nq + 8 * nlt + arm.n + LANES * njr + 8
+                      + 4 * nq * stride + chained * (2 * nq + 2 * nq * nc))}     # as @NAME@_work below
     consts = "".join([
-        f"#define RSK_N {n}\n#define RSK_NV {2 * n}\n#define RSK_NX {4 * n}\n#define RSK_NC {5 * n}\n",
-        f"#define RSK_BK {BLOCK}\n#define RSK_NP {stride}\n",
+        f"#define RSK_N {arm.n}\n#define RSK_NU {u}\n#define RSK_NV {nq}\n#define RSK_NX {2 * nq}\n",
+        f"#define RSK_NC {nc}\n#define RSK_BK {BLOCK}\n#define RSK_NP {stride}\n",
         f"#define RSK_NJR {njr}\n#define RSK_NLT {nlt}\n#define RSK_NIN {n_in}\n",
         f"#define RSK_NOUT {n_out}\n#define RSK_CHAIN {int(chained)}\n",
         f"#define RSK_PT_ARG {fd.sz_arg()}\n#define RSK_PT_RES {fd.sz_res()}\n",
@@ -105,17 +118,17 @@ def kernel_source(arm, name: str, parametric: bool, chained: bool = False) -> Ke
         f"#define RSK_NPAR {arm.n_p if parametric else 0}\n#define RSK_FD {fd.name()}\n"])
     body = (lanes.PRELUDE + lanes.lanes_c(jr, "rsk_jr4", shared=(2,) if parametric else ())
             + _TEMPLATE.replace("@NAME@", name).replace("@CONSTS@", consts)
-            .replace("@BLOCKS@", _unrolled(JrT, nq, LT, L, perm, stride)))
+            .replace("@BLOCKS@", _unrolled(JrT, speeds, LT, L, perm, stride, drives(arm))))
     header = _HEADER.replace("@NAME@", name) + "".join(f"#define {name}_{k} {v}\n" for k, v in sizes.items())
     return Kernel([fd], body, header, fd.n_instructions() + jr.n_instructions())
 
 
-def _unrolled(JrT, nq, LT, L, perm, stride):
+def _unrolled(JrT, speeds, LT, L, perm, stride, drive):
     """rsk_stage's body with the sparsity patterns and column blocks as constants: per block,
     forward (row perm[r] of [-dr/dx | dQ/dtau] - s dr/dx [S; B1], then L z = y) and backward
-    (L' x = z / d)."""
+    (L' x = z / d).  speeds[r]: where row r's speed columns start in JrT; drive: dQ/dtau by row."""
     n2 = JrT.size2()
-    n, nx = n2 // 2, 2 * n2
+    nx = 2 * n2
     jp, jc, lp, lc, rp, rc = JrT.colind(), JrT.row(), LT.colind(), LT.row(), L.colind(), L.row()
     out = []
     for cb in range(0, stride, BLOCK):
@@ -127,11 +140,12 @@ def _unrolled(JrT, nq, LT, L, perm, stride):
             y = perm[r]
             lines = [f"  for (c = 0; c < {w}; ++c) t[c] = 0;"]
             lines += [f"  {e}" for k in range(jp[y], jp[y + 1]) for e in at(jc[k], f"-jr[{LANES * k}]")]    # -dr/dx
-            if y >= n:
-                lines += [f"  {e}" for e in at(nx + y - n, f"-mu[{y - n}]")]                      # dQ/dtau
-            b1 = [e for k in range(jp[y], nq[y]) for e in at(n2 + jc[k], f"ms * jr[{LANES * k}]")]        # dr/dq [0 1 0]
-            b1 += [f"RSK_AX(t, ms * jr[{LANES * k}], B1 + {(jc[k] - n2) * stride + cb}, {w})" for k in range(nq[y], jp[y + 1])]
-            b2 = [f"RSK_AX(t, mss * jr[{LANES * k}], B2 + {jc[k] * stride + cb}, {w})" for k in range(jp[y], nq[y])]
+            if y in drive:
+                lines += [f"  {e}" for e in at(nx + drive[y][0], drive[y][1])]                    # dQ/dtau
+            b1 = [e for k in range(jp[y], speeds[y]) for e in at(n2 + jc[k], f"ms * jr[{LANES * k}]")]    # dr/dq [0 1 0]
+            b1 += [f"RSK_AX(t, ms * jr[{LANES * k}], B1 + {(jc[k] - n2) * stride + cb}, {w})"
+                   for k in range(speeds[y], jp[y + 1])]
+            b2 = [f"RSK_AX(t, mss * jr[{LANES * k}], B2 + {jc[k] * stride + cb}, {w})" for k in range(jp[y], speeds[y])]
             if b1:
                 lines.append("  if (B1) {\n    " + "\n    ".join(b1) + "\n  }")
             if b2:

@@ -385,19 +385,31 @@ class Arm:
             return [rec.energy(segs, kin, phys.gravity) + spring]
         return self._function("energy", STATE, ["E"], build, parametric)
 
+    def _residual_rows(self, phys, x, ddtheta, ddphi, tau):
+        """r = M ddq + c - Q, one generalised force per coordinate (docs/user-guide/model.md
+        section 3): theta's rows, then phi's."""
+        segs, kin = self._kin(False, phys, x)
+        T, Qi_phi = rec.inverse_dynamics(segs, kin, ddtheta, ddphi, phys.gravity)
+        rows = [T - self._theta_force(phys, x, tau)]
+        if self.m:
+            rows.append(Qi_phi - self._phi_force(phys, x, tau))
+        return ca.vertcat(*rows)
+
+    def residual(self, *, parametric: bool = False) -> ca.Function:
+        """theta, phi, dtheta, dphi, ddtheta, ddphi, tau -> r = M ddq + c - Q (n + m): zero exactly
+        at the forward dynamics; dr/dtau = -input_matrix."""
+        def build(phys, theta, phi, dtheta, dphi, ddtheta, ddphi, tau):
+            return [self._residual_rows(phys, (theta, phi, dtheta, dphi), ddtheta, ddphi, tau)]
+        return self._function("residual", STATE + ["ddtheta", "ddphi", "tau"], ["r"], build, parametric)
+
     def residual_jacobian(self, *, parametric: bool = False) -> ca.Function:
         """theta, phi, dtheta, dphi, ddtheta, ddphi -> dr/d(theta, phi, dtheta, dphi) ((n + m) x
         2 (n + m)), where r = M ddq + c - Q without its tau term (the rows of
         docs/user-guide/model.md section 3)."""
         def build(phys, theta, phi, dtheta, dphi, ddtheta, ddphi):
             x = (theta, phi, dtheta, dphi)
-            segs, kin = self._kin(False, phys, x)
-            T, Qi_phi = rec.inverse_dynamics(segs, kin, ddtheta, ddphi, phys.gravity)
-            no_tau = ca.DM.zeros(self.u)
-            rows = [T - self._theta_force(phys, x, no_tau)]
-            if self.m:
-                rows.append(Qi_phi - self._phi_force(phys, x, no_tau))
-            return ca.cse([ca.jacobian(ca.vertcat(*rows), ca.vertcat(*x))])
+            r = self._residual_rows(phys, x, ddtheta, ddphi, ca.DM.zeros(self.u))
+            return ca.cse([ca.jacobian(r, ca.vertcat(*x))])
         return self._function("residual_jacobian", STATE + ["ddtheta", "ddphi"], ["jacobian"], build, parametric)
 
     def forward_dynamics_jacobian(self, *, parametric: bool = False) -> ca.Function:

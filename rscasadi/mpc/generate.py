@@ -39,8 +39,8 @@ def step_kernel(arm, flags: list, cc: list, log=print, name: str = f"mpc_{KERNEL
     from rscasadi.codegen.generate import step_functions
     from rscasadi.codegen.step_kernel import kernel_source
     parametric = bool(arm.free)
-    if step_functions(arm, parametric=parametric)[1].is_a("SXFunction") or not arm.model.all_sea:
-        return None, None                          # (the structured kernel is the SEA arm's)
+    if step_functions(arm, parametric=parametric)[1].is_a("SXFunction"):
+        return None, None
     k = kernel_source(arm, name, parametric, chained=True)
     gen = ca.CodeGenerator(f"{name}.c", {"with_header": False})
     for g in k.functions:

@@ -30,21 +30,28 @@ static void rsk_stage(const casadi_real *jr, const casadi_real *d, const casadi_
 
 #if RSK_CHAIN
 /* out (RSK_NX x m) = M P (+ add), M (RSK_NX x RSK_NX), P (RSK_NX x m), column-major: a column of
-   out accumulates in RSK_N vectors (RSK_NX = 4 RSK_N) over M's columns */
+   out accumulates in RSK_NX / 4 vectors over M's columns (and the last RSK_NX % 4 rows in scalars) */
+#define RSK_NXV (RSK_NX / 4)
+#define RSK_NXR (RSK_NX % 4)
 static void rsk_chain(const casadi_real *M, const casadi_real *P, const casadi_real *add, int m, casadi_real *out) {
   int j, l, v;
   for (j = 0; j < m; ++j) {
-    rsk_v t[RSK_N], mv, pv;
-    for (v = 0; v < RSK_N; ++v)
+    rsk_v t[RSK_NXV > 0 ? RSK_NXV : 1], mv, pv;
+    casadi_real tr[4];
+    for (v = 0; v < RSK_NXV; ++v)
       if (add) RSK_VLD(t[v], add + j * RSK_NX + 4 * v); else RSK_VBC(t[v], 0.0)
+    for (v = 0; v < RSK_NXR; ++v) tr[v] = add ? add[j * RSK_NX + 4 * RSK_NXV + v] : 0.0;
     for (l = 0; l < RSK_NX; ++l) {
-      RSK_VBC(pv, P[j * RSK_NX + l])
-      for (v = 0; v < RSK_N; ++v) {
+      const casadi_real p = P[j * RSK_NX + l];
+      RSK_VBC(pv, p)
+      for (v = 0; v < RSK_NXV; ++v) {
         RSK_VLD(mv, M + l * RSK_NX + 4 * v);
         t[v] = RSK_ADD(t[v], RSK_MUL(mv, pv));
       }
+      for (v = 0; v < RSK_NXR; ++v) tr[v] += M[l * RSK_NX + 4 * RSK_NXV + v] * p;
     }
-    for (v = 0; v < RSK_N; ++v) RSK_VST(out + j * RSK_NX + 4 * v, t[v]);
+    for (v = 0; v < RSK_NXV; ++v) RSK_VST(out + j * RSK_NX + 4 * v, t[v]);
+    for (v = 0; v < RSK_NXR; ++v) out[j * RSK_NX + 4 * RSK_NXV + v] = tr[v];
   }
 }
 
@@ -54,7 +61,7 @@ static int rsk_start(const casadi_real *A0, const casadi_real *B0) {
   for (j = 0; j < RSK_NX; ++j)
     for (i = 0; i < RSK_NX; ++i)
       if (A0[j * RSK_NX + i] != (i == j)) return 0;
-  for (i = 0; i < RSK_NX * RSK_N; ++i)
+  for (i = 0; i < RSK_NX * RSK_NU; ++i)
     if (B0[i] != 0.0) return 0;
   return 1;
 }
@@ -132,7 +139,7 @@ int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_re
 #if RSK_CHAIN
   if (chained) {                   /* A = A_k A0, B = A_k B0 + B_k */
     if (res[0]) rsk_chain(Ak, A0, 0, RSK_NX, res[0]);
-    if (res[1]) rsk_chain(Ak, B0, Bk, RSK_N, res[1]);
+    if (res[1]) rsk_chain(Ak, B0, Bk, RSK_NU, res[1]);
   }
   if (res[2])
     for (r = 0; r < RSK_NX; ++r) res[2][r] = (x ? x[r] : 0.0) + h / 6 * ks[r];
@@ -140,9 +147,9 @@ int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_re
   return 0;
 }
 
-static const casadi_int rsk_sp_x[3] = {RSK_NX, 1, 1}, rsk_sp_tau[3] = {RSK_N, 1, 1}, rsk_sp_h[3] = {1, 1, 1};
+static const casadi_int rsk_sp_x[3] = {RSK_NX, 1, 1}, rsk_sp_tau[3] = {RSK_NU, 1, 1}, rsk_sp_h[3] = {1, 1, 1};
 static const casadi_int rsk_sp_p[3] = {RSK_NPAR, 1, 1};
-static const casadi_int rsk_sp_A[3] = {RSK_NX, RSK_NX, 1}, rsk_sp_B[3] = {RSK_NX, RSK_N, 1};
+static const casadi_int rsk_sp_A[3] = {RSK_NX, RSK_NX, 1}, rsk_sp_B[3] = {RSK_NX, RSK_NU, 1};
 int @NAME@_checkout(void) { return 0; }
 void @NAME@_release(int mem) { (void)mem; }
 void @NAME@_incref(void) {}
