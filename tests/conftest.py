@@ -163,10 +163,12 @@ def dm(v):
 
 
 @pytest.fixture(scope="session", autouse=True)
-def private_cache(tmp_path_factory):
-    """Every test session compiles for real (at -O1, fast) into its own cache."""
+def private_cache(tmp_path_factory, worker_id):
+    """Every test session compiles for real (at -O1, fast) into its own cache, which its workers
+    share (the build step locks each library: what one worker compiled, the other loads)."""
     mp = pytest.MonkeyPatch()
-    mp.setenv("RSCASADI_CACHE", str(tmp_path_factory.mktemp("cache")))
+    base = tmp_path_factory.getbasetemp()
+    mp.setenv("RSCASADI_CACHE", str((base if worker_id == "master" else base.parent) / "cache"))
     yield
     mp.undo()
 

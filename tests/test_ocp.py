@@ -122,7 +122,8 @@ def test_bad_problem_file_exit_code(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
-def test_compiled_nlp_equals_vm_and_is_cached(pitch_arm):
+def test_compiled_nlp_equals_vm_and_is_cached(pitch_arm, tmp_path, monkeypatch):
+    monkeypatch.setenv("RSCASADI_CACHE", str(tmp_path / "cache"))     # empty: the first solve compiles
     path = problem(pitch_arm, "c.toml", transcription={"intervals": 30, "compiled": True})
     first, again = [], []
     a = solve(load_problem(path), print_level=0, log=first.append)

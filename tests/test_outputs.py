@@ -134,6 +134,46 @@ def test_a_corrupt_cache_entry_is_rebuilt_not_used(tmp_path, monkeypatch):
     assert not list(lib.parent.glob(f"{BUILD_PREFIX}*"))
 
 
+def test_a_source_shared_by_libraries_is_compiled_once(tmp_path, monkeypatch):
+    """The one build step keeps each source's object: a second library with the same source and
+    headers (a controller's kernel in its own library and in the controller's) compiles only its
+    other sources; a changed header, other flags or a damaged object compile it again, and every
+    library computes what its sources say."""
+    import sys
+    from rscasadi.native.build import cached_library, compiler
+    monkeypatch.setenv("RSCASADI_CACHE", str(tmp_path / "cache"))
+    calls = tmp_path / "calls.txt"
+    wrapper = tmp_path / "cc.sh"
+    wrapper.write_text(f'#!/bin/sh\nfor a in "$@"; do case "$a" in *.c) echo "$a" >> {calls};; esac; done\n'
+                       f'exec {" ".join(compiler())} "$@"\n')
+    wrapper.chmod(0o755)
+    kernel = {"k.c": '#include "k.h"\ndouble rsk_k(double x) { return K * x; }\n', "k.h": "#define K 3.0\n"}
+    def build(extra, flags=("-O1",), headers=None):
+        calls.write_text("")
+        sources = {**kernel, **(headers or {}), **extra}
+        lib = cached_library(sources, list(flags), name="t", log=lambda m: None, cc=[str(wrapper)])
+        return lib, sorted(calls.read_text().split())
+    load = ("import ctypes, sys; l = ctypes.CDLL(sys.argv[1]); f, g = l.rsk_k, getattr(l, sys.argv[2]); "
+            "f.restype = g.restype = ctypes.c_double; f.argtypes = g.argtypes = [ctypes.c_double]; print(f(2.0), g(2.0))")
+    def values(lib, name):
+        run = subprocess.run([sys.executable, "-c", load, str(lib), name], capture_output=True, text=True)
+        return run.stdout.split()
+    a = {"a.c": "double rsk_a(double x) { return x + 1.0; }\n"}
+    b = {"b.c": "double rsk_b(double x) { return x - 1.0; }\n"}
+    lib, compiled = build(a)
+    assert compiled == ["a.c", "k.c"] and values(lib, "rsk_a") == ["6.0", "3.0"]
+    lib, compiled = build(b)
+    assert compiled == ["b.c"] and values(lib, "rsk_b") == ["6.0", "1.0"]
+    lib, compiled = build(b, headers={"k.h": "#define K 5.0\n"})
+    assert compiled == ["b.c", "k.c"] and values(lib, "rsk_b") == ["10.0", "1.0"]
+    lib, compiled = build(b, flags=("-O2",))
+    assert compiled == ["b.c", "k.c"]
+    for obj in (tmp_path / "cache" / "obj").glob("k_*.o"):
+        obj.write_bytes(b"garbage")
+    lib, compiled = build({"c.c": "double rsk_c(double x) { return x * x; }\n"})
+    assert compiled == ["c.c", "k.c"] and values(lib, "rsk_c") == ["6.0", "4.0"]
+
+
 def test_json_is_valid_without_nan_or_infinity(tmp_path):
     write_json(tmp_path / "x.json", {"a": float("nan"), "b": [1.0, float("inf")], "c": np.float64(-np.inf),
                                      "d": np.array([1.0, np.nan])})

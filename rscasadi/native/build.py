@@ -131,21 +131,41 @@ def intact(lib: Path) -> bool:
 BUILD_PREFIX = ".build."
 
 
+def object_key(cc: list, flags, sources: dict, unit: str) -> str:
+    """The hash naming the object of one .c source: its name and text, every header beside it,
+    the compiler, the flags, CasADi's version."""
+    headers = [f"{k}\n{v}" for k, v in sorted(sources.items()) if not k.endswith(".c")]
+    digest = hashlib.sha256()
+    for part in [*cc, "|", *flags, "|", ca.__version__, unit, sources[unit], *headers]:
+        digest.update(part.encode())
+        digest.update(b"\0")
+    return digest.hexdigest()[:24]
+
+
 def _compile(cc: list, flags, link, sources: dict, lib: Path):
-    """Each .c source to an object (in parallel; the headers beside them), then one shared library
-    and its record."""
+    """Each .c source to an object (in parallel; the headers beside them; an object already in
+    the cache's obj/ for the same source, headers, compiler and flags is reused: a controller's
+    kernel is one source of several libraries), then one shared library and its record."""
     units = [name for name in sources if name.endswith(".c")]
     remove_stale(lib.parent, BUILD_PREFIX)
+    objects = cache_dir() / "obj"
+    objects.mkdir(parents=True, exist_ok=True)
+    cached = {name: objects / f"{Path(name).stem}_{object_key(cc, flags, sources, name)}.o" for name in units}
     with tempfile.TemporaryDirectory(dir=lib.parent, prefix=f"{BUILD_PREFIX}{os.getpid()}.") as d:
         for name, text in sources.items():
             (Path(d) / name).write_text(text)
-        procs = [(name, subprocess.Popen([*cc, *flags, "-fPIC", "-c", name, "-o", name + ".o"], cwd=d,
-                                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
-                 for name in units]
+        procs = []
+        for name in units:
+            if intact(cached[name]):
+                shutil.copyfile(cached[name], Path(d) / (name + ".o"))
+            else:
+                procs.append((name, subprocess.Popen([*cc, *flags, "-fPIC", "-c", name, "-o", name + ".o"], cwd=d,
+                                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)))
         for name, proc in procs:
             _, err = proc.communicate()
             if proc.returncode != 0:
                 raise BuildError(f"compiling {name} failed ({' '.join(cc + list(flags))}):\n{err[-2000:]}")
+            _store(Path(d) / (name + ".o"), cached[name])
         part = Path(d) / lib.name
         run = subprocess.run([*cc, *flags, "-shared", *[n + ".o" for n in units], "-o", str(part), *link, "-lm"],
                              cwd=d, capture_output=True, text=True)
@@ -155,6 +175,16 @@ def _compile(cc: list, flags, link, sources: dict, lib: Path):
         record.write_text(_fingerprint(part) + "\n")
         part.replace(lib)
         record.replace(_record(lib))
+
+
+def _store(built: Path, target: Path) -> None:
+    """A copy of the object `built` at `target` with its record, each renamed into place."""
+    part = target.with_name(f"{BUILD_PREFIX}{os.getpid()}.{target.name}")
+    shutil.copyfile(built, part)
+    record = target.with_name(f"{BUILD_PREFIX}{os.getpid()}.{_record(target).name}")
+    record.write_text(_fingerprint(part) + "\n")
+    part.replace(target)
+    record.replace(_record(target))
 
 
 def indexed(key: str, build) -> tuple:
