@@ -235,7 +235,6 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
         log(line)
     cc, flags = compiler(), [opt, "-std=c99"] + (native_flags() if native else [])
     name = lambda what: function_name("mpc", prefix, what)
-    kernel, step_jacobian = step_kernel(arm, flags, cc, log, name(KERNEL)) if p.integrator == "rk4" else (None, None)
     split = p.sqp_iterations == 1                  # the real-time iteration: prepare, then feedback
     qp = qp_of(p, arm.u)
     if p.threads > 1 and qp != "riccati":
@@ -254,6 +253,9 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
         if p.threads > 1:                        # the preparation's loops over the intervals
             omp = list(openmp_flags(tuple(cc)))
             flags, link = flags + omp, link + omp
+    # the kernel with the controller's own flags: its object is then the controller's too (compiled once)
+    kernel, step_jacobian = step_kernel(arm, flags, cc, log, name(KERNEL)) if p.integrator == "rk4" else (None, None)
+    if qp == "riccati":
         interval, residual = stage_functions(arm, p, step_jacobian, name(""))
         ahead = sample_ahead(arm, p, step_jacobian, name("ahead"))
         functions, prepared = [interval, residual] + ([ahead] if ahead is not None else []), []
