@@ -123,7 +123,9 @@ def test_bad_problem_file_exit_code(tmp_path, capsys):
 
 
 def test_compiled_nlp_equals_vm_and_is_cached(pitch_arm, tmp_path, monkeypatch):
-    monkeypatch.setenv("RSCASADI_CACHE", str(tmp_path / "cache"))     # empty: the first solve compiles
+    import rscasadi.ocp.condensing as condensing
+    monkeypatch.setenv("RSCASADI_CACHE", str(tmp_path / "cache"))     # empty: the first solve compiles;
+    monkeypatch.setattr(condensing, "_KERNELS", {})                     # the kernels it loads stay with it
     path = problem(pitch_arm, "c.toml", transcription={"intervals": 30, "compiled": True})
     first, again = [], []
     a = solve(load_problem(path), print_level=0, log=first.append)
@@ -135,6 +137,17 @@ def test_compiled_nlp_equals_vm_and_is_cached(pitch_arm, tmp_path, monkeypatch):
     # the first solve compiles (the condensing kernel, the end pieces); the second finds them all
     assert any(m.startswith("compiled the condensing kernel") for m in first)
     assert not any(m.startswith("compiling") for m in again), again
+
+
+def test_large_nlp_c_compiles_at_o0_unless_told(monkeypatch):
+    """An OCP's compiled functions: -O1 up to a megabyte of C, -O0 above (gcc's -O1 passes grow
+    faster than the code), RSCASADI_NLP_OPT over both; the cache keys say "auto" until the size
+    decides, so a level chosen by size and one chosen by the user never share a library."""
+    from rscasadi.native.build import LARGE_C, nlp_opt
+    monkeypatch.delenv("RSCASADI_NLP_OPT", raising=False)
+    assert (nlp_opt(), nlp_opt(LARGE_C), nlp_opt(LARGE_C + 1)) == ("auto", "-O1", "-O0")
+    monkeypatch.setenv("RSCASADI_NLP_OPT", "-O2")
+    assert (nlp_opt(), nlp_opt(10), nlp_opt(10 * LARGE_C)) == ("-O2",) * 3
 
 
 def test_a_failed_fatrop_solve_falls_back_to_ipopt_and_says_so(pitch_arm):

@@ -28,14 +28,13 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
-from rscasadi.native.build import cached_library, casadi_units, compiler, indexed, native_flags
+from rscasadi.native.build import cached_library, casadi_units, compiler, indexed, native_flags, nlp_opt
 
 NEWTON_MAX_ITER = 50
 NEWTON_STEP_TOL = 1e-10         # relative: after such a step Newton's error is ~1e-20
@@ -296,7 +295,7 @@ def cached_kernel(stage_key: str, build, log=print) -> Condensed:
     no derivatives built, no C generated), or `build()`'s.  A refinement round or a new process
     on the same task then sets up in milliseconds (the Panda's obstacle task: 13 s of symbolic
     derivatives and 6 s of generated C otherwise)."""
-    opt = os.environ.get("RSCASADI_NLP_OPT", "-O1")
+    opt = nlp_opt()
     key = "\n".join([stage_key, hashlib.sha256(_GENERATOR.encode()).hexdigest(), ca.__version__, *compiler(), opt,
                      *native_flags(), str(NEWTON_MAX_ITER), repr(NEWTON_STEP_TOL), repr(SPURIOUS)])
     if key not in _KERNELS:
@@ -325,10 +324,9 @@ UNITS = 4     # CasADi's functions in this many C files, compiled in parallel (a
 
 
 def _compiled(prefix: str, fns: dict, kernel: str, log, opt: str | None) -> str:
-    """The kernel's library: at -O1 unless RSCASADI_NLP_OPT says otherwise, for this processor."""
-    opt = opt or os.environ.get("RSCASADI_NLP_OPT", "-O1")
+    """The kernel's library, for this processor, at `opt` or native.build.nlp_opt's level."""
     units = casadi_units(list(fns.values()), f"{prefix}part", UNITS) | {f"{prefix}kernel.c": kernel}
-    size = sum(len(text) for text in units.values()) // 1000
-    return str(cached_library(units, [opt, *native_flags()], name="kernel", log=log,
-                              what=f"the condensing kernel ({size} kB of C in {len(units)} units; once per problem "
-                                   "shape)"))
+    size = sum(len(text) for text in units.values())
+    return str(cached_library(units, [opt or nlp_opt(size), *native_flags()], name="kernel", log=log,
+                              what=f"the condensing kernel ({size // 1000} kB of C in {len(units)} units; once per "
+                                   "problem shape)"))

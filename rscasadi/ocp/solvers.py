@@ -13,14 +13,13 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import os
 from pathlib import Path
 
 import casadi as ca
 
 from rscasadi.files import sources_digest
 from rscasadi.native import build
-from rscasadi.native.build import cached_library, casadi_c, casadi_units, compiler, indexed
+from rscasadi.native.build import cached_library, casadi_c, casadi_units, compiler, indexed, nlp_opt
 from rscasadi.native.parallel import openmp_flags
 from rscasadi.ocp.fatrop.driver import DirectFatrop, NativePieces
 from rscasadi.ocp.assembly import ASSEMBLY_VERSION, Piece, assembled, derivative_functions, places, solver_functions, symbols
@@ -57,8 +56,7 @@ def make_solver(problem: Problem, tr: Transcription, nlp: dict, log=print, print
     # the compiled pieces have no AD: the parameters' multipliers (by AD) are not asked for
     opts["calc_lam_p"] = False
     if direct(problem):                # the driver evaluates the compiled pieces: nothing compiled per mesh
-        opt = os.environ.get("RSCASADI_NLP_OPT", "-O1")
-        pieces = [piece if piece.library else compiled_piece(piece, opt, log) for piece in tr.pieces]
+        pieces = [piece if piece.library else compiled_piece(piece, nlp_opt(), log) for piece in tr.pieces]
         native = NativePieces(pieces, nlp["x"].numel(), nlp["g"].numel(), nlp["p"].numel())
         return DirectFatrop(None, tr.structure(), opts["fatrop"], log, places(pieces), native), objective
     library = compiled_nlp(problem.solver.name, nlp, opts, tr.pieces, log)
@@ -71,11 +69,12 @@ def direct(problem: Problem) -> bool:
 
 
 def compiled_nlp(solver: str, nlp: dict, opts: dict, pieces: list, log=print, opt: str | None = None) -> str:
-    """The shared library of the NLP's functions for `solver`, compiled once and cached; at -O1
-    by default (RSCASADI_NLP_OPT, e.g. -O2, for the fastest solves at a longer compile).  Its
+    """The shared library of the NLP's functions for `solver`, compiled once and cached; at
+    native.build.nlp_opt's level by default (RSCASADI_NLP_OPT, e.g. -O2, for the fastest solves
+    at a longer compile).  Its
     first and second derivatives are assembled from the NLP's pieces' own (assembly.py), its
     loops over the intervals OpenMP-parallel when the compiler has OpenMP (threads: set_threads)."""
-    opt = opt or os.environ.get("RSCASADI_NLP_OPT", "-O1")
+    opt = opt or nlp_opt()
     cc = compiler()
     omp = list(openmp_flags(tuple(cc)))
     # generating the C just to hash it takes seconds: the index keyed by the serialised NLP finds
@@ -92,7 +91,8 @@ def compiled_nlp(solver: str, nlp: dict, opts: dict, pieces: list, log=print, op
         source = casadi_c(solver_functions(plain, nlp, compiled, "openmp" if omp else "serial", raw=solver == "fatrop"),
                           "rscasadi_nlp.c")
         link = [a for lib_ in libraries for a in (lib_, f"-Wl,-rpath,{Path(lib_).parent}")]
-        return [cached_library({"rscasadi_nlp.c": source}, [opt, *omp], link, name="nlp", what="the NLP", log=log, cc=cc)]
+        level = nlp_opt(len(source)) if opt == "auto" else opt
+        return [cached_library({"rscasadi_nlp.c": source}, [level, *omp], link, name="nlp", what="the NLP", log=log, cc=cc)]
     (lib,), found = indexed(key, build)
     if found:
         log(f"compiled NLP: cache hit {lib}")
@@ -118,7 +118,8 @@ _PIECES: dict[tuple, tuple] = {}
 def compiled_piece(piece: Piece, opt: str, log=print) -> Piece:
     """The piece with its functions (rows, objective, and their first and second derivatives)
     compiled into a library of their own, cached by its hash and named by the functions' (so that
-    pieces of any mesh link side by side), and loaded as `casadi.external`s."""
+    pieces of any mesh link side by side), and loaded as `casadi.external`s; `opt` "auto": by
+    the size of their C (native.build.nlp_opt)."""
     originals = (piece.fn, *derivative_functions(piece))
     key = tuple(id(f) for f in originals)
     if key in _PIECES and all(a is b for a, b in zip(_PIECES[key][0], originals)):
@@ -134,9 +135,12 @@ def compiled_piece(piece: Piece, opt: str, log=print) -> Piece:
     # indexed by the functions' serialisation: a new process finds the library without generating
     # its C to hash it (0.25 s for the Panda's pieces)
     index_key = "\n".join(["piece", prefix, opt, *compiler(), ca.__version__, _PIECE_GENERATOR])
-    (lib, *_), _ = indexed(index_key, lambda: [cached_library(
-        casadi_units([_renamed(fn, prefix + k) for k, fn in fns.items()], prefix, units=4), [opt], name="piece",
-        what=f"the {piece.fn.name()}'s functions (for any mesh)", log=log)])
+    def build():
+        units = casadi_units([_renamed(fn, prefix + k) for k, fn in fns.items()], prefix, units=4)
+        level = nlp_opt(sum(map(len, units.values()))) if opt == "auto" else opt
+        return [cached_library(units, [level], name="piece", what=f"the {piece.fn.name()}'s functions (for any mesh)",
+                               log=log)]
+    (lib, *_), _ = indexed(index_key, build)
     ext = {k: ca.external(prefix + k, lib) for k in fns}
     zm, am = symbols(ext["rows"])
     fn = ca.Function(piece.fn.name(), [zm, *am], [ext["rows"](zm, *am), ext["f"](zm, *am)],
