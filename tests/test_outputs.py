@@ -136,9 +136,10 @@ def test_a_corrupt_cache_entry_is_rebuilt_not_used(tmp_path, monkeypatch):
 
 def test_a_source_shared_by_libraries_is_compiled_once(tmp_path, monkeypatch):
     """The one build step keeps each source's object: a second library with the same source and
-    headers (a controller's kernel in its own library and in the controller's) compiles only its
-    other sources; a changed header, other flags or a damaged object compile it again, and every
-    library computes what its sources say."""
+    the headers it includes (a controller's kernel in its own library and in the controller's)
+    compiles only its other sources; a header it includes changed (directly or through another),
+    other flags or a damaged object compile it again, a header it does not include does not; and
+    every library computes what its sources say."""
     import sys
     from rscasadi.native.build import cached_library, compiler
     monkeypatch.setenv("RSCASADI_CACHE", str(tmp_path / "cache"))
@@ -165,7 +166,14 @@ def test_a_source_shared_by_libraries_is_compiled_once(tmp_path, monkeypatch):
     lib, compiled = build(b)
     assert compiled == ["b.c"] and values(lib, "rsk_b") == ["6.0", "1.0"]
     lib, compiled = build(b, headers={"k.h": "#define K 5.0\n"})
-    assert compiled == ["b.c", "k.c"] and values(lib, "rsk_b") == ["10.0", "1.0"]
+    assert compiled == ["k.c"] and values(lib, "rsk_b") == ["10.0", "1.0"]
+    lib, compiled = build(b, headers={"other.h": "#define K 7.0\n"})     # a header k.c does not include
+    assert compiled == [] and values(lib, "rsk_b") == ["6.0", "1.0"]
+    nested = {"k.h": '#include "deep.h"\n#define K DEEP\n', "deep.h": "#define DEEP 4.0\n"}
+    lib, compiled = build(b, headers=nested)                              # through a header it includes
+    assert compiled == ["k.c"] and values(lib, "rsk_b") == ["8.0", "1.0"]
+    lib, compiled = build(b, headers={**nested, "deep.h": "#define DEEP 9.0\n"})
+    assert compiled == ["k.c"] and values(lib, "rsk_b") == ["18.0", "1.0"]
     lib, compiled = build(b, flags=("-O2",))
     assert compiled == ["b.c", "k.c"]
     for obj in (tmp_path / "cache" / "obj").glob("k_*.o"):

@@ -21,6 +21,7 @@ import fcntl
 import hashlib
 import os
 import platform
+import re
 import shlex
 import shutil
 import subprocess
@@ -149,14 +150,27 @@ BUILD_PREFIX = ".build."
 
 
 def object_key(cc: list, flags, sources: dict, unit: str) -> str:
-    """The hash naming the object of one .c source: its name and text, every header beside it,
-    the compiler, the flags, CasADi's version."""
-    headers = [f"{k}\n{v}" for k, v in sorted(sources.items()) if not k.endswith(".c")]
+    """The hash naming the object of one .c source: its name and text, the headers beside it that
+    it includes (#include "name", through headers too, conditional or not), the compiler, the
+    flags, CasADi's version."""
+    headers = [f"{k}\n{sources[k]}" for k in sorted(_included(sources, unit))]
     digest = hashlib.sha256()
     for part in [*cc, "|", *flags, "|", ca.__version__, unit, sources[unit], *headers]:
         digest.update(part.encode())
         digest.update(b"\0")
     return digest.hexdigest()[:24]
+
+
+def _included(sources: dict, unit: str) -> set:
+    """The names of `sources` that `unit` includes with #include "...", directly or through them."""
+    found: set = set()
+    todo = [unit]
+    while todo:
+        for name in re.findall(r'^\s*#\s*include\s*"([^"]+)"', sources[todo.pop()], re.MULTILINE):
+            if name in sources and name not in found:
+                found.add(name)
+                todo.append(name)
+    return found
 
 
 def _compile(cc: list, flags, link, sources: dict, lib: Path):
