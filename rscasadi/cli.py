@@ -22,6 +22,12 @@ class Parser(argparse.ArgumentParser):
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
+    def _get_values(self, action, arg_strings):
+        # argparse drops "--" from an option's values, so "--margin=--" gave the option [] (no number)
+        if action.option_strings and action.nargs is None and arg_strings == ["--"]:
+            self.error(f"argument {'/'.join(action.option_strings)}: expected one value, got '--'")
+        return super()._get_values(action, arg_strings)
+
 
 def positive(kind, zero: bool = False, least=None):
     """An argparse type: a finite number of `kind`, > 0 (>= 0 with zero=True, >= least if given)."""

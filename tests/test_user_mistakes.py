@@ -183,7 +183,7 @@ OPTIONS = {   # command, required arguments, option -> predicate of an accepted 
 }
 CASES = [(cmd, req, opt, ok) for (cmd, req), opts in OPTIONS.items() for opt, ok in opts.items()]
 option_values = st.one_of(st.integers(-10, 10).map(str), st.floats(allow_nan=True, allow_infinity=True).map(repr),
-                          st.sampled_from(["0", "-0", "nan", "inf", "-inf", "1e400", "", "abc", "-O3", "-O9", "-O2;ls",
+                          st.sampled_from(["0", "-0", "nan", "inf", "-inf", "1e400", "", "abc", "-O3", "-O9", "-O2;ls", "--",
                                            "ipopt", "fatrop", "2.5", "3", " 4"]),
                           st.text(max_size=6))
 
