@@ -116,15 +116,16 @@ def kernel_source(arm, name: str, parametric: bool, chained: bool = False) -> Ke
         f"#define RSK_PT_ARG {fd.sz_arg()}\n#define RSK_PT_RES {fd.sz_res()}\n",
         f"#define RSK_PT_IW {fd.sz_iw()}\n#define RSK_PT_W {fd.sz_w()}\n",
         f"#define RSK_NPAR {arm.n_p if parametric else 0}\n#define RSK_FD {fd.name()}\n"])
+    parts, calls = _parts(_unrolled(JrT, speeds, LT, L, perm, stride, drives(arm)))
     body = (lanes.PRELUDE + lanes.lanes_c(jr, "rsk_jr4", shared=(2,) if parametric else ())
             + _TEMPLATE.replace("@NAME@", name).replace("@CONSTS@", consts)
-            .replace("@BLOCKS@", _unrolled(JrT, speeds, LT, L, perm, stride, drives(arm))))
+            .replace("@PARTS@", parts).replace("@BLOCKS@", calls))
     header = _HEADER.replace("@NAME@", name) + "".join(f"#define {name}_{k} {v}\n" for k, v in sizes.items())
     return Kernel([fd], body, header, fd.n_instructions() + jr.n_instructions())
 
 
 def _unrolled(JrT, speeds, LT, L, perm, stride, drive):
-    """rsk_stage's body with the sparsity patterns and column blocks as constants: per block,
+    """rsk_stage's rows, each a C block (in order), with the sparsity patterns and column blocks as constants: per block,
     forward (row perm[r] of [-dr/dx | dQ/dtau] - s dr/dx [S; B1], then L z = y) and backward
     (L' x = z / d).  speeds[r]: where row r's speed columns start in JrT; drive: dQ/dtau by row."""
     n2 = JrT.size2()
@@ -158,7 +159,29 @@ def _unrolled(JrT, speeds, LT, L, perm, stride, drive):
             lines += [f"  RSK_AX(t, -l[{k}], B + {perm[rc[k]] * stride + cb}, {w})" for k in range(rp[r], rp[r + 1])]
             lines.append(f"  RSK_ST(B + {perm[r] * stride + cb}, t, {w})")
             out.append("\n".join(lines))
-    return "\n".join(out)
+    return out
+
+
+PART_LINES = 300    # C lines of the unrolled stage per function: gcc's time grows faster than a function's
+                    # length (Baxter's 23 coordinates at -O1: 58 s as one function)
+
+_PART = ("static void rsk_part{k}(const casadi_real *jr, const casadi_real *lt, const casadi_real *l, "
+         "const casadi_real *mu,\n    const casadi_real *B1, const casadi_real *B2, casadi_real ms, casadi_real mss, "
+         "const casadi_real *inv, casadi_real *B) {{\n  casadi_real t[RSK_BK];\n  int c;\n"
+         "  (void)jr; (void)lt; (void)l; (void)mu; (void)B1; (void)B2; (void)ms; (void)mss; (void)inv;\n{body}\n}}\n")
+
+
+def _parts(rows: list) -> tuple[str, str]:
+    """The unrolled stage's rows (in order) as functions of about PART_LINES lines, and the
+    calls to them in that order."""
+    groups: list = [[]]
+    for row in rows:
+        if groups[-1] and sum(g.count("\n") + 1 for g in groups[-1]) + row.count("\n") + 1 > PART_LINES:
+            groups.append([])
+        groups[-1].append(row)
+    parts = "".join(_PART.format(k=k, body="\n".join(g)) for k, g in enumerate(groups))
+    calls = "\n".join(f"  rsk_part{k}(jr, lt, l, mu, B1, B2, ms, mss, inv, B);" for k in range(len(groups)))
+    return parts, calls
 
 
 TEMPLATES = Path(__file__).with_name("templates")

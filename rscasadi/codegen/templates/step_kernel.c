@@ -1,5 +1,6 @@
 /* The structured step-Jacobian kernel (rscasadi/codegen/step_kernel.py): @NAME@ its public symbol,
-   @CONSTS@ its sizes, @BLOCKS@ the unrolled stage for the arm's sparsity patterns. */
+   @CONSTS@ its sizes, @PARTS@ the unrolled stage for the arm's sparsity patterns in functions of a
+   few rows each, @BLOCKS@ their calls. */
 /* ---- rscasadi: @NAME@, the structured step Jacobian (rscasadi/codegen/step_kernel.py) ---- */
 #include <stdint.h>
 @CONSTS@
@@ -18,12 +19,13 @@
    by L' x = z / d from the last row up: no scratch matrix).  Blocks of up to RSK_BK columns are
    independent: each goes through dr/dx's product, L and L' (their sparsity unrolled below, one
    block after the other) while it sits in the first-level cache. */
+@PARTS@
 static void rsk_stage(const casadi_real *jr, const casadi_real *d, const casadi_real *lt, const casadi_real *l,
                       const casadi_real *mu, const casadi_real *B1, const casadi_real *B2, casadi_real s,
                       casadi_real s2, casadi_real *B) {
   const casadi_real ms = -s, mss = -s * s2;
-  casadi_real t[RSK_BK], inv[RSK_NV];
-  int r, c;
+  casadi_real inv[RSK_NV];
+  int r;
   for (r = 0; r < RSK_NV; ++r) inv[r] = 1.0 / d[r];
 @BLOCKS@
 }
