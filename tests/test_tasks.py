@@ -446,12 +446,11 @@ def test_every_shipped_optimal_control_problem_is_in_the_main_job():
 
 
 def test_the_panda_shelf_task_at_a_coarse_mesh():
-    """The shipped 7-joint task (2 kg, a pose goal, a ball and the table) on 16 intervals with
-    IPOPT, uncompiled: solved; the collocation's end at the pose; the replay clear of both
-    obstacles and within millimetres of the goal (the main job refines it until the replay
-    passes)."""
-    problem = load_problem(ROOT / "problems" / "ocp_panda_shelf.toml").replace(
-        intervals=16, compiled=False, condense=False, solver="ipopt", rounds=0)
+    """The shipped 7-joint task (2 kg, a pose goal, a ball and the table) on 16 intervals, as
+    shipped otherwise (fatrop on the condensed, compiled NLP): solved; the collocation's end at
+    the pose; the replay clear of both obstacles and within millimetres of the goal (the main
+    job refines it until the replay passes)."""
+    problem = load_problem(ROOT / "problems" / "ocp_panda_shelf.toml").replace(intervals=16, rounds=0)
     sol = solve(problem, print_level=0, log=lambda m: None)
     report = sol["verification"]
     assert sol["solver_success"] and 0.3 < sol.t[-1] < 1.5

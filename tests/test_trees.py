@@ -274,7 +274,7 @@ def test_two_hands_meet_at_a_handover_with_the_arms_kept_apart(tmp_path):
     write_arm(tmp_path, dual_arm_doc(), "dual.toml")
     (tmp_path / "handover.toml").write_text(
         'model = "dual.toml"\nobjective = "min_effort"\ntheta_start = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]\n'
-        'duration = 1.5\n[transcription]\nintervals = 40\ncompiled = false\nlimit_margin = 0.005\n[refinement]\nrounds = 1\n'
+        'duration = 1.5\n[transcription]\nintervals = 40\nlimit_margin = 0.005\n[refinement]\nrounds = 1\n'
         '[verification]\nfinal_speed_tol = 0.05\nfinal_angle_tol = 1e-3\n'    # one coarse mesh: the end's rest to 0.05 rad/s
         '[[goal]]\nframe = "left_hand"\nposition = [0.45, 0.05, 0.45]\n'
         '[[goal]]\nframe = "right_hand"\nposition = [0.45, -0.05, 0.45]\n')
