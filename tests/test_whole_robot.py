@@ -179,14 +179,11 @@ tolerance = {{ position = 1e-3 }}
 sphere = {{ center = {ball["center"]}, radius = {ball["radius"]} }}
 [transcription]
 intervals = 12
-compiled = false
 dynamics = "implicit"
 limit_margin = 0.02
 [refinement]
 rounds = 2
-[solver]
-name = "ipopt"
-""")                            # uncompiled: the lifted 7-joint NLP compiles for minutes, solves in seconds
+""")
     main(["ocp", str(tmp_path / "ocp.toml"), "--out", str(tmp_path / "ocp"), "--quiet"])
     sol = json.loads((tmp_path / "ocp" / "solution.json").read_text())
     assert sol["success"], (sol["status"], sol["rounds"])              # verified on the complete model
