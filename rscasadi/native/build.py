@@ -4,7 +4,8 @@
 in the cache directory and returns its path.  The library's name carries a hash of everything
 that shapes it (the sources, the compiler, the flags, the link arguments, CasADi's version), so
 it is rebuilt exactly when one of them changes and found again otherwise, across processes and
-runs.  A lock per library keeps two processes (sweep workers, test workers) from compiling the
+runs.  Each source's object is kept as well (obj/, keyed by the source, the headers it includes,
+the compiler and the flags), so a source that several libraries share compiles once.  A lock per library keeps two processes (sweep workers, test workers) from compiling the
 same one twice; the library is written under a temporary name and renamed, so no reader ever
 sees half of one.  Beside it a record of its SHA-256 and size, written at build time, is checked
 before every use: a library changed since (truncated by a full disk, overwritten, corrupted) is
