@@ -79,14 +79,8 @@ def point_functions(arm, name: str, parametric: bool):
 
 def drives(arm) -> dict:
     """Per coordinate driven by an input: (the input's column, its gain as C): dQ/dtau's nonzeros
-    (Arm.input_matrix), -mu[j] on a motor's phi row (sea) or theta's row (geared), 1 on theta's
-    row (direct)."""
-    model, out = arm.model, {}
-    for col, j in enumerate(model.actuated):
-        kind = model.kinds[j]
-        row = arm.n + model.motor_of[j] if kind.motor else j
-        out[row] = (col, f"-mu[{j}]" if kind.rotors else "1.0")
-    return out
+    (Arm.input_matrix), -mu[j] through a gear, 1 on a direct joint."""
+    return {row: (col, f"-mu[{j}]" if geared else "1.0") for col, (row, j, geared) in enumerate(arm.input_places())}
 
 
 def kernel_source(arm, name: str, parametric: bool, chained: bool = False) -> Kernel:

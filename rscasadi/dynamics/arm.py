@@ -443,15 +443,20 @@ class Arm:
             rhs -= s * ca.mtimes(D.T, Jr.T).T
         return ca.solve(self.mass_matrix(parametric=bool(p))(x[0], x[1], *p), rhs, "ldl")
 
+    def input_places(self) -> list:
+        """Per input, in tau's order: (the coordinate it drives, its joint, whether through a gear):
+        a motor's phi (sea), a geared link's theta, a direct joint's theta."""
+        at_motor, kinds = self.model.motor_of, self.model.kinds
+        return [(self.n + at_motor[j] if kinds[j].motor else j, j, bool(kinds[j].rotors)) for j in self.model.actuated]
+
     def input_matrix(self, mu):
         """dQ/dtau ((n + m) x u): the generalised forces' derivative by the inputs, given the gear
         ratios mu (n): -mu on a motor's phi row (sea) or on theta's row (geared), 1 on theta's
         row (direct)."""
-        at_motor, kinds = self.model.motor_of, self.model.kinds
         place = np.zeros((self.n + self.m, self.u))
-        for col, j in enumerate(self.model.actuated):
-            place[self.n + at_motor[j] if kinds[j].motor else j, col] = 1.0
-        gains = ca.vertcat(*[-mu[j] if kinds[j].rotors else 1.0 for j in self.model.actuated])
+        for col, (row, _, _) in enumerate(self.input_places()):
+            place[row, col] = 1.0
+        gains = ca.vertcat(*[-mu[j] if geared else 1.0 for _, j, geared in self.input_places()])
         return ca.mtimes(ca.sparsify(ca.DM(place)), ca.diag(gains))
 
     def mass_matrix(self, *, reduced: bool = False, parametric: bool = False) -> ca.Function:
