@@ -5,7 +5,8 @@ in the cache directory and returns its path.  The library's name carries a hash 
 that shapes it (the sources, the compiler, the flags, the link arguments, CasADi's version), so
 it is rebuilt exactly when one of them changes and found again otherwise, across processes and
 runs.  Each source's object is kept as well (obj/, keyed by the source, the headers it includes,
-the compiler and the flags), so a source that several libraries share compiles once.  A lock per library keeps two processes (sweep workers, test workers) from compiling the
+the compiler and the flags), so a source that several libraries share compiles once.  A lock
+per library keeps two processes (sweep workers, test workers) from compiling the
 same one twice; the library is written under a temporary name and renamed, so no reader ever
 sees half of one.  Beside it a record of its SHA-256 and size, written at build time, is checked
 before every use: a library changed since (truncated by a full disk, overwritten, corrupted) is
@@ -54,6 +55,11 @@ def nlp_opt(size: int | None = None) -> str:
     if size is None:
         return "auto"
     return "-O1" if size <= LARGE_C else "-O0"
+
+
+def nlp_level(opt: str, size: int) -> str:
+    """`opt` itself, or for "auto" nlp_opt's level for `size` bytes of C."""
+    return nlp_opt(size) if opt == "auto" else opt
 
 
 class BuildError(Error, RuntimeError):

@@ -19,7 +19,7 @@ import casadi as ca
 
 from rscasadi.files import sources_digest
 from rscasadi.native import build
-from rscasadi.native.build import cached_library, casadi_c, casadi_units, compiler, indexed, nlp_opt
+from rscasadi.native.build import cached_library, casadi_c, casadi_units, compiler, indexed, nlp_level, nlp_opt
 from rscasadi.native.parallel import openmp_flags
 from rscasadi.ocp.fatrop.driver import DirectFatrop, NativePieces
 from rscasadi.ocp.assembly import ASSEMBLY_VERSION, Piece, assembled, derivative_functions, places, solver_functions, symbols
@@ -91,8 +91,8 @@ def compiled_nlp(solver: str, nlp: dict, opts: dict, pieces: list, log=print, op
         source = casadi_c(solver_functions(plain, nlp, compiled, "openmp" if omp else "serial", raw=solver == "fatrop"),
                           "rscasadi_nlp.c")
         link = [a for lib_ in libraries for a in (lib_, f"-Wl,-rpath,{Path(lib_).parent}")]
-        level = nlp_opt(len(source)) if opt == "auto" else opt
-        return [cached_library({"rscasadi_nlp.c": source}, [level, *omp], link, name="nlp", what="the NLP", log=log, cc=cc)]
+        return [cached_library({"rscasadi_nlp.c": source}, [nlp_level(opt, len(source)), *omp], link, name="nlp",
+                               what="the NLP", log=log, cc=cc)]
     (lib,), found = indexed(key, build)
     if found:
         log(f"compiled NLP: cache hit {lib}")
@@ -135,10 +135,11 @@ def compiled_piece(piece: Piece, opt: str, log=print) -> Piece:
     # indexed by the functions' serialisation: a new process finds the library without generating
     # its C to hash it (0.25 s for the Panda's pieces)
     index_key = "\n".join(["piece", prefix, opt, *compiler(), ca.__version__, _PIECE_GENERATOR])
+
     def build():
         units = casadi_units([_renamed(fn, prefix + k) for k, fn in fns.items()], prefix, units=4)
-        level = nlp_opt(sum(map(len, units.values()))) if opt == "auto" else opt
-        return [cached_library(units, [level], name="piece", what=f"the {piece.fn.name()}'s functions (for any mesh)",
+        return [cached_library(units, [nlp_level(opt, sum(map(len, units.values())))], name="piece",
+                               what=f"the {piece.fn.name()}'s functions (for any mesh)",
                                log=log)]
     (lib, *_), _ = indexed(index_key, build)
     ext = {k: ca.external(prefix + k, lib) for k in fns}
