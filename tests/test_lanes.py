@@ -37,7 +37,12 @@ void entry(const double **arg, double **res) { f4(arg, res); }
 
 @pytest.mark.skipif(cc() is None, reason="no C compiler")
 @pytest.mark.parametrize("portable", [False, True])
-def test_four_lanes_equal_casadi_at_each_point(tmp_path, portable):
+@pytest.mark.parametrize("chunk", [300, 3, 7])
+def test_four_lanes_equal_casadi_at_each_point(tmp_path, portable, chunk, monkeypatch):
+    """In one function, and in functions of 3 and 7 statements (work vectors live across several
+    of them, some written again before they are read)."""
+    import rscasadi.codegen.lanes as lanes
+    monkeypatch.setattr(lanes, "CHUNK", chunk)
     f = _every_operation()
     lib = _compiled(tmp_path, f, shared=(2,), portable=portable)
     rng = np.random.default_rng(5)

@@ -62,37 +62,84 @@ static rsk_v rsk_div(rsk_v a, rsk_v b) { int i; for (i = 0; i < 4; ++i) a.x[i] /
 /* statements, not functions: a function passing a vector without AVX would change the ABI (gcc -Wpsabi) */
 #define RSK_VLD(v, p) memcpy(&(v), (p), sizeof(v))
 #define RSK_VST(p, v) memcpy((p), &(v), sizeof(v))
+#if defined(__GNUC__) || defined(__clang__)
+#define RSK_NOINLINE __attribute__((noinline))
+#else
+#define RSK_NOINLINE
+#endif
+#if defined(__STDC_VERSION__) && __STDC_VERSION__ >= 199901L
+#define RSK_RESTRICT restrict
+#else
+#define RSK_RESTRICT
+#endif
 #define RSK_VBC(v, c) { const double c_ = (c); int i_; for (i_ = 0; i_ < 4; ++i_) RSK_AT(v, i_) = c_; }
 """
+
+
+CHUNK = 300   # statements per function: gcc's register allocation grows faster than a function's length;
+              # the Panda's kernel compiles at -O1 in 8.4 s, not 19 s, and steps as fast (80 us at -O1,
+              # 15.6 us at -O3 -march=native: 2026-11-29, 2-core Xeon VM)
 
 
 def lanes_c(f: ca.Function, name: str, shared=()) -> str:
     """`static void name(const double **arg, double **res)`: f at four points, `arg[i][4 k + l]` the
     nonzero k of input i at point l (one copy, `arg[i][k]`, for i in `shared`), res alike.
-    Needs PRELUDE once before it in the same file."""
+    Needs PRELUDE once before it in the same file.  The instructions run in functions of CHUNK
+    statements; a work vector live across two of them passes through the array `s` of `name`."""
     if not f.is_a("SXFunction"):
         raise WrongType(f"{f.name()}: lanes_c needs an SX Function")
-    body = []
-    for k in range(f.n_instructions()):
-        op, i, o = f.instruction_id(k), f.instruction_input(k), f.instruction_output(k)
-        if op == ca.OP_INPUT:
-            body.append(f"RSK_VBC(w{o[0]}, arg[{i[0]}][{i[1]}])" if i[0] in shared
-                        else f"RSK_VLD(w{o[0]}, arg[{i[0]}] + {LANES * i[1]});")
-        elif op == ca.OP_OUTPUT:
-            body.append(f"if (res[{o[0]}]) RSK_VST(res[{o[0]}] + {LANES * o[1]}, w{i[0]});")
-        elif op == ca.OP_CONST:
-            c = f.instruction_constant(k)
-            if not math.isfinite(c):
-                raise InvalidArgument(f"{f.name()}: constant {c} at instruction {k} has no C literal")
-            body.append(f"RSK_VBC(w{o[0]}, {c!r})")
-        elif op in _BINARY:
-            body.append(f"w{o[0]} = {_BINARY[op]}(w{i[0]}, w{i[1]});")
-        elif op in _PER_LANE:
-            lanes = ", ".join(_PER_LANE[op].format(*(f"RSK_AT(w{j}, {l})" for j in i)) for l in range(LANES))
-            body.append(f"{{ const double t_[{LANES}] = {{{lanes}}}; RSK_VLD(w{o[0]}, t_); }}")
-        else:
-            raise NotImplementedError(f"{f.name()}: operation {_OP_NAMES.get(op, op)} (instruction {k}) "
-                                      "has no vector form in rscasadi.codegen.lanes")
-    decl = ", ".join(f"w{k}" for k in range(f.sz_w())) or "w0"
-    return (f"static void {name}(const double **arg, double **res) {{\n  rsk_v {decl};\n  "
-            + "\n  ".join(body) + "\n}\n")
+    code = [_statement(f, k, shared) for k in range(f.n_instructions())]
+    chunks = [code[c:c + CHUNK] for c in range(0, len(code), CHUNK)] or [[]]
+    needed: set = set()                      # slots whose value a later chunk reads before writing them
+    parts = []
+    for i, chunk in reversed(list(enumerate(chunks))):
+        live_in, written = _live_in(chunk)
+        parts.append(_chunk_c(f"{name}_{i}", chunk, live_in, written & needed))
+        needed = live_in | (needed - written)
+    calls = "".join(f"  {name}_{i}(s, arg, res);\n" for i in range(len(chunks)))
+    return ("".join(reversed(parts)) + f"static void {name}(const double **arg, double **res) {{\n"
+            + f"  rsk_v s[{max(f.sz_w(), 1)}];\n{calls}}}\n")
+
+
+def _statement(f: ca.Function, k: int, shared) -> tuple:
+    """Instruction k as (C statement, work vectors it reads, the one it writes or None)."""
+    op, i, o = f.instruction_id(k), f.instruction_input(k), f.instruction_output(k)
+    if op == ca.OP_INPUT:
+        return (f"RSK_VBC(w{o[0]}, arg[{i[0]}][{i[1]}])" if i[0] in shared
+                else f"RSK_VLD(w{o[0]}, arg[{i[0]}] + {LANES * i[1]});"), (), o[0]
+    if op == ca.OP_OUTPUT:
+        return f"if (res[{o[0]}]) RSK_VST(res[{o[0]}] + {LANES * o[1]}, w{i[0]});", (i[0],), None
+    if op == ca.OP_CONST:
+        c = f.instruction_constant(k)
+        if not math.isfinite(c):
+            raise InvalidArgument(f"{f.name()}: constant {c} at instruction {k} has no C literal")
+        return f"RSK_VBC(w{o[0]}, {c!r})", (), o[0]
+    if op in _BINARY:
+        return f"w{o[0]} = {_BINARY[op]}(w{i[0]}, w{i[1]});", (i[0], i[1]), o[0]
+    if op in _PER_LANE:
+        args = i[:2] if "{1}" in _PER_LANE[op] else i[:1]
+        lanes = ", ".join(_PER_LANE[op].format(*(f"RSK_AT(w{j}, {l})" for j in args)) for l in range(LANES))
+        return f"{{ const double t_[{LANES}] = {{{lanes}}}; RSK_VLD(w{o[0]}, t_); }}", tuple(args), o[0]
+    raise NotImplementedError(f"{f.name()}: operation {_OP_NAMES.get(op, op)} (instruction {k}) "
+                              "has no vector form in rscasadi.codegen.lanes")
+
+
+def _live_in(chunk) -> tuple:
+    """The work vectors a chunk reads before it writes them, and those it writes."""
+    live_in, written = set(), set()
+    for _, reads, write in chunk:
+        live_in |= set(reads) - written
+        if write is not None:
+            written.add(write)
+    return live_in, written
+
+
+def _chunk_c(name: str, chunk, live_in: set, live_out: set) -> str:
+    """One chunk as a function: its work vectors local, those live across chunks through `s`."""
+    local = sorted(live_in | {w for _, _, w in chunk if w is not None})
+    lines = [f"rsk_v {', '.join(f'w{k}' for k in local)};" if local else "",
+             "(void)s; (void)arg; (void)res;"]
+    lines += [f"w{k} = s[{k}];" for k in sorted(live_in)] + [c for c, _, _ in chunk]
+    lines += [f"s[{k}] = w{k};" for k in sorted(live_out)]
+    return (f"static RSK_NOINLINE void {name}(rsk_v *RSK_RESTRICT s, const double **arg, double **res) {{\n  "
+            + "\n  ".join(line for line in lines if line) + "\n}\n")
