@@ -126,7 +126,8 @@ def _statement(f: ca.Function, k: int, shared) -> tuple:
 
 def _live_in(chunk) -> tuple:
     """The work vectors a chunk reads before it writes them, and those it writes."""
-    live_in, written = set(), set()
+    live_in: set = set()
+    written: set = set()
     for _, reads, write in chunk:
         live_in |= set(reads) - written
         if write is not None:
