@@ -16,7 +16,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-H = ca.DM([0, 0, 1, 0, 0, 0])          # eq. (7): every joint turns about its local z
+H = ca.DM([0, 0, 1, 0, 0, 0])          # eq. (7): a revolute joint turns about its local z
 Z3 = ca.DM.zeros(3, 3)
 
 
@@ -46,7 +46,7 @@ def Xup(R, l):
 
     R: child frame relative to parent; l: child origin in parent coordinates."""
     Rt = R.T
-    return ca.vertcat(ca.horzcat(Rt, Z3), ca.horzcat(-Rt @ skew(ca.DM(l)), Rt))
+    return ca.vertcat(ca.horzcat(Rt, Z3), ca.horzcat(-Rt @ skew(as_casadi(l)), Rt))
 
 
 def spatial_inertia(body) -> np.ndarray:
@@ -67,8 +67,44 @@ def coriolis(R, l, w_parent, rate):
     """a_{s,t} of eqs. (9) and (18) in the child frame: [(R^T w_s) x h rate; R^T (w_s x w_s x l)]."""
     w = R.T @ w_parent
     ang = ca.vertcat(w[1], -w[0], 0) * rate          # w x z
-    lin = R.T @ ca.cross(w_parent, ca.cross(w_parent, ca.DM(l)))
+    lin = R.T @ ca.cross(w_parent, ca.cross(w_parent, as_casadi(l)))
     return ca.vertcat(ang, lin)
+
+
+class Motion:
+    """How a joint moves its child frame within J (whose z is the joint's axis): it turns about z
+    (revolute, eq. 7) or slides along it (prismatic).  `index`: the entry of a spatial vector
+    [omega; v] its coordinate moves (H = e_index), 2 or 5."""
+
+    def __init__(self, name: str, index: int):
+        self.name, self.index = name, index
+        self.H = ca.DM.zeros(6)
+        self.H[index] = 1.0
+
+    @property
+    def turns(self) -> bool:
+        return self.index == 2
+
+    def placement(self, R_tree, l, q) -> tuple:
+        """The child frame's rotation and origin in the parent frame at coordinate q (J at R_tree, l)."""
+        if self.turns:
+            return joint_rotation(R_tree, q), as_casadi(l)
+        R = ca.DM(R_tree)
+        return R, as_casadi(l) + R[:, 2] * q
+
+    def coriolis(self, R, l, w_parent, rate):
+        """The child's acceleration at zero coordinate acceleration and zero parent acceleration,
+        child frame (eqs. 9 and 18 for a turn).  A slide: the origin's centripetal acceleration
+        about the parent plus the Coriolis one, [0; R^T (w_s x w_s x l) + 2 (R^T w_s) x z rate]."""
+        if self.turns:
+            return coriolis(R, l, w_parent, rate)
+        w = R.T @ w_parent
+        lin = R.T @ ca.cross(w_parent, ca.cross(w_parent, as_casadi(l))) + 2 * rate * ca.vertcat(w[1], -w[0], 0)
+        return ca.vertcat(ca.DM.zeros(3), lin)
+
+
+REVOLUTE, PRISMATIC = Motion("revolute", 2), Motion("prismatic", 5)
+MOTIONS = {m.name: m for m in (REVOLUTE, PRISMATIC)}
 
 
 def gyroscopic(M, w):
@@ -84,7 +120,7 @@ def base_acceleration(gravity):
 
 def base_pose(R_parent, o_parent, R, l):
     """Eq. (12): a body frame's rotation and origin in the base frame from its parent's."""
-    return R_parent @ R, o_parent + R_parent @ ca.DM(l)
+    return R_parent @ R, o_parent + R_parent @ as_casadi(l)
 
 
 def quaternion_rotation(quat):

@@ -17,10 +17,16 @@ from conftest import ROOT, check_against_pinocchio, dm, random_tree_doc, to_toml
 KINDS = ("sea", "geared", "spring", "free", "direct")
 
 
-def mixed(seed, n, kinds=None, balanced=False):
+def mixed(seed, n, kinds=None, balanced=False, slides=False):
+    """A random tree of `kinds` (default: every kind, shuffled); with `slides`, every other joint
+    without rotors prismatic."""
     rng = np.random.default_rng(seed)
     kinds = kinds or [KINDS[i % len(KINDS)] for i in rng.permutation(n)]
-    return parse(tomllib.loads(to_toml(with_kinds(random_tree_doc(rng, n, balanced), kinds, rng))))
+    doc = with_kinds(random_tree_doc(rng, n, balanced), kinds, rng)
+    if slides:
+        for jt in [jt for jt in doc["joints"] if jt.get("kind") in ("spring", "free", "direct")][::2]:
+            jt["type"] = "prismatic"
+    return parse(tomllib.loads(to_toml(doc)))
 
 
 def state(rng, arm, scale=1.0):
@@ -34,12 +40,14 @@ def rel(a, b):
     return np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300)
 
 
-@pytest.mark.parametrize("seed,n", [(1, 5), (2, 9), (3, 14)])
-def test_every_kind_equals_pinocchio_with_its_rotors_as_bodies(seed, n):
+@pytest.mark.parametrize("seed,n,slides", [(1, 5, False), (2, 9, True), (3, 14, True)])
+def test_every_kind_equals_pinocchio_with_its_rotors_as_bodies(seed, n, slides):
     """Random trees whose joints are of every kind (unbalanced rotors, random axes and gravity,
-    losses): the coordinates are named, forward and inverse dynamics, the mass matrix, the centre
-    of mass and every link's placement and Jacobian equal Pinocchio's to 1e-9."""
-    model = mixed(seed, n)
+    losses), some of the joints without rotors prismatic: the coordinates are named, forward and
+    inverse dynamics, the mass matrix, the centre of mass and every link's placement and Jacobian
+    equal Pinocchio's (its prismatic joints for ours) to 1e-9."""
+    model = mixed(seed, n, slides=slides)
+    assert sum(jt.type == "prismatic" for jt in model.joints) >= (2 if slides else 0)
     arm, route = rscasadi.Arm(model), PinocchioRoute(model)
     kinds = [jt.kind for jt in model.joints]
     assert set(kinds) == set(KINDS)
@@ -82,9 +90,11 @@ def test_a_geared_joint_is_an_sea_whose_spring_is_rigid():
 
 
 def test_energy_of_passive_kinds_is_conserved():
-    """Spring and free joints with an SEA and a geared joint, no losses, no torque: dE/dt = 0."""
+    """Spring and free joints (the first spring and the free one prismatic) with an SEA and a geared
+    joint, no losses, no torque: dE/dt = 0."""
     import casadi as ca
     doc = with_kinds(random_tree_doc(np.random.default_rng(9), 6), ["sea", "geared", "spring", "free", "spring", "geared"])
+    doc["joints"][2]["type"] = doc["joints"][3]["type"] = "prismatic"     # one on a turning link
     for jt in doc["joints"]:
         if "sea" in jt:
             jt["sea"]["d"] = 0.0
@@ -103,13 +113,16 @@ def test_energy_of_passive_kinds_is_conserved():
 
 
 def test_kinds_read_back_and_every_misfit_is_named(tmp_path):
-    """A link-list file of every kind writes and reads back the same robot; a kind that is no kind,
-    a geared joint with a spring, a spring joint with rotors, a psi limit on a joint with no SEA are
-    each refused naming the joint and field; on a URDF, every joint whose kind cannot model its
-    type is named in one message."""
-    model = mixed(7, 7)
+    """A link-list file of every kind, prismatic joints among them, writes and reads back the same
+    robot; a kind that is no kind, a geared joint with a spring, a spring joint with rotors, a psi
+    limit on a joint with no SEA, a type that is no type, an SEA that slides are each refused naming
+    the joint and field; on a URDF, every joint whose kind cannot model its type is named in one
+    message."""
+    model = mixed(7, 7, slides=True)
     again = parse(tomllib.loads(to_toml(document(model))))
     assert [jt.kind for jt in again.joints] == [jt.kind for jt in model.joints]
+    assert [jt.type for jt in again.joints] == [jt.type for jt in model.joints] and "prismatic" in {
+        jt.type for jt in model.joints}
     rng = np.random.default_rng(2)
     x, tau = state(rng, rscasadi.Arm(model))
     a, b = (np.concatenate([dm(v) for v in rscasadi.Arm(m).forward_dynamics()(*x, tau)]) for m in (model, again))
@@ -120,7 +133,9 @@ def test_kinds_read_back_and_every_misfit_is_named(tmp_path):
              (names["geared"], {"sea": {"k1": 10.0}}, "sea", "a geared joint has no sea"),
              (names["spring"], {"gear_ratio": 10.0}, "gear_ratio", "a spring joint has no gear_ratio"),
              (names["direct"], {"limits": {"psi": 0.1}}, "limits.psi", "a direct joint has no psi"),
-             (names["geared"], {"gear_loss": {"b": 0.1, "c1": 0.01}}, "gear_loss.c1", "no load term")]
+             (names["geared"], {"gear_loss": {"b": 0.1, "c1": 0.01}}, "gear_loss.c1", "no load term"),
+             (names["free"], {"type": "helical"}, "type", 'expected "revolute" or "prismatic"'),
+             (names["sea"], {"type": "prismatic"}, "type", "a sea joint cannot be prismatic")]
     for j, over, fld, words in cases:
         doc = copy.deepcopy(base)
         doc["joints"][j].update(over)
@@ -144,8 +159,9 @@ def test_kinds_read_back_and_every_misfit_is_named(tmp_path):
 
 
 def test_a_whole_robot_of_mixed_kinds_from_its_urdf(tmp_path):
-    """Baxter with SEA shoulders, geared wrists and a direct-drive head: equal to Pinocchio's
-    own parse of the URDF with the rotors as bodies, and exported to MuJoCo, whose mass matrix
+    """Baxter with SEA shoulders, geared wrists, a direct-drive head and its grippers' prismatic
+    fingers (one driven, one on a spring, per hand): equal to Pinocchio's own parse of the URDF
+    with the rotors as bodies, and exported to MuJoCo (hinges and slides), whose mass matrix
     and forces equal the model's."""
     import mujoco
     from rscasadi.export.mujoco import gear_map, mujoco_xml
@@ -161,9 +177,15 @@ def test_a_whole_robot_of_mixed_kinds_from_its_urdf(tmp_path):
         for j in ("w0", "w1", "w2"):
             joints.append({"name": f"{side}_{j}", "kind": "geared", "gear_ratio": 80.0, "gear_loss": {"b": 0.2},
                            "slow_rotor": rotor(0.1, 5e-5), "fast_rotor": rotor(0.05, 5e-6)})
-    doc = {"name": "baxter-kinds", "urdf": str(urdf), "tips": ["left_gripper", "right_gripper", "head"], "joints": joints}
+        joints += [{"name": f"{side[0]}_gripper_l_finger_joint", "kind": "direct", "limits": {"tau": 20.0}},
+                   {"name": f"{side[0]}_gripper_r_finger_joint", "kind": "spring", "spring": {"k": 300.0, "theta0": -0.01},
+                    "link_loss": {"b": 0.7}}]
+    fingers = [f"{s}_gripper_{f}_finger" for s in "lr" for f in "lr"]
+    doc = {"name": "baxter-kinds", "urdf": str(urdf), "tips": ["left_gripper", "right_gripper", "head"] + fingers,
+           "joints": joints}
     arm = rscasadi.load(write_arm(tmp_path, doc, "baxter.toml"))
-    assert (arm.n, arm.m, arm.u) == (15, 8, 15)
+    assert (arm.n, arm.m, arm.u) == (19, 8, 17)
+    assert [jt.name for jt in arm.model.joints if jt.type == "prismatic"] == [f + "_joint" for f in fingers]
     route = PinocchioRoute.from_urdf(arm.model)
     m = mujoco.MjModel.from_xml_string(mujoco_xml(arm.model))
     d, T = mujoco.MjData(m), gear_map(arm, m)
@@ -281,18 +303,19 @@ def test_simulation_of_every_kind_follows_pinocchio(tmp_path):
 
 
 def test_optimal_control_of_every_kind_is_verified_and_rests_where_it_hangs(tmp_path):
-    """A minimum-time motion of a tree with an SEA, a geared joint (speed-limited), a direct
-    drive and a passive spring: the condensed implicit form with fatrop and the lifted explicit
+    """A minimum-time motion of a tree with an SEA, a geared joint (speed-limited), a prismatic
+    direct drive and a passive spring: the condensed implicit form with fatrop and the lifted explicit
     form with IPOPT find the same duration; the torques replayed on the complete model verify;
-    the geared joint's speed limit is what sets the time; the passive joint starts and ends
+    the geared joint runs at its speed limit, which sets most of the time; the passive joint starts and ends
     balanced by its spring and gravity (Pinocchio's M, h and forces, to 1e-6 of gravity)."""
     import dataclasses
     from rscasadi.ocp.problem import load_problem
     from rscasadi.ocp.solving import solve
     rng = np.random.default_rng(5)
     doc = with_kinds(random_tree_doc(rng, 4), ["sea", "geared", "direct", "spring"], rng)
+    doc["joints"][2]["type"] = "prismatic"
     for jt in doc["joints"]:
-        jt["limits"] = {"tau": 50.0} if jt.get("kind") != "spring" else {}
+        jt["limits"] = {"tau": 200.0 if jt.get("type") else 50.0} if jt.get("kind") != "spring" else {}
         if jt.get("kind") == "geared":
             jt["limits"]["dphi"] = 1.0
     write_arm(tmp_path, doc, "kinds.toml")
@@ -308,7 +331,7 @@ def test_optimal_control_of_every_kind_is_verified_and_rests_where_it_hangs(tmp_
     assert abs(fatrop.t[-1] - ipopt.t[-1]) < 1e-6 * fatrop.t[-1]
     arm = fatrop.arm()
     assert fatrop.phi.shape[0] == arm.m == 1 and fatrop.tau.shape[0] == arm.u == 3
-    assert 0.4 <= fatrop.t[-1] < 0.45                        # 0.4 rad at the geared joint's 1 rad/s
+    assert 0.4 <= fatrop.t[-1] < 0.5        # 0.4 rad at the geared joint's 1 rad/s, the spring on the slide settling
     speed = fatrop.sample("dtheta", np.linspace(0, fatrop.t[-1], 200))[1]
     assert abs(np.abs(speed).max() - 1.0) < 5e-3
     route = PinocchioRoute(arm.model)
@@ -320,8 +343,9 @@ def test_optimal_control_of_every_kind_is_verified_and_rests_where_it_hangs(tmp_
 
 
 def test_the_c_mpc_drives_a_robot_of_every_kind_in_mujoco(tmp_path):
-    """The generated MPC of a tree with an SEA, a speed-limited geared joint, a direct drive and a
-    damped passive spring (its torques one per input, its state the 10 coordinates' and speeds),
+    """The generated MPC of a tree with an SEA, a speed-limited geared joint, a prismatic direct
+    drive and a damped passive spring (its inputs one per actuated joint, its state the 10
+    coordinates' and speeds),
     closing the loop at 1 kHz on the MuJoCo export: from rest to rest at a pose (the passive
     joint where it then hangs) in 1.5 s, every torque within its limit, the geared joint within
     its speed limit; fuzzed, bad measurements and targets refused by code with the holding
@@ -334,9 +358,10 @@ def test_the_c_mpc_drives_a_robot_of_every_kind_in_mujoco(tmp_path):
     from rscasadi.sim.loop import Encoders, limit_violation, run_loop
     rng = np.random.default_rng(5)
     doc = with_kinds(random_tree_doc(rng, 4), ["sea", "geared", "direct", "spring"], rng)
+    doc["joints"][2]["type"] = "prismatic"
     for jt in doc["joints"]:
         kind = jt.get("kind", "sea")
-        jt["limits"] = {"tau": 20.0} if kind == "direct" else {} if kind == "spring" else {"tau": 0.5}
+        jt["limits"] = {"tau": 100.0} if kind == "direct" else {} if kind == "spring" else {"tau": 0.5}
         if kind == "sea":
             jt["sea"]["k3"] = 0.0                                # MuJoCo's tendon is linear
         if "gear_loss" in jt:
@@ -352,18 +377,18 @@ def test_the_c_mpc_drives_a_robot_of_every_kind_in_mujoco(tmp_path):
     manifest = generate_mpc(tmp_path / "mpc.toml", tmp_path / "mpc", opt="-O1", log=lambda m: None)
     arm = rscasadi.load(tmp_path / "kinds.toml")
     assert manifest["sizes"]["x"] == 2 * arm.nq == 10 and manifest["sizes"]["tau"] == arm.u == 3
-    target = rest(arm, np.array([0.4, -0.3, 0.3, 0.0]))[0]
+    target = rest(arm, np.array([0.4, -0.3, 0.2, 0.0]))[0]       # the slide to 0.2 m
     dt = 0.001
     run = run_loop(arm, mujoco_plant(arm, dt), _MPC(CompiledMPC(tmp_path / "mpc"), target=target),
                    rest_state(arm, np.zeros(4)), 1500, dt, sensors=Encoders(arm, dt, exact=True))
     error = np.abs(run.x[:arm.n, -1] - target)
     assert np.all(error[:3] < 1e-3) and error[3] < 5e-3, error
-    assert np.all(np.abs(run.tau) <= np.array([0.5, 0.5, 20.0])[:, None] + 1e-12)
+    assert np.all(np.abs(run.tau) <= np.array([0.5, 0.5, 100.0])[:, None] + 1e-12)
     assert np.abs(run.x[arm.nq + 1]).max() < 1.0 * 1.01 and limit_violation(arm, run) < 0.01
     # fuzzed: a bad entry in 40 % of the measurements or targets is refused by its code (6, 7), the
     # output stays finite and within the limits, and the next good sample is acted on
     from rscasadi.dynamics.statics import holding_torque
-    limit = np.array([0.5, 0.5, 20.0])
+    limit = np.array([0.5, 0.5, 100.0])
     hold = lambda x: np.clip(np.array(holding_torque(arm)(x[:4], x[4:5])).ravel(), -limit, limit)   # noqa: E731
     mpc, x0 = CompiledMPC(tmp_path / "mpc"), rest_state(arm, np.zeros(4))
     assert mpc.init(x0) == 0

@@ -1,8 +1,8 @@
 """Robots that are trees: the recursions over a parent array, checked against Pinocchio with the
 rotors as bodies of their own (a tree of 3n joints built depth first, sharing no code with the
-recursions), on random trees and on two public whole robots read from their URDFs: Baxter's two
-arms and head (three branches on the torso) and the Unitree G1's upper body (a waist carrying two
-arms)."""
+recursions), on random trees and on three public whole robots read from their URDFs: Baxter's two
+arms and head (three branches on the torso), the Unitree G1's upper body (a waist carrying two
+arms) and the PR2 (a prismatic torso lift carrying two arms and the head)."""
 import copy
 import tomllib
 
@@ -20,6 +20,8 @@ from conftest import ROOT, check_against_pinocchio, dm, random_state, random_tre
 
 BAXTER = ROOT / "tests" / "data" / "baxter_description" / "urdf" / "baxter.urdf"
 G1 = ROOT / "tests" / "data" / "g1_description" / "urdf" / "g1_29dof_rev_1_0.urdf"
+PR2 = ROOT / "tests" / "data" / "pr2_description" / "urdf" / "pr2.urdf"
+PR2_ARM = ("shoulder_pan", "shoulder_lift", "upper_arm_roll", "elbow_flex", "forearm_roll", "wrist_flex", "wrist_roll")
 ARM7 = ("s0", "s1", "e0", "e1", "w0", "w1", "w2")
 G1_ARM = ("shoulder_pitch", "shoulder_roll", "shoulder_yaw", "elbow", "wrist_roll", "wrist_pitch", "wrist_yaw")
 ROBOTS = {
@@ -28,7 +30,11 @@ ROBOTS = {
     "g1": (G1, ["left_rubber_hand", "right_rubber_hand"],
            ["waist_yaw_joint", "waist_roll_joint", "waist_pitch_joint"]
            + [f"{s}_{j}_joint" for s in ("left", "right") for j in G1_ARM]),
+    "pr2": (PR2, ["l_gripper_tool_frame", "r_gripper_tool_frame", "head_plate_frame"],
+            ["torso_lift_joint", "head_pan_joint", "head_tilt_joint"]
+            + [f"{s}_{j}_joint" for s in "lr" for j in PR2_ARM]),
 }
+OTHER_KINDS = {"torso_lift_joint": {"kind": "direct", "limits": {"tau": 10000.0}}}   # a prismatic lift
 
 
 def actuator(name: str, rng) -> dict:
@@ -42,7 +48,8 @@ def actuator(name: str, rng) -> dict:
 def whole_robot(tmp_path, name):
     urdf, tips, joints = ROBOTS[name]
     rng = np.random.default_rng(len(joints))
-    doc = {"name": f"{name}-tree", "urdf": str(urdf), "tips": tips, "joints": [actuator(j, rng) for j in joints]}
+    doc = {"name": f"{name}-tree", "urdf": str(urdf), "tips": tips,
+           "joints": [{"name": j, **OTHER_KINDS[j]} if j in OTHER_KINDS else actuator(j, rng) for j in joints]}
     return rscasadi.load(write_arm(tmp_path, doc, f"{name}.toml"))
 
 
@@ -67,8 +74,10 @@ def test_random_trees_equal_pinocchio_with_rotors_as_bodies(tmp_path, seed, n):
 
 @pytest.mark.parametrize("name", ROBOTS)
 def test_whole_robots_from_their_urdf_equal_pinocchio_s_own_parse(tmp_path, name):
-    """Baxter with both arms and the head (15 joints, tips = the two grippers and the head) and
-    the G1's upper body (17 joints; a waist carrying two arms; the legs held): the link tree from
+    """Baxter with both arms and the head (15 joints, tips = the two grippers and the head), the
+    G1's upper body (17 joints; a waist carrying two arms; the legs held) and the PR2 (17 joints:
+    its prismatic torso lift, direct, carrying the head and two arms with continuous rolls; casters,
+    laser and grippers held): the link tree from
     Pinocchio's own URDF parser (fixed links merged, held joints removed by its
     buildReducedModel), the rotors as bodies, equal to ours; the hands' placements equal
     Pinocchio's frames of those URDF links."""
@@ -84,7 +93,8 @@ def test_whole_robots_from_their_urdf_equal_pinocchio_s_own_parse(tmp_path, name
         theta = rng.uniform(-1, 1, arm.n)
         q = pin.neutral(reduced)
         for name_j, th in zip(joints, theta):
-            q[reduced.joints[reduced.getJointId(name_j)].idx_q] = th
+            jm = reduced.joints[reduced.getJointId(name_j)]
+            q[jm.idx_q:jm.idx_q + jm.nq] = [np.cos(th), np.sin(th)] if jm.nq == 2 else [th]
         pin.framesForwardKinematics(reduced, data, q)
         for tip in tips:
             R, p = (np.array(v) for v in arm.frame_placement(tip)(theta))

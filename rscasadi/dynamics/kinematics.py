@@ -33,7 +33,7 @@ def body_poses(model, theta, root=None) -> list:
     poses = [(ca.DM.eye(3), ca.DM.zeros(3)) if root is None else root]
     for j, (jt, parent) in enumerate(zip(model.joints, model.parent)):
         R_p, o_p = poses[parent + 1]
-        poses.append(base_pose(R_p, o_p, joint_rotation(jt.R, theta[j]), jt.origin_xyz))
+        poses.append(base_pose(R_p, o_p, *jt.joint_motion.placement(jt.R, jt.origin_xyz, theta[j])))
     return poses
 
 
@@ -45,8 +45,9 @@ def frame_pose(model, frame, theta, poses=None) -> tuple:
 
 def frame_jacobian(model, frame, theta, reference: str = "local_world_aligned"):
     """J (6 x n, [linear; angular]) with [v; w] = J dtheta in `reference` (module docstring).
-    The angular column of joint j is its axis in the world (the z of its link's frame) when the
-    frame rides on that link or on a link it carries, else zero; the linear part is dp/dtheta."""
+    The angular column of a revolute joint j is its axis in the world (the z of its link's frame)
+    when the frame rides on that link or on a link it carries, else zero (always zero for a
+    prismatic joint); the linear part is dp/dtheta."""
     R, p, J = _placement_and_jacobian(model, frame, theta)
     return _expressed(reference, R, p, J[:3, :], J[3:, :])
 
@@ -56,7 +57,8 @@ def _placement_and_jacobian(model, frame, theta) -> tuple:
     poses = body_poses(model, theta)
     R, p = frame_pose(model, frame, theta, poses)
     support = set(model.support(frame.body))
-    Jw = ca.horzcat(*[poses[j + 1][0][:, 2] if j in support else ca.DM.zeros(3) for j in range(model.n)])
+    Jw = ca.horzcat(*[poses[j + 1][0][:, 2] if j in support and jt.joint_motion.turns else ca.DM.zeros(3)
+                      for j, jt in enumerate(model.joints)])
     return R, p, ca.vertcat(ca.jacobian(p, theta), Jw)
 
 
@@ -95,16 +97,17 @@ def center_of_mass(segs, theta, phi):
     mass, moment, poses = 0, ca.DM.zeros(3), []
     for j, seg in enumerate(segs):
         R_p, o_p = poses[seg.parent] if seg.parent >= 0 else (ca.DM.eye(3), ca.DM.zeros(3))
-        bodies = [(seg.M, joint_rotation(seg.R, theta[j]))]
+        R_link, l_link = seg.motion.placement(seg.R, seg.l, theta[j])
+        bodies = [(seg.M, R_link)]
         bodies += [(M, joint_rotation(seg.R, rec.rotor_frame_angle(gear, spins, phi[seg.motor])))
                    for gear, M, spins in seg.leaves]
         bodies += [(M, joint_rotation(seg.R, rec.rotor_frame_angle(gear, spins, theta[j])))
                    for gear, M, spins in seg.geared]
-        for M, R in bodies:
-            R_b, o = base_pose(R_p, o_p, R, seg.l)
+        for i, (M, R) in enumerate(bodies):
+            R_b, o = base_pose(R_p, o_p, R, l_link if i == 0 else seg.l)
             m, mp = M[3, 3], ca.vertcat(M[2, 4], M[0, 5], M[1, 3])       # eq. (11): m and m c
             mass, moment = mass + m, moment + m * o + R_b @ mp
-        poses.append(base_pose(R_p, o_p, bodies[0][1], seg.l))
+        poses.append(base_pose(R_p, o_p, R_link, l_link))
     return moment / mass
 
 

@@ -29,7 +29,8 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from rscasadi.spatial import H, Xup, as_casadi, base_acceleration, base_pose, coriolis, gyroscopic, joint_rotation
+from rscasadi.spatial import (REVOLUTE, H, Motion, Xup, as_casadi, base_acceleration, base_pose, coriolis, gyroscopic,
+                              joint_rotation)
 
 
 @dataclass
@@ -45,6 +46,7 @@ class Segment:
     motor: int | None = None  # the index of joint j's motor coordinate in phi, if it has one
     geared: list = field(default_factory=list)   # [(gear, M, spins)] rotors turning with theta_j
     B_link: float = 0.0      # reduced model only: the spin inertia of geared rotors on theta_j
+    motion: Motion = REVOLUTE  # the link turns about z of J_j or slides along it (rotors only on a turn)
 
 
 @dataclass
@@ -87,7 +89,8 @@ def segments(model, phys, reduced: bool = False) -> list:
         spin = phys.rotor_inertia(j) if reduced and kind.rotors else 0.0
         segs.append(Segment(jt.R, jt.origin_xyz, M["link"], rotors if on_motor and not reduced else [],
                             spin if on_motor else 0.0, parent, motors.get(j),
-                            rotors if on_link and not reduced else [], spin if on_link else 0.0))
+                            rotors if on_link and not reduced else [], spin if on_link else 0.0,
+                            jt.joint_motion))
     if reduced:  # joint j's rotors carried rigidly by its parent link at zero angle (exact for balanced rotors)
         for jt, M, parent in zip(model.joints, phys.inertias, model.parent):
             if parent < 0 or not jt.joint_kind.rotors:
@@ -104,11 +107,11 @@ def kinematics(segs, theta, phi, dtheta, dphi, base: Base | None = None) -> list
     V0 = base.V if base is not None else ca.DM.zeros(6)
     for j, seg in enumerate(segs):
         V_p = kin[seg.parent].V if seg.parent >= 0 else V0
-        R = joint_rotation(seg.R, theta[j])
-        X = Xup(R, seg.l)
+        R, l = seg.motion.placement(seg.R, seg.l, theta[j])
+        X = Xup(R, l)
         m = seg.motor
         q = (theta[j], None, dtheta[j], None) if m is None else (theta[j], phi[m], dtheta[j], dphi[m])
-        k = Kin(q, X, X @ V_p + H * dtheta[j], coriolis(R, seg.l, V_p[:3], dtheta[j]))
+        k = Kin(q, X, X @ V_p + seg.motion.H * dtheta[j], seg.motion.coriolis(R, l, V_p[:3], dtheta[j]))
         k.leaves = [_rotor(seg, V_p, rotor, q[1], q[3]) for rotor in seg.leaves]
         k.geared = [_rotor(seg, V_p, rotor, q[0], q[2]) for rotor in seg.geared]
         kin.append(k)
@@ -134,7 +137,7 @@ def accelerations(segs, kin, ddtheta, ddphi, gravity, alpha0=None):
         alpha_p = alpha[seg.parent] if seg.parent >= 0 else alpha_base
         alpha_r.append([Xr @ alpha_p + H * gear * ddphi[seg.motor] + ar for gear, _, Xr, _, ar in k.leaves])
         alpha_g.append([Xr @ alpha_p + H * gear * ddtheta[j] + ar for gear, _, Xr, _, ar in k.geared])
-        alpha.append(k.X @ alpha_p + H * ddtheta[j] + k.a)
+        alpha.append(k.X @ alpha_p + seg.motion.H * ddtheta[j] + k.a)
     return alpha, alpha_r, alpha_g
 
 
@@ -159,7 +162,7 @@ def inverse_dynamics(segs, kin, ddtheta, ddphi, gravity, f_ext=None, base: Base 
             f = f - f_ext[j]                                           # the environment's share
         rotor_f = [rotor_force(M, Vr, ar) for (_, M, _, Vr, _), ar in zip(kin[j].leaves, alpha_r[j])]
         geared_f = [rotor_force(M, Vr, ar) for (_, M, _, Vr, _), ar in zip(kin[j].geared, alpha_g[j])]
-        T[j] = f[2]                                                    # eq. (26): T_k = H^T f_k
+        T[j] = f[seg.motion.index]                                     # eq. (26): T_k = H^T f_k
         if kin[j].geared:                                              # and the rotors turning with theta_j
             T[j] = T[j] + seg.B_link * ddtheta[j] + _spin(kin[j].geared, geared_f)
         elif seg.B_link:
@@ -205,12 +208,13 @@ def leaf_articulated(seg, k, Qphi_j):
     return D, U, eps, P_add - U @ U.T / D, z_add + U * eps / D
 
 
-def project(P, z, torque):
-    """One joint of the articulated sweep, eqs. (4)-(5): G, nu, P^+, z^+ from P, z and the joint torque."""
-    D = P[2, 2]                                                    # D = H^T P H
-    G = P[:, 2] / D                                                # G = P H D^-1
-    eps = torque - z[2]                                            # eps = T - H^T z
-    return G, eps / D, P - G @ P[2, :], z + G * eps                # nu, P+ = (1 - G H^T) P, z+ = z + G eps
+def project(P, z, torque, i: int = 2):
+    """One joint of the articulated sweep, eqs. (4)-(5): G, nu, P^+, z^+ from P, z and the joint
+    torque (or force); i: the entry its coordinate moves (H = e_i: 2 a turn, 5 a slide)."""
+    D = P[i, i]                                                    # D = H^T P H
+    G = P[:, i] / D                                                # G = P H D^-1
+    eps = torque - z[i]                                            # eps = T - H^T z
+    return G, eps / D, P - G @ P[i, :], z + G * eps                # nu, P+ = (1 - G H^T) P, z+ = z + G eps
 
 
 def geared_cluster(seg, k, P, z, torque):
@@ -251,7 +255,7 @@ def forward_dynamics(segs, kin, Qtheta, Qphi, gravity, f_ext=None, base: Base | 
             D, U, u, P_add, z_add = geared_cluster(seg, k, P, z, Qtheta[j])
             solve[j] = lambda alpha_p, alpha_plus, D=D, U=U, u=u: (u - U.T @ alpha_p) / D
         else:
-            G, nu, P_plus, z_plus = project(P, z, Qtheta[j])
+            G, nu, P_plus, z_plus = project(P, z, Qtheta[j], seg.motion.index)
             solve[j] = lambda alpha_p, alpha_plus, G=G, nu=nu: nu - G.T @ alpha_plus
             P_add, z_add = k.X.T @ P_plus @ k.X, k.X.T @ z_plus
         if seg.motor is not None:
@@ -272,7 +276,7 @@ def forward_dynamics(segs, kin, Qtheta, Qphi, gravity, f_ext=None, base: Base | 
             ddphi.append((eps_r - U_r.T @ alpha_p) / D_r)          # eq. (23)
         alpha_plus = kin[j].X @ alpha_p
         ddtheta.append(solve[j](alpha_p, alpha_plus))
-        alpha.append(alpha_plus + H * ddtheta[j] + kin[j].a)
+        alpha.append(alpha_plus + segs[j].motion.H * ddtheta[j] + kin[j].a)
     out = ca.vertcat(*ddtheta), _column(ddphi)
     return out if base is None else out + (alpha0,)
 
@@ -362,14 +366,15 @@ def body_states(segs, kin, base: Base | None = None):
     for seg, k in zip(segs, kin):
         theta = k.q[0]
         R_p, o_p = poses[seg.parent] if seg.parent >= 0 else root
-        bodies = [(seg.M, k.V, joint_rotation(seg.R, theta))]
+        R_link, l_link = seg.motion.placement(seg.R, seg.l, theta)
+        bodies = [(seg.M, k.V, R_link)]
         bodies += [(M, Vr, joint_rotation(seg.R, rotor_frame_angle(gear, spins, k.q[1])))
                    for (gear, M, _, Vr, _), (_, _, spins) in zip(k.leaves, seg.leaves)]
         bodies += [(M, Vr, joint_rotation(seg.R, rotor_frame_angle(gear, spins, theta)))
                    for (gear, M, _, Vr, _), (_, _, spins) in zip(k.geared, seg.geared)]
-        for M, V, R in bodies:
-            yield (M, V) + base_pose(R_p, o_p, R, seg.l)
-        poses.append(base_pose(R_p, o_p, bodies[0][2], seg.l))
+        for i, (M, V, R) in enumerate(bodies):
+            yield (M, V) + base_pose(R_p, o_p, R, l_link if i == 0 else seg.l)
+        poses.append(base_pose(R_p, o_p, R_link, l_link))
 
 
 def energy(segs, kin, gravity, base: Base | None = None):

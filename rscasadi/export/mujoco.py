@@ -16,7 +16,8 @@ the joint frame J_j:
 Joints of other kinds (rscasadi.model.kinds): a geared joint's rotors are bodies as an SEA's, the
 slow one held to the link by a second equality (slow = theta) instead of the spring; a spring
 joint is its link hinge's stiffness and springref; a direct joint's motor acts on its link hinge;
-a free joint is its link hinge alone.  In the reduced and armature files a geared joint's rotors
+a free joint is its link hinge alone.  A prismatic joint's link is a slide along z instead of
+a hinge (its ref a distance; no rotors).  In the reduced and armature files a geared joint's rotors
 are welded and their spin inertia is the link hinge's armature.
 Inertias are each body's own (mass, centre of mass, inertia about it, in the joint or link frame;
 `inertiafromgeom` off, so geometry never changes them).  The model's frames are sites on their
@@ -87,6 +88,15 @@ def _hinge_frame(pos, R, ref: float) -> str:
     by ref about z, so that at qpos = q it is R Rz(q), as with ref 0 (MuJoCo turns a hinge's body
     by qpos - qpos0)."""
     return f'pos="{_numbers(pos)}" quat="{_quat(np.asarray(R, float) @ _rz(ref))}"'
+
+
+def _link_frame(jt, ref: float) -> str:
+    """A link body's pos and quat at qpos0 = `ref`: a hinge's (`_hinge_frame`), or a slide's,
+    moved by ref along z of J (MuJoCo slides a body by qpos - qpos0)."""
+    if jt.joint_motion.turns:
+        return _hinge_frame(jt.origin_xyz, jt.R, ref)
+    R = np.asarray(jt.R, float)
+    return f'pos="{_numbers(np.asarray(jt.origin_xyz, float) + R[:, 2] * ref)}" quat="{_quat(R)}"'
 
 
 REST_MARGIN = 0.05        # the rest angle keeps this fraction of its range from either end
@@ -264,9 +274,10 @@ def mujoco_xml(model, variant: str = "complete") -> str:
         damping = jt.link_b + (jt.b if welded else 0.0)
         link_side = (f' damping="{float(damping)!r}"' if damping else "") + (
             f' stiffness="{float(jt.cb_k)!r}" springref="{float(jt.cb_theta0)!r}"' if jt.cb_k else "")
-        out = [f'{indent}<body name="{name}_link" {_hinge_frame(jt.origin_xyz, jt.R, theta0[j])}>',
+        out = [f'{indent}<body name="{name}_link" {_link_frame(jt, theta0[j])}>',
                _inertial(jt.link, indent + "  ").rstrip("\n"),
-               f'{indent}  <joint name="{name}" type="hinge" axis="0 0 1" ref="{float(theta0[j])!r}"{rigid}{link_side}'
+               f'{indent}  <joint name="{name}" type="{"hinge" if jt.joint_motion.turns else "slide"}" axis="0 0 1" '
+               f'ref="{float(theta0[j])!r}"{rigid}{link_side}'
                + (f' range="{theta[0]!r} {theta[1]!r}"' if theta is not None and np.all(np.isfinite(theta)) else "")
                + "/>"] + _attached(model, j + 1, indent + "  ")
         for child in model.children(j):

@@ -12,6 +12,8 @@ Every caller reads these attributes; none asks for a kind by name.
 | `free`   | theta                  | none                                 | none   | none                              |
 | `direct` | theta                  | none                                 | tau    | tau on the joint                  |
 
+A joint turns its link about its axis (URDF revolute or continuous), or slides it along the axis
+(prismatic: spring, free and direct only, its coordinate in m and its force in N; rotors turn).
 A `geared` joint is an `sea` joint whose spring is rigid: k1 -> infinity takes one to the other.
 Every kind also feels its link-side loss (`link_loss`).  A `locked` joint is not a joint of the
 model: a URDF's [locked] table holds it, its child link merged into its parent.
@@ -21,6 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 REVOLUTE = ("revolute", "continuous")
+SLIDING = REVOLUTE + ("prismatic",)
 
 
 @dataclass(frozen=True)
@@ -42,9 +45,9 @@ class Kind:
 _ROTOR_KEYS = ("gear_ratio", "slow_rotor", "fast_rotor", "gear_loss", "torque_constant")
 SEA = Kind("sea", True, "motor", True, ("gear_ratio", "sea", "slow_rotor", "fast_rotor"), ("spring",), REVOLUTE)
 GEARED = Kind("geared", False, "link", True, ("gear_ratio", "slow_rotor", "fast_rotor"), ("sea", "spring"), REVOLUTE)
-SPRING = Kind("spring", False, "", False, ("spring",), _ROTOR_KEYS + ("sea", "counterbalance"), REVOLUTE)
-FREE = Kind("free", False, "", False, (), _ROTOR_KEYS + ("sea", "spring"), REVOLUTE)
-DIRECT = Kind("direct", False, "", True, (), _ROTOR_KEYS + ("sea", "spring"), REVOLUTE)
+SPRING = Kind("spring", False, "", False, ("spring",), _ROTOR_KEYS + ("sea", "counterbalance"), SLIDING)
+FREE = Kind("free", False, "", False, (), _ROTOR_KEYS + ("sea", "spring"), SLIDING)
+DIRECT = Kind("direct", False, "", True, (), _ROTOR_KEYS + ("sea", "spring"), SLIDING)
 KINDS = {k.name: k for k in (SEA, GEARED, SPRING, FREE, DIRECT)}
 
 

@@ -19,6 +19,7 @@ from rscasadi.files import cache_dir, sources_digest
 from rscasadi.model.checks import (ACTUATOR_KEYS, _body, _Ctx, _number, _table, _vector,  # noqa: F401
                                    actuator, field_checker, joint_context, orientation, read_toml)
 from rscasadi.model.collision import collision, collision_document
+from rscasadi.model.kinds import KINDS
 from rscasadi.model.frames import contacts, frames_document, link_frames, payload, payload_document, user_frames
 from rscasadi.model.types import (BASE, BODIES, BODY_KEYS, DEFAULT_GRAVITY, JOINT_KEYS, TOP_KEYS, ArmModel,  # noqa: F401
                                   Body, Joint, ModelFileError, inertia_problem, rotation_document, rpy_matrix,
@@ -30,9 +31,16 @@ def _joint(path, idx, raw, names) -> Joint:
     if "origin_rpy" not in t and "origin_R" not in t:
         ctx.fail("origin_rpy", "missing required field (or origin_R, a rotation matrix)")
     rpy, R = orientation(ctx, t, "origin_rpy", "origin_R")
+    act = actuator(ctx, {k: v for k, v in t.items()}, names)
+    kind, jtype = KINDS[act["kind"]], t.get("type", "revolute")
+    if jtype not in ("revolute", "prismatic"):
+        ctx.fail("type", f"expected \"revolute\" or \"prismatic\", got {jtype!r}")
+    if jtype not in kind.fits:
+        ctx.fail("type", f"a {kind.name} joint cannot be {jtype} (a {kind.name} joint models "
+                         f"{', '.join(kind.fits)} joints)")
     return Joint(origin_xyz=_vector(ctx, "origin_xyz", t["origin_xyz"], 3),
                  origin_rpy=rpy if R is None else (rpy_of(R) if rpy_of(R) is not None else np.full(3, np.nan)),
-                 origin_R=R, link=_body(ctx, "link", t["link"]), **actuator(ctx, {k: v for k, v in t.items()}, names))
+                 origin_R=R, link=_body(ctx, "link", t["link"]), type=jtype, **act)
 
 
 def _parents(path, raw_joints, joints) -> tuple:
@@ -251,6 +259,7 @@ def document(model: ArmModel) -> dict:
     for j, jt in enumerate(model.joints):
         limits = {k: (list(v) if isinstance(v, tuple) else v) for k, v in jt.limits.items()}
         joints.append({"name": jt.name, **({"parent": parent_name(model, j)} if model.parents else {}),
+                       **({"type": jt.type} if jt.type != "revolute" else {}),
                        "origin_xyz": [float(x) for x in jt.origin_xyz],
                        **rotation_document(jt.R, "origin_rpy", "origin_R"), **actuator_document(jt),
                        **link_side_document(jt),

@@ -14,7 +14,7 @@ from rscasadi.errors import Error, NotFound
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
 TOP_KEYS = {"name", "gravity", "joints", "frames", "payload", "collision", "floating", "base", "contacts"}
-JOINT_KEYS = {"name", "kind", "spring", "parent", "origin_xyz", "origin_rpy", "origin_R", "gear_ratio", "sea", "gear_loss", "limits",
+JOINT_KEYS = {"name", "kind", "type", "spring", "parent", "origin_xyz", "origin_rpy", "origin_R", "gear_ratio", "sea", "gear_loss", "limits",
               "link", "slow_rotor", "fast_rotor", "link_loss", "counterbalance", "torque_constant"}
 BODY_KEYS = {"mass", "com", "inertia"}
 SEA_KEYS = {"k1", "k3", "d"}
@@ -100,6 +100,7 @@ class Joint:
     declared: frozenset = frozenset()    # the optional terms the file gives (link_loss, counterbalance,
     #                                      gear_loss.c1, gear_loss.stribeck)
     kind: str = "sea"                    # rscasadi.model.kinds: sea, geared, spring, free, direct
+    type: str = "revolute"               # the link turns about J_j's z ("revolute") or slides along it ("prismatic")
 
     @property
     def R(self) -> np.ndarray:
@@ -114,6 +115,12 @@ class Joint:
         """The joint's Kind (rscasadi.model.kinds)."""
         from rscasadi.model.kinds import KINDS
         return KINDS[self.kind]
+
+    @property
+    def joint_motion(self):
+        """How the link moves within J_j (rscasadi.spatial.Motion)."""
+        from rscasadi.spatial import MOTIONS
+        return MOTIONS[self.type]
 
     @property
     def rotor_inertia(self) -> float:

@@ -221,13 +221,14 @@ def parse_urdf_form(data: dict, path: str) -> ArmModel:
             jctx.fail("link", f"merged inertia of {', '.join(bodies[j + 1]['links'])} {problem}")
         limits = dict(act.pop("limits"))
         lim = ujoint.limit
-        if "theta" not in limits and ujoint.type == "revolute" and lim is not None \
+        if "theta" not in limits and ujoint.type in ("revolute", "prismatic") and lim is not None \
                 and lim.lower is not None and lim.upper is not None and np.isfinite([lim.lower, lim.upper]).all() \
                 and lim.lower < lim.upper:
             limits["theta"] = (float(lim.lower), float(lim.upper))
         rpy = rpy_of(R_J)                               # informative only: origin_R is what counts
         joints.append(Joint(origin_xyz=R_prev.T @ T_acc[:3, 3], origin_rpy=np.full(3, np.nan) if rpy is None else rpy,
-                            link=link, limits=limits, origin_R=R_J, **act))
+                            link=link, limits=limits, origin_R=R_J,
+                            type="prismatic" if ujoint.type == "prismatic" else "revolute", **act))
         axes.append(R_a)
     tips = data.get("tips") or ([data["tip"]] if "tip" in data else [])
     extra = {"urdf": str(urdf_path), "locked": held_at, "links": [b["links"] for b in bodies]}

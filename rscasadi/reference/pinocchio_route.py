@@ -31,7 +31,8 @@ class PinocchioRoute:
         the model's); q = (base, ...) and v = (base, ...) as docs/user-guide/floating.md."""
         self.arm_model, n = model, model.n
         if stages is None:
-            stages = [(pin.SE3(jt.R, np.asarray(jt.origin_xyz, float)), pin.JointModelRZ(),
+            stages = [(pin.SE3(jt.R, np.asarray(jt.origin_xyz, float)),
+                       pin.JointModelRZ() if jt.joint_motion.turns else pin.JointModelPZ(),
                        _inertia(jt.link, np.eye(3)), np.eye(3)) for jt in model.joints]
         self.model = pin.Model()
         self.model.gravity.linear = np.asarray(model.gravity if gravity is None else gravity, float)
@@ -84,8 +85,9 @@ class PinocchioRoute:
             raise InvalidArgument(f"Pinocchio's tree {names} differs from the model's joints {ours}")
         stages = []
         for i in (reduced.getJointId(name) for name in ours):
-            axis = _axis(reduced.joints[i])
-            stages.append((reduced.jointPlacements[i], pin.JointModelRevoluteUnaligned(*axis),
+            axis, slides = _axis(reduced.joints[i])
+            jmodel = (pin.JointModelPrismaticUnaligned if slides else pin.JointModelRevoluteUnaligned)(*axis)
+            stages.append((reduced.jointPlacements[i], jmodel,
                            reduced.inertias[i], axis_rotation(axis)))
         return cls(model, stages, base_inertia=reduced.inertias[1] if model.floating else None)
 
@@ -193,13 +195,14 @@ def _inertia(body, R):
     return pin.Inertia(body.mass, R @ np.asarray(body.com, float), R @ body.inertia @ R.T)
 
 
-def _axis(jmodel) -> np.ndarray:
-    """The rotation axis of a Pinocchio revolute joint model, in its joint frame."""
+def _axis(jmodel) -> tuple:
+    """The axis of a Pinocchio revolute or prismatic joint model, in its joint frame, and
+    whether it slides."""
     short = jmodel.shortname()
     for letter, axis in (("X", [1.0, 0, 0]), ("Y", [0, 1.0, 0]), ("Z", [0, 0, 1.0])):
-        if short in (f"JointModelR{letter}", f"JointModelRUB{letter}"):
-            return np.array(axis)
+        if short in (f"JointModelR{letter}", f"JointModelRUB{letter}", f"JointModelP{letter}"):
+            return np.array(axis), short.startswith("JointModelP")
     specific = jmodel.extract() if hasattr(jmodel, "extract") else jmodel
     if hasattr(specific, "axis"):
-        return np.asarray(specific.axis, float)
-    raise InvalidArgument(f"not a revolute joint: {short}")
+        return np.asarray(specific.axis, float), "Prismatic" in short
+    raise InvalidArgument(f"not a revolute or prismatic joint: {short}")
