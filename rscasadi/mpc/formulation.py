@@ -131,7 +131,7 @@ def input_limits(arm: Arm) -> np.ndarray:
 
 
 def reference_rows(n: int, p: MPCProblem) -> int:
-    """Rows of one reference column: 2n (link angles and speeds) or the task space's 6 or 15."""
+    """Rows of one reference column: 2n (link angles and speeds) or the task space's 6 or 15 per frame."""
     return p.reference_rows if p.task_space else 2 * n
 
 
@@ -142,7 +142,7 @@ def mpc_terms(arm: Arm, p: MPCProblem, limits: dict) -> tuple:
     middle), the obstacles, then the problem's own terms, soft at their weights."""
     n, w = arm.n, p.weights
     if p.task_space:
-        terms = [FrameTracking(p.frame, w["position"], w["velocity"], w["orientation"] if p.orientation else None),
+        terms = [FrameTracking(p.frames, w["position"], w["velocity"], w["orientation"] if p.orientation else None),
                  Posture(n, w["posture"])]
     else:
         terms = [JointTracking(n, w["theta"], w["dtheta"])]

@@ -181,7 +181,7 @@ def guard_bounds(model, p, rows: int) -> dict:
     x_lo, x_hi = measurement_bounds(model)
     n, q = model.n, model.n + len(model.motors)
     if p.task_space:
-        ref_lo, ref_hi = task_reference_bounds(rows)
+        ref_lo, ref_hi = task_reference_bounds(rows, len(p.frames))
     else:
         ref_lo = np.concatenate([x_lo[:n], x_lo[q:q + n]])
         ref_hi = np.concatenate([x_hi[:n], x_hi[q:q + n]])
@@ -274,9 +274,13 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
     model_name = safe_name(Path(arm.model.path).name)
     iters = "real-time iteration" if p.sqp_iterations == 1 else f"{p.sqp_iterations} iterations"
     if p.task_space:
-        reference = "the frame's position p_ref (3, world), velocity v_ref (3)" + (", vec(R_ref) (9)" if p.orientation else "")
-        target = "p (3)" + (" and R (9, column-major)" if p.orientation else "") + " of the frame"
-        n_target = 12 if p.orientation else 3
+        each = " per frame" if len(p.frames) > 1 else ""
+        reference = (f"{'the frames' if each else 'the frame'}' position p_ref (3, world), velocity v_ref (3)"
+                     + (", vec(R_ref) (9)" if p.orientation else "") + (f", a block per frame ({', '.join(p.frames)})"
+                                                                       if each else ""))
+        target = "p (3)" + (" and R (9, column-major)" if p.orientation else "") + (f" of each frame ({', '.join(p.frames)})"
+                                                                                   if each else " of the frame")
+        n_target = (12 if p.orientation else 3) * len(p.frames)
     else:
         reference, target, n_target = "theta_ref then dtheta_ref (2n)", f"{n} link angles", n
     guard = guard_bounds(model, p, rows)
@@ -284,6 +288,7 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
     header = dict(model=model_name, n=n, nx=nx, nu=nu, N=p.horizon, nref=rows * p.horizon, rows=rows, ts=p.sample_time,
                   h=p.interval, iters=iters, reference=reference, target=target, ntarget=n_target,
                   nparams=n_params(arm), np=n_params(arm) - n, task=int(p.task_space), split=int(split),
+                  nframes=max(len(p.frames), 1),
                   nprep=max(offsets[-1], 1), **boxes(guard, words=True), tau_limits=c_words(guard["tau_max"]),
                   qp=("Riccati recursion (HPIPM)" if qp == "riccati" else "condensed onto the torques"),
                   riccati=int(qp == "riccati"), qp_words=qp_words, threads=p.threads,
@@ -307,7 +312,8 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
                         "set_payload_mass": ["c", "mass"], "set_posture": ["c", "theta"], "set_parameters": ["c", "p"]},
                 "parameters": {"names": free, "nominal": nominal, "parametric": p.parametric},
                 "sizes": {"x": nx, "tau": nu, "joints": n, "reference": [rows, p.horizon], "target": n_target},
-                "task_space": {"frame": p.frame, "orientation": p.orientation} if p.task_space else None,
+                "task_space": {"frame": p.frame, "frames": list(p.frames), "orientation": p.orientation}
+                if p.task_space else None,
                 "payload_mass": None if model.payload is None else model.payload.body.mass,
                 "obstacles": len(p.obstacles),
                 "horizon": p.horizon, "interval": p.interval, "substeps": p.substeps, "integrator": p.integrator, "qp": qp,

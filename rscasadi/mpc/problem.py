@@ -52,8 +52,8 @@ class MPCProblem:
     (`qp_of`: "condensed", "riccati" or "auto"), the SQP iterations per sample (1: the real-time
     iteration) and the QP's interior-point iterations, the threads the Riccati QP's preparation
     runs its loops over the intervals on (`threads`, OpenMP), and the cost `weights` (theta, dtheta, tau,
-    limits, angle_limits; in task space position, velocity, orientation, posture; obstacles).  Task space: `frame` (its position, and its rotation if
-    `orientation`, is the reference), `tool_path` (a `ToolPath` at a speed: the study's
+    limits, angle_limits; in task space position, velocity, orientation, posture; obstacles).  Task space: `frame`, one frame or a list (their positions,
+    and rotations if `orientation`, are the reference, a block per frame), `tool_path` (a `ToolPath` at a speed: the study's
     reference, from rest at `theta_start`) or `solution` (an optimal-control solution.json: the
     frame's motion in it is the study's reference).  `obstacles` are soft (the model's [collision]
     capsules); `payload` sets or changes the model's payload, whose mass is a run-time parameter;
@@ -110,9 +110,14 @@ class MPCProblem:
         return self.frame is not None
 
     @property
+    def frames(self) -> tuple:
+        """The frames whose motion is the reference: `frame`, one name or a list of them."""
+        return () if self.frame is None else (self.frame,) if isinstance(self.frame, str) else tuple(self.frame)
+
+    @property
     def reference_rows(self) -> int:
-        """Rows of a reference column: theta and dtheta (2n), or p, v (6) and vec(R) (9) in task space."""
-        return (15 if self.orientation else 6) if self.task_space else None
+        """Rows of a reference column in task space: per frame p, v (6) and vec(R) (9)."""
+        return (15 if self.orientation else 6) * len(self.frames) if self.task_space else None
 
     def check(self) -> "MPCProblem":
         """The problem file's rules on the object; a `ModelFileError` names the field."""
@@ -137,8 +142,11 @@ class MPCProblem:
                 fail(f"weights.{key}", f"unknown weight (allowed: {', '.join(WEIGHTS)})")
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0:
                 fail(f"weights.{key}", f"must be a number >= 0, got {v!r}")
-        if self.frame is not None and (not isinstance(self.frame, str) or not self.frame):
-            fail("frame", f"expected the name of a frame, got {self.frame!r}")
+        names = [self.frame] if isinstance(self.frame, str) else self.frame
+        if self.frame is not None and (not isinstance(names, (list, tuple)) or not names
+                                       or not all(isinstance(f, str) and f for f in names)
+                                       or len(set(names)) != len(names)):
+            fail("frame", f"expected the name of a frame, or a list of distinct names, got {self.frame!r}")
         if not isinstance(self.orientation, bool):
             fail("orientation", f"must be true or false, got {self.orientation!r}")
         if self.orientation and self.frame is None:
@@ -146,7 +154,10 @@ class MPCProblem:
         if self.tool_path is not None:
             if self.frame is None:
                 fail("path", "a path is a task-space reference: give frame too")
-            if self.tool_path.frame != self.frame:
+            if len(self.frames) != 1:
+                fail("path", f"a path is one frame's; the controller follows {len(self.frames)} frames (give them a "
+                             "solution whose motion they follow)")
+            if self.tool_path.frame != self.frames[0]:
                 fail("path.frame", f"the path is for {self.tool_path.frame!r}, the controller's frame is {self.frame!r}")
             if self.tool_path.speed is None:
                 fail("path.speed", "missing required field (the reference's mean speed along the path)")
@@ -226,11 +237,13 @@ def mpc_model(p: MPCProblem):
                              f"torques within their limits (no limit would let it command any torque); give "
                              f"limits.tau for {', '.join(repr(j) for j in unlimited)}")
     frames = [f.name for f in model.frames]
-    if p.frame is not None and p.frame not in frames:
-        raise ModelFileError(f"{where}: field 'frame': {model.path} has no frame {p.frame!r} (frames: {', '.join(frames)})")
-    if p.orientation and model.n < 6:
-        raise ModelFileError(f"{where}: field 'orientation': a position and a rotation are 6 conditions, more than "
-                             f"the {model.n} joints can follow")
+    missing = [f for f in p.frames if f not in frames]
+    if missing:
+        raise ModelFileError(f"{where}: field 'frame': {model.path} has no frame {', '.join(map(repr, missing))} "
+                             f"(frames: {', '.join(frames)})")
+    if p.orientation and model.n < 6 * len(p.frames):
+        raise ModelFileError(f"{where}: field 'orientation': a position and a rotation per frame are "
+                             f"{6 * len(p.frames)} conditions, more than the {model.n} joints can follow")
     for ob in p.obstacles:
         ob.check(model, where)
     if p.terms:

@@ -115,17 +115,16 @@ def closed_loop(problem, mpc_dir, duration: float | None = None, tip_factor: flo
 
 
 class FrameReference:
-    """Where the controller's frame should be over time, for the task-space study: the problem's
-    `[path]` at its speed (from rest at theta_start; the rotation held at the start's), or the
-    frame's motion in an optimal-control `solution` (its link angles and speeds interpolated
-    between the nodes).  `columns(times)` gives the MPC's reference columns."""
+    """Where the controller's frames should be over time, for the task-space study: the problem's
+    `[path]` at its speed (one frame, from rest at theta_start; the rotation held at the start's),
+    or the frames' motion in an optimal-control `solution` (its link angles and speeds interpolated
+    between the nodes).  `columns(times)` gives the MPC's reference columns, a block per frame."""
 
     def __init__(self, p: MPCProblem, arm: Arm, samples: int = 2000):
         self.p, self.arm = p, arm
-        place, jac = arm.frame_placement(p.frame), arm.frame_jacobian(p.frame, "local_world_aligned")
         if p.tool_path is not None:
             self.theta_start, self.duration = np.asarray(p.theta_start, float), p.tool_path.duration
-            self.R0 = np.array(place(self.theta_start)[0])
+            self.R0 = np.array(arm.frame_placement(p.frames[0])(self.theta_start)[0])
             return
         import json
         sol = json.loads(Path(p.solution).read_text())
@@ -135,49 +134,53 @@ class FrameReference:
         self.tt = np.linspace(0.0, t[-1], samples)
         th = np.vstack([np.interp(self.tt, t, row) for row in theta])
         dth = np.vstack([np.interp(self.tt, t, row) for row in dtheta])
-        R, P = place.map(samples)(th)
-        J = np.array(jac.map(samples)(th)).reshape(6, samples, arm.n, order="F")
-        self.P = np.array(P).T
-        self.V = np.einsum("ksj,js->sk", J[:3], dth)
-        self.R = np.array(R).reshape(3, samples, 3, order="F").transpose(1, 0, 2)      # R[s] (3 x 3)
         from rscasadi.task.toolpath import ToolPath
-        self.curve = ToolPath(p.frame, self.P)                 # the frame's curve, for distances
+        self.P, self.V, self.R, self.curves = [], [], [], []       # per frame
+        for frame in p.frames:
+            R, P = arm.frame_placement(frame).map(samples)(th)
+            J = np.array(arm.frame_jacobian(frame, "local_world_aligned").map(samples)(th)).reshape(
+                6, samples, arm.n, order="F")
+            self.P.append(np.array(P).T)
+            self.V.append(np.einsum("ksj,js->sk", J[:3], dth))
+            self.R.append(np.array(R).reshape(3, samples, 3, order="F").transpose(1, 0, 2))   # R[s] (3 x 3)
+            self.curves.append(ToolPath(frame, self.P[-1]))              # the frame's curve, for distances
 
     def position(self, t) -> np.ndarray:
-        """The frame's reference positions at the times t (len(t) x 3)."""
+        """The frames' reference positions at the times t (frames x len(t) x 3)."""
         if self.p.tool_path is not None:
-            return self.p.tool_path(t)
-        return np.column_stack([np.interp(t, self.tt, self.P[:, i]) for i in range(3)])
+            return self.p.tool_path(t)[None]
+        return np.stack([np.column_stack([np.interp(t, self.tt, P[:, i]) for i in range(3)]) for P in self.P])
 
     def columns(self, times) -> np.ndarray:
-        """The reference columns at `times`: p, v (central differences of a path's timing law,
-        0.1 ms) and, with orientation, vec(R)."""
+        """The reference columns at `times`: per frame p, v (central differences of a path's
+        timing law, 0.1 ms) and, with orientation, vec(R)."""
         times = np.atleast_1d(np.asarray(times, float))
+        position = self.position(times)
         if self.p.tool_path is not None:
             eps = 1e-4
-            v = (self.position(times + eps) - self.position(times - eps)) / (2 * eps)
-            R = np.repeat(self.R0.ravel("F")[None, :], len(times), axis=0)
+            vs = [(self.position(times + eps)[0] - self.position(times - eps)[0]) / (2 * eps)]
+            Rs = [np.repeat(self.R0.ravel("F")[None, :], len(times), axis=0)]
         else:
-            v = np.column_stack([np.interp(times, self.tt, self.V[:, i]) for i in range(3)])
-            R = np.column_stack([np.interp(times, self.tt, self.R[:, i % 3, i // 3]) for i in range(9)])
-        rows = [self.position(times).T, v.T] + ([R.T] if self.p.orientation else [])
-        return np.vstack(rows)
+            vs = [np.column_stack([np.interp(times, self.tt, V[:, i]) for i in range(3)]) for V in self.V]
+            Rs = [np.column_stack([np.interp(times, self.tt, R[:, i % 3, i // 3]) for i in range(9)]) for R in self.R]
+        return np.vstack([block for P, v, R in zip(position, vs, Rs)
+                          for block in [P.T, v.T] + ([R.T] if self.p.orientation else [])])
 
-    def distance(self, point) -> float:
-        """How far `point` is from the whole reference curve."""
-        curve = self.p.tool_path if self.p.tool_path is not None else self.curve
-        return float(curve.distance(np.asarray(point)[None, :])[0])
+    def distance(self, points) -> float:
+        """How far the frames (`points`, frames x 3) are from their reference curves: the largest."""
+        curves = [self.p.tool_path] if self.p.tool_path is not None else self.curves
+        return max(float(c.distance(np.asarray(q)[None, :])[0]) for c, q in zip(curves, np.atleast_2d(points)))
 
 
 def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bool = False, settle: float = 0.2,
                      quantised: bool = True, log=print, label: str | None = None, traces: dict | None = None) -> dict:
-    """The task-space MPC (its problem's `[path]` from rest at theta_start, or the frame's motion in
+    """The task-space MPC (its problem's `[path]` from rest at theta_start, or the frames' motion in
     its `solution`) on the arm holding a payload of `plant_mass` kg (None: the problem's), at the
     problem's sample rate with quantised encoders: `told`, the controller is given that mass
     (mpc_set_payload_mass), else it keeps the problem's.  The arm holds the start for `settle` s,
-    then the reference runs and the arm holds its end for 0.2 s.  Returns the frame's largest and
-    RMS distance from the reference point of its time, the largest distance from the reference
-    curve, the final error, the largest limit violation, the smallest clearance to the obstacles
+    then the reference runs and the arm holds its end for 0.2 s.  Returns the frames' largest and
+    RMS distance from the reference point of its time (the farthest frame's at each sample), the
+    largest distance from a reference curve, the final error, the largest limit violation, the smallest clearance to the obstacles
     (exact) and the time per step in C; `trace` every 10 ms (the error, the step time); `label`
     names the case in the log line; `traces`, if given, receives the plant's state "x" and the
     reference's columns "reference" at every sample (for the benchmarks)."""
@@ -192,7 +195,7 @@ def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bo
     plant = Arm(model if plant_mass is None else holding(model, mass=plant_mass))
     reference = FrameReference(p, plant)
     dt, n = p.sample_time, plant.n
-    place = plant.frame_placement(p.frame)
+    places = [plant.frame_placement(f) for f in p.frames]
     clearance = exact_clearance(plant.model, p.obstacles) if p.obstacles else None
     mpc = CompiledMPC(mpc_dir)
     K = int(round((settle + reference.duration + 0.2) / dt))
@@ -205,8 +208,9 @@ def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bo
             if told and mpc.set_payload_mass(plant.model.payload.body.mass) != 0:
                 raise InvalidArgument(f"{p.path}: the controller's model holds no payload to be told of")
             return
-        where = np.array(place(x[:n])[1]).ravel()
-        errors.append(np.linalg.norm(where - reference.position(np.clip([clock(k)], 0.0, reference.duration))[0]))
+        where = np.array([np.array(place(x[:n])[1]).ravel() for place in places])
+        goal = reference.position(np.clip([clock(k)], 0.0, reference.duration))[:, 0]
+        errors.append(float(np.max(np.linalg.norm(where - goal, axis=1))))
         off_path.append(reference.distance(where))
         gaps.append(float(clearance(x[:n])) if clearance is not None else np.inf)
 
@@ -231,7 +235,7 @@ def task_closed_loop(problem, mpc_dir, plant_mass: float | None = None, told: bo
                      "error": e[every - 1::every].tolist(), "step_s": np.asarray(times)[every - 1::every].tolist()}}
     if label is None:
         label = f"payload {res['plant_mass']:.2f} kg, {'told' if told else 'not told'}"
-    log(f"{label}: the frame within "
+    log(f"{label}: {'the frame' if len(p.frames) == 1 else 'the frames'} within "
         f"{res['max_error'] * 1e3:.2f} mm of its reference (RMS {res['rms_error'] * 1e3:.2f} mm), "
         f"{res['max_path_distance'] * 1e3:.2f} mm of its curve, {res['final_error'] * 1e3:.2f} mm at the end, "
         f"limit violation {res['max_limit_violation']:.1e}"

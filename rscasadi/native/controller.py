@@ -39,9 +39,12 @@ def boxes(values: dict, words: bool = False) -> dict:
     return {k: (c_words if words else c_numbers)(v) for k, v in values.items()}
 
 
-def task_reference_bounds(rows: int) -> tuple[np.ndarray, np.ndarray]:
-    """(lo, hi) of a task-space reference column: p (3), v (3) and, with 15 rows, vec(R) (9)."""
-    hi = np.concatenate([np.full(3, POSITION_BOUND), np.full(3, VELOCITY_BOUND), np.full(rows - 6, ROTATION_BOUND)])
+def task_reference_bounds(rows: int, frames: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) of a task-space reference column: per frame p (3), v (3) and, with 15 rows a frame,
+    vec(R) (9)."""
+    block = rows // frames
+    hi = np.tile(np.concatenate([np.full(3, POSITION_BOUND), np.full(3, VELOCITY_BOUND),
+                                 np.full(block - 6, ROTATION_BOUND)]), frames)
     return -hi, hi
 
 

@@ -184,23 +184,28 @@ def orientation_error(R_ref, R):
 
 
 class FrameTracking(Term):
-    """A frame's position and velocity against p = (p_ref, v_ref[, vec(R_ref)]) (world):
-    r = (sqrt(w_position) (p - p_ref), sqrt(w_velocity) (J dtheta - v_ref)[, sqrt(w_orientation)
-    skew(R_ref^T R)])."""
+    """Frames' positions and velocities against p = (p_ref, v_ref[, vec(R_ref)]) (world), a block
+    per frame in `frames`' order: r = (sqrt(w_position) (p - p_ref), sqrt(w_velocity) (J dtheta -
+    v_ref)[, sqrt(w_orientation) skew(R_ref^T R)]) per frame (two hands meeting, say)."""
     name = "frame_tracking"
     parameter = "reference"
 
-    def __init__(self, frame: str, w_position: float, w_velocity: float, w_orientation: float | None = None):
-        self.frame, self.w = frame, (w_position, w_velocity, w_orientation)
-        self.n_p = 6 if w_orientation is None else 15
+    def __init__(self, frames, w_position: float, w_velocity: float, w_orientation: float | None = None):
+        self.frames = (frames,) if isinstance(frames, str) else tuple(frames)
+        self.w = (w_position, w_velocity, w_orientation)
+        self.block = 6 if w_orientation is None else 15
+        self.n_p = self.block * len(self.frames)
 
     def expression(self, arm, x, u, p):
         theta, _, dtheta, _ = arm.split_state(x)
-        R, pos = arm.frame_placement(self.frame)(theta)
-        J = arm.frame_jacobian(self.frame, "local_world_aligned")(theta)
-        rows = [np.sqrt(self.w[0]) * (pos - p[:3]), np.sqrt(self.w[1]) * (ca.mtimes(J[:3, :], dtheta) - p[3:6])]
-        if self.w[2] is not None:
-            rows.append(np.sqrt(self.w[2]) * orientation_error(ca.reshape(p[6:15], 3, 3), R))
+        rows = []
+        for i, frame in enumerate(self.frames):
+            q = p[i * self.block:(i + 1) * self.block]
+            R, pos = arm.frame_placement(frame)(theta)
+            J = arm.frame_jacobian(frame, "local_world_aligned")(theta)
+            rows += [np.sqrt(self.w[0]) * (pos - q[:3]), np.sqrt(self.w[1]) * (ca.mtimes(J[:3, :], dtheta) - q[3:6])]
+            if self.w[2] is not None:
+                rows.append(np.sqrt(self.w[2]) * orientation_error(ca.reshape(q[6:15], 3, 3), R))
         return ca.vertcat(*rows)
 
 

@@ -532,8 +532,8 @@ int ${sym}_step(${sym}_t *c, const double *x_measured, const double *reference, 
   return flag;
 }
 
-/* the target held over the horizon at rest: joint space theta (n) and zero speeds; task space
- * p (3), zero velocity, and R (9, column-major) when the rotation is followed */
+/* the target held over the horizon at rest: joint space theta (n) and zero speeds; task space,
+ * per frame, p (3), zero velocity, and R (9, column-major) when the rotation is followed */
 int ${sym}_step_to(${sym}_t *c, const double *x_measured, const double *target, double *tau_out) {
   if (!tau_out) return ${SYM}_BAD_ARGUMENT;
   if (!c) {
@@ -545,8 +545,11 @@ int ${sym}_step_to(${sym}_t *c, const double *x_measured, const double *target, 
     double *col = c->target_reference + NROWS * k;
     for (int i = 0; i < NROWS; ++i) col[i] = 0.0;
     if (${SYM}_TASK_SPACE) {
-      for (int i = 0; i < 3; ++i) col[i] = target[i];
-      for (int i = 0; i < NROWS - 6; ++i) col[6 + i] = target[3 + i];
+      const int block = NROWS / ${SYM}_NFRAMES, given = ${SYM}_NTARGET / ${SYM}_NFRAMES;
+      for (int f = 0; f < ${SYM}_NFRAMES; ++f) {
+        for (int i = 0; i < 3; ++i) col[block * f + i] = target[given * f + i];
+        for (int i = 0; i < block - 6; ++i) col[block * f + 6 + i] = target[given * f + 3 + i];
+      }
     } else {
       for (int i = 0; i < ${SYM}_NJ; ++i) col[i] = target[i];
     }

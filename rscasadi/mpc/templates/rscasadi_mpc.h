@@ -53,6 +53,7 @@
 #define ${SYM}_HORIZON ${N}
 #define ${SYM}_NREF ${nref}
 #define ${SYM}_NTARGET ${ntarget}
+#define ${SYM}_NFRAMES ${nframes}      /* task space: the frames followed, a reference block each */
 #define ${SYM}_NPARAMS ${nparams}
 #define ${SYM}_NP ${np}
 #define ${SYM}_TASK_SPACE ${task}
