@@ -95,7 +95,9 @@ def test_the_mpc_stage_cost_is_the_documented_cost():
     """0.5 |r|^2 of the stage residual (built from terms) against mpc.md's cost written out:
     w_theta |theta - theta_ref|^2 + w_dtheta |dtheta - dtheta_ref|^2 + w_limits (|c| - 0.9 c_max)^2
     beyond 90 % of the psi and dphi limits, and w_angle_limits on the angles beyond 90 % of the
-    range's half-width, all halved; and the torque enters through no term (the QP's w_tau)."""
+    range's half-width or beyond the reference's own distance from the middle where that is
+    larger (never beyond the range), all halved; and the torque enters through no term (the QP's
+    w_tau).  Some angles and references lie near the ranges' ends, some beyond them."""
     p = MPCProblem(ROOT / "problems" / "arm3.toml", trajectory=ROOT / "problems" / "trajectory_arm3.toml").check()
     arm = Arm(mpc_model(p))
     lim, w, n = limit_arrays(arm), p.weights, arm.n
@@ -103,15 +105,21 @@ def test_the_mpc_stage_cost_is_the_documented_cost():
     rng = np.random.default_rng(3)
     for _ in range(20):
         x = np.r_[rng.uniform(-2, 2, n), rng.uniform(-2, 2, n), rng.uniform(-30, 30, 2 * n)]
+        mid, half = (lim["theta_lo"] + lim["theta_hi"]) / 2, (lim["theta_hi"] - lim["theta_lo"]) / 2
+        side = rng.choice([-1.0, 1.0], n)
+        if rng.uniform() < 0.5:                                   # near or past the ends of the ranges
+            x[:n] = mid + side * rng.uniform(0.85, 1.1, n) * half
         x[n:2 * n] = x[:n] + rng.uniform(-1.5, 1.5, n) * lim["psi"]
         ref, u = rng.normal(size=2 * n), rng.normal(size=n)
+        if rng.uniform() < 0.5:
+            ref[:n] = mid + side * rng.uniform(0.85, 1.1, n) * half
         r, _, Ju = (np.array(v) for v in f(x, u, ref, np.zeros(n)))
         theta, psi, dtheta, dphi = x[:n], x[n:2 * n] - x[:n], x[2 * n:3 * n], x[3 * n:]
-        mid, half = (lim["theta_lo"] + lim["theta_hi"]) / 2, (lim["theta_hi"] - lim["theta_lo"]) / 2
         beyond = lambda c, cmax: np.sum(np.maximum(np.abs(c) - SOFT * cmax, 0) ** 2)
+        band = np.minimum(np.maximum(SOFT * half, np.abs(ref[:n] - mid)), half)
         cost = (w["theta"] * np.sum((theta - ref[:n]) ** 2) + w["dtheta"] * np.sum((dtheta - ref[n:]) ** 2)
                 + w["limits"] * (beyond(psi, lim["psi"]) + beyond(dphi, lim["dphi"]))
-                + w["angle_limits"] * beyond(theta - mid, half)) / 2
+                + w["angle_limits"] * np.sum(np.maximum(np.abs(theta - mid) - band, 0) ** 2)) / 2
         assert 0.5 * np.sum(r ** 2) == pytest.approx(cost, rel=1e-12, abs=1e-9)
         assert not np.any(Ju)
 

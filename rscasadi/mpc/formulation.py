@@ -15,7 +15,8 @@ so the work per sample is bounded. After the iterations the plan is shifted by o
 Cost (per interval end k = 1..N): w_theta |theta_k - theta_ref_k|^2 + w_dtheta |dtheta_k -
 dtheta_ref_k|^2 + w_tau |tau_k|^2, and a penalty w_limits (|c| - 0.9 c_max)^2 on the SEA
 deflection psi and the slow-side speed dphi beyond 90 % of their limits, and w_angle_limits on the
-link angles beyond 90 % of their range's half-width about its middle (Gauss-Newton on the part
+link angles beyond 90 % of their range's half-width about its middle, or beyond the reference's
+own distance from the middle where that is larger (never beyond the range; joint space) (Gauss-Newton on the part
 active at the linearisation point); the motor torques are hard bounds (every joint must give
 its torque limit: mpc_model refuses a model without one).  With angle_limits = "hard" the
 plan's link angles theta_k (linear in dU) are rows of the QP within the range itself, each with
@@ -46,7 +47,7 @@ import numpy as np
 from rscasadi.dynamics.arm import Arm
 from rscasadi.model.limits import limit_arrays as model_limits
 from rscasadi.mpc.problem import SOFT, LINE_SEARCH, MPCProblem, with_integrator
-from rscasadi.task.terms import Clearance, FrameTracking, JointTracking, Posture, StateBound
+from rscasadi.task.terms import AngleBand, Clearance, FrameTracking, JointTracking, Posture, StateBound
 
 
 def controller_arm(model, parametric: str = "none") -> Arm:
@@ -139,7 +140,8 @@ def mpc_terms(arm: Arm, p: MPCProblem, limits: dict) -> tuple:
     """The stage cost's terms (rscasadi.task.terms): the tracking of the reference (link angles
     and speeds, or the frame's position, velocity [and rotation] and the posture), the psi, dphi
     and link-angle limits soft beyond SOFT of them (angles: of the range's half-width about its
-    middle), the obstacles, then the problem's own terms, soft at their weights."""
+    middle; in joint space as far out as the reference goes, if farther: AngleBand), the
+    obstacles, then the problem's own terms, soft at their weights."""
     n, w = arm.n, p.weights
     if p.task_space:
         terms = [FrameTracking(p.frames, w["position"], w["velocity"], w["orientation"] if p.orientation else None),
@@ -149,10 +151,14 @@ def mpc_terms(arm: Arm, p: MPCProblem, limits: dict) -> tuple:
     ranged = np.isfinite(limits["theta_lo"]) & np.isfinite(limits["theta_hi"])
     lo, hi = np.where(ranged, limits["theta_lo"], 0.0), np.where(ranged, limits["theta_hi"], 0.0)
     middle, half = (lo + hi) / 2, np.where(ranged, (hi - lo) / 2, np.inf)
-    for quantity, limit, weight in (("psi", limits["psi"], w["limits"]), ("dphi", limits["dphi"], w["limits"]),
-                                    ("theta", half, w["angle_limits"])):
+    for quantity, limit, weight in (("psi", limits["psi"], w["limits"]), ("dphi", limits["dphi"], w["limits"])):
         if np.isfinite(limit).any() and weight > 0:
-            terms.append(StateBound(quantity, SOFT * limit, weight, middle if quantity == "theta" else None))
+            terms.append(StateBound(quantity, SOFT * limit, weight))
+    if np.isfinite(half).any() and w["angle_limits"] > 0:
+        if p.task_space:
+            terms.append(StateBound("theta", SOFT * half, w["angle_limits"], middle))
+        else:                             # the band opens to a reference that goes nearer the edge
+            terms.append(AngleBand(n, SOFT * half, half, middle, w["angle_limits"]))
     if p.obstacles:
         terms.append(Clearance(p.obstacles, w["obstacles"]))
     return tuple(terms) + tuple(p.terms)

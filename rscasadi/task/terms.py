@@ -255,6 +255,27 @@ class StateBound(Term):
         return -finite, finite
 
 
+class AngleBand(Term):
+    """The link angles' soft band in joint space, opening to the reference: per joint with a range
+    (`half` its half-width about `middle`, finite), the excess of |theta - middle| beyond
+    b = min(max(soft, |theta_ref - middle|), half), signed, as a cost residual; p the reference
+    column (theta_ref, dtheta_ref).  A reference that uses its range to the edge is followed
+    there (the band never closes in on the plan), and no farther (b <= half); one inside `soft`
+    leaves the band where it was."""
+    name = "theta_limit"
+    parameter = "reference"
+
+    def __init__(self, n: int, soft, half, middle, weight: float = 1.0):
+        self.rows = [j for j in range(n) if np.isfinite(half[j])]
+        self.soft, self.half = np.asarray(soft, float)[self.rows], np.asarray(half, float)[self.rows]
+        self.middle, self.weight, self.n_p = np.asarray(middle, float)[self.rows], weight, 2 * n
+
+    def expression(self, arm, x, u, p):
+        c = x[self.rows] - self.middle                         # theta: x's first n
+        band = ca.fmin(ca.fmax(self.soft, ca.fabs(p[self.rows] - self.middle)), self.half)
+        return ca.sign(c) * ca.fmax(ca.fabs(c) - band, 0)
+
+
 class Clearance(Term):
     """The arm's capsules clear of the obstacles: the smooth conservative clearances
     (rscasadi.dynamics.collision.clearances) >= 0; on the replay, the exact clearance."""
