@@ -844,11 +844,11 @@ def _two_arms(tmp_path):
 
 
 def test_the_mpc_brings_two_frames_to_their_targets_at_once(tmp_path):
-    """A task-space MPC of two frames (two arms' tools, frame = [..]): its reference a block per
-    frame, its C's mpc_step_to taking a position per frame; closed loop at 1 kHz on the tree of
-    six SEAs (RK4 plant, exact encoders), both tools reach their own targets (a pose the tree can
-    take, seen only through the frames' positions) within 2 mm in 1.5 s, every torque within its
-    limit; the blocks swapped, the tools go to the other side."""
+    """A task-space MPC of two frames (two arms' tools, frame = [..]; HPIPM's Riccati QP): its
+    reference a block per frame, its C's mpc_step_to taking a position per frame; closed loop at
+    1 kHz on the tree of six SEAs (RK4 plant, exact encoders), both tools reach their own targets
+    (a pose the tree can take, seen only through the frames' positions) within 2 mm in 1.5 s,
+    every torque within its limit; the blocks swapped, the tools go elsewhere."""
     import rscasadi
     from rscasadi.dynamics.statics import rest_state
     from rscasadi.mpc.generate import generate_mpc
@@ -857,8 +857,8 @@ def test_the_mpc_brings_two_frames_to_their_targets_at_once(tmp_path):
     model = _two_arms(tmp_path)
     (tmp_path / "mpc.toml").write_text(
         f'model = "{model.name}"\nframe = ["left_tool", "right_tool"]\nsample_time = 0.001\nhorizon = 10\n'
-        'interval = 0.01\nsubsteps = 5\n[weights]\nposition = 1e6\nvelocity = 10.0\nposture = 1.0\ntau = 1e-3\n'
-        'limits = 1e5\n')
+        'interval = 0.01\nsubsteps = 5\nqp = "riccati"\n[weights]\nposition = 1e6\nvelocity = 10.0\nposture = 1.0\n'
+        'tau = 1e-3\nlimits = 1e5\n')
     manifest = generate_mpc(tmp_path / "mpc.toml", tmp_path / "mpc", opt="-O1", log=lambda m: None)
     assert manifest["sizes"]["reference"] == [12, 10] and manifest["sizes"]["target"] == 6
     assert manifest["task_space"]["frames"] == ["left_tool", "right_tool"]
