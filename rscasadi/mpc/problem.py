@@ -22,7 +22,8 @@ WEIGHTS = {"theta": 1e5, "dtheta": 1.0, "tau": 1e-3, "limits": 1e5, "angle_limit
            "position": 1e6, "velocity": 10.0, "orientation": 1e3, "posture": 1.0, "obstacles": 1e8}
 JOINT_WEIGHTS, TASK_WEIGHTS = ("theta", "dtheta"), ("position", "velocity", "orientation", "posture")
 SOFT = 0.9                   # penalties start at this fraction of the psi and dphi limits (and of
-                             # the link-angle range's half-width, about its middle)
+                             # the link-angle range's half-width, about its middle, or in joint space
+                             # at the reference where that is farther out: task.terms.AngleBand)
 AUTO = "auto"               # integrator and substeps chosen from the arm's spring modes (with_integrator)
 INTEGRATORS = ("auto", "rk4", "ros2")
 QPS = ("auto", "condensed", "riccati")
