@@ -298,3 +298,34 @@ def test_two_hands_meet_at_a_handover_with_the_arms_kept_apart(tmp_path):
     from rscasadi.dynamics.collision import exact_clearance
     arm = rscasadi.load(tmp_path / "dual.toml")
     assert float(exact_clearance(arm.model, [])(np.array(solution["theta"])[:, -1])) < 0.03
+
+
+def test_the_pr2_s_lift_is_a_slide_in_mujoco_with_the_model_s_dynamics(tmp_path):
+    """The PR2 (its torso lift a prismatic direct joint carrying the head and both arms of SEAs)
+    exported to MuJoCo: the lift a slide, the mass matrix and the forces (bias, springs, dampers,
+    motors) equal the model's at random states, and MuJoCo's body placements the model's frames."""
+    mujoco = pytest.importorskip("mujoco")
+    from rscasadi.export.mujoco import gear_map, mujoco_xml
+    arm = whole_robot(tmp_path, "pr2")
+    assert arm.model.joints[0].type == "prismatic" and arm.model.joints[0].kind == "direct"
+    m = mujoco.MjModel.from_xml_string(mujoco_xml(arm.model))
+    assert m.jnt_type[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "torso_lift_joint")] == mujoco.mjtJoint.mjJNT_SLIDE
+    d, T = mujoco.MjData(m), gear_map(arm, m)
+    rng = np.random.default_rng(2)
+    for _ in range(3):
+        theta = np.r_[rng.uniform(0.0, 0.31), rng.uniform(-np.pi, np.pi, arm.n - 1)]   # the lift within its travel (m)
+        motors = theta[list(arm.model.motors)] + rng.normal(size=arm.m) * 0.05
+        x = [theta, motors, rng.normal(size=arm.n), rng.normal(size=arm.m)]
+        tau = rng.normal(size=arm.u)
+        ddq = np.concatenate([dm(v) for v in arm.forward_dynamics()(*x, tau)])
+        d.qpos[:], d.qvel[:], d.ctrl[:] = T @ np.r_[x[0], x[1]], T @ np.r_[x[2], x[3]], tau
+        mujoco.mj_forward(m, d)
+        M = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, d, M)
+        ours = np.array(arm.mass_matrix()(x[0], x[1]))
+        assert rel(T.T @ M @ T, ours) < 1e-12
+        assert rel(T.T @ (d.qfrc_passive + d.qfrc_actuator - d.qfrc_bias), ours @ ddq) < 1e-10
+        R, p = (np.array(v) for v in arm.frame_placement("r_gripper_tool_frame")(x[0]))
+        site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "r_gripper_tool_frame")
+        assert np.max(np.abs(d.site_xpos[site] - p.ravel())) < 1e-9
+        assert np.max(np.abs(d.site_xmat[site].reshape(3, 3) - R)) < 1e-9
