@@ -114,6 +114,21 @@ def check_against_pinocchio(arm, route, rng, frames_of=None):
             assert np.max(np.abs(np.array(jac[j](x[0])) - J)) < 1e-9 * max(1.0, np.max(np.abs(J)))
 
 
+def mujoco_against_model(arm, m, d, T, x, tau) -> tuple:
+    """MuJoCo's model `m` (data `d`, gear map T: rscasadi.export.mujoco.gear_map) at the model's
+    state x = (theta, phi, dtheta, dphi) under tau: the relative differences of its mass matrix
+    and of its forces (passive, actuators, less bias) from the model's, M and M ddq."""
+    import mujoco
+    ddq = np.concatenate([dm(v) for v in arm.forward_dynamics()(*x, tau)])
+    d.qpos[:], d.qvel[:], d.ctrl[:] = T @ np.r_[x[0], x[1]], T @ np.r_[x[2], x[3]], tau
+    mujoco.mj_forward(m, d)
+    M = np.zeros((m.nv, m.nv))
+    mujoco.mj_fullM(m, d, M)
+    ours = np.array(arm.mass_matrix()(x[0], x[1]))
+    rel = lambda a, b: np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300)   # noqa: E731
+    return rel(T.T @ M @ T, ours), rel(T.T @ (d.qfrc_passive + d.qfrc_actuator - d.qfrc_bias), ours @ ddq)
+
+
 def write_arm(tmp_path, doc, name="arm.toml"):
     path = Path(tmp_path) / name
     path.write_text(to_toml(doc))

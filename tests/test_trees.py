@@ -16,7 +16,8 @@ from rscasadi import ModelFileError
 from rscasadi.model.modelfile import document, parse
 from rscasadi.reference.pinocchio_route import PinocchioRoute, urdf_model
 
-from conftest import ROOT, check_against_pinocchio, dm, random_state, random_tree_doc, to_toml, write_arm
+from conftest import (ROOT, check_against_pinocchio, dm, mujoco_against_model, random_state, random_tree_doc, to_toml,
+                      write_arm)
 
 BAXTER = ROOT / "tests" / "data" / "baxter_description" / "urdf" / "baxter.urdf"
 G1 = ROOT / "tests" / "data" / "g1_description" / "urdf" / "g1_29dof_rev_1_0.urdf"
@@ -316,15 +317,8 @@ def test_the_pr2_s_lift_is_a_slide_in_mujoco_with_the_model_s_dynamics(tmp_path)
         theta = np.r_[rng.uniform(0.0, 0.31), rng.uniform(-np.pi, np.pi, arm.n - 1)]   # the lift within its travel (m)
         motors = theta[list(arm.model.motors)] + rng.normal(size=arm.m) * 0.05
         x = [theta, motors, rng.normal(size=arm.n), rng.normal(size=arm.m)]
-        tau = rng.normal(size=arm.u)
-        ddq = np.concatenate([dm(v) for v in arm.forward_dynamics()(*x, tau)])
-        d.qpos[:], d.qvel[:], d.ctrl[:] = T @ np.r_[x[0], x[1]], T @ np.r_[x[2], x[3]], tau
-        mujoco.mj_forward(m, d)
-        M = np.zeros((m.nv, m.nv))
-        mujoco.mj_fullM(m, d, M)
-        ours = np.array(arm.mass_matrix()(x[0], x[1]))
-        assert rel(T.T @ M @ T, ours) < 1e-12
-        assert rel(T.T @ (d.qfrc_passive + d.qfrc_actuator - d.qfrc_bias), ours @ ddq) < 1e-10
+        mass, forces = mujoco_against_model(arm, m, d, T, x, rng.normal(size=arm.u))
+        assert mass < 1e-12 and forces < 1e-10
         R, p = (np.array(v) for v in arm.frame_placement("r_gripper_tool_frame")(x[0]))
         site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "r_gripper_tool_frame")
         assert np.max(np.abs(d.site_xpos[site] - p.ravel())) < 1e-9
