@@ -848,7 +848,8 @@ def test_the_mpc_brings_two_frames_to_their_targets_at_once(tmp_path):
     reference a block per frame, its C's mpc_step_to taking a position per frame; closed loop at
     1 kHz on the tree of six SEAs (RK4 plant, exact encoders), both tools reach their own targets
     (a pose the tree can take, seen only through the frames' positions) within 2 mm in 1.5 s,
-    every torque within its limit; the blocks swapped, the tools go elsewhere."""
+    every torque within its limit; the blocks swapped, the tools go elsewhere; a target with a
+    bad entry in either frame's block refused (code 7) with torques finite and within limits."""
     import rscasadi
     from rscasadi.dynamics.statics import rest_state
     from rscasadi.mpc.generate import generate_mpc
@@ -877,6 +878,15 @@ def test_the_mpc_brings_two_frames_to_their_targets_at_once(tmp_path):
             assert np.all(np.abs(run.tau) <= limits[:, None] + 1e-12)
         else:                                       # each arm reaches toward the other's target
             assert min(np.linalg.norm(r - t) for r, t in zip(reached, tools)) > 0.1
+    mpc, rng = CompiledMPC(tmp_path / "mpc"), np.random.default_rng(0)     # a bad entry in either frame's block
+    assert mpc.init(x0) == 0
+    for k in range(20):
+        target = np.r_[tools[0], tools[1]]
+        target[rng.integers(6)] = [np.nan, np.inf, -np.inf, 1e300][k % 4]
+        tau, _, code = mpc.step_to(x0, target)
+        assert code == 7 and np.all(np.isfinite(tau)) and np.all(np.abs(tau) <= limits + 1e-12), (k, code)
+        tau, _, code = mpc.step_to(x0, np.r_[tools[0], tools[1]])
+        assert code == 0 and np.all(np.abs(tau) <= limits + 1e-12)
 
 
 @pytest.mark.parametrize("text,field", [
