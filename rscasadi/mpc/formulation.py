@@ -15,8 +15,8 @@ so the work per sample is bounded. After the iterations the plan is shifted by o
 Cost (per interval end k = 1..N): w_theta |theta_k - theta_ref_k|^2 + w_dtheta |dtheta_k -
 dtheta_ref_k|^2 + w_tau |tau_k|^2, and a penalty w_limits (|c| - 0.9 c_max)^2 on the SEA
 deflection psi and the slow-side speed dphi beyond 90 % of their limits, and w_angle_limits on the
-link angles beyond 90 % of their range's half-width about its middle, or beyond the reference's
-own distance from the middle where that is larger (never beyond the range; joint space) (Gauss-Newton on the part
+link angles beyond 90 % of their range's half-width about its middle, in joint space beyond the
+reference's own distance from it where that is larger, never the range's (Gauss-Newton on the part
 active at the linearisation point); the motor torques are hard bounds (every joint must give
 its torque limit: mpc_model refuses a model without one).  With angle_limits = "hard" the
 plan's link angles theta_k (linear in dU) are rows of the QP within the range itself, each with

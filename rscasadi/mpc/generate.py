@@ -274,12 +274,13 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
     model_name = safe_name(Path(arm.model.path).name)
     iters = "real-time iteration" if p.sqp_iterations == 1 else f"{p.sqp_iterations} iterations"
     if p.task_space:
-        each = " per frame" if len(p.frames) > 1 else ""
-        reference = (f"{'the frames' if each else 'the frame'}' position p_ref (3, world), velocity v_ref (3)"
-                     + (", vec(R_ref) (9)" if p.orientation else "") + (f", a block per frame ({', '.join(p.frames)})"
-                                                                       if each else ""))
-        target = "p (3)" + (" and R (9, column-major)" if p.orientation else "") + (f" of each frame ({', '.join(p.frames)})"
-                                                                                   if each else " of the frame")
+        # the frames' names stay out of the C comments: a URDF's link names may hold any characters
+        several = len(p.frames) > 1
+        each = ", a block per frame (manifest.json: task_space.frames)" if several else ""
+        reference = ("the frame's position p_ref (3, world), velocity v_ref (3)"
+                     + (", vec(R_ref) (9)" if p.orientation else "") + each)
+        target = "p (3)" + (" and R (9, column-major)" if p.orientation else "") + (" of each frame" if several
+                                                                                   else " of the frame")
         n_target = (12 if p.orientation else 3) * len(p.frames)
     else:
         reference, target, n_target = "theta_ref then dtheta_ref (2n)", f"{n} link angles", n
