@@ -199,11 +199,13 @@ def test_a_whole_robot_of_mixed_kinds_from_its_urdf(tmp_path):
 
 
 def test_generated_c_of_a_robot_of_every_kind_equals_its_functions(tmp_path):
-    """codegen on a tree of every kind: the sizes are macros of the header (NQ joints, NM motors,
-    NU inputs, NX state), every compiled Function equals its symbolic twin, the step equals RK4 of
-    the forward dynamics, and the paper's SEA feedforward is omitted with the reason."""
+    """codegen on a tree of every kind, some joints sliding: the sizes are macros of the header
+    (NQ joints, NM motors, NU inputs, NX state), every compiled Function equals its symbolic twin,
+    the step equals RK4 of the forward dynamics, and the paper's SEA feedforward is omitted with
+    the reason."""
     from rscasadi.codegen import functions, generate
-    model = mixed(12, 7)
+    model = mixed(12, 7, slides=True)
+    assert "prismatic" in {jt.type for jt in model.joints}
     path = write_arm(tmp_path, document(model), "kinds.toml")
     out = tmp_path / "gen"
     manifest = generate(path, out, opt="-O1", log=lambda m: None)
@@ -230,17 +232,18 @@ def test_generated_c_of_a_robot_of_every_kind_equals_its_functions(tmp_path):
     assert rel(dm(compiled["step"](x, tau, h)), x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)) < 1e-12
 
 
-@pytest.mark.parametrize("seed,n", [(12, 7), (3, 9)])
-def test_the_mpc_step_kernel_of_every_kind_equals_the_implicit_function_graph(seed, n):
+@pytest.mark.parametrize("seed,n,slides", [(12, 7, False), (3, 9, True)])
+def test_the_mpc_step_kernel_of_every_kind_equals_the_implicit_function_graph(seed, n, slides):
     """The MPC's structured step-Jacobian kernel (codegen.step_kernel, chained: three substeps of
     an interval) on trees of every kind (a state of 18 and 22 entries: not whole vectors of 4;
     inputs on motor rows, geared links and direct joints) against interval_functions without
     it (the RK4 step Function, the implicit-function graph's Jacobian chained by CasADi): the
-    state, A and B to 1e-12 of their size at random states and torques."""
+    state, A and B to 1e-12 of their size at random states and torques; the second tree has
+    prismatic joints."""
     from rscasadi.mpc.formulation import interval_functions
     from rscasadi.mpc.generate import step_kernel
     from rscasadi.native.build import compiler
-    arm = rscasadi.Arm(mixed(seed, n))
+    arm = rscasadi.Arm(mixed(seed, n, slides=slides))
     _, kernel = step_kernel(arm, ["-O1", "-std=c99"], compiler(), log=lambda m: None)
     assert kernel is not None and kernel.size1_in(1) == arm.u
     chained, _ = interval_functions(arm, 0.002, 3, kernel)
@@ -282,7 +285,7 @@ def test_simulation_of_every_kind_follows_pinocchio(tmp_path):
     torques = scipy's integrator on Pinocchio's M, h and the kinds' forces (no shared code)."""
     from scipy.integrate import solve_ivp
     from rscasadi.sim.simulation import simulate
-    arm = rscasadi.Arm(mixed(4, 5, ["sea", "geared", "direct", "spring", "free"]))
+    arm = rscasadi.Arm(mixed(4, 5, ["sea", "geared", "direct", "spring", "free"], slides=True))   # direct, free slide
     route, rng = PinocchioRoute(arm.model), np.random.default_rng(4)
     x0 = [0.3 * v for v in state(rng, arm, 0.3)[0]]
     t = np.linspace(0.0, 0.05, 11)
