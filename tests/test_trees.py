@@ -301,14 +301,26 @@ def test_two_hands_meet_at_a_handover_with_the_arms_kept_apart(tmp_path):
     assert float(exact_clearance(arm.model, [])(np.array(solution["theta"])[:, -1])) < 0.03
 
 
-def test_the_pr2_s_lift_is_a_slide_in_mujoco_with_the_model_s_dynamics(tmp_path):
+def test_the_pr2_s_lift_is_a_slide_in_mujoco_with_the_model_s_dynamics(tmp_path, capsys):
     """The PR2 (its torso lift a prismatic direct joint carrying the head and both arms of SEAs)
     exported to MuJoCo: the lift a slide, the mass matrix and the forces (bias, springs, dampers,
-    motors) equal the model's at random states, and MuJoCo's body placements the model's frames."""
+    motors) equal the model's at random states, and MuJoCo's body placements the model's frames.
+    `rscasadi info` reports it: the lift slides and holds the tree's weight (its input the
+    tree's weight in N, from Pinocchio), the SEAs' rest deflections and motor torques."""
     mujoco = pytest.importorskip("mujoco")
+    from rscasadi.cli import main
     from rscasadi.export.mujoco import gear_map, mujoco_xml
     arm = whole_robot(tmp_path, "pr2")
     assert arm.model.joints[0].type == "prismatic" and arm.model.joints[0].kind == "direct"
+    assert main(["info", str(tmp_path / "pr2.toml")]) in (0, None)
+    report = capsys.readouterr().out
+    row = next(line for line in report.splitlines() if line.startswith("| 1 | torso_lift_joint | direct | slides"))
+    lift = float(next(line for line in report.splitlines()[::-1] if "| torso_lift_joint |" in line).split("|")[-2])
+    pm = urdf_model(arm.model)                        # the URDF's links the lift carries, by Pinocchio
+    lift_id = pm.getJointId("torso_lift_joint")
+    carried = sum(pm.inertias[i].mass for i in range(1, pm.njoints) if lift_id in pm.supports[i])
+    carried += sum(jt.slow_rotor.mass + jt.fast_rotor.mass for jt in arm.model.joints[1:])   # the rotors ride on it
+    assert row and abs(lift - 9.81 * carried) < 1e-3 * 9.81 * carried, (lift, carried)
     m = mujoco.MjModel.from_xml_string(mujoco_xml(arm.model))
     assert m.jnt_type[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "torso_lift_joint")] == mujoco.mjtJoint.mjJNT_SLIDE
     d, T = mujoco.MjData(m), gear_map(arm, m)

@@ -32,29 +32,41 @@ def collision_report(model) -> list:
 
 
 def model_report(path, collision: bool = False) -> str:
-    """A Markdown summary of a model: rotor inertias, couplings and the static holding torques."""
+    """A Markdown summary of a model of joints of any kind: each joint's kind, how it moves and its
+    rotors, the links' coupling to the motors, and the statics at a pose (`rest`: the joints
+    without an input where they hang, each SEA's motor where its spring holds its link)."""
+    from rscasadi.dynamics.statics import rest
     arm = load(path)
     n, m = arm.n, arm.model
-    theta = np.linspace(0.3, -0.6, n)
-    M = np.array(arm.mass_matrix()(theta, theta))
-    zero = np.zeros(n)
-    T = np.array(arm.inverse_dynamics()(theta, theta, zero, zero, zero, zero)[1]).ravel()
-    psi = T / m.column("k1")                         # static: k3 correction ignored in the report
-    tau = np.array(arm.inverse_dynamics()(theta, theta + psi, zero, zero, zero, zero)[0]).ravel()
+    theta, phi, tau = rest(arm, np.linspace(0.3, -0.6, n))
+    M = np.array(arm.mass_matrix()(theta, phi))
     shape = "a serial chain" if m.is_chain else f"a tree with {len(m.children(-1))} joints on the base"
-    lines = [f"# Model `{m.name}` ({m.path})", "", f"{n} joints, {shape}; gravity {m.gravity.tolist()} m/s^2.", "",
-             "| j | joint | carried by | mu | B_j = Izz(S)+mu^2 Izz(F) (kg m^2) | rotors balanced |",
-             "|---|---|---|---|---|---|"]
-    lines += [f"| {j + 1} | {jt.name} | {'base' if p < 0 else m.joints[p].name} | {jt.gear_ratio:g} | "
-              f"{jt.rotor_inertia:.6g} | {'yes' if jt.slow_rotor.balanced and jt.fast_rotor.balanced else 'no'} |"
+    lines = [f"# Model `{m.name}` ({m.path})", "", f"{n} joints, {shape}; {arm.m} motor coordinates, {arm.u} inputs; "
+             f"gravity {m.gravity.tolist()} m/s^2.", "",
+             "| j | joint | kind | moves | carried by | mu | B_j = Izz(S)+mu^2 Izz(F) (kg m^2) | rotors balanced |",
+             "|---|---|---|---|---|---|---|---|"]
+    lines += [f"| {j + 1} | {jt.name} | {jt.kind} | {'turns' if jt.joint_motion.turns else 'slides'} | "
+              f"{'base' if p < 0 else m.joints[p].name} | "
+              + (f"{jt.gear_ratio:g} | {jt.rotor_inertia:.6g} | "
+                 f"{'yes' if jt.slow_rotor.balanced and jt.fast_rotor.balanced else 'no'} |"
+                 if jt.joint_kind.rotors else "- | - | - |")
               for j, (jt, p) in enumerate(zip(m.joints, m.parent))]
-    S = M[:n, n:]
-    lines += ["", f"Coupling block S (link rows, rotor columns) at theta = phi = {np.round(theta, 3).tolist()}:", ""]
-    lines += ["| link \\ rotor | " + " | ".join(str(j + 1) for j in range(n)) + " |", "|---" * (n + 1) + "|"]
-    lines += [f"| {i + 1} | " + " | ".join(f"{S[i, j]:.3g}" for j in range(n)) + " |" for i in range(n)]
-    lines += ["", "Static holding at that pose: SEA torque T (N m), deflection psi = T/k1 (rad), motor torque tau (N m):",
-              "", "| j | T | psi | tau |", "|---|---|---|---|"]
-    lines += [f"| {j + 1} | {T[j]:.4g} | {psi[j]:.4g} | {tau[j]:.4g} |" for j in range(n)]
+    pose = f"theta = {np.round(theta, 3).tolist()}, phi = {np.round(phi, 3).tolist()}"
+    if arm.m:
+        S, motors = M[:n, n:], [m.joints[j].name for j in m.motors]
+        lines += ["", f"Coupling block S (link rows, motor columns) at {pose}:", ""]
+        lines += ["| link \\ motor | " + " | ".join(motors) + " |", "|---" * (arm.m + 1) + "|"]
+        lines += [f"| {jt.name} | " + " | ".join(f"{S[i, k]:.3g}" for k in range(arm.m)) + " |"
+                  for i, jt in enumerate(m.joints)]
+    motors = list(m.motors)
+    deflection = phi - theta[motors]
+    psi = dict(zip(motors, deflection))
+    T = dict(zip(motors, m.column("k1")[motors] * deflection + m.column("k3")[motors] * deflection ** 3))
+    inputs = dict(zip(m.actuated, tau))
+    lines += ["", f"Static rest at {pose}: SEA torque T and deflection psi (rad), input tau "
+                  "(N m; N on a sliding joint):", "", "| j | joint | T | psi | tau |", "|---|---|---|---|---|"]
+    fmt = lambda table, j: f"{table[j]:.4g}" if j in table else "-"   # noqa: E731
+    lines += [f"| {j + 1} | {jt.name} | {fmt(T, j)} | {fmt(psi, j)} | {fmt(inputs, j)} |" for j, jt in enumerate(m.joints)]
     if collision:
         lines += collision_report(m)
     return "\n".join(lines) + "\n"
