@@ -53,9 +53,9 @@ def model_report(path, collision: bool = False) -> str:
               for j, (jt, p) in enumerate(zip(m.joints, m.parent))]
     pose = f"theta = {np.round(theta, 3).tolist()}, phi = {np.round(phi, 3).tolist()}"
     if arm.m:
-        S, motors = M[:n, n:], [m.joints[j].name for j in m.motors]
+        S, names = M[:n, n:], [m.joints[j].name for j in m.motors]
         lines += ["", f"Coupling block S (link rows, motor columns) at {pose}:", ""]
-        lines += ["| link \\ motor | " + " | ".join(motors) + " |", "|---" * (arm.m + 1) + "|"]
+        lines += ["| link \\ motor | " + " | ".join(names) + " |", "|---" * (arm.m + 1) + "|"]
         lines += [f"| {jt.name} | " + " | ".join(f"{S[i, k]:.3g}" for k in range(arm.m)) + " |"
                   for i, jt in enumerate(m.joints)]
     motors = list(m.motors)
