@@ -232,22 +232,22 @@ def test_generated_c_of_a_robot_of_every_kind_equals_its_functions(tmp_path):
     assert rel(dm(compiled["step"](x, tau, h)), x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)) < 1e-12
 
 
-@pytest.mark.parametrize("seed,n,slides", [(12, 7, False), (3, 9, True)])
-def test_the_mpc_step_kernel_of_every_kind_equals_the_implicit_function_graph(seed, n, slides):
+@pytest.mark.parametrize("seed,n,slides,method", [(12, 7, False, "rk4"), (3, 9, True, "rk4"), (3, 9, True, "ros2")])
+def test_the_mpc_step_kernel_of_every_kind_equals_the_implicit_function_graph(seed, n, slides, method):
     """The MPC's structured step-Jacobian kernel (codegen.step_kernel, chained: three substeps of
     an interval) on trees of every kind (a state of 18 and 22 entries: not whole vectors of 4;
     inputs on motor rows, geared links and direct joints) against interval_functions without
-    it (the RK4 step Function, the implicit-function graph's Jacobian chained by CasADi): the
-    state, A and B to 1e-12 of their size at random states and torques; the second tree has
-    prismatic joints."""
+    it (RK4: the step Function, the implicit-function graph's Jacobian chained by CasADi; ROS2:
+    codegen.rosenbrock's graph): the state, A and B to 1e-12 of their size at random states and
+    torques; the second tree has prismatic joints."""
     from rscasadi.mpc.formulation import interval_functions
     from rscasadi.mpc.generate import step_kernel
     from rscasadi.native.build import compiler
     arm = rscasadi.Arm(mixed(seed, n, slides=slides))
-    _, kernel = step_kernel(arm, ["-O1", "-std=c99"], compiler(), log=lambda m: None)
+    _, kernel = step_kernel(arm, ["-O1", "-std=c99"], compiler(), log=lambda m: None, method=method)
     assert kernel is not None and kernel.size1_in(1) == arm.u
-    chained, _ = interval_functions(arm, 0.002, 3, kernel)
-    graph, _ = interval_functions(arm, 0.002, 3)
+    chained, _ = interval_functions(arm, 0.002, 3, kernel, method)
+    graph, _ = interval_functions(arm, 0.002, 3, integrator=method)
     rng = np.random.default_rng(seed)
     for _ in range(3):
         x, tau = state(rng, arm, 0.05)

@@ -725,30 +725,34 @@ def test_the_panda_controller_with_its_step_kernel_equals_the_casadi_function(pa
         x = x + rng.normal(0, 1e-4, x.shape)
 
 
-@pytest.mark.parametrize("parametric", ["none", "payload"])
-def test_the_chained_step_kernel_steps_and_chains_as_the_implicit_function_graph(parametric):
+@pytest.mark.parametrize("parametric,method", [("none", "rk4"), ("payload", "rk4"), ("none", "ros2"),
+                                              ("payload", "ros2")])
+def test_the_chained_step_kernel_steps_and_chains_as_the_implicit_function_graph(parametric, method):
     """The MPC's kernel is one substep of an interval (codegen.step_kernel, chained): it returns
     the step and carries the interval's A and B through it.  Three substeps of a Panda interval
-    against interval_functions without the kernel (the RK4 step Function; the implicit-function
-    graph's Jacobian, chained by CasADi's products), at random states and torques, with and
-    without the payload's mass as a parameter: the state, A and B to 1e-9 of their size."""
+    against interval_functions without the kernel (RK4: its step Function and the
+    implicit-function graph's Jacobian; ROS2: codegen.rosenbrock's graph, a dense solve with W,
+    itself checked against AD in test_modes; chained by CasADi's products), at random states and
+    torques, with and without the payload's mass as a parameter: the state, A and B, and the
+    state alone (Fx, which ROS2 takes from the kernel without its Jacobian), to 1e-9 of their size."""
     import dataclasses
     from rscasadi.mpc.formulation import controller_arm, interval_functions
     from rscasadi.mpc.generate import step_kernel
     from rscasadi.native.build import compiler
     p = dataclasses.replace(load_mpc_problem(PANDA), parametric=parametric)
     arm = controller_arm(M.generate.mpc_model(p), p.parametric)
-    _, kernel = step_kernel(arm, ["-O1", "-std=c99"], compiler(), log=lambda m: None)
+    _, kernel = step_kernel(arm, ["-O1", "-std=c99"], compiler(), log=lambda m: None, method=method)
     assert kernel.n_out() == 3 and kernel.name_out(2) == "x_next"
-    chained, _ = interval_functions(arm, 0.02, 3, kernel)
-    graph, _ = interval_functions(arm, 0.02, 3)
+    chained = interval_functions(arm, 0.02, 3, kernel, method)
+    graph = interval_functions(arm, 0.02, 3, integrator=method)
     rng = np.random.default_rng(3)
     for _ in range(3):
         x = rest_state(arm, rng.uniform(-0.5, 0.5, 7)) + rng.normal(0, 0.05, 28)
         tau, m = rng.normal(0, 0.3, 7), [1.3] * (arm.n_p if arm.free else 0)
-        for a, b in zip(chained(x, tau, m), graph(x, tau, m)):
-            a, b = np.array(a), np.array(b)
-            assert np.max(np.abs(a - b)) < 1e-9 * max(1.0, np.max(np.abs(b))), np.max(np.abs(a - b))
+        for F, G in zip(chained, graph):
+            for a, b in zip(F.call([x, tau, m]), G.call([x, tau, m])):
+                a, b = np.array(a), np.array(b)
+                assert np.max(np.abs(a - b)) < 1e-9 * max(1.0, np.max(np.abs(b))), np.max(np.abs(a - b))
 
 
 def test_the_mpc_example_runs_the_panda_valgrind_clean(panda_mpc_dir, panda_built, tmp_path):

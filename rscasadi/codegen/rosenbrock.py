@@ -10,9 +10,9 @@ arms whose spring modes are too fast for explicit steps.
 L-stable: a mode however fast (a light flange behind a stiff SEA: real eigenvalues near -5e3
 1/s, where RK4 needs steps below 0.5 ms) decays in one step of any length; second order for
 any J, so the rigid motion keeps its accuracy.  The state's structure halves the algebra: with
-J = [[0, I], [Fq, Fv]] (Fq, Fv the forward dynamics' Jacobian in the angles and the speeds),
+J = [[0, I], [Fq, Fv]] (Fq, Fv the forward dynamics' Jacobian in the coordinates and their speeds),
 W k = r is k_v = S^-1 (r_v + gamma h Fq r_q), k_q = r_q + gamma h k_v, one LU of the
-2n x 2n S = I - gamma h Fv - (gamma h)^2 Fq per step.
+nq x nq S = I - gamma h Fv - (gamma h)^2 Fq per step (nq coordinates: 2n on an arm of SEAs).
 
 The step's Jacobian (the MPC's sensitivities A, B) is the chain rule through both stages with W
 held fixed: dk1 = W^-1 Jf(x) dx, dk2 = W^-1 (Jf(x + h k1) (dx + h dk1) - 2 dk1), Jf the full
@@ -35,37 +35,37 @@ def ros2_functions(arm: Arm, prefix: str = "", fd_jacobian: ca.Function | None =
     """step: (x, tau, h[, p]) -> x_next, one ROS2 step of the complete model; step_jacobian:
     (x, tau, h[, p]) -> A = dx_next/dx, B = dx_next/dtau with W held fixed (module docstring).
     Straight-line SX where the forward-dynamics Jacobian is SX, an MX graph of it otherwise."""
-    n = arm.n
+    nq, nx = arm.nq, 2 * arm.nq
     f = rhs(arm, parametric)
     jac = fd_jacobian or forward_dynamics_jacobian(arm, parametric, prefix + "forward_dynamics_jacobian")
     sym = ca.SX if jac.is_a("SXFunction") else ca.MX
-    x, tau, h = sym.sym("x", 4 * n), sym.sym("tau", n), sym.sym("h")
+    x, tau, h = sym.sym("x", nx), sym.sym("tau", arm.u), sym.sym("h")
     p = [sym.sym("p", arm.n_p)] if parametric else []
-    F1 = ca.densify(jac(*ca.vertsplit(x, n), tau, *p))               # d(ddtheta, ddphi)/d(x, tau): 2n x 5n
-    Fq, Fv, gh = F1[:, :2 * n], F1[:, 2 * n:4 * n], GAMMA * h
-    S = ca.DM.eye(2 * n) - gh * Fv - gh ** 2 * Fq
+    F1 = ca.densify(jac(*arm.split_state(x), tau, *p))              # d(accelerations)/d(x, tau): nq x (nx + u)
+    Fq, Fv, gh = F1[:, :nq], F1[:, nq:nx], GAMMA * h
+    S = ca.DM.eye(nq) - gh * Fv - gh ** 2 * Fq
 
     def solve(r):                                                     # W^-1 r
-        kv = ca.solve(S, r[2 * n:, :] + gh * ca.mtimes(Fq, r[:2 * n, :]))
-        return ca.vertcat(r[:2 * n, :] + gh * kv, kv)
+        kv = ca.solve(S, r[nq:, :] + gh * ca.mtimes(Fq, r[:nq, :]))
+        return ca.vertcat(r[:nq, :] + gh * kv, kv)
 
     k1 = solve(f(x, tau, *p))
     x2 = x + h * k1
     k2 = solve(f(x2, tau, *p) - 2 * k1)
     x_next = x + 1.5 * h * k1 + 0.5 * h * k2
-    I = ca.DM.eye(5 * n)
+    I = ca.DM.eye(nx + arm.u)
 
     def along(F, dz):                                                 # d f(z, tau) = [dz's speed rows; F d(z, tau)]
-        return ca.vertcat(dz[2 * n:, :], ca.mtimes(F, ca.vertcat(dz, I[4 * n:, :])))
+        return ca.vertcat(dz[nq:, :], ca.mtimes(F, ca.vertcat(dz, I[nx:, :])))
 
-    dx = I[:4 * n, :]                                                 # d x / d(x, tau)
+    dx = I[:nx, :]                                                    # d x / d(x, tau)
     dk1 = solve(along(F1, dx))
-    F2 = ca.densify(jac(*ca.vertsplit(x2, n), tau, *p))
+    F2 = ca.densify(jac(*arm.split_state(x2), tau, *p))
     dk2 = solve(along(F2, dx + h * dk1) - 2 * dk1)
     d = dx + 1.5 * h * dk1 + 0.5 * h * dk2
     names = ["x", "tau", "h"] + ["p"] * len(p)
     opts = {"cse": True} if sym is ca.SX else {}
     step = ca.Function(prefix + "step", [x, tau, h] + p, [x_next], names, ["x_next"], opts)
-    step_jac = ca.Function(prefix + "step_jacobian", [x, tau, h] + p, [d[:, :4 * n], d[:, 4 * n:]], names, ["A", "B"],
+    step_jac = ca.Function(prefix + "step_jacobian", [x, tau, h] + p, [d[:, :nx], d[:, nx:]], names, ["A", "B"],
                            opts)
     return step, step_jac

@@ -1,5 +1,8 @@
 """The step Jacobian as a structured C kernel, for arms past the straight-line
-SX route (generate.step_functions' implicit-function branch: n >= 5 for the reference arm's joints).
+SX route (generate.step_functions' implicit-function branch: n >= 5 for the reference arm's joints),
+for RK4 (below) and for ROS2, the L-stable step of arms with stiff springs (codegen.rosenbrock;
+templates/step_ros2.c: two stage points, each a column block sweep `rsk_stage` as RK4's stages,
+and the dense solves with W's nq x nq S).
 
 The mathematics is step_functions' exactly: RK4's four stages, dk_i = [S_i; B_i] with
 
@@ -39,6 +42,7 @@ import numpy as np
 from rscasadi.model.parameters import gear_ratios
 from rscasadi.codegen import lanes
 from rscasadi.codegen.lanes import LANES
+from rscasadi.errors import InvalidArgument
 
 BLOCK = 32          # columns accumulated at once (8 AVX2 registers; the last block narrower, to a multiple of 4):
                     # 16 and 20 ran 3 % slower, 64 spilled
@@ -83,14 +87,19 @@ def drives(arm) -> dict:
     return {row: (col, f"-mu[{j}]" if geared else "1.0") for col, (row, j, geared) in enumerate(arm.input_places())}
 
 
-def kernel_source(arm, name: str, parametric: bool, chained: bool = False) -> Kernel:
-    """The step-Jacobian kernel for the public symbol `name`: CasADi generates fd into the file,
-    then the kernel's C follows (jr in vector lanes, the stages, the CasADi-style interface).
+def kernel_source(arm, name: str, parametric: bool, chained: bool = False, method: str = "rk4") -> Kernel:
+    """The step-Jacobian kernel for the public symbol `name`: CasADi generates fd (and, for ROS2,
+    jr) into the file, then the kernel's C follows (RK4: jr in vector lanes, the four stages;
+    ROS2: its two stage points and the dense solves with S, codegen.rosenbrock and
+    templates/step_ros2.c; the CasADi-style interface).
     chained: the kernel of one substep within an interval, (x, tau, h[, p], A0, B0) -> (A A0,
     A B0 + B, x_next): the interval's sensitivities so far carried through this step (A0 = I and
     B0 = 0 at the first substep, where no product is formed) and the step itself, from the
     stage points the Jacobian needs anyway (RK4's x + h/6 (k1 + 2 k2 + 2 k3 + k4))."""
-    nq, u = arm.nq, arm.u
+    from rscasadi.codegen.rosenbrock import GAMMA           # (rosenbrock imports generate, which imports this)
+    if method not in STEPS:
+        raise InvalidArgument(f"kernel_source: method {method!r}: one of {', '.join(sorted(STEPS))}")
+    nq, u, ros2 = arm.nq, arm.u, method == "ros2"
     fd, jr, perm = point_functions(arm, name, parametric)
     JrT, LT, L = jr.sparsity_out(0), fd.sparsity_out(2), fd.sparsity_out(3)
     speeds = [int(np.searchsorted(JrT.row()[JrT.colind()[r]:JrT.colind()[r + 1]], nq)) + JrT.colind()[r]
@@ -99,29 +108,37 @@ def kernel_source(arm, name: str, parametric: bool, chained: bool = False) -> Ke
     nc = 2 * nq + u
     stride = -(-nc // 4) * 4                                         # (x, tau)'s columns padded to whole vectors
     njr, nlt = max(JrT.nnz(), 1), max(LT.nnz(), 1)
-    sizes = {"SZ_ARG": n_in + fd.sz_arg(), "SZ_RES": n_out + fd.sz_res(), "SZ_IW": fd.sz_iw(),
-             "SZ_W": (fd.sz_w() + 6 * 2 * nq + 9 * nq + 8 * nlt + arm.n + LANES * njr + 8
-                      + 4 * nq * stride + chained * (2 * nq + 2 * nq * nc))}     # as @NAME@_work below
+    point = [fd, jr] if ros2 else [fd]                               # what CasADi generates; the work they share
+    pt = {k: max(getattr(f, "sz_" + k)() for f in point) for k in ("arg", "res", "iw", "w")}
+    if ros2:             # as step_ros2.c lays out w: x2, k1, k2, a1, a2, D, LT, L (two points), mu, JR, S, F1, K1, K2
+        sz_w = (pt["w"] + 3 * 2 * nq + 4 * nq + 4 * nlt + arm.n + njr + nq * nq + 8 + 3 * nq * stride
+                + chained * 2 * nq * nc)
+    else:                # as step_rk4.c lays it out
+        sz_w = (pt["w"] + 6 * 2 * nq + 9 * nq + 8 * nlt + arm.n + LANES * njr + 8 + 4 * nq * stride
+                + chained * (2 * nq + 2 * nq * nc))
+    sizes = {"SZ_ARG": n_in + pt["arg"], "SZ_RES": n_out + pt["res"], "SZ_IW": pt["iw"], "SZ_W": sz_w}
     consts = "".join([
         f"#define RSK_N {arm.n}\n#define RSK_NU {u}\n#define RSK_NV {nq}\n#define RSK_NX {2 * nq}\n",
         f"#define RSK_NC {nc}\n#define RSK_BK {BLOCK}\n#define RSK_NP {stride}\n",
         f"#define RSK_NJR {njr}\n#define RSK_NLT {nlt}\n#define RSK_NIN {n_in}\n",
         f"#define RSK_NOUT {n_out}\n#define RSK_CHAIN {int(chained)}\n",
-        f"#define RSK_PT_ARG {fd.sz_arg()}\n#define RSK_PT_RES {fd.sz_res()}\n",
-        f"#define RSK_PT_IW {fd.sz_iw()}\n#define RSK_PT_W {fd.sz_w()}\n",
-        f"#define RSK_NPAR {arm.n_p if parametric else 0}\n#define RSK_FD {fd.name()}\n"])
-    parts, calls = _parts(_unrolled(JrT, speeds, LT, L, perm, stride, drives(arm)))
-    body = (lanes.PRELUDE + lanes.lanes_c(jr, "rsk_jr4", shared=(2,) if parametric else ())
-            + _TEMPLATE.replace("@NAME@", name).replace("@CONSTS@", consts)
-            .replace("@PARTS@", parts).replace("@BLOCKS@", calls))
+        f"#define RSK_PT_ARG {pt['arg']}\n#define RSK_PT_RES {pt['res']}\n",
+        f"#define RSK_PT_IW {pt['iw']}\n#define RSK_PT_W {pt['w']}\n#define RSK_SZ_W {sz_w}\n",
+        f"#define RSK_NPAR {arm.n_p if parametric else 0}\n#define RSK_FD {fd.name()}\n",
+        f"#define RSK_JR {jr.name()}\n#define RSK_GAMMA {float(GAMMA)!r}\n" if ros2 else ""])
+    parts, calls = _parts(_unrolled(JrT, speeds, LT, L, perm, stride, drives(arm), 1 if ros2 else LANES))
+    jr_c = "" if ros2 else lanes.lanes_c(jr, "rsk_jr4", shared=(2,) if parametric else ())
+    body = (lanes.PRELUDE + jr_c + _TEMPLATE.replace("@STEP@", STEPS[method]).replace("@NAME@", name)
+            .replace("@CONSTS@", consts).replace("@PARTS@", parts).replace("@BLOCKS@", calls))
     header = _HEADER.replace("@NAME@", name) + "".join(f"#define {name}_{k} {v}\n" for k, v in sizes.items())
-    return Kernel([fd], body, header, fd.n_instructions() + jr.n_instructions())
+    return Kernel(point, body, header, fd.n_instructions() + jr.n_instructions())
 
 
-def _unrolled(JrT, speeds, LT, L, perm, stride, drive):
+def _unrolled(JrT, speeds, LT, L, perm, stride, drive, jstride):
     """rsk_stage's rows, each a C block (in order), with the sparsity patterns and column blocks as constants: per block,
     forward (row perm[r] of [-dr/dx | dQ/dtau] - s dr/dx [S; B1], then L z = y) and backward
-    (L' x = z / d).  speeds[r]: where row r's speed columns start in JrT; drive: dQ/dtau by row."""
+    (L' x = z / d).  speeds[r]: where row r's speed columns start in JrT; drive: dQ/dtau by row;
+    jstride: how far apart dr/dx's nonzeros are (LANES where the lanes interleave four points)."""
     n2 = JrT.size2()
     nx = 2 * n2
     jp, jc, lp, lc, rp, rc = JrT.colind(), JrT.row(), LT.colind(), LT.row(), L.colind(), L.row()
@@ -134,13 +151,13 @@ def _unrolled(JrT, speeds, LT, L, perm, stride, drive):
         for r in range(n2):
             y = perm[r]
             lines = [f"  for (c = 0; c < {w}; ++c) t[c] = 0;"]
-            lines += [f"  {e}" for k in range(jp[y], jp[y + 1]) for e in at(jc[k], f"-jr[{LANES * k}]")]    # -dr/dx
+            lines += [f"  {e}" for k in range(jp[y], jp[y + 1]) for e in at(jc[k], f"-jr[{jstride * k}]")]    # -dr/dx
             if y in drive:
                 lines += [f"  {e}" for e in at(nx + drive[y][0], drive[y][1])]                    # dQ/dtau
-            b1 = [e for k in range(jp[y], speeds[y]) for e in at(n2 + jc[k], f"ms * jr[{LANES * k}]")]    # dr/dq [0 1 0]
-            b1 += [f"RSK_AX(t, ms * jr[{LANES * k}], B1 + {(jc[k] - n2) * stride + cb}, {w})"
+            b1 = [e for k in range(jp[y], speeds[y]) for e in at(n2 + jc[k], f"ms * jr[{jstride * k}]")]    # dr/dq [0 1 0]
+            b1 += [f"RSK_AX(t, ms * jr[{jstride * k}], B1 + {(jc[k] - n2) * stride + cb}, {w})"
                    for k in range(speeds[y], jp[y + 1])]
-            b2 = [f"RSK_AX(t, mss * jr[{LANES * k}], B2 + {jc[k] * stride + cb}, {w})" for k in range(jp[y], speeds[y])]
+            b2 = [f"RSK_AX(t, mss * jr[{jstride * k}], B2 + {jc[k] * stride + cb}, {w})" for k in range(jp[y], speeds[y])]
             if b1:
                 lines.append("  if (B1) {\n    " + "\n    ".join(b1) + "\n  }")
             if b2:
@@ -181,3 +198,4 @@ def _parts(rows: list) -> tuple[str, str]:
 TEMPLATES = Path(__file__).with_name("templates")
 _HEADER = (TEMPLATES / "step_kernel.h").read_text().split("\n", 1)[1]          # without its comment line
 _TEMPLATE = (TEMPLATES / "step_kernel.c").read_text().split("*/", 1)[1]        # without its comment
+STEPS = {m: (TEMPLATES / f"step_{m}.c").read_text() for m in ("rk4", "ros2")}   # each method's step, for @STEP@

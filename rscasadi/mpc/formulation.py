@@ -75,16 +75,17 @@ def interval_functions(arm: Arm, h: float, substeps: int, step_jacobian: ca.Func
     One substep (step, Jacobian and the chain's products) is one Function, straight-line SX when
     the step Jacobian is SX (small arms), called `substeps` times: its C is generated once, so
     the controller compiles in a fifth of the time of one straight-line interval, as fast.
-    step_jacobian: a Function to use in place of step_functions' RK4 one (the generated
-    controller's structured C kernel, `generate.step_kernel`); when it is the chained kernel
-    (three outputs) it also steps and chains, `_chained_interval`."""
+    step_jacobian: a Function to use in place of the integrator's step Jacobian (the generated
+    controller's structured C kernel of the same integrator, `generate.step_kernel`); when it is
+    the chained kernel (three outputs) it also steps and chains, `_chained_interval`."""
     from rscasadi.codegen.generate import step_functions
     from rscasadi.codegen.rosenbrock import ros2_functions
     nx, n, hs, parametric = 2 * arm.nq, arm.u, h / substeps, bool(arm.free)
     step, step_jac = (ros2_functions if integrator == "ros2" else step_functions)(arm, parametric=parametric)
-    step_jac = step_jacobian if step_jacobian is not None and integrator == "rk4" else step_jac
+    step_jac = step_jacobian if step_jacobian is not None else step_jac
     if step_jac.n_out() == 3:
-        return _chained_interval(step, step_jac, arm, hs, substeps)
+        # ROS2's step needs the dynamics' Jacobian (W) as much as the kernel does: the kernel steps alone too
+        return _chained_interval(step_jac if integrator == "ros2" else step, step_jac, arm, hs, substeps)
     sym = ca.SX if step_jac.is_a("SXFunction") else ca.MX
     if sym is ca.SX:
         step = step.expand()
@@ -108,7 +109,8 @@ def interval_functions(arm: Arm, h: float, substeps: int, step_jacobian: ca.Func
 def _chained_interval(step, kernel, arm: Arm, hs: float, substeps: int):
     """interval_functions' F and Fx with the chained kernel (codegen.step_kernel, chained=True):
     each substep's call returns the step and carries the interval's A and B through it, so
-    neither a separate step nor CasADi's products remain."""
+    neither a separate step nor CasADi's products remain.  Fx steps with `step`: a step Function
+    (x, tau, h[, p]) -> x_next, or the kernel itself (its A and B unused: not formed)."""
     n, nx = arm.u, 2 * arm.nq
     x, u, mm = ca.MX.sym("x", nx), ca.MX.sym("tau", n), ca.MX.sym("m", arm.n_p if arm.free else 0)
     pm = [mm] if arm.free else []
@@ -116,7 +118,7 @@ def _chained_interval(step, kernel, arm: Arm, hs: float, substeps: int):
     z_only = x
     for _ in range(substeps):
         A, B, z = kernel(z, u, hs, *pm, A, B)
-        z_only = step(z_only, u, hs, *pm)
+        z_only = step(z_only, u, hs, *pm, ca.MX(ca.DM.eye(nx)), ca.MX(nx, n))[2] if step is kernel else step(z_only, u, hs, *pm)
     return ca.Function("interval", [x, u, mm], [z, A, B]), ca.Function("interval_x", [x, u, mm], [z_only])
 
 

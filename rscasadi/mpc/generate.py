@@ -28,9 +28,10 @@ TEMPLATES = Path(__file__).with_name("templates")
 KERNEL = "step_jacobian"         # the kernel's C symbol after the controller's: mpc_step_jacobian, so both link
 
 
-def step_kernel(arm, flags: list, cc: list, log=print, name: str = f"mpc_{KERNEL}"):
+def step_kernel(arm, flags: list, cc: list, log=print, name: str = f"mpc_{KERNEL}", method: str = "rk4"):
     """For an arm past straight-line SX (generate.step_functions' implicit-function branch): the
-    step Jacobian's structured C kernel (rscasadi.codegen.step_kernel), chained: one substep of
+    step Jacobian's structured C kernel of the integrator `method` ("rk4" or "ros2";
+    rscasadi.codegen.step_kernel), chained: one substep of
     an interval, its step and the interval's sensitivities carried through it, as `name`, its C source,
     and a Function that calls it (compiled once per source by the one build step, loaded by
     casadi.external) for the controller's graph; (None, None) for smaller arms.  On the Panda it
@@ -41,7 +42,7 @@ def step_kernel(arm, flags: list, cc: list, log=print, name: str = f"mpc_{KERNEL
     parametric = bool(arm.free)
     if step_functions(arm, parametric=parametric)[1].is_a("SXFunction"):
         return None, None
-    k = kernel_source(arm, name, parametric, chained=True)
+    k = kernel_source(arm, name, parametric, chained=True, method=method)
     gen = ca.CodeGenerator(f"{name}.c", {"with_header": False})
     for g in k.functions:
         gen.add(g)
@@ -254,7 +255,7 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
             omp = list(openmp_flags(tuple(cc)))
             flags, link = flags + omp, link + omp
     # the kernel with the controller's own flags: its object is then the controller's too (compiled once)
-    kernel, step_jacobian = step_kernel(arm, flags, cc, log, name(KERNEL)) if p.integrator == "rk4" else (None, None)
+    kernel, step_jacobian = step_kernel(arm, flags, cc, log, name(KERNEL), p.integrator)
     if qp == "riccati":
         interval, residual = stage_functions(arm, p, step_jacobian, name(""))
         ahead = sample_ahead(arm, p, step_jacobian, name("ahead"))
