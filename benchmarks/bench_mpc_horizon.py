@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common import baxter_trajectory, stamp, RESULTS, ROOT  # noqa: E402
+from common import baxter_trajectory, light_panda, stamp, RESULTS, ROOT  # noqa: E402
 from rscasadi.mpc import closed_loop, generate_mpc, load_mpc_problem, task_closed_loop  # noqa: E402
 from rscasadi.mpc.problem import with_integrator  # noqa: E402
 from rscasadi.dynamics.arm import Arm, load  # noqa: E402
@@ -170,14 +170,8 @@ def second_arm(work: Path, tuned: str, log=print) -> tuple[list, object]:
 
 
 def light_wrist(work: Path, log=print) -> dict:
-    from rscasadi.model.modelfile import document, to_toml
-    doc = document(load(ROOT / "problems" / "panda_sea.toml").model)
-    link = doc["joints"][6]["link"]
-    link["mass"] *= LIGHT
-    link["inertia"] = [v * LIGHT for v in link["inertia"]]
-    (work / "light.toml").write_text(to_toml(doc))
-    p = dataclasses.replace(load_mpc_problem(PROBLEM), model=work / "light.toml")
-    settled = with_integrator(p, Arm(load(work / "light.toml").model))
+    p = dataclasses.replace(load_mpc_problem(PROBLEM), model=light_panda(work, LIGHT))
+    settled = with_integrator(p, Arm(load(p.model).model))
     generate_mpc(p, work / "light", opt="-O3", native=True, log=lambda m: None)
     res = closed_loop(p, work / "light", duration=1.0, log=lambda m: None, simulator=lambda pl, dt: rk4_plant(pl, dt, 10))
     mpc, pd = res["MPC (C)"], res["feedforward + PD"]

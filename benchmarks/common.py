@@ -31,6 +31,18 @@ def stamp() -> str:
     return run_stamp()
 
 
+def light_panda(work: Path, factor: float) -> Path:
+    """The Panda's model file (problems/panda_sea.toml) with its last link `factor` times as
+    heavy, written into `work`: a light wrist behind a stiff SEA."""
+    from rscasadi.model.modelfile import document, to_toml
+    doc = document(rscasadi.load(ROOT / "problems" / "panda_sea.toml").model)
+    link = doc["joints"][6]["link"]
+    link["mass"] *= factor
+    link["inertia"] = [v * factor for v in link["inertia"]]
+    (work / "light.toml").write_text(to_toml(doc))
+    return work / "light.toml"
+
+
 def chain_arm(n: int) -> rscasadi.Arm:
     """An n-joint arm repeating the reference arm's joints (yaw, pitch, pitch, yaw, ...)."""
     if n == 3:

@@ -66,6 +66,15 @@ def rhs(arm: Arm, parametric: bool = False) -> ca.Function:
     return ca.Function("rhs", [x, tau] + p, ca.cse([xdot]), ["x", "tau"] + ["p"] * len(p), ["xdot"])
 
 
+def rk4_step(arm: Arm, parametric: bool = False, prefix: str = "") -> ca.Function:
+    """step: (x, tau, h[, p]) -> x_next, one classical RK4 step of the complete model."""
+    f = rhs(arm, parametric)
+    x, tau, h = ca.MX.sym("x", 2 * arm.nq), ca.MX.sym("tau", arm.u), ca.MX.sym("h")
+    p = [ca.MX.sym("p", arm.n_p)] if parametric else []
+    return ca.Function(prefix + "step", [x, tau, h] + p, [rk4(lambda z: f(z, tau, *p), x, h)[0]],
+                       ["x", "tau", "h"] + ["p"] * len(p), ["x_next"])
+
+
 def step_functions(arm: Arm, prefix: str = "", fd_jacobian: ca.Function | None = None, parametric: bool = False,
                    expand: bool | None = None):
     """step: (x, tau, h[, p]) -> x_next, one RK4 step of the complete model; step_jacobian: (x, tau,
@@ -86,7 +95,7 @@ def step_functions(arm: Arm, prefix: str = "", fd_jacobian: ca.Function | None =
     fd_jacobian = fd_jacobian or forward_dynamics_jacobian(arm, parametric, prefix + "forward_dynamics_jacobian")
     x, tau, h = ca.MX.sym("x", nx), ca.MX.sym("tau", arm.u), ca.MX.sym("h")
     p = [ca.MX.sym("p", arm.n_p)] if parametric else []
-    x_next, stages = rk4(lambda z: f(z, tau, *p), x, h)
+    _, stages = rk4(lambda z: f(z, tau, *p), x, h)
     I = ca.DM.eye(nx + arm.u)[:nx, :]                                # d x / d(x, tau)
     small = arm.forward_dynamics(parametric=parametric).n_instructions() <= AD_JACOBIAN_LIMIT
     S: list = []                                                     # dk_i = [S_i; B_i]
@@ -103,7 +112,7 @@ def step_functions(arm: Arm, prefix: str = "", fd_jacobian: ca.Function | None =
     weights = (1, 2, 2, 1)
     dnext = I + h / 6 * ca.vertcat(sum(w * Si for w, Si in zip(weights, S)), sum(w * Bi for w, Bi in zip(weights, B)))
     names = ["x", "tau", "h"] + ["p"] * len(p)
-    step = ca.Function(prefix + "step", [x, tau, h] + p, [x_next], names, ["x_next"])
+    step = rk4_step(arm, parametric, prefix)
     step_jac = ca.Function(prefix + "step_jacobian", [x, tau, h] + p, [dnext[:, :nx], dnext[:, nx:]],
                            names, ["A", "B"])
     if expand if expand is not None else small:

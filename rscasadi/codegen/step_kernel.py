@@ -55,6 +55,8 @@ class Kernel(NamedTuple):
     body: str                # the kernel's C (after them), with its CasADi-style interface
     header: str              # its declarations and work sizes
     n_instructions: int      # SX instructions of one stage point (both Functions)
+    stub: str                # the interface alone (a call fails): a Function for building graphs that call
+                             # the kernel, compiled in a moment while the kernel itself compiles with them
 
 
 def point_functions(arm, name: str, parametric: bool):
@@ -131,7 +133,8 @@ def kernel_source(arm, name: str, parametric: bool, chained: bool = False, metho
     body = (lanes.PRELUDE + jr_c + _TEMPLATE.replace("@STEP@", STEPS[method]).replace("@NAME@", name)
             .replace("@CONSTS@", consts).replace("@PARTS@", parts).replace("@BLOCKS@", calls))
     header = _HEADER.replace("@NAME@", name) + "".join(f"#define {name}_{k} {v}\n" for k, v in sizes.items())
-    return Kernel(point, body, header, fd.n_instructions() + jr.n_instructions())
+    stub = (_STUB + consts + _INTERFACE).replace("@NAME@", name)
+    return Kernel(point, body, header, fd.n_instructions() + jr.n_instructions(), stub)
 
 
 def _unrolled(JrT, speeds, LT, L, perm, stride, drive, jstride):
@@ -198,4 +201,9 @@ def _parts(rows: list) -> tuple[str, str]:
 TEMPLATES = Path(__file__).with_name("templates")
 _HEADER = (TEMPLATES / "step_kernel.h").read_text().split("\n", 1)[1]          # without its comment line
 _TEMPLATE = (TEMPLATES / "step_kernel.c").read_text().split("*/", 1)[1]        # without its comment
+_INTERFACE = "static const casadi_int rsk_sp_x" + _TEMPLATE.split("static const casadi_int rsk_sp_x", 1)[1]
+_STUB = ("#ifndef casadi_real\n#define casadi_real double\n#endif\n#ifndef casadi_int\n#define casadi_int long long int\n"
+         "#endif\n/* the kernel's interface alone: a call fails (rscasadi/codegen/step_kernel.py, Kernel.stub) */\n"
+         "int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {\n"
+         "  (void)arg; (void)res; (void)iw; (void)w; (void)mem;\n  return 1;\n}\n")
 STEPS = {m: (TEMPLATES / f"step_{m}.c").read_text() for m in ("rk4", "ros2")}   # each method's step, for @STEP@

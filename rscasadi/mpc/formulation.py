@@ -78,14 +78,15 @@ def interval_functions(arm: Arm, h: float, substeps: int, step_jacobian: ca.Func
     step_jacobian: a Function to use in place of the integrator's step Jacobian (the generated
     controller's structured C kernel of the same integrator, `generate.step_kernel`); when it is
     the chained kernel (three outputs) it also steps and chains, `_chained_interval`."""
-    from rscasadi.codegen.generate import step_functions
+    from rscasadi.codegen.generate import rk4_step, step_functions
     from rscasadi.codegen.rosenbrock import ros2_functions
     nx, n, hs, parametric = 2 * arm.nq, arm.u, h / substeps, bool(arm.free)
+    if step_jacobian is not None and step_jacobian.n_out() == 3:
+        # ROS2's step needs the dynamics' Jacobian (W) as much as the kernel does: the kernel steps alone too
+        step = step_jacobian if integrator == "ros2" else rk4_step(arm, parametric)
+        return _chained_interval(step, step_jacobian, arm, hs, substeps)
     step, step_jac = (ros2_functions if integrator == "ros2" else step_functions)(arm, parametric=parametric)
     step_jac = step_jacobian if step_jacobian is not None else step_jac
-    if step_jac.n_out() == 3:
-        # ROS2's step needs the dynamics' Jacobian (W) as much as the kernel does: the kernel steps alone too
-        return _chained_interval(step_jac if integrator == "ros2" else step, step_jac, arm, hs, substeps)
     sym = ca.SX if step_jac.is_a("SXFunction") else ca.MX
     if sym is ca.SX:
         step = step.expand()

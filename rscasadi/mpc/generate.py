@@ -28,14 +28,18 @@ TEMPLATES = Path(__file__).with_name("templates")
 KERNEL = "step_jacobian"         # the kernel's C symbol after the controller's: mpc_step_jacobian, so both link
 
 
-def step_kernel(arm, flags: list, cc: list, log=print, name: str = f"mpc_{KERNEL}", method: str = "rk4"):
+def step_kernel(arm, flags: list, cc: list, log=print, name: str = f"mpc_{KERNEL}", method: str = "rk4",
+                stub: bool = False):
     """For an arm past straight-line SX (generate.step_functions' implicit-function branch): the
     step Jacobian's structured C kernel of the integrator `method` ("rk4" or "ros2";
     rscasadi.codegen.step_kernel), chained: one substep of
     an interval, its step and the interval's sensitivities carried through it, as `name`, its C source,
     and a Function that calls it (compiled once per source by the one build step, loaded by
     casadi.external) for the controller's graph; (None, None) for smaller arms.  On the Panda it
-    takes the controller's step from 0.68 to 0.43 ms (2026-11-24, 2-core AMD EPYC)."""
+    takes the controller's step from 0.68 to 0.43 ms (2026-11-24, 2-core AMD EPYC).
+    stub: the Function has the kernel's interface but fails when called (Kernel.stub): enough
+    to build and generate a graph that calls the kernel, whose C then compiles beside the
+    controller's, in parallel (the light-wrist Panda's MPC, -O3: 15 s less from an empty cache)."""
     import tempfile
     from rscasadi.codegen.generate import step_functions
     from rscasadi.codegen.step_kernel import kernel_source
@@ -49,8 +53,11 @@ def step_kernel(arm, flags: list, cc: list, log=print, name: str = f"mpc_{KERNEL
     with tempfile.TemporaryDirectory() as d:
         gen.generate(d + "/")
         text = (Path(d) / f"{name}.c").read_text() + k.body
-    lib = cached_library({f"{name}.c": text}, flags, name="mpc_kernel", what="the step Jacobian's kernel",
-                         log=log, cc=cc, log_hit=True)
+    if stub:
+        lib = cached_library({f"{name}.c": k.stub}, ["-O0"], name="mpc_kernel_interface", cc=cc)
+    else:
+        lib = cached_library({f"{name}.c": text}, flags, name="mpc_kernel", what="the step Jacobian's kernel",
+                             log=log, cc=cc, log_hit=True)
     return text, ca.external(name, str(lib))
 
 
@@ -255,7 +262,7 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
             omp = list(openmp_flags(tuple(cc)))
             flags, link = flags + omp, link + omp
     # the kernel with the controller's own flags: its object is then the controller's too (compiled once)
-    kernel, step_jacobian = step_kernel(arm, flags, cc, log, name(KERNEL), p.integrator)
+    kernel, step_jacobian = step_kernel(arm, flags, cc, log, name(KERNEL), p.integrator, stub=True)
     if qp == "riccati":
         interval, residual = stage_functions(arm, p, step_jacobian, name(""))
         ahead = sample_ahead(arm, p, step_jacobian, name("ahead"))
