@@ -406,3 +406,47 @@ def test_the_c_mpc_drives_a_robot_of_every_kind_in_mujoco(tmp_path):
             assert np.max(np.abs(tau - hold(good))) < 1e-9, (k, bad)
         codes.append(code)
     assert {0, 6, 7} <= set(codes)
+
+
+@pytest.mark.parametrize("seed,n,parametric", [(3, 9, False), (5, 14, True)])
+def test_the_forward_dynamics_jacobian_kernel_equals_finite_differences(seed, n, parametric, tmp_path):
+    """The forward dynamics' Jacobian as the structured kernel (codegen.step_kernel, method
+    "fd_jacobian": M^-1 [-dr/dx | dQ/dtau] in column blocks) on random trees of every kind with
+    prismatic joints, with and without the parameter vector: equal to central differences of the
+    forward dynamics (nothing shared but the dynamics) to 1e-6, and to the Function it replaces
+    to 1e-12.  Past straight-line SX (the 14-joint tree: an MX graph) `rscasadi codegen` puts the
+    kernel in the library in the Function's place (manifest "kernels"): that library is checked."""
+    import casadi as ca
+    from rscasadi.codegen import generate, load_compiled
+    from rscasadi.codegen.generate import forward_dynamics_jacobian
+    from rscasadi.codegen.step_kernel import kernel_source
+    from rscasadi.native.build import casadi_c, cached_library, compiler
+    model = mixed(seed, n, slides=True)
+    arm = rscasadi.Arm.family(model) if parametric else rscasadi.Arm(model)
+    function = forward_dynamics_jacobian(arm, parametric)
+    if function.is_a("SXFunction"):               # codegen keeps the Function here: the kernel compiled alone
+        k = kernel_source(arm, "fdj", parametric, method="fd_jacobian")
+        lib = cached_library({"fdj.c": casadi_c(k.functions, "fdj.c") + k.body}, ["-O1", "-std=c99"], name="fdj",
+                             cc=compiler())
+        kernel = ca.external("fdj", str(lib))
+    else:
+        manifest = generate(arm, tmp_path / "c", opt="-O1", log=lambda m: None, only=["forward_dynamics_jacobian"],
+                            parametric="family" if parametric else "none")
+        assert "forward_dynamics_jacobian" in manifest["kernels"]
+        kernel = load_compiled(tmp_path / "c")["forward_dynamics_jacobian"]
+    fd = arm.forward_dynamics(parametric=parametric)
+    rng = np.random.default_rng(seed)
+    names, values = arm.parameters()
+    p = [np.array([values[names.index(k)] for k in arm.free])] if parametric else []
+    for _ in range(2):
+        x, tau = state(rng, arm, 0.5)
+        J = np.array(kernel(*x, tau, *p))
+        assert rel(J, np.array(function(*x, tau, *p))) < 1e-12
+        z, h = np.concatenate(x + [tau]), 1e-6
+        split = np.cumsum([len(v) for v in x])
+
+        def acc(zz):
+            return np.concatenate([np.array(v).ravel() for v in fd(*np.split(zz, split), *p)])
+        E = np.eye(len(z))
+        numeric = np.stack([(acc(z + h * E[i]) - acc(z - h * E[i])) / (2 * h) for i in range(len(z))], axis=1)
+        assert rel(J, numeric) < 1e-6, rel(J, numeric)

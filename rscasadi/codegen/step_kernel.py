@@ -90,29 +90,37 @@ def drives(arm) -> dict:
 
 
 def kernel_source(arm, name: str, parametric: bool, chained: bool = False, method: str = "rk4") -> Kernel:
-    """The step-Jacobian kernel for the public symbol `name`: CasADi generates fd (and, for ROS2,
-    jr) into the file, then the kernel's C follows (RK4: jr in vector lanes, the four stages;
-    ROS2: its two stage points and the dense solves with S, codegen.rosenbrock and
-    templates/step_ros2.c; the CasADi-style interface).
-    chained: the kernel of one substep within an interval, (x, tau, h[, p], A0, B0) -> (A A0,
+    """The structured kernel for the public symbol `name`: CasADi generates fd (and, but for RK4,
+    jr) into the file, then the kernel's C follows, by `method`:
+    "rk4": the step Jacobian of one RK4 step (jr in vector lanes, the four stages);
+    "ros2": that of one ROS2 step (its two stage points and the dense solves with S,
+    codegen.rosenbrock and templates/step_ros2.c);
+    "fd_jacobian": the forward dynamics' Jacobian M^-1 [-dr/dx | dQ/dtau] itself, one stage
+    (templates/fd_jacobian.c), with the interface of the Function it replaces.
+    chained (a step method): the kernel of one substep within an interval, (x, tau, h[, p], A0, B0) -> (A A0,
     A B0 + B, x_next): the interval's sensitivities so far carried through this step (A0 = I and
     B0 = 0 at the first substep, where no product is formed) and the step itself, from the
     stage points the Jacobian needs anyway (RK4's x + h/6 (k1 + 2 k2 + 2 k3 + k4))."""
     from rscasadi.codegen.rosenbrock import GAMMA           # (rosenbrock imports generate, which imports this)
     if method not in STEPS:
         raise InvalidArgument(f"kernel_source: method {method!r}: one of {', '.join(sorted(STEPS))}")
-    nq, u, ros2 = arm.nq, arm.u, method == "ros2"
+    nq, u, lanes4, jacobian = arm.nq, arm.u, method == "rk4", method == "fd_jacobian"
     fd, jr, perm = point_functions(arm, name, parametric)
     JrT, LT, L = jr.sparsity_out(0), fd.sparsity_out(2), fd.sparsity_out(3)
     speeds = [int(np.searchsorted(JrT.row()[JrT.colind()[r]:JrT.colind()[r + 1]], nq)) + JrT.colind()[r]
               for r in range(nq)]                                    # where a row's speed columns start
-    n_in, n_out = (4 if parametric else 3) + 2 * chained, 2 + chained
+    if jacobian:
+        n_in, n_out, chained = 5 + parametric, 1, False
+    else:
+        n_in, n_out = (4 if parametric else 3) + 2 * chained, 2 + chained
     nc = 2 * nq + u
     stride = -(-nc // 4) * 4                                         # (x, tau)'s columns padded to whole vectors
     njr, nlt = max(JrT.nnz(), 1), max(LT.nnz(), 1)
-    point = [fd, jr] if ros2 else [fd]                               # what CasADi generates; the work they share
+    point = [fd] if lanes4 else [fd, jr]                             # what CasADi generates; the work they share
     pt = {k: max(getattr(f, "sz_" + k)() for f in point) for k in ("arg", "res", "iw", "w")}
-    if ros2:             # as step_ros2.c lays out w: x2, k1, k2, a1, a2, D, LT, L (two points), mu, JR, S, F1, K1, K2
+    if jacobian:         # as fd_jacobian.c lays out w: x, a, D, LT, L, mu, JR, F
+        sz_w = pt["w"] + 2 * nq + 2 * nq + 2 * nlt + arm.n + njr + 8 + nq * stride
+    elif not lanes4:     # as step_ros2.c lays it out: x2, k1, k2, a1, a2, D, LT, L (two points), mu, JR, S, F1, K1, K2
         sz_w = (pt["w"] + 3 * 2 * nq + 4 * nq + 4 * nlt + arm.n + njr + nq * nq + 8 + 3 * nq * stride
                 + chained * 2 * nq * nc)
     else:                # as step_rk4.c lays it out
@@ -127,13 +135,14 @@ def kernel_source(arm, name: str, parametric: bool, chained: bool = False, metho
         f"#define RSK_PT_ARG {pt['arg']}\n#define RSK_PT_RES {pt['res']}\n",
         f"#define RSK_PT_IW {pt['iw']}\n#define RSK_PT_W {pt['w']}\n#define RSK_SZ_W {sz_w}\n",
         f"#define RSK_NPAR {arm.n_p if parametric else 0}\n#define RSK_FD {fd.name()}\n",
-        f"#define RSK_JR {jr.name()}\n#define RSK_GAMMA {float(GAMMA)!r}\n" if ros2 else ""])
-    parts, calls = _parts(_unrolled(JrT, speeds, LT, L, perm, stride, drives(arm), 1 if ros2 else LANES))
-    jr_c = "" if ros2 else lanes.lanes_c(jr, "rsk_jr4", shared=(2,) if parametric else ())
-    body = (lanes.PRELUDE + jr_c + _TEMPLATE.replace("@STEP@", STEPS[method]).replace("@NAME@", name)
+        "" if lanes4 else f"#define RSK_JR {jr.name()}\n#define RSK_GAMMA {float(GAMMA)!r}\n"])
+    parts, calls = _parts(_unrolled(JrT, speeds, LT, L, perm, stride, drives(arm), LANES if lanes4 else 1))
+    jr_c = lanes.lanes_c(jr, "rsk_jr4", shared=(2,) if parametric else ()) if lanes4 else ""
+    function, interface = STEPS[method]
+    body = (lanes.PRELUDE + jr_c + _TEMPLATE.replace("@STEP@", function + interface).replace("@NAME@", name)
             .replace("@CONSTS@", consts).replace("@PARTS@", parts).replace("@BLOCKS@", calls))
     header = _HEADER.replace("@NAME@", name) + "".join(f"#define {name}_{k} {v}\n" for k, v in sizes.items())
-    stub = (_STUB + consts + _INTERFACE).replace("@NAME@", name)
+    stub = (_STUB + consts + interface).replace("@NAME@", name)
     return Kernel(point, body, header, fd.n_instructions() + jr.n_instructions(), stub)
 
 
@@ -201,9 +210,13 @@ def _parts(rows: list) -> tuple[str, str]:
 TEMPLATES = Path(__file__).with_name("templates")
 _HEADER = (TEMPLATES / "step_kernel.h").read_text().split("\n", 1)[1]          # without its comment line
 _TEMPLATE = (TEMPLATES / "step_kernel.c").read_text().split("*/", 1)[1]        # without its comment
-_INTERFACE = "static const casadi_int rsk_sp_x" + _TEMPLATE.split("static const casadi_int rsk_sp_x", 1)[1]
 _STUB = ("#ifndef casadi_real\n#define casadi_real double\n#endif\n#ifndef casadi_int\n#define casadi_int long long int\n"
          "#endif\n/* the kernel's interface alone: a call fails (rscasadi/codegen/step_kernel.py, Kernel.stub) */\n"
          "int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {\n"
          "  (void)arg; (void)res; (void)iw; (void)w; (void)mem;\n  return 1;\n}\n")
-STEPS = {m: (TEMPLATES / f"step_{m}.c").read_text() for m in ("rk4", "ros2")}   # each method's step, for @STEP@
+_STEP_INTERFACE = (TEMPLATES / "step_interface.c").read_text().split("*/", 1)[1]
+_FD_JACOBIAN = (TEMPLATES / "fd_jacobian.c").read_text()
+# each method's function (for @STEP@) and its CasADi-style interface (also the stub's)
+STEPS = {m: ((TEMPLATES / f"step_{m}.c").read_text(), _STEP_INTERFACE) for m in ("rk4", "ros2")}
+STEPS["fd_jacobian"] = tuple(_FD_JACOBIAN.split("static const casadi_int rsk_sp_q", 1))
+STEPS["fd_jacobian"] = (STEPS["fd_jacobian"][0], "static const casadi_int rsk_sp_q" + STEPS["fd_jacobian"][1])
