@@ -23,12 +23,11 @@ usual choice: the constraints (the step itself) stay exact.
 from __future__ import annotations
 
 import casadi as ca
-import numpy as np
 
 from rscasadi.codegen.generate import forward_dynamics_jacobian, rhs
+from rscasadi.codegen.step_kernel import GAMMA
 from rscasadi.dynamics.arm import Arm
 
-GAMMA = 1.0 + 1.0 / np.sqrt(2.0)
 
 
 def ros2_functions(arm: Arm, prefix: str = "", fd_jacobian: ca.Function | None = None, parametric: bool = False):

@@ -44,6 +44,7 @@ from rscasadi.codegen import lanes
 from rscasadi.codegen.lanes import LANES
 from rscasadi.errors import InvalidArgument
 
+GAMMA = 1.0 + 1.0 / np.sqrt(2.0)   # ROS2's gamma (codegen.rosenbrock, templates/step_ros2.c)
 BLOCK = 32          # columns accumulated at once (8 AVX2 registers; the last block narrower, to a multiple of 4):
                     # 16 and 20 ran 3 % slower, 64 spilled
 
@@ -101,7 +102,6 @@ def kernel_source(arm, name: str, parametric: bool, chained: bool = False, metho
     A B0 + B, x_next): the interval's sensitivities so far carried through this step (A0 = I and
     B0 = 0 at the first substep, where no product is formed) and the step itself, from the
     stage points the Jacobian needs anyway (RK4's x + h/6 (k1 + 2 k2 + 2 k3 + k4))."""
-    from rscasadi.codegen.rosenbrock import GAMMA           # (rosenbrock imports generate, which imports this)
     if method not in STEPS:
         raise InvalidArgument(f"kernel_source: method {method!r}: one of {', '.join(sorted(STEPS))}")
     nq, u, lanes4, jacobian = arm.nq, arm.u, method == "rk4", method == "fd_jacobian"
