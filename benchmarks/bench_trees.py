@@ -3,8 +3,8 @@ Unitree G1's waist and two arms, 17 joints, from its URDF) and bimanual trees of
 (a torso column carrying two arms of the reference arm's joints), against Pinocchio's C++ ABA and
 ABA derivatives on the same 3n-body trees (the rotors as bodies of their own), same run.
 
-Forward dynamics and its Jacobian (the implicit-function route past small n) as C, -O3 with
---native, timed by benchmarks/harness.c (the median of 3 processes, each the median of 15
+Forward dynamics and its Jacobian (the implicit-function route past small n; past straight-line
+SX a structured kernel, codegen.step_kernel) as `rscasadi codegen` writes them, -O3 with --native, timed by benchmarks/harness.c (the median of 3 processes, each the median of 15
 batches); Pinocchio's through its Python bindings (their call overhead, about 0.3 us, included);
 the C's size and its generate-and-compile time, and how each grows with n.
 
@@ -25,11 +25,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from common import per_call, stamp, write_results  # noqa: E402
-import casadi as ca  # noqa: E402
 import rscasadi  # noqa: E402
-from rscasadi.codegen.generate import forward_dynamics_jacobian  # noqa: E402
+from rscasadi.codegen import generate  # noqa: E402
 from rscasadi.model.modelfile import parse  # noqa: E402
-from rscasadi.native.build import native_flags  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -73,21 +71,19 @@ def g1_upper(work: Path) -> rscasadi.Arm:
 
 
 def build(arm, out: Path) -> dict:
-    """forward_dynamics and forward_dynamics_jacobian as one C file, compiled -O3 --native: the
-    library, the C's size (bytes) and the generate-and-compile time (s)."""
-    out.mkdir(parents=True)
+    """forward_dynamics and forward_dynamics_jacobian as `rscasadi codegen` writes them (the
+    Jacobian as a structured kernel past straight-line SX, codegen.KERNELS), compiled -O3
+    --native from an empty cache: the library, the C's size (bytes), the generate-and-compile
+    time (s) and the Jacobian's route."""
+    os.environ["RSCASADI_CACHE"] = str(out.with_name(out.name + "_cache"))
     t0 = time.perf_counter()
-    fd = arm.forward_dynamics()
-    fns = [ca.Function("fd", fd.sx_in(), fd.call(fd.sx_in()), fd.name_in(), fd.name_out()),
-           forward_dynamics_jacobian(arm, name="fdjac")]
-    gen = ca.CodeGenerator("tree.c")
-    for f in fns:
-        gen.add(f)
-    gen.generate(str(out) + os.sep)
-    subprocess.run(["cc", "-O3", "-std=c99", *native_flags(), "-fPIC", "-shared", "tree.c", "-o", "libtree.so", "-lm"],
-                   cwd=out, check=True)
-    return {"lib": out / "libtree.so", "c_bytes": (out / "tree.c").stat().st_size,
-            "compile_s": time.perf_counter() - t0, "fd_instructions": fns[0].n_instructions()}
+    manifest = generate(arm, out, opt="-O3", native=True, log=lambda m: None, only=list(NAMES))
+    return {"lib": out / manifest["library"], "c_bytes": sum((out / f).stat().st_size for f in manifest["sources"]),
+            "compile_s": time.perf_counter() - t0, "fd_instructions": arm.forward_dynamics().n_instructions(),
+            "route": "kernel" if "forward_dynamics_jacobian" in manifest["kernels"] else "CasADi"}
+
+
+NAMES = {"forward_dynamics": "fd", "forward_dynamics_jacobian": "fdjac"}     # C symbol -> the row's key
 
 
 def pinocchio_ns(arm) -> dict:
@@ -116,9 +112,9 @@ def main():
         rows[name] = {"n": arm.n, **built, **pinocchio_ns(arm)}
     for _ in range(3):                                  # harness rounds after every compile
         for name, row in rows.items():
-            run = subprocess.run([str(harness), str(row["lib"]), "fd", "fdjac"], capture_output=True, text=True, check=True)
+            run = subprocess.run([str(harness), str(row["lib"]), *NAMES], capture_output=True, text=True, check=True)
             for line in run.stdout.splitlines():
-                row.setdefault(line.split()[0], []).append(float(line.split()[1]))
+                row.setdefault(NAMES[line.split()[0]], []).append(float(line.split()[1]))
     for row in rows.values():
         row["fd_ns"], row["jac_ns"] = float(np.median(row.pop("fd"))), float(np.median(row.pop("fdjac")))
     checks = []
@@ -149,11 +145,12 @@ def main():
           "Measured by `python benchmarks/bench_trees.py`: every joint an SEA with its two rotors as bodies",
           "(3n bodies). C: `benchmarks/harness.c`, median of 3 processes of 15 batches, -O3 --native. Pinocchio:",
           "`aba` and `computeABADerivatives` on the same 3n-joint tree, C++ through the Python bindings (their",
-          "call overhead included), before any projection onto the geared coordinates.", "",
-          "| tree | n | bodies | FD (ns) | Pinocchio ABA (ns) | ratio | FD Jacobian (ns) | ABA derivatives (ns) | ratio |"
-          " C (MB) | generate + compile (s) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+          "call overhead included), before any projection onto the geared coordinates. The Jacobian's C: CasADi's",
+          "straight-line SX, or the structured kernel (`rscasadi/codegen/templates/fd_jacobian.c`) past it.", "",
+          "| tree | n | bodies | FD (ns) | Pinocchio ABA (ns) | ratio | FD Jacobian (ns) | its C | ABA derivatives (ns) |"
+          " ratio | C (MB) | generate + compile (s) |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     md += [f"| {k} | {r['n']} | {r['bodies']} | {r['fd_ns']:.0f} | {r['pin_aba_ns']:.0f} | "
-           f"{r['fd_ns'] / r['pin_aba_ns']:.2f} | {r['jac_ns']:.0f} | {r['pin_aba_derivatives_ns']:.0f} | "
+           f"{r['fd_ns'] / r['pin_aba_ns']:.2f} | {r['jac_ns']:.0f} | {r['route']} | {r['pin_aba_derivatives_ns']:.0f} | "
            f"{r['jac_ns'] / r['pin_aba_derivatives_ns']:.2f} | {r['c_bytes'] / 1e6:.2f} | {r['compile_s']:.1f} |"
            for k, r in rows.items()]
     md += ["", "## Targets", ""] + [f"- {c}" for c in checks]
