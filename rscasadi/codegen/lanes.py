@@ -81,24 +81,53 @@ CHUNK = 300   # statements per function: gcc's register allocation grows faster 
               # 15.6 us at -O3 -march=native: 2026-11-29, 2-core Xeon VM)
 
 
-def lanes_c(f: ca.Function, name: str, shared=()) -> str:
+def lanes_c(f: ca.Function, name: str, shared=(), scalar: bool = False) -> str:
     """`static void name(const double **arg, double **res)`: f at four points, `arg[i][4 k + l]` the
     nonzero k of input i at point l (one copy, `arg[i][k]`, for i in `shared`), res alike.
     Needs PRELUDE once before it in the same file.  The instructions run in functions of CHUNK
-    statements; a work vector live across two of them passes through the array `s` of `name`."""
+    statements; a work vector live across two of them passes through the array `s` of `name`.
+    scalar: f at one point, in doubles (`arg[i][k]`): gcc compiles it much faster than CasADi's
+    one function past a few thousand statements, and it runs a little slower (a 20-joint tree's
+    forward-dynamics Jacobian kernel at -O3: compiled in 29 s instead of 68 s, a call about 1.25x
+    as long; 2026-11-29, 2-core Xeon VM)."""
     if not f.is_a("SXFunction"):
         raise WrongType(f"{f.name()}: lanes_c needs an SX Function")
-    code = [_statement(f, k, shared) for k in range(f.n_instructions())]
+    code = [(_scalar if scalar else _statement)(f, k, shared) for k in range(f.n_instructions())]
     chunks = [code[c:c + CHUNK] for c in range(0, len(code), CHUNK)] or [[]]
     needed: set = set()                      # slots whose value a later chunk reads before writing them
     parts = []
+    kind = "double" if scalar else "rsk_v"
     for i, chunk in reversed(list(enumerate(chunks))):
         live_in, written = _live_in(chunk)
-        parts.append(_chunk_c(f"{name}_{i}", chunk, live_in, written & needed))
+        parts.append(_chunk_c(f"{name}_{i}", chunk, live_in, written & needed, kind))
         needed = live_in | (needed - written)
     calls = "".join(f"  {name}_{i}(s, arg, res);\n" for i in range(len(chunks)))
     return ("".join(reversed(parts)) + f"static void {name}(const double **arg, double **res) {{\n"
-            + f"  rsk_v s[{max(f.sz_w(), 1)}];\n{calls}}}\n")
+            + f"  {kind} s[{max(f.sz_w(), 1)}];\n{calls}}}\n")
+
+
+def _scalar(f: ca.Function, k: int, shared=()) -> tuple:
+    """Instruction k in doubles, as `_statement`'s triple; the operations as CasADi prints them."""
+    op, i, o = f.instruction_id(k), f.instruction_input(k), f.instruction_output(k)
+    if op == ca.OP_INPUT:
+        return f"w{o[0]} = arg[{i[0]}][{i[1]}];", (), o[0]
+    if op == ca.OP_OUTPUT:
+        return f"if (res[{o[0]}]) res[{o[0]}][{o[1]}] = w{i[0]};", (i[0],), None
+    if op == ca.OP_CONST:
+        c = f.instruction_constant(k)
+        if not math.isfinite(c):
+            raise InvalidArgument(f"{f.name()}: constant {c} at instruction {k} has no C literal")
+        return f"w{o[0]} = {c!r};", (), o[0]
+    if op in _BINARY:
+        return f"w{o[0]} = w{i[0]} {_SCALAR_BINARY[op]} w{i[1]};", (i[0], i[1]), o[0]
+    if op in _PER_LANE:
+        args = i[:2] if "{1}" in _PER_LANE[op] else i[:1]
+        return f"w{o[0]} = {_PER_LANE[op].format(*(f'w{j}' for j in args))};", tuple(args), o[0]
+    raise NotImplementedError(f"{f.name()}: operation {_OP_NAMES.get(op, op)} (instruction {k}) "
+                              "has no C form in rscasadi.codegen.lanes")
+
+
+_SCALAR_BINARY = {ca.OP_ADD: "+", ca.OP_SUB: "-", ca.OP_MUL: "*", ca.OP_DIV: "/"}
 
 
 def _statement(f: ca.Function, k: int, shared) -> tuple:
@@ -135,12 +164,12 @@ def _live_in(chunk) -> tuple:
     return live_in, written
 
 
-def _chunk_c(name: str, chunk, live_in: set, live_out: set) -> str:
-    """One chunk as a function: its work vectors local, those live across chunks through `s`."""
+def _chunk_c(name: str, chunk, live_in: set, live_out: set, kind: str = "rsk_v") -> str:
+    """One chunk as a function: its work vectors (of `kind`) local, those live across chunks through `s`."""
     local = sorted(live_in | {w for _, _, w in chunk if w is not None})
-    lines = [f"rsk_v {', '.join(f'w{k}' for k in local)};" if local else "",
+    lines = [f"{kind} {', '.join(f'w{k}' for k in local)};" if local else "",
              "(void)s; (void)arg; (void)res;"]
     lines += [f"w{k} = s[{k}];" for k in sorted(live_in)] + [c for c, _, _ in chunk]
     lines += [f"s[{k}] = w{k};" for k in sorted(live_out)]
-    return (f"static RSK_NOINLINE void {name}(rsk_v *RSK_RESTRICT s, const double **arg, double **res) {{\n  "
+    return (f"static RSK_NOINLINE void {name}({kind} *RSK_RESTRICT s, const double **arg, double **res) {{\n  "
             + "\n  ".join(line for line in lines if line) + "\n}\n")
