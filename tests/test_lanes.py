@@ -64,3 +64,30 @@ def test_unsupported_operation_is_named():
     x = ca.SX.sym("x")
     with pytest.raises(NotImplementedError, match="OP_ERFINV"):
         lanes_c(ca.Function("g", [x], [ca.erfinv(x)]), "g4")
+
+
+@pytest.mark.skipif(cc() is None, reason="no C compiler")
+@pytest.mark.parametrize("chunk", [300, 3, 7])
+def test_the_scalar_form_equals_casadi(tmp_path, chunk, monkeypatch):
+    """scalar=True (one point in doubles, the ROS2 and forward-dynamics-Jacobian kernels' dr/dx):
+    every operation, in one function and in pieces of 3 and 7 statements."""
+    import rscasadi.codegen.lanes as lanes
+    monkeypatch.setattr(lanes, "CHUNK", chunk)
+    f = _every_operation()
+    src = tmp_path / "scalar.c"
+    src.write_text(PRELUDE + lanes_c(f, "f1", scalar=True) + """
+void entry(const double **arg, double **res) { f1(arg, res); }
+""")
+    lib = src.with_suffix(".so")
+    subprocess.run([cc(), "-O1", "-std=c99", "-Wall", "-Werror", "-fPIC", "-shared", str(src), "-o", str(lib), "-lm"],
+                   check=True)
+    lib = ctypes.CDLL(str(lib))
+    rng = np.random.default_rng(6)
+    ptr = ctypes.POINTER(ctypes.c_double)
+    for _ in range(3):
+        ins = [rng.uniform(-2, 2, 3), rng.uniform(0.5, 2, 2), rng.uniform(-1, 1, 2)]
+        outs = [np.full(f.nnz_out(i), np.nan) for i in range(f.n_out())]
+        lib.entry((ptr * 3)(*[a.ctypes.data_as(ptr) for a in ins]), (ptr * 2)(*[o.ctypes.data_as(ptr) for o in outs]))
+        want = f(*ins)
+        for i in range(f.n_out()):
+            assert np.allclose(outs[i], np.array(want[i]).ravel(), rtol=1e-14, atol=1e-15), i
