@@ -330,8 +330,8 @@ def _io(f: ca.Function, out: bool):
 
 
 # the Functions that, past straight-line SX (an MX graph of SX pieces), are generated as a structured C kernel
-# (codegen.step_kernel) of this method: on a 20-joint tree of SEAs the forward dynamics' Jacobian 27.5 us
-# against the MX graph's 98.3 us (-O3, this processor; 2026-11-29, 2-core Xeon VM)
+# (codegen.step_kernel) of this method: on a 20-joint tree of SEAs the forward dynamics' Jacobian 30 us
+# against the MX graph's 98-103 us (-O3, this processor; 2026-11-29, 2-core Xeon VM; results/bench_trees.md)
 KERNELS = {"step_jacobian": "rk4", "forward_dynamics_jacobian": "fd_jacobian"}
 
 
