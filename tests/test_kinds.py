@@ -408,14 +408,21 @@ def test_the_c_mpc_drives_a_robot_of_every_kind_in_mujoco(tmp_path):
     assert {0, 6, 7} <= set(codes)
 
 
-@pytest.mark.parametrize("seed,n,parametric", [(3, 9, False), (5, 14, True)])
-def test_the_forward_dynamics_jacobian_kernel_equals_finite_differences(seed, n, parametric, tmp_path):
+@pytest.mark.parametrize("seed,n,parametric,pieces", [(3, 9, False, True), (5, 14, True, False)])
+def test_the_forward_dynamics_jacobian_kernel_equals_finite_differences(seed, n, parametric, pieces, tmp_path,
+                                                                       monkeypatch):
     """The forward dynamics' Jacobian as the structured kernel (codegen.step_kernel, method
     "fd_jacobian": M^-1 [-dr/dx | dQ/dtau] in column blocks) on random trees of every kind with
     prismatic joints, with and without the parameter vector: equal to central differences of the
     forward dynamics (nothing shared but the dynamics) to 1e-6, and to the Function it replaces
     to 1e-12.  Past straight-line SX (the 14-joint tree: an MX graph) `rscasadi codegen` puts the
-    kernel in the library in the Function's place (manifest "kernels"): that library is checked."""
+    kernel in the library in the Function's place (manifest "kernels"): that library is checked.
+    pieces: dr/dx written by codegen.lanes in functions of a few statements (as on large trees)."""
+    import rscasadi.codegen.lanes as lanes
+    import rscasadi.codegen.step_kernel as step_kernel
+    if pieces:
+        monkeypatch.setattr(step_kernel, "JR_PIECES_FROM", 0)
+        monkeypatch.setattr(lanes, "CHUNK", 7)
     import casadi as ca
     from rscasadi.codegen import generate, load_compiled
     from rscasadi.codegen.generate import forward_dynamics_jacobian

@@ -272,11 +272,14 @@ def test_the_condensing_kernel_compiles_without_warnings(name, monkeypatch, tmp_
                                                      (True, True, "rk4"), (False, True, "ros2"), (True, True, "ros2"),
                                                      (False, False, "ros2"), (False, False, "fd_jacobian"),
                                                      (True, False, "fd_jacobian")])
-def test_the_step_kernel_compiles_without_warnings(parametric, chained, method, tmp_path):
+@pytest.mark.parametrize("pieces", [False, True])
+def test_the_step_kernel_compiles_without_warnings(parametric, chained, method, pieces, tmp_path, monkeypatch):
     """templates/step_kernel.c as filled in for an arm (the reference arm: the template's C is
     the same for every arm, the unrolled blocks follow its patterns), every warning an error;
     also as the MPC's chained substep (its products and the step), with either integrator's step,
-    and as the forward dynamics' Jacobian."""
+    and as the forward dynamics' Jacobian; with dr/dx in pieces (codegen.lanes) or CasADi's."""
+    import rscasadi.codegen.step_kernel as step_kernel
+    monkeypatch.setattr(step_kernel, "JR_PIECES_FROM", 0 if pieces else 10 ** 9)
     from rscasadi.codegen.step_kernel import kernel_source
     from rscasadi.native.build import casadi_c
     kernel = kernel_source(Arm(read(REFERENCE)), "arm_step_jacobian", parametric, chained, method)

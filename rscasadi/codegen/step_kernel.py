@@ -45,6 +45,9 @@ from rscasadi.codegen.lanes import LANES
 from rscasadi.errors import InvalidArgument
 
 GAMMA = 1.0 + 1.0 / np.sqrt(2.0)   # ROS2's gamma (codegen.rosenbrock, templates/step_ros2.c)
+JR_PIECES_FROM = 20000   # SX instructions of the one-point dr/dx above which it is written in pieces (codegen.lanes,
+                         # scalar): a 20-joint tree's (43k) compiles in 29 s instead of 68 s, a call 1.25x as long;
+                         # the Panda's (12k) stays CasADi's one function (2026-11-29, 2-core Xeon VM)
 BLOCK = 32          # columns accumulated at once (8 AVX2 registers; the last block narrower, to a multiple of 4):
                     # 16 and 20 ran 3 % slower, 64 spilled
 
@@ -91,8 +94,9 @@ def drives(arm) -> dict:
 
 
 def kernel_source(arm, name: str, parametric: bool, chained: bool = False, method: str = "rk4") -> Kernel:
-    """The structured kernel for the public symbol `name`: CasADi generates fd into the file, then
-    the kernel's C follows (jr by codegen.lanes, in functions of a few hundred statements), by `method`:
+    """The structured kernel for the public symbol `name`: CasADi generates fd (and a small jr)
+    into the file, then the kernel's C follows (a large jr by codegen.lanes, in functions of a few
+    hundred statements: JR_PIECES_FROM), by `method`:
     "rk4": the step Jacobian of one RK4 step (jr in vector lanes, the four stages);
     "ros2": that of one ROS2 step (its two stage points and the dense solves with S,
     codegen.rosenbrock and templates/step_ros2.c);
@@ -116,7 +120,8 @@ def kernel_source(arm, name: str, parametric: bool, chained: bool = False, metho
     nc = 2 * nq + u
     stride = -(-nc // 4) * 4                                         # (x, tau)'s columns padded to whole vectors
     njr, nlt = max(JrT.nnz(), 1), max(LT.nnz(), 1)
-    point = [fd]                                                     # what CasADi generates (jr: codegen.lanes)
+    pieces = not lanes4 and jr.n_instructions() > JR_PIECES_FROM
+    point = [fd] if lanes4 or pieces else [fd, jr]                   # what CasADi generates; the work they share
     pt = {k: max(getattr(f, "sz_" + k)() for f in point) for k in ("arg", "res", "iw", "w")}
     if jacobian:         # as fd_jacobian.c lays out w: x, a, D, LT, L, mu, JR, F
         sz_w = pt["w"] + 2 * nq + 2 * nq + 2 * nlt + arm.n + njr + 8 + nq * stride
@@ -135,11 +140,12 @@ def kernel_source(arm, name: str, parametric: bool, chained: bool = False, metho
         f"#define RSK_PT_ARG {pt['arg']}\n#define RSK_PT_RES {pt['res']}\n",
         f"#define RSK_PT_IW {pt['iw']}\n#define RSK_PT_W {pt['w']}\n#define RSK_SZ_W {sz_w}\n",
         f"#define RSK_NPAR {arm.n_p if parametric else 0}\n#define RSK_FD {fd.name()}\n",
-        "" if lanes4 else "#define RSK_JR(a, r, i, w, m) ((void)(i), (void)(w), rsk_jr1(a, r), 0)\n"
-        f"#define RSK_GAMMA {float(GAMMA)!r}\n"])
+        "" if lanes4 else "#define RSK_JR(a, r, i, w, m) ((void)(i), (void)(w), rsk_jr1(a, r), 0)\n" if pieces
+        else f"#define RSK_JR {jr.name()}\n",
+        "" if lanes4 else f"#define RSK_GAMMA {float(GAMMA)!r}\n"])
     parts, calls = _parts(_unrolled(JrT, speeds, LT, L, perm, stride, drives(arm), LANES if lanes4 else 1))
     jr_c = (lanes.lanes_c(jr, "rsk_jr4", shared=(2,) if parametric else ()) if lanes4   # four points at once
-            else lanes.lanes_c(jr, "rsk_jr1", scalar=True))                               # one, in pieces
+            else lanes.lanes_c(jr, "rsk_jr1", scalar=True) if pieces else "")             # one, in pieces
     function, interface = STEPS[method]
     body = (lanes.PRELUDE + jr_c + _TEMPLATE.replace("@STEP@", function + interface).replace("@NAME@", name)
             .replace("@CONSTS@", consts).replace("@PARTS@", parts).replace("@BLOCKS@", calls))
