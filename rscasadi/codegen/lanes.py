@@ -92,7 +92,7 @@ def lanes_c(f: ca.Function, name: str, shared=(), scalar: bool = False) -> str:
     as long; 2026-11-29, 2-core Xeon VM)."""
     if not f.is_a("SXFunction"):
         raise WrongType(f"{f.name()}: lanes_c needs an SX Function")
-    code = [(_scalar if scalar else _statement)(f, k, shared) for k in range(f.n_instructions())]
+    code = [_statement(f, k, shared, scalar) for k in range(f.n_instructions())]
     chunks = [code[c:c + CHUNK] for c in range(0, len(code), CHUNK)] or [[]]
     needed: set = set()                      # slots whose value a later chunk reads before writing them
     parts = []
@@ -106,51 +106,35 @@ def lanes_c(f: ca.Function, name: str, shared=(), scalar: bool = False) -> str:
             + f"  {kind} s[{max(f.sz_w(), 1)}];\n{calls}}}\n")
 
 
-def _scalar(f: ca.Function, k: int, shared=()) -> tuple:
-    """Instruction k in doubles, as `_statement`'s triple; the operations as CasADi prints them."""
-    op, i, o = f.instruction_id(k), f.instruction_input(k), f.instruction_output(k)
-    if op == ca.OP_INPUT:
-        return f"w{o[0]} = arg[{i[0]}][{i[1]}];", (), o[0]
-    if op == ca.OP_OUTPUT:
-        return f"if (res[{o[0]}]) res[{o[0]}][{o[1]}] = w{i[0]};", (i[0],), None
-    if op == ca.OP_CONST:
-        c = f.instruction_constant(k)
-        if not math.isfinite(c):
-            raise InvalidArgument(f"{f.name()}: constant {c} at instruction {k} has no C literal")
-        return f"w{o[0]} = {c!r};", (), o[0]
-    if op in _BINARY:
-        return f"w{o[0]} = w{i[0]} {_SCALAR_BINARY[op]} w{i[1]};", (i[0], i[1]), o[0]
-    if op in _PER_LANE:
-        args = i[:2] if "{1}" in _PER_LANE[op] else i[:1]
-        return f"w{o[0]} = {_PER_LANE[op].format(*(f'w{j}' for j in args))};", tuple(args), o[0]
-    raise NotImplementedError(f"{f.name()}: operation {_OP_NAMES.get(op, op)} (instruction {k}) "
-                              "has no C form in rscasadi.codegen.lanes")
-
-
 _SCALAR_BINARY = {ca.OP_ADD: "+", ca.OP_SUB: "-", ca.OP_MUL: "*", ca.OP_DIV: "/"}
 
 
-def _statement(f: ca.Function, k: int, shared) -> tuple:
-    """Instruction k as (C statement, work vectors it reads, the one it writes or None)."""
+def _statement(f: ca.Function, k: int, shared, scalar: bool = False) -> tuple:
+    """Instruction k as (C statement, work vectors it reads, the one it writes or None): on rsk_v
+    (four points, interleaved), or on doubles with `scalar` (one point)."""
     op, i, o = f.instruction_id(k), f.instruction_input(k), f.instruction_output(k)
     if op == ca.OP_INPUT:
-        return (f"RSK_VBC(w{o[0]}, arg[{i[0]}][{i[1]}])" if i[0] in shared
-                else f"RSK_VLD(w{o[0]}, arg[{i[0]}] + {LANES * i[1]});"), (), o[0]
+        return (f"w{o[0]} = arg[{i[0]}][{i[1]}];" if scalar else f"RSK_VBC(w{o[0]}, arg[{i[0]}][{i[1]}])"
+                if i[0] in shared else f"RSK_VLD(w{o[0]}, arg[{i[0]}] + {LANES * i[1]});"), (), o[0]
     if op == ca.OP_OUTPUT:
-        return f"if (res[{o[0]}]) RSK_VST(res[{o[0]}] + {LANES * o[1]}, w{i[0]});", (i[0],), None
+        store = f"res[{o[0]}][{o[1]}] = w{i[0]};" if scalar else f"RSK_VST(res[{o[0]}] + {LANES * o[1]}, w{i[0]});"
+        return f"if (res[{o[0]}]) {store}", (i[0],), None
     if op == ca.OP_CONST:
         c = f.instruction_constant(k)
         if not math.isfinite(c):
             raise InvalidArgument(f"{f.name()}: constant {c} at instruction {k} has no C literal")
-        return f"RSK_VBC(w{o[0]}, {c!r})", (), o[0]
+        return (f"w{o[0]} = {c!r};" if scalar else f"RSK_VBC(w{o[0]}, {c!r})"), (), o[0]
     if op in _BINARY:
-        return f"w{o[0]} = {_BINARY[op]}(w{i[0]}, w{i[1]});", (i[0], i[1]), o[0]
+        expr = f"w{i[0]} {_SCALAR_BINARY[op]} w{i[1]}" if scalar else f"{_BINARY[op]}(w{i[0]}, w{i[1]})"
+        return f"w{o[0]} = {expr};", (i[0], i[1]), o[0]
     if op in _PER_LANE:
         args = i[:2] if "{1}" in _PER_LANE[op] else i[:1]
+        if scalar:
+            return f"w{o[0]} = {_PER_LANE[op].format(*(f'w{j}' for j in args))};", tuple(args), o[0]
         lanes = ", ".join(_PER_LANE[op].format(*(f"RSK_AT(w{j}, {l})" for j in args)) for l in range(LANES))
         return f"{{ const double t_[{LANES}] = {{{lanes}}}; RSK_VLD(w{o[0]}, t_); }}", tuple(args), o[0]
     raise NotImplementedError(f"{f.name()}: operation {_OP_NAMES.get(op, op)} (instruction {k}) "
-                              "has no vector form in rscasadi.codegen.lanes")
+                              "has no C form in rscasadi.codegen.lanes")
 
 
 def _live_in(chunk) -> tuple:

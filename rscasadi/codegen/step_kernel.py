@@ -136,7 +136,7 @@ def kernel_source(arm, name: str, parametric: bool, chained: bool = False, metho
         f"#define RSK_N {arm.n}\n#define RSK_NU {u}\n#define RSK_NV {nq}\n#define RSK_NX {2 * nq}\n",
         f"#define RSK_NC {nc}\n#define RSK_BK {BLOCK}\n#define RSK_NP {stride}\n",
         f"#define RSK_NJR {njr}\n#define RSK_NLT {nlt}\n#define RSK_NIN {n_in}\n",
-        f"#define RSK_NOUT {n_out}\n#define RSK_CHAIN {int(chained)}\n",
+        f"#define RSK_NOUT {n_out}\n#define RSK_CHAIN {int(chained)}\n#define RSK_STEP {int(not jacobian)}\n",
         f"#define RSK_PT_ARG {pt['arg']}\n#define RSK_PT_RES {pt['res']}\n",
         f"#define RSK_PT_IW {pt['iw']}\n#define RSK_PT_W {pt['w']}\n#define RSK_SZ_W {sz_w}\n",
         f"#define RSK_NPAR {arm.n_p if parametric else 0}\n#define RSK_FD {fd.name()}\n",
@@ -222,9 +222,9 @@ _STUB = ("#ifndef casadi_real\n#define casadi_real double\n#endif\n#ifndef casad
          "#endif\n/* the kernel's interface alone: a call fails (rscasadi/codegen/step_kernel.py, Kernel.stub) */\n"
          "int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {\n"
          "  (void)arg; (void)res; (void)iw; (void)w; (void)mem;\n  return 1;\n}\n")
-_STEP_INTERFACE = (TEMPLATES / "step_interface.c").read_text().split("*/", 1)[1]
-_FD_JACOBIAN = (TEMPLATES / "fd_jacobian.c").read_text()
+_COMMON_INTERFACE = (TEMPLATES / "kernel_interface.c").read_text().split("*/", 1)[1]
+_STEP_INTERFACE = (TEMPLATES / "step_interface.c").read_text().split("*/", 1)[1] + _COMMON_INTERFACE
+_FD_JACOBIAN = (TEMPLATES / "fd_jacobian.c").read_text().split("static const casadi_int rsk_sp_q", 1)
 # each method's function (for @STEP@) and its CasADi-style interface (also the stub's)
 STEPS = {m: ((TEMPLATES / f"step_{m}.c").read_text(), _STEP_INTERFACE) for m in ("rk4", "ros2")}
-STEPS["fd_jacobian"] = tuple(_FD_JACOBIAN.split("static const casadi_int rsk_sp_q", 1))
-STEPS["fd_jacobian"] = (STEPS["fd_jacobian"][0], "static const casadi_int rsk_sp_q" + STEPS["fd_jacobian"][1])
+STEPS["fd_jacobian"] = (_FD_JACOBIAN[0], "static const casadi_int rsk_sp_q" + _FD_JACOBIAN[1] + _COMMON_INTERFACE)

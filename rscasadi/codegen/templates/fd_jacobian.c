@@ -35,13 +35,6 @@ int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_re
 static const casadi_int rsk_sp_q[3] = {RSK_N, 1, 1}, rsk_sp_m[3] = {RSK_NV - RSK_N, 1, 1};
 static const casadi_int rsk_sp_tau[3] = {RSK_NU, 1, 1}, rsk_sp_p[3] = {RSK_NPAR, 1, 1};
 static const casadi_int rsk_sp_J[3] = {RSK_NV, RSK_NC, 1};
-int @NAME@_checkout(void) { return 0; }
-void @NAME@_release(int mem) { (void)mem; }
-void @NAME@_incref(void) {}
-void @NAME@_decref(void) {}
-casadi_int @NAME@_n_in(void) { return RSK_NIN; }
-casadi_int @NAME@_n_out(void) { return 1; }
-casadi_real @NAME@_default_in(casadi_int i) { (void)i; return 0.0; }
 const char* @NAME@_name_in(casadi_int i) {
   switch (i) {
     case 0: return "theta"; case 1: return "phi"; case 2: return "dtheta"; case 3: return "dphi";
@@ -56,18 +49,3 @@ const casadi_int* @NAME@_sparsity_in(casadi_int i) {
   }
 }
 const casadi_int* @NAME@_sparsity_out(casadi_int i) { return i == 0 ? rsk_sp_J : 0; }
-int @NAME@_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = RSK_NIN + RSK_PT_ARG;
-  if (sz_res) *sz_res = RSK_NOUT + RSK_PT_RES;
-  if (sz_iw) *sz_iw = RSK_PT_IW;
-  if (sz_w) *sz_w = RSK_SZ_W;
-  return 0;
-}
-int @NAME@_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  @NAME@_work(sz_arg, sz_res, sz_iw, sz_w);
-  if (sz_arg) *sz_arg *= sizeof(void*);
-  if (sz_res) *sz_res *= sizeof(void*);
-  if (sz_iw) *sz_iw *= sizeof(casadi_int);
-  if (sz_w) *sz_w *= sizeof(casadi_real);
-  return 0;
-}

@@ -3,13 +3,6 @@
 static const casadi_int rsk_sp_x[3] = {RSK_NX, 1, 1}, rsk_sp_tau[3] = {RSK_NU, 1, 1}, rsk_sp_h[3] = {1, 1, 1};
 static const casadi_int rsk_sp_p[3] = {RSK_NPAR, 1, 1};
 static const casadi_int rsk_sp_A[3] = {RSK_NX, RSK_NX, 1}, rsk_sp_B[3] = {RSK_NX, RSK_NU, 1};
-int @NAME@_checkout(void) { return 0; }
-void @NAME@_release(int mem) { (void)mem; }
-void @NAME@_incref(void) {}
-void @NAME@_decref(void) {}
-casadi_int @NAME@_n_in(void) { return RSK_NIN; }
-casadi_int @NAME@_n_out(void) { return RSK_NOUT; }
-casadi_real @NAME@_default_in(casadi_int i) { (void)i; return 0.0; }
 const char* @NAME@_name_in(casadi_int i) {
   if (RSK_CHAIN && i == RSK_NIN - 2) return "A0";
   if (RSK_CHAIN && i == RSK_NIN - 1) return "B0";
@@ -25,19 +18,4 @@ const casadi_int* @NAME@_sparsity_in(casadi_int i) {
 }
 const casadi_int* @NAME@_sparsity_out(casadi_int i) {
   switch (i) { case 0: return rsk_sp_A; case 1: return rsk_sp_B; case 2: return RSK_CHAIN ? rsk_sp_x : 0; default: return 0; }
-}
-int @NAME@_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = RSK_NIN + RSK_PT_ARG;
-  if (sz_res) *sz_res = RSK_NOUT + RSK_PT_RES;
-  if (sz_iw) *sz_iw = RSK_PT_IW;
-  if (sz_w) *sz_w = RSK_SZ_W;
-  return 0;
-}
-int @NAME@_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  @NAME@_work(sz_arg, sz_res, sz_iw, sz_w);
-  if (sz_arg) *sz_arg *= sizeof(void*);
-  if (sz_res) *sz_res *= sizeof(void*);
-  if (sz_iw) *sz_iw *= sizeof(casadi_int);
-  if (sz_w) *sz_w *= sizeof(casadi_real);
-  return 0;
 }

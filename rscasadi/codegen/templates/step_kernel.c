@@ -58,6 +58,13 @@ static void rsk_chain(const casadi_real *M, const casadi_real *P, const casadi_r
   }
 }
 
+/* the interval's sensitivities carried through this step (A_k, B_k): res[0] = A_k A0, res[1] = A_k B0 + B_k */
+static void rsk_chain_out(casadi_real **res, const casadi_real *Ak, const casadi_real *Bk, const casadi_real *A0,
+                          const casadi_real *B0) {
+  if (res[0]) rsk_chain(Ak, A0, 0, RSK_NX, res[0]);
+  if (res[1]) rsk_chain(Ak, B0, Bk, RSK_NU, res[1]);
+}
+
 /* whether A0 = I and B0 = 0: the first substep of an interval, nothing to chain onto */
 static int rsk_start(const casadi_real *A0, const casadi_real *B0) {
   int i, j;
@@ -67,6 +74,16 @@ static int rsk_start(const casadi_real *A0, const casadi_real *B0) {
   for (i = 0; i < RSK_NX * RSK_NU; ++i)
     if (B0[i] != 0.0) return 0;
   return 1;
+}
+#endif
+
+#if RSK_STEP
+/* A += [I hI; 0 I]: a step's A (column-major, RSK_NX square) from its stages' sums */
+static void rsk_plus_identity(casadi_real *A, casadi_real h) {
+  int r;
+  for (r = 0; r < RSK_NV; ++r) {
+    A[r * RSK_NX + r] += 1; A[(RSK_NV + r) * RSK_NX + r] += h; A[(RSK_NV + r) * RSK_NX + RSK_NV + r] += 1;
+  }
 }
 #endif
 

@@ -64,16 +64,10 @@ int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_re
           Bo[(cc - RSK_NX) * RSK_NX + RSK_NV + r] = h6 * (b1[cc] + 2 * b23 + b4[cc]);
         }
     }
-    if (Ao)
-      for (r = 0; r < RSK_NV; ++r) {        /* [1 0] + h [0 1; 0 0] */
-        Ao[r * RSK_NX + r] += 1; Ao[(RSK_NV + r) * RSK_NX + r] += h; Ao[(RSK_NV + r) * RSK_NX + RSK_NV + r] += 1;
-      }
+    if (Ao) rsk_plus_identity(Ao, h);
   }
 #if RSK_CHAIN
-  if (chained) {                   /* A = A_k A0, B = A_k B0 + B_k */
-    if (res[0]) rsk_chain(Ak, A0, 0, RSK_NX, res[0]);
-    if (res[1]) rsk_chain(Ak, B0, Bk, RSK_NU, res[1]);
-  }
+  if (chained) rsk_chain_out(res, Ak, Bk, A0, B0);
   if (res[2])
     for (r = 0; r < RSK_NX; ++r) res[2][r] = (x ? x[r] : 0.0) + h / 6 * ks[r];
 #endif

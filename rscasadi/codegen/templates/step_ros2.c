@@ -148,16 +148,10 @@ int @NAME@(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_re
           Bo[(cc - RSK_NX) * RSK_NX + RSK_NV + r] = 0.5 * h * (3 * b1[cc] + b2[cc]);
         }
     }
-    if (Ao)
-      for (r = 0; r < RSK_NV; ++r) {        /* [I hI; 0 I] */
-        Ao[r * RSK_NX + r] += 1; Ao[(RSK_NV + r) * RSK_NX + r] += h; Ao[(RSK_NV + r) * RSK_NX + RSK_NV + r] += 1;
-      }
+    if (Ao) rsk_plus_identity(Ao, h);
   }
 #if RSK_CHAIN
-  if (chained) {                   /* A = A_k A0, B = A_k B0 + B_k */
-    if (res[0]) rsk_chain(Ak, A0, 0, RSK_NX, res[0]);
-    if (res[1]) rsk_chain(Ak, B0, Bk, RSK_NU, res[1]);
-  }
+  if (chained) rsk_chain_out(res, Ak, Bk, A0, B0);
   if (res[2])
     for (r = 0; r < RSK_NX; ++r) res[2][r] = (x ? x[r] : 0.0) + 0.5 * h * (3 * k1[r] + k2[r]);
 #endif
