@@ -119,7 +119,10 @@ def _chained_interval(step, kernel, arm: Arm, hs: float, substeps: int):
     z_only = x
     for _ in range(substeps):
         A, B, z = kernel(z, u, hs, *pm, A, B)
-        z_only = step(z_only, u, hs, *pm, ca.MX(ca.DM.eye(nx)), ca.MX(nx, n))[2] if step is kernel else step(z_only, u, hs, *pm)
+        if step is kernel:                     # its A and B not asked for: not formed
+            z_only = kernel(z_only, u, hs, *pm, ca.MX(ca.DM.eye(nx)), ca.MX(nx, n))[2]
+        else:
+            z_only = step(z_only, u, hs, *pm)
     return ca.Function("interval", [x, u, mm], [z, A, B]), ca.Function("interval_x", [x, u, mm], [z_only])
 
 

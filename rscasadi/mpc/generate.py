@@ -261,7 +261,7 @@ def generate_mpc(problem, out, opt: str = "-O2", log=print, model=None, native: 
         if p.threads > 1:                        # the preparation's loops over the intervals
             omp = list(openmp_flags(tuple(cc)))
             flags, link = flags + omp, link + omp
-    # the kernel with the controller's own flags: its object is then the controller's too (compiled once)
+    # the kernel's source joins the controller's (compiled beside it, with its flags); the graph calls its interface
     kernel, step_jacobian = step_kernel(arm, flags, cc, log, name(KERNEL), p.integrator, stub=True)
     if qp == "riccati":
         interval, residual = stage_functions(arm, p, step_jacobian, name(""))
