@@ -2,7 +2,8 @@
 SX route (generate.step_functions' implicit-function branch: n >= 5 for the reference arm's joints),
 for RK4 (below) and for ROS2, the L-stable step of arms with stiff springs (codegen.rosenbrock;
 templates/step_ros2.c: two stage points, each a column block sweep `rsk_stage` as RK4's stages,
-and the dense solves with W's nq x nq S).
+and the dense solves with W's nq x nq S); and the forward dynamics' Jacobian itself, one such
+sweep (templates/fd_jacobian.c), for trees past straight-line SX.
 
 The mathematics is step_functions' exactly: RK4's four stages, dk_i = [S_i; B_i] with
 
@@ -53,7 +54,7 @@ BLOCK = 32          # columns accumulated at once (8 AVX2 registers; the last bl
 
 
 class Kernel(NamedTuple):
-    """The structured step-Jacobian kernel: CasADi Functions, the C that calls them, its header."""
+    """A structured kernel: CasADi Functions, the C that calls them, its header."""
 
     functions: list          # SX Functions for CasADi to generate into the kernel's file
     body: str                # the kernel's C (after them), with its CasADi-style interface
