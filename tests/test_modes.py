@@ -180,13 +180,15 @@ def test_the_rosenbrock_mpc_of_a_seven_joint_arm_runs_its_structured_kernel(tmp_
     need): integrator = "auto" takes ROS2, and the generated controller steps with ROS2's
     structured kernel (mpc_step_jacobian.c among its sources, codegen.step_kernel) in place of
     the dense graph of codegen.rosenbrock.  Its torques equal the CasADi Functions' built on that
-    graph (no shared C) over five steps, and in closed loop on the plant integrated finely
+    graph (no shared C) over five steps; a NaN, infinite or absurd measurement is refused (code 6)
+    with finite torques within the limits, and the next good sample is stepped; in closed loop on
+    the plant integrated finely
     (RK4 at 0.1 ms) it tracks the Panda's trajectory twice as close as feedforward + PD (3.5x on 2026-11-29), no limit passed."""
     import dataclasses
     import json
     from rscasadi.model.modelfile import document
     from rscasadi.mpc import CompiledMPC, closed_loop, hold_function
-    from rscasadi.mpc.formulation import controller_arm, feedback_function, prepare_function
+    from rscasadi.mpc.formulation import controller_arm, feedback_function, input_limits, prepare_function
     from rscasadi.mpc.generate import generate_mpc
     from rscasadi.mpc.problem import load_mpc_problem, mpc_model, with_integrator
     from rscasadi.sim.loop import rk4_plant
@@ -216,6 +218,14 @@ def test_the_rosenbrock_mpc_of_a_seven_joint_arm_runs_its_structured_kernel(tmp_
         tau_py, X, U = (np.array(v) for v in feedback(x, X, U, *prepare(ref, X, U, posture)))
         assert flag == 0 and np.max(np.abs(tau_c - tau_py.ravel())) < 1e-8, np.max(np.abs(tau_c - tau_py.ravel()))
         x = x + rng.normal(0, 1e-4, x.shape)
+    limit = input_limits(arm)
+    for k, bad in enumerate((np.nan, np.inf, -1e12)):          # a bad measurement: refused, torques safe
+        xb = x.copy()
+        xb[(5 * k + 3) % x.size] = bad
+        tau_c, _, flag = c.step(xb, ref)
+        assert flag == 6 and np.all(np.isfinite(tau_c)) and np.all(np.abs(tau_c) <= limit + 1e-12), (bad, flag)
+    tau_c, _, flag = c.step(x, ref)                              # and the next good sample is stepped
+    assert flag == 0 and np.all(np.isfinite(tau_c)) and np.all(np.abs(tau_c) <= limit + 1e-12)
     res = closed_loop(p, tmp_path / "mpc", duration=0.3, log=lambda m: None,
                       simulator=lambda plant, dt: rk4_plant(plant, dt, 10))
     mpc, pd = res["MPC (C)"], res["feedforward + PD"]
