@@ -182,8 +182,8 @@ def test_the_rosenbrock_mpc_of_a_seven_joint_arm_runs_its_structured_kernel(tmp_
     the dense graph of codegen.rosenbrock.  Its torques equal the CasADi Functions' built on that
     graph (no shared C) over five steps; a NaN, infinite or absurd measurement is refused (code 6)
     with finite torques within the limits, and the next good sample is stepped; in closed loop on
-    the plant integrated finely
-    (RK4 at 0.1 ms) it tracks the Panda's trajectory twice as close as feedforward + PD (3.5x on 2026-11-29), no limit passed."""
+    the plant integrated finely (RK4 at 0.1 ms) it tracks the Panda's trajectory twice as close as
+    feedforward + PD (3.5x on 2026-11-29), no limit passed."""
     import dataclasses
     import json
     from rscasadi.model.modelfile import document
